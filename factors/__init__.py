@@ -1,0 +1,1 @@
+"""Custom GTSAM factors of fgcal (installed as ``fgcal.factors``)."""

@@ -1,0 +1,124 @@
+"""Validated access to fields of YAML documents, so every error names file and field."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import InputError
+
+_MISSING = object()
+
+
+def read_yaml(path: str | Path) -> Any:
+    """``yaml.safe_load`` a file; unreadable or malformed files raise :class:`InputError`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, None, f"cannot read file: {exc}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise InputError(path, None, f"malformed YAML: {where}{problem}") from None
+
+
+class Fields:
+    """A mapping read from ``source`` at dotted location ``prefix``.
+
+    Getters check type, finiteness and shape and raise :class:`InputError` naming the field.
+    """
+
+    def __init__(self, data: object, source: str | Path, prefix: str = "") -> None:
+        if not isinstance(data, Mapping):
+            raise InputError(source, prefix or None, f"expected a mapping, got {type(data).__name__}")
+        self.data = data
+        self.source = source
+        self.prefix = prefix
+
+    def path(self, key: str) -> str:
+        return f"{self.prefix}.{key}" if self.prefix else key
+
+    def error(self, key: str, message: str) -> InputError:
+        return InputError(self.source, self.path(key), message)
+
+    def has(self, key: str) -> bool:
+        return key in self.data and self.data[key] is not None
+
+    def check_keys(self, allowed: Sequence[str]) -> None:
+        """Reject unknown keys: a typo in a field name must not be silently ignored."""
+        for key in self.data:
+            if key not in allowed:
+                raise self.error(str(key), f"unknown field (allowed: {', '.join(allowed)})")
+
+    def raw(self, key: str, default: Any = _MISSING) -> Any:
+        if not self.has(key):
+            if default is _MISSING:
+                raise self.error(key, "required field is missing")
+            return default
+        return self.data[key]
+
+    def sub(self, key: str, default: Any = _MISSING) -> Fields:
+        value = self.raw(key, default)
+        return Fields(value if value is not None else {}, self.source, self.path(key))
+
+    def items(self, key: str, default: Any = _MISSING) -> list[Fields | Any]:
+        value = self.raw(key, default)
+        if not isinstance(value, list):
+            raise self.error(key, f"expected a list, got {type(value).__name__}")
+        return value
+
+    def sub_list(self, key: str, default: Any = _MISSING) -> list[Fields]:
+        return [Fields(item, self.source, f"{self.path(key)}[{i}]") for i, item in enumerate(self.items(key, default))]
+
+    def string(self, key: str, default: Any = _MISSING, choices: Sequence[str] | None = None) -> str:
+        value = self.raw(key, default)
+        if not isinstance(value, str):
+            raise self.error(key, f"expected a string, got {value!r}")
+        if choices is not None and value not in choices:
+            raise self.error(key, f"{value!r} is not one of {', '.join(choices)}")
+        return value
+
+    def number(self, key: str, default: Any = _MISSING, scale: float = 1.0, positive: bool = False,
+               nonnegative: bool = False) -> float:
+        value = self.raw(key, default)
+        number = to_float(value, self.source, self.path(key))
+        if positive and not number > 0:
+            raise self.error(key, f"must be > 0, got {value!r}")
+        if nonnegative and not number >= 0:
+            raise self.error(key, f"must be >= 0, got {value!r}")
+        return number * scale
+
+    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None) -> int:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(key, f"expected an integer, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise self.error(key, f"must be >= {minimum}, got {value}")
+        return value
+
+    def vector(self, key: str, length: int, default: Any = _MISSING, scale: float = 1.0) -> np.ndarray:
+        value = self.raw(key, default)
+        if not isinstance(value, (list, tuple)) or len(value) != length:
+            raise self.error(key, f"expected a list of {length} numbers, got {value!r}")
+        return np.array([to_float(v, self.source, f"{self.path(key)}[{i}]") for i, v in enumerate(value)]) * scale
+
+
+def to_float(value: Any, source: str | Path, field: str) -> float:
+    """A finite float, or an :class:`InputError` naming ``field``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(source, field, f"expected a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise InputError(source, field, f"must be finite, got {value!r}")
+    return number

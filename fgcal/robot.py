@@ -1,0 +1,219 @@
+"""The robot description: a constant model (geometry, masses, base and tool poses) and
+the elementary transform chain built from it (SPEC section 2).
+
+Per-evaluation quantities live in :mod:`fgcal.kinematics`; this module holds nothing that
+changes between evaluations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+
+import numpy as np
+
+from . import kinematics
+from .errors import InputError
+from .ets import ET
+from .parameters import JOINT_KINDS, parameter_names
+from .se3 import pose_from_xyz_rpy, rpy_from_rotation
+
+MODELS = ("DH", "DH,s", "DH,s,e")
+
+
+@dataclass(frozen=True)
+class Chain:
+    """An elementary transform chain with the frame indices the model needs.
+
+    ``frames[link_end[i]]`` is frame i+1 (after joint i+1, 0-based i), ``frames[bend[i]]``
+    the bending frame B_{i+1} right after the joint rotation, ``frames[base_end]`` the
+    robot base frame 0 and ``frames[len(elements)]`` the tool frame.
+    """
+
+    elements: tuple[ET, ...]
+    base_end: int
+    bend: tuple[int, ...]
+    link_end: tuple[int, ...]
+
+    @property
+    def flange(self) -> int:
+        return self.link_end[-1]
+
+    @property
+    def tool(self) -> int:
+        return len(self.elements)
+
+
+@dataclass(frozen=True)
+class Robot:
+    """Constant description of a serial robot with rotational joints (SI units).
+
+    ``dh`` rows are the nominal ``(theta, d, a, alpha)`` of each joint (rad, m);
+    ``coms`` the centres of mass of the links in their own frames (m); ``base_pose`` the
+    nominal ``T_W_0`` and ``tool_pose`` the nominal ``T_n_C`` (flange to tool or camera).
+    """
+
+    name: str
+    dh: np.ndarray
+    directions: np.ndarray
+    limits: np.ndarray
+    masses: np.ndarray
+    coms: np.ndarray
+    payload_mass: float = 0.0
+    payload_com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    base_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+    tool_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+    overrides: Mapping[str, float] = field(default_factory=dict)
+    source: str = ""
+    model: str = "DH,s,e"
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ValueError(f"unknown model {self.model!r}; expected one of {MODELS}")
+        n = len(self.dh)
+        for name, arr, shape in (("directions", self.directions, (n,)), ("limits", self.limits, (n, 2)),
+                                 ("masses", self.masses, (n,)), ("coms", self.coms, (n, 3))):
+            if np.shape(arr) != shape:
+                raise ValueError(f"{name} has shape {np.shape(arr)}, expected {shape}")
+        unknown = set(self.overrides) - set(self.parameter_names)
+        if unknown:
+            raise ValueError(f"unknown parameter names: {sorted(unknown)}")
+
+    # -- description -------------------------------------------------------------------
+    @property
+    def n_joints(self) -> int:
+        return len(self.dh)
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return parameter_names(self.n_joints)
+
+    def nominal_parameters(self) -> dict[str, float]:
+        """Every SPEC parameter name with its nominal value (SI): the manufacturer's DH,
+        zero distortions and compliances, zero base/tool perturbations, then any values
+        the robot file sets (a calibrated robot file sets its estimates)."""
+        values = dict.fromkeys(self.parameter_names, 0.0)
+        for i, (theta, d, a, alpha) in enumerate(self.dh, start=1):
+            values.update({f"theta{i}": float(theta), f"d{i}": float(d), f"a{i}": float(a), f"alpha{i}": float(alpha)})
+        values.update({k: float(v) for k, v in self.overrides.items()})
+        return values
+
+    def parameter_vector(self, params: Mapping[str, float] | None = None) -> np.ndarray:
+        """Full parameter vector (SI) from a full or partial dict; missing names are nominal."""
+        values = self.nominal_parameters()
+        if params:
+            unknown = [name for name in params if name not in values]
+            if unknown:
+                raise InputError(None, unknown[0], f"unknown parameter name for {self.name} "
+                                 f"({self.n_joints} joints)")
+            for name, value in params.items():
+                if not np.isfinite(value):
+                    raise InputError(None, name, f"parameter value must be finite, got {value!r}")
+                values[name] = float(value)
+        return np.array([values[name] for name in self.parameter_names])
+
+    def parameter_dict(self, vector: np.ndarray) -> dict[str, float]:
+        return {name: float(v) for name, v in zip(self.parameter_names, vector, strict=True)}
+
+    def with_model(self, model: str) -> Robot:
+        """The same robot with model 'DH', 'DH,s' or 'DH,s,e' (which terms enter the chain)."""
+        return replace(self, model=model)
+
+    def with_tool(self, tool_pose: np.ndarray, payload_mass: float | None = None,
+                  payload_com: np.ndarray | None = None) -> Robot:
+        """The same robot carrying another tool (nominal ``T_n_C``) and payload."""
+        return replace(self, tool_pose=np.asarray(tool_pose, float),
+                       payload_mass=self.payload_mass if payload_mass is None else float(payload_mass),
+                       payload_com=self.payload_com if payload_com is None else np.asarray(payload_com, float))
+
+    @cached_property
+    def chain(self) -> Chain:
+        """The elementary transform chain of this robot (built once per instance)."""
+        return build_chain(self)
+
+    # -- evaluation (thin wrappers over fgcal.kinematics) --------------------------------
+    def check_q(self, q: np.ndarray) -> np.ndarray:
+        """Joint angles as an (N, n) float array (rad); wrong sizes or NaN raise InputError."""
+        q = np.asarray(q, dtype=float)
+        q2 = np.atleast_2d(q)
+        if q2.ndim != 2 or q2.shape[1] != self.n_joints:
+            raise InputError(None, "q", f"{self.name} has {self.n_joints} joints; got joint angles of shape {q.shape}")
+        if not np.all(np.isfinite(q2)):
+            raise InputError(None, "q", "joint angles must be finite")
+        return q2
+
+    def fk(self, q: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+        """Flange pose ``T_W_n`` (4x4, m) in the world frame, base pose applied.
+
+        ``q`` is (n,) or (N, n) in rad; ``params`` a full or partial dict of parameter
+        names (missing names are nominal). Returns (4, 4) or (N, 4, 4).
+        """
+        return self._frame(q, params, "flange")
+
+    def fk_tool(self, q: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+        """Tool (or camera) pose ``T_W_C`` = ``T_W_n T_n_C``, like :meth:`fk`."""
+        return self._frame(q, params, "tool")
+
+    def jacobian(self, q: np.ndarray, wrt: Sequence[str], params: Mapping[str, float] | None = None,
+                 frame: str = "flange", point: np.ndarray | None = None) -> np.ndarray:
+        """Analytic Jacobian with respect to the names in ``wrt`` (parameter names or
+        joints ``q1``..``qn``).
+
+        Without ``point``: (N, 6, len(wrt)) body-frame twist Jacobian of the frame's pose,
+        rows ``[omega, v]`` (GTSAM's Pose3 retraction order). With ``point`` (3,), a point
+        fixed in that frame: (N, 3, len(wrt)) derivative of its world position (m per unit).
+        """
+        q2 = self.check_q(q)
+        data = kinematics.forward(self, self.parameter_vector(params), q2)
+        return kinematics.jacobian(self, data, wrt, frame=frame, point=point)
+
+    def _frame(self, q: np.ndarray, params: Mapping[str, float] | None, frame: str) -> np.ndarray:
+        q2 = self.check_q(q)
+        data = kinematics.forward(self, self.parameter_vector(params), q2)
+        out = kinematics.frame_pose(self, data, frame)
+        return out[0] if np.ndim(q) == 1 else out
+
+
+def _pose_elements(pose: np.ndarray, first_param: int) -> list[ET]:
+    """A fixed pose as constant elements, then its 6-parameter local perturbation."""
+    xyz = pose[:3, 3]
+    roll, pitch, yaw = rpy_from_rotation(pose[:3, :3])
+    fixed = [ET("Tx", xyz[0]), ET("Ty", xyz[1]), ET("Tz", xyz[2]), ET("Rz", yaw), ET("Ry", pitch), ET("Rx", roll)]
+    elements = [et for et in fixed if et.const != 0.0]
+    elements += [ET("Tx", param=first_param), ET("Ty", param=first_param + 1), ET("Tz", param=first_param + 2),
+                 ET("Rvec", param=first_param + 3)]
+    return elements
+
+
+def build_chain(robot: Robot) -> Chain:
+    """The chain ``T_W_0 * prod_i T_{i-1,i}(q_i) * T_n_C`` of SPEC section 2.
+
+    Link i: ``Rx(sx) Ry(sy) Rz(s q + theta) Rz(gz) Ry(gy) Rx(gx) Tz(d) Tx(a) Rx(alpha)``;
+    model 'DH' drops sx, sy and g, 'DH,s' drops g.
+    """
+    n = robot.n_joints
+    per_joint = len(JOINT_KINDS)
+    idx = {kind: j for j, kind in enumerate(JOINT_KINDS)}
+    base_param, tool_param = per_joint * n, per_joint * n + 6
+    elements: list[ET] = _pose_elements(robot.base_pose, base_param)
+    base_end = len(elements)
+    bend, link_end = [], []
+    for i in range(n):
+        p = i * per_joint
+        if robot.model != "DH":
+            elements += [ET("Rx", param=p + idx["sx"]), ET("Ry", param=p + idx["sy"])]
+        elements.append(ET("Rz", param=p + idx["theta"], joint=i, sign=float(robot.directions[i])))
+        bend.append(len(elements))
+        if robot.model == "DH,s,e":
+            elements += [ET("Rz", param=p + idx["kz"], moment=3 * i + 2), ET("Ry", param=p + idx["ky"], moment=3 * i + 1),
+                         ET("Rx", param=p + idx["kx"], moment=3 * i)]
+        elements += [ET("Tz", param=p + idx["d"]), ET("Tx", param=p + idx["a"]), ET("Rx", param=p + idx["alpha"])]
+        link_end.append(len(elements))
+    elements += _pose_elements(robot.tool_pose, tool_param)
+    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end))
+
+
+def pose_from_config(xyz_m: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
+    return pose_from_xyz_rpy(np.asarray(xyz_m, float), np.asarray(rpy_rad, float))

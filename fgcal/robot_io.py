@@ -1,0 +1,151 @@
+"""Robot description files (YAML) and the bundled robot library.
+
+Schema (documented in docs/formats.md)::
+
+    name: str                      # required
+    source: str                    # where the numbers come from (required)
+    units: {length: mm, angle: deg}   # of this file; default m, rad
+    joints:                        # one entry per joint, base to flange
+      - {theta: 0, d: 865, a: 410, alpha: -90, direction: -1, limits: [-185, 185],
+         mass: 250, com: [x, y, z]}       # mass kg; com in the link's own frame
+    base: {xyz: [..], rpy: [..]}   # nominal T_W_0 (default identity)
+    tool: {xyz: [..], rpy: [..]}   # nominal T_n_C (default identity)
+    payload: {mass: 0, com: [0, 0, 0]}   # kg; com in the flange frame
+    gravity: [0, 0, -9.81]         # m/s^2 in W
+    parameters: {sy3: 0.01, ...}   # optional values overriding nominal (a calibrated robot)
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import InputError
+from .fields import Fields, read_yaml
+from .parameters import LENGTH_KINDS, parameter_names, split_name
+from .robot import Robot
+from .se3 import pose_from_xyz_rpy, rpy_from_rotation
+from .units import Units, parse_units
+
+ROBOT_KEYS = ("name", "source", "units", "joints", "base", "tool", "payload", "gravity", "parameters", "notes")
+JOINT_KEYS = ("theta", "d", "a", "alpha", "direction", "limits", "mass", "com")
+
+
+def robots_dir() -> Path:
+    """Folder of the bundled robot descriptions."""
+    return Path(str(resources.files("fgcal.datasets").joinpath("robots")))
+
+
+def bundled_robots() -> list[str]:
+    return sorted(p.stem for p in robots_dir().glob("*.yaml"))
+
+
+def load_robot(name_or_path: str | Path) -> Robot:
+    """Load a bundled robot by name (e.g. ``"kuka_kr125_2"``) or a robot YAML file."""
+    path = Path(name_or_path)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        candidate = robots_dir() / f"{name_or_path}.yaml"
+        if not candidate.exists():
+            raise InputError(str(name_or_path), None,
+                             f"no such robot file or bundled robot (bundled: {', '.join(bundled_robots())})")
+        path = candidate
+    return parse_robot(read_yaml(path), path)
+
+
+def _pose(fields: Fields, key: str, units: Units) -> np.ndarray:
+    if not fields.has(key):
+        return np.eye(4)
+    sub = fields.sub(key)
+    sub.check_keys(("xyz", "rpy"))
+    return pose_from_xyz_rpy(sub.vector("xyz", 3, [0, 0, 0], units.to_m), sub.vector("rpy", 3, [0, 0, 0], units.to_rad))
+
+
+def parameter_scale(name: str, units: Units) -> float:
+    """Factor from a file's units to SI for one parameter (compliances: angle/(N m))."""
+    kind, _ = split_name(name)
+    if kind in LENGTH_KINDS:
+        return units.to_m
+    return units.to_rad
+
+
+def parse_robot(raw: object, source: str | Path) -> Robot:
+    """Validate a robot document and build the :class:`Robot` (SI units)."""
+    doc = Fields(raw, source)
+    doc.check_keys(ROBOT_KEYS)
+    units = parse_units(doc.raw("units", None), source)
+    name = doc.string("name")
+    doc.string("source")
+    joints = doc.sub_list("joints")
+    if not joints:
+        raise doc.error("joints", "a robot needs at least one joint")
+    dh, directions, limits, masses, coms = [], [], [], [], []
+    for joint in joints:
+        joint.check_keys(JOINT_KEYS)
+        dh.append([joint.number("theta", 0.0, units.to_rad), joint.number("d", 0.0, units.to_m),
+                   joint.number("a", 0.0, units.to_m), joint.number("alpha", 0.0, units.to_rad)])
+        direction = joint.number("direction", 1.0)
+        if direction not in (1.0, -1.0):
+            raise joint.error("direction", f"must be +1 or -1, got {direction}")
+        directions.append(direction)
+        lim = joint.vector("limits", 2, scale=units.to_rad)
+        if not lim[0] < lim[1]:
+            raise joint.error("limits", "lower limit must be below upper limit")
+        limits.append(lim)
+        masses.append(joint.number("mass", 0.0, nonnegative=True))
+        coms.append(joint.vector("com", 3, [0, 0, 0], units.to_m))
+    payload = doc.sub("payload", {})
+    payload.check_keys(("mass", "com"))
+    gravity = doc.vector("gravity", 3, [0.0, 0.0, -9.81])
+    overrides = {}
+    names = set(parameter_names(len(joints)))
+    params = doc.sub("parameters", {})
+    for key in params.data:
+        if key not in names:
+            raise params.error(str(key), f"unknown parameter name for a {len(joints)}-joint robot")
+        overrides[key] = params.number(key, scale=parameter_scale(key, units))
+    return Robot(
+        name=name, dh=np.array(dh), directions=np.array(directions), limits=np.array(limits),
+        masses=np.array(masses), coms=np.array(coms),
+        payload_mass=payload.number("mass", 0.0, nonnegative=True),
+        payload_com=payload.vector("com", 3, [0, 0, 0], units.to_m),
+        gravity=gravity, base_pose=_pose(doc, "base", units), tool_pose=_pose(doc, "tool", units),
+        overrides=overrides, source=str(doc.raw("source")),
+    )
+
+
+def _pose_dict(T: np.ndarray) -> dict:
+    return {"xyz": [float(v) for v in T[:3, 3]], "rpy": [float(v) for v in rpy_from_rotation(T[:3, :3])]}
+
+
+def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: str = "") -> dict:
+    """A robot YAML document (SI units) for ``robot`` with parameter values ``params``.
+
+    Joint DH fields carry the given theta/d/a/alpha; the remaining non-zero values go to
+    ``parameters``. Loading the document reproduces ``robot.fk`` with ``params``.
+    """
+    values = robot.nominal_parameters()
+    values.update(params or {})
+    joints = []
+    for i in range(1, robot.n_joints + 1):
+        joints.append({
+            "theta": values.pop(f"theta{i}"), "d": values.pop(f"d{i}"), "a": values.pop(f"a{i}"),
+            "alpha": values.pop(f"alpha{i}"), "direction": int(robot.directions[i - 1]),
+            "limits": [float(v) for v in robot.limits[i - 1]], "mass": float(robot.masses[i - 1]),
+            "com": [float(v) for v in robot.coms[i - 1]],
+        })
+    doc = {"name": robot.name, "source": robot.source, "units": {"length": "m", "angle": "rad"}, "joints": joints,
+           "base": _pose_dict(robot.base_pose), "tool": _pose_dict(robot.tool_pose),
+           "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
+           "gravity": [float(v) for v in robot.gravity],
+           "parameters": {k: float(v) for k, v in values.items() if v != 0.0}}
+    if notes:
+        doc["notes"] = notes
+    return doc
+
+
+def save_robot(path: str | Path, robot: Robot, params: dict[str, float] | None = None, notes: str = "") -> None:
+    Path(path).write_text(yaml.safe_dump(robot_document(robot, params, notes), sort_keys=False), encoding="utf-8")
+

@@ -1,0 +1,118 @@
+"""Rigid-body helpers on stacked arrays (leading axes are configurations).
+
+Poses are 4x4 homogeneous matrices; twists follow GTSAM's order ``[omega, v]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_AXIS = {"x": 0, "y": 1, "z": 2}
+
+
+def skew(w: np.ndarray) -> np.ndarray:
+    """Return ``[w]x`` for ``w`` of shape (..., 3)."""
+    w = np.asarray(w, dtype=float)
+    out = np.zeros(w.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
+    return out
+
+
+def rot_axis(axis: str, angle_rad: float) -> np.ndarray:
+    """3x3 rotation about the principal ``axis`` ('x', 'y' or 'z')."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    i = _AXIS[axis]
+    j, k = (i + 1) % 3, (i + 2) % 3
+    rot = np.eye(3)
+    rot[j, j], rot[j, k], rot[k, j], rot[k, k] = c, -s, s, c
+    return rot
+
+
+def so3_exp(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices from rotation vectors (..., 3), in rad."""
+    r = np.asarray(rotvec, dtype=float)
+    theta = np.linalg.norm(r, axis=-1)[..., None, None]
+    k = skew(r)
+    small = theta < 1e-8
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def so3_log(rot: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), in rad, of rotation matrices (..., 3, 3)."""
+    rot = np.asarray(rot, dtype=float)
+    cos = np.clip((np.trace(rot, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arccos(cos)
+    vee = np.stack(
+        [rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0], rot[..., 1, 0] - rot[..., 0, 1]],
+        axis=-1,
+    )
+    sin = np.sin(theta)
+    small = sin < 1e-6
+    scale = np.where(small, 0.5 + theta**2 / 12.0, theta / (2.0 * np.where(small, 1.0, sin)))
+    out = scale[..., None] * vee
+    # Near pi the antisymmetric part vanishes; recover the axis from the symmetric part.
+    near_pi = small & (cos < 0)
+    if np.any(near_pi):
+        sym = (rot[near_pi] + np.eye(3)) / 2.0
+        diag = np.diagonal(sym, axis1=-2, axis2=-1)
+        idx = np.argmax(diag, axis=-1)
+        axis = sym[np.arange(len(idx)), :, idx] / np.sqrt(diag[np.arange(len(idx)), idx])[..., None]
+        out[near_pi] = axis * theta[near_pi][..., None]
+    return out
+
+
+def so3_left_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3): ``d Exp(r) = [J_l(r) dr]x Exp(r)``."""
+    r = np.asarray(rotvec, dtype=float)
+    theta = np.linalg.norm(r, axis=-1)[..., None, None]
+    k = skew(r)
+    small = theta < 1e-6
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t**2)
+    b = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (t - np.sin(t)) / t**3)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Assemble 4x4 poses from rotations (..., 3, 3) and translations (..., 3)."""
+    rotation = np.asarray(rotation, dtype=float)
+    out = np.zeros(rotation.shape[:-2] + (4, 4))
+    out[..., :3, :3] = rotation
+    out[..., :3, 3] = translation
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def pose_from_xyz_rpy(xyz: np.ndarray, rpy_rad: np.ndarray) -> np.ndarray:
+    """Pose ``Tx Ty Tz Rz(yaw) Ry(pitch) Rx(roll)``: the robotics convention for fixed frames."""
+    roll, pitch, yaw = rpy_rad
+    return pose(rot_axis("z", yaw) @ rot_axis("y", pitch) @ rot_axis("x", roll), xyz)
+
+
+def rpy_from_rotation(rot: np.ndarray) -> np.ndarray:
+    """Inverse of the rotation in :func:`pose_from_xyz_rpy`, (roll, pitch, yaw) in rad."""
+    pitch = np.arcsin(np.clip(-rot[2, 0], -1.0, 1.0))
+    roll = np.arctan2(rot[2, 1], rot[2, 2])
+    yaw = np.arctan2(rot[1, 0], rot[0, 0])
+    return np.array([roll, pitch, yaw])
+
+
+def inverse(T: np.ndarray) -> np.ndarray:
+    """Inverse of stacked rigid transforms."""
+    rot_t = np.swapaxes(T[..., :3, :3], -1, -2)
+    return pose(rot_t, -(rot_t @ T[..., :3, 3:4])[..., 0])
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply poses (..., 4, 4) to points (..., 3)."""
+    return (T[..., :3, :3] @ points[..., None])[..., 0] + T[..., :3, 3]
+
+
+def pose_log(T: np.ndarray) -> np.ndarray:
+    """Approximate body twist of a small pose: ``[rotvec, translation]`` (GTSAM order)."""
+    return np.concatenate([so3_log(T[..., :3, :3]), T[..., :3, 3]], axis=-1)
