@@ -68,8 +68,9 @@ def element_values(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, mom
     return values
 
 
-def evaluate(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray,
-             root: np.ndarray | None = None) -> np.ndarray:
+def evaluate(
+    chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray, root: np.ndarray | None = None
+) -> np.ndarray:
     """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints)."""
     values = element_values(chain, params, q, moments)
     n_conf = q.shape[0]
@@ -79,7 +80,7 @@ def evaluate(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: 
         current = frames[k].copy()
         v = values[:, k]
         if et.axis == "Rvec":
-            current[:, :3, :3] = current[:, :3, :3] @ so3_exp(params[et.param:et.param + 3])
+            current[:, :3, :3] = current[:, :3, :3] @ so3_exp(params[et.param : et.param + 3])
         elif et.is_rotation:
             # Right-multiplying by a principal rotation mixes two columns of the rotation.
             i = et.axis_index
@@ -107,7 +108,7 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
         origin = frames[k][:, :3, 3]
         n_conf = rot.shape[0]
         if et.axis == "Rvec":
-            omega = rot @ so3_left_jacobian(params[et.param:et.param + 3])  # (N, 3, 3): columns
+            omega = rot @ so3_left_jacobian(params[et.param : et.param + 3])  # (N, 3, 3): columns
             omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
             v0 = -np.cross(omega, origin[:, None, :])
             twists.append(np.concatenate([omega, v0], axis=-1))

@@ -89,8 +89,9 @@ class Fields:
             raise self.error(key, f"{value!r} is not one of {', '.join(choices)}")
         return value
 
-    def number(self, key: str, default: Any = _MISSING, scale: float = 1.0, positive: bool = False,
-               nonnegative: bool = False) -> float:
+    def number(
+        self, key: str, default: Any = _MISSING, scale: float = 1.0, positive: bool = False, nonnegative: bool = False
+    ) -> float:
         value = self.raw(key, default)
         number = to_float(value, self.source, self.path(key))
         if positive and not number > 0:

@@ -34,12 +34,12 @@ class KinematicsData:
 
     params: np.ndarray
     q: np.ndarray
-    frames: np.ndarray               # (K+1, N, 4, 4) deformed chain
-    frames_rigid: np.ndarray         # (K+1, N, 4, 4) undeformed chain (g = 0)
-    moments: np.ndarray              # (N, 3n) gravity moments t_i, N m
-    first_moment: np.ndarray         # (N, n+2, 3) suffix sums of m_b c_b over bodies >= j, kg m
-    suffix_mass: np.ndarray          # (n+2,) suffix sums of m_b, kg
-    torque_world: np.ndarray         # (N, n, 3) tau_i in W, N m
+    frames: np.ndarray  # (K+1, N, 4, 4) deformed chain
+    frames_rigid: np.ndarray  # (K+1, N, 4, 4) undeformed chain (g = 0)
+    moments: np.ndarray  # (N, 3n) gravity moments t_i, N m
+    first_moment: np.ndarray  # (N, n+2, 3) suffix sums of m_b c_b over bodies >= j, kg m
+    suffix_mass: np.ndarray  # (n+2,) suffix sums of m_b, kg
+    torque_world: np.ndarray  # (N, n, 3) tau_i in W, N m
     _twists: dict = field(default_factory=dict)
 
     def twists(self, chain_elements, rigid: bool) -> list[np.ndarray]:
@@ -53,7 +53,7 @@ class KinematicsData:
 def _body_frames(robot: Robot) -> list[int]:
     """Frame index of each body: links 1..n, then the payload (on the flange)."""
     chain = robot.chain
-    return list(chain.link_end) + [chain.flange]
+    return [*list(chain.link_end), chain.flange]
 
 
 def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
@@ -71,8 +71,9 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray) -> KinematicsData:
     masses, coms = _body_coms(robot)
     body_frames = _body_frames(robot)
     # Suffix sums over bodies j..n (body n is the payload); entry n+1 is empty.
-    weighted = np.stack([masses[b] * (rigid[f][:, :3, :3] @ coms[b] + rigid[f][:, :3, 3])
-                         for b, f in enumerate(body_frames)], axis=1)
+    weighted = np.stack(
+        [masses[b] * (rigid[f][:, :3, :3] @ coms[b] + rigid[f][:, :3, 3]) for b, f in enumerate(body_frames)], axis=1
+    )
     first_moment = np.zeros((n_conf, n + 2, 3))
     first_moment[:, :-1] = np.cumsum(weighted[:, ::-1], axis=1)[:, ::-1]
     suffix_mass = np.zeros(n + 2)
@@ -83,11 +84,8 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray) -> KinematicsData:
     for i in range(n):
         bend = rigid[chain.bend[i]]
         torque_world[:, i] = np.cross(first_moment[:, i] - suffix_mass[i] * bend[:, :3, 3], g)
-        moments[:, 3 * i:3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
-    if robot.model == "DH,s,e":
-        frames = evaluate(chain.elements, params, q, moments)
-    else:
-        frames = rigid
+        moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
+    frames = evaluate(chain.elements, params, q, moments) if robot.model == "DH,s,e" else rigid
     return KinematicsData(params, q, frames, rigid, moments, first_moment, suffix_mass, torque_world)
 
 
@@ -128,7 +126,7 @@ def moment_derivative(robot: Robot, data: KinematicsData, element: int, twist: n
             d_tau = np.cross(moved - data.suffix_mass[i] * origin_rate, g) - np.cross(omega, data.torque_world[:, i])
         else:
             d_tau = np.cross(moved, g)
-        out[:, 3 * i:3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], d_tau)
+        out[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], d_tau)
     return out
 
 
@@ -183,8 +181,9 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     return result
 
 
-def jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], frame: str = "flange",
-             point: np.ndarray | None = None) -> np.ndarray:
+def jacobian(
+    robot: Robot, data: KinematicsData, wrt: Sequence[str], frame: str = "flange", point: np.ndarray | None = None
+) -> np.ndarray:
     """Body twist Jacobian (N, 6, T) of ``frame``, or, with ``point`` (3,) fixed in that
     frame, the Jacobian (N, 3, T) of the point's world position. See Robot.jacobian."""
     spatial = spatial_jacobian(robot, data, wrt, frame)

@@ -73,8 +73,12 @@ class Robot:
         if self.model not in MODELS:
             raise ValueError(f"unknown model {self.model!r}; expected one of {MODELS}")
         n = len(self.dh)
-        for name, arr, shape in (("directions", self.directions, (n,)), ("limits", self.limits, (n, 2)),
-                                 ("masses", self.masses, (n,)), ("coms", self.coms, (n, 3))):
+        for name, arr, shape in (
+            ("directions", self.directions, (n,)),
+            ("limits", self.limits, (n, 2)),
+            ("masses", self.masses, (n,)),
+            ("coms", self.coms, (n, 3)),
+        ):
             if np.shape(arr) != shape:
                 raise ValueError(f"{name} has shape {np.shape(arr)}, expected {shape}")
         unknown = set(self.overrides) - set(self.parameter_names)
@@ -106,8 +110,7 @@ class Robot:
         if params:
             unknown = [name for name in params if name not in values]
             if unknown:
-                raise InputError(None, unknown[0], f"unknown parameter name for {self.name} "
-                                 f"({self.n_joints} joints)")
+                raise InputError(None, unknown[0], f"unknown parameter name for {self.name} ({self.n_joints} joints)")
             for name, value in params.items():
                 if not np.isfinite(value):
                     raise InputError(None, name, f"parameter value must be finite, got {value!r}")
@@ -121,12 +124,16 @@ class Robot:
         """The same robot with model 'DH', 'DH,s' or 'DH,s,e' (which terms enter the chain)."""
         return replace(self, model=model)
 
-    def with_tool(self, tool_pose: np.ndarray, payload_mass: float | None = None,
-                  payload_com: np.ndarray | None = None) -> Robot:
+    def with_tool(
+        self, tool_pose: np.ndarray, payload_mass: float | None = None, payload_com: np.ndarray | None = None
+    ) -> Robot:
         """The same robot carrying another tool (nominal ``T_n_C``) and payload."""
-        return replace(self, tool_pose=np.asarray(tool_pose, float),
-                       payload_mass=self.payload_mass if payload_mass is None else float(payload_mass),
-                       payload_com=self.payload_com if payload_com is None else np.asarray(payload_com, float))
+        return replace(
+            self,
+            tool_pose=np.asarray(tool_pose, float),
+            payload_mass=self.payload_mass if payload_mass is None else float(payload_mass),
+            payload_com=self.payload_com if payload_com is None else np.asarray(payload_com, float),
+        )
 
     @cached_property
     def chain(self) -> Chain:
@@ -156,8 +163,14 @@ class Robot:
         """Tool (or camera) pose ``T_W_C`` = ``T_W_n T_n_C``, like :meth:`fk`."""
         return self._frame(q, params, "tool")
 
-    def jacobian(self, q: np.ndarray, wrt: Sequence[str], params: Mapping[str, float] | None = None,
-                 frame: str = "flange", point: np.ndarray | None = None) -> np.ndarray:
+    def jacobian(
+        self,
+        q: np.ndarray,
+        wrt: Sequence[str],
+        params: Mapping[str, float] | None = None,
+        frame: str = "flange",
+        point: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Analytic Jacobian with respect to the names in ``wrt`` (parameter names or
         joints ``q1``..``qn``).
 
@@ -182,8 +195,12 @@ def _pose_elements(pose: np.ndarray, first_param: int) -> list[ET]:
     roll, pitch, yaw = rpy_from_rotation(pose[:3, :3])
     fixed = [ET("Tx", xyz[0]), ET("Ty", xyz[1]), ET("Tz", xyz[2]), ET("Rz", yaw), ET("Ry", pitch), ET("Rx", roll)]
     elements = [et for et in fixed if et.const != 0.0]
-    elements += [ET("Tx", param=first_param), ET("Ty", param=first_param + 1), ET("Tz", param=first_param + 2),
-                 ET("Rvec", param=first_param + 3)]
+    elements += [
+        ET("Tx", param=first_param),
+        ET("Ty", param=first_param + 1),
+        ET("Tz", param=first_param + 2),
+        ET("Rvec", param=first_param + 3),
+    ]
     return elements
 
 
@@ -207,8 +224,11 @@ def build_chain(robot: Robot) -> Chain:
         elements.append(ET("Rz", param=p + idx["theta"], joint=i, sign=float(robot.directions[i])))
         bend.append(len(elements))
         if robot.model == "DH,s,e":
-            elements += [ET("Rz", param=p + idx["kz"], moment=3 * i + 2), ET("Ry", param=p + idx["ky"], moment=3 * i + 1),
-                         ET("Rx", param=p + idx["kx"], moment=3 * i)]
+            elements += [
+                ET("Rz", param=p + idx["kz"], moment=3 * i + 2),
+                ET("Ry", param=p + idx["ky"], moment=3 * i + 1),
+                ET("Rx", param=p + idx["kx"], moment=3 * i),
+            ]
         elements += [ET("Tz", param=p + idx["d"]), ET("Tx", param=p + idx["a"]), ET("Rx", param=p + idx["alpha"])]
         link_end.append(len(elements))
     elements += _pose_elements(robot.tool_pose, tool_param)

@@ -49,8 +49,9 @@ def load_robot(name_or_path: str | Path) -> Robot:
     if path.suffix.lower() not in (".yaml", ".yml"):
         candidate = robots_dir() / f"{name_or_path}.yaml"
         if not candidate.exists():
-            raise InputError(str(name_or_path), None,
-                             f"no such robot file or bundled robot (bundled: {', '.join(bundled_robots())})")
+            raise InputError(
+                str(name_or_path), None, f"no such robot file or bundled robot (bundled: {', '.join(bundled_robots())})"
+            )
         path = candidate
     return parse_robot(read_yaml(path), path)
 
@@ -84,8 +85,14 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     dh, directions, limits, masses, coms = [], [], [], [], []
     for joint in joints:
         joint.check_keys(JOINT_KEYS)
-        dh.append([joint.number("theta", 0.0, units.to_rad), joint.number("d", 0.0, units.to_m),
-                   joint.number("a", 0.0, units.to_m), joint.number("alpha", 0.0, units.to_rad)])
+        dh.append(
+            [
+                joint.number("theta", 0.0, units.to_rad),
+                joint.number("d", 0.0, units.to_m),
+                joint.number("a", 0.0, units.to_m),
+                joint.number("alpha", 0.0, units.to_rad),
+            ]
+        )
         direction = joint.number("direction", 1.0)
         if direction not in (1.0, -1.0):
             raise joint.error("direction", f"must be +1 or -1, got {direction}")
@@ -107,17 +114,25 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
             raise params.error(str(key), f"unknown parameter name for a {len(joints)}-joint robot")
         overrides[key] = params.number(key, scale=parameter_scale(key, units))
     return Robot(
-        name=name, dh=np.array(dh), directions=np.array(directions), limits=np.array(limits),
-        masses=np.array(masses), coms=np.array(coms),
+        name=name,
+        dh=np.array(dh),
+        directions=np.array(directions),
+        limits=np.array(limits),
+        masses=np.array(masses),
+        coms=np.array(coms),
         payload_mass=payload.number("mass", 0.0, nonnegative=True),
         payload_com=payload.vector("com", 3, [0, 0, 0], units.to_m),
-        gravity=gravity, base_pose=_pose(doc, "base", units), tool_pose=_pose(doc, "tool", units),
-        overrides=overrides, source=str(doc.raw("source")),
+        gravity=gravity,
+        base_pose=_pose(doc, "base", units),
+        tool_pose=_pose(doc, "tool", units),
+        overrides=overrides,
+        source=str(doc.raw("source")),
     )
 
 
 def _pose_dict(T: np.ndarray) -> dict:
-    return {"xyz": [float(v) for v in T[:3, 3]], "rpy": [float(v) for v in rpy_from_rotation(T[:3, :3])]}
+    # "+ 0.0" turns -0.0 into 0.0 so that files read cleanly.
+    return {"xyz": [float(v) + 0.0 for v in T[:3, 3]], "rpy": [float(v) + 0.0 for v in rpy_from_rotation(T[:3, :3])]}
 
 
 def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: str = "") -> dict:
@@ -130,17 +145,29 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     values.update(params or {})
     joints = []
     for i in range(1, robot.n_joints + 1):
-        joints.append({
-            "theta": values.pop(f"theta{i}"), "d": values.pop(f"d{i}"), "a": values.pop(f"a{i}"),
-            "alpha": values.pop(f"alpha{i}"), "direction": int(robot.directions[i - 1]),
-            "limits": [float(v) for v in robot.limits[i - 1]], "mass": float(robot.masses[i - 1]),
-            "com": [float(v) for v in robot.coms[i - 1]],
-        })
-    doc = {"name": robot.name, "source": robot.source, "units": {"length": "m", "angle": "rad"}, "joints": joints,
-           "base": _pose_dict(robot.base_pose), "tool": _pose_dict(robot.tool_pose),
-           "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
-           "gravity": [float(v) for v in robot.gravity],
-           "parameters": {k: float(v) for k, v in values.items() if v != 0.0}}
+        joints.append(
+            {
+                "theta": values.pop(f"theta{i}"),
+                "d": values.pop(f"d{i}"),
+                "a": values.pop(f"a{i}"),
+                "alpha": values.pop(f"alpha{i}"),
+                "direction": int(robot.directions[i - 1]),
+                "limits": [float(v) for v in robot.limits[i - 1]],
+                "mass": float(robot.masses[i - 1]),
+                "com": [float(v) for v in robot.coms[i - 1]],
+            }
+        )
+    doc = {
+        "name": robot.name,
+        "source": robot.source,
+        "units": {"length": "m", "angle": "rad"},
+        "joints": joints,
+        "base": _pose_dict(robot.base_pose),
+        "tool": _pose_dict(robot.tool_pose),
+        "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
+        "gravity": [float(v) for v in robot.gravity],
+        "parameters": {k: float(v) for k, v in values.items() if v != 0.0},
+    }
     if notes:
         doc["notes"] = notes
     return doc
@@ -148,4 +175,3 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
 
 def save_robot(path: str | Path, robot: Robot, params: dict[str, float] | None = None, notes: str = "") -> None:
     Path(path).write_text(yaml.safe_dump(robot_document(robot, params, notes), sort_keys=False), encoding="utf-8")
-

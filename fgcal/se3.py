@@ -13,7 +13,7 @@ _AXIS = {"x": 0, "y": 1, "z": 2}
 def skew(w: np.ndarray) -> np.ndarray:
     """Return ``[w]x`` for ``w`` of shape (..., 3)."""
     w = np.asarray(w, dtype=float)
-    out = np.zeros(w.shape[:-1] + (3, 3))
+    out = np.zeros((*w.shape[:-1], 3, 3))
     out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
     out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
@@ -81,7 +81,7 @@ def so3_left_jacobian(rotvec: np.ndarray) -> np.ndarray:
 def pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """Assemble 4x4 poses from rotations (..., 3, 3) and translations (..., 3)."""
     rotation = np.asarray(rotation, dtype=float)
-    out = np.zeros(rotation.shape[:-2] + (4, 4))
+    out = np.zeros((*rotation.shape[:-2], 4, 4))
     out[..., :3, :3] = rotation
     out[..., :3, 3] = translation
     out[..., 3, 3] = 1.0

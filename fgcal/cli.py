@@ -1,0 +1,114 @@
+"""The ``fgcal`` command. Errors in user input print one clear line and exit with 2."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FgcalError
+
+
+def _bundled_cell(path: str) -> Path:
+    """A cell path as given, or a bundled cell name such as ``kr125_seed``."""
+    candidate = Path(path)
+    if candidate.exists() or candidate.suffix in (".yaml", ".yml"):
+        return candidate
+    from .robot_io import robots_dir
+
+    return robots_dir().parent / "cells" / f"{path}.yaml"
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulation.simulate import simulate
+
+    result = simulate(
+        _bundled_cell(args.cell),
+        args.out,
+        args.seed,
+        design=args.design,
+        n_configurations=args.n,
+        progress=lambda msg: print(msg, flush=True),
+    )
+    print(result.summary())
+    return 0
+
+
+def cmd_convert_faro(args: argparse.Namespace) -> int:
+    from .faro import convert_faro
+
+    counts = convert_faro(args.src, args.out)
+    print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    return 0
+
+
+def cmd_robots(args: argparse.Namespace) -> int:
+    from .robot_io import bundled_robots, load_robot
+
+    for name in bundled_robots():
+        robot = load_robot(name)
+        print(f"{name:16s} {robot.name} ({robot.n_joints} joints)")
+    return 0
+
+
+def cmd_fk(args: argparse.Namespace) -> int:
+    from .robot_io import load_robot
+
+    robot = load_robot(args.robot)
+    q = np.array(args.q, dtype=float)
+    if args.deg:
+        q = np.deg2rad(q)
+    T = robot.fk_tool(q) if args.tool else robot.fk(q)
+    np.set_printoptions(precision=6, suppress=True)
+    print(f"T_W_{'C' if args.tool else 'n'} (m):\n{T}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fgcal", description="Robot calibration with factor graphs (GTSAM).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("simulate", help="simulate a calibration cell: true robot, configurations, measurements")
+    p.add_argument("cell", help="cell YAML file, or a bundled cell name (kr125_seed)")
+    p.add_argument("--out", required=True, help="output dataset directory")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1); same seed, same files")
+    p.add_argument("--design", choices=("seed", "space_filling"), help="override the cell's design kind")
+    p.add_argument("--n", type=int, help="number of configurations of a space-filling design")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("convert-faro", help="convert the IRB 120 / FARO tracker text files to an fgcal dataset")
+    p.add_argument("src", help="folder with measured_joints.txt and measured_SMR_*.txt")
+    p.add_argument("--out", required=True, help="output dataset directory")
+    p.set_defaults(func=cmd_convert_faro)
+
+    p = sub.add_parser("robots", help="list the bundled robot descriptions")
+    p.set_defaults(func=cmd_robots)
+
+    p = sub.add_parser("fk", help="forward kinematics of a robot at one configuration (nominal model)")
+    p.add_argument("robot", help="bundled robot name or robot YAML file")
+    p.add_argument("q", nargs="+", type=float, help="joint angles (rad, or deg with --deg)")
+    p.add_argument("--deg", action="store_true", help="joint angles in degrees")
+    p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")
+    p.set_defaults(func=cmd_fk)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "n", None) is not None and args.n < 1:
+        print("fgcal: error: --n must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except FgcalError as exc:
+        print(f"fgcal: error: {exc}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:  # e.g. no reachable viewpoint: a property of the user's cell
+        print(f"fgcal: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

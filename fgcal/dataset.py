@@ -1,0 +1,220 @@
+"""Measurement datasets: a directory with ``dataset.yaml`` (header) and CSV tables.
+
+Header fields (documented in docs/formats.md)::
+
+    format: fgcal-dataset/1
+    robot: kuka_kr125_2            # bundled name, or a robot file relative to this directory
+    units: {length: m, angle: rad} # of every table in this dataset
+    measured: [camera_points, pixels, tracker_points]
+    files: {configurations: configurations.csv, points: points.csv, ...}
+    camera: {image_size, intrinsics, distortion, mounting: {xyz, rpy}}   # when a camera was used
+    tracker: {targets: [names]}    # when a tracker was used
+    source: free text (simulation seed, converter, instrument)
+
+Tables (first row is the header; ``config`` refers to ``configurations.csv``):
+
+- configurations: ``config, q1..qn`` (joint angles)
+- points: ``point, object, side, x, y, z`` (calibration points in the fixture frame F)
+- camera_points: ``config, point, x, y, z`` (point measured in the camera frame)
+- pixels: ``config, point, u, v`` (px)
+- tracker_points: ``config, target, x, y, z`` (tool target in the tracker frame)
+- tracker_references: ``config, target, x, y, z`` (fixed targets in the cell, stability check)
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .camera import Camera, parse_camera
+from .errors import InputError
+from .fields import Fields, read_yaml
+from .robot import Robot
+from .robot_io import load_robot
+from .se3 import pose_from_xyz_rpy
+from .units import Units, parse_units
+
+FORMAT = "fgcal-dataset/1"
+HEADER_KEYS = ("format", "robot", "units", "measured", "files", "camera", "tracker", "source", "notes")
+# table name -> (id columns, numeric columns, kind of numeric columns)
+TABLES = {
+    "points": (("point", "object", "side"), ("x", "y", "z"), "length"),
+    "camera_points": (("config", "point"), ("x", "y", "z"), "length"),
+    "pixels": (("config", "point"), ("u", "v"), "pixel"),
+    "tracker_points": (("config", "target"), ("x", "y", "z"), "length"),
+    "tracker_references": (("config", "target"), ("x", "y", "z"), "length"),
+}
+MEASUREMENTS = ("camera_points", "pixels", "tracker_points", "tracker_references")
+
+
+@dataclass
+class Table:
+    """Rows of one CSV table: id columns as string arrays, values (M, k) in SI."""
+
+    ids: dict[str, np.ndarray]
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+
+@dataclass
+class Dataset:
+    path: Path
+    robot: Robot
+    configs: np.ndarray  # (N,) configuration ids (str)
+    q: np.ndarray  # (N, n) joint angles, rad
+    tables: dict[str, Table] = field(default_factory=dict)
+    camera: Camera | None = None
+    camera_mounting: np.ndarray | None = None  # nominal T_n_C
+    header: dict = field(default_factory=dict)
+
+    def config_index(self, config_ids: np.ndarray) -> np.ndarray:
+        lookup = {c: i for i, c in enumerate(self.configs)}
+        return np.array([lookup[c] for c in config_ids], dtype=int)
+
+
+def format_float(value: float) -> str:
+    """Shortest round-trip text of a float: deterministic files, no precision lost."""
+    return repr(float(value))
+
+
+def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(header)
+        for row in rows:
+            writer.writerow([format_float(v) if isinstance(v, (float, np.floating)) else v for v in row])
+
+
+def _read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found (listed in dataset.yaml files)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, None, f"cannot read file: {exc}") from None
+    if not rows:
+        raise InputError(path, None, "empty file: a header row is required")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InputError(path, missing[0], f"missing column (header is {', '.join(header)})")
+    body = [r for r in rows[1:] if any(cell.strip() for cell in r)]
+    for line, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise InputError(path, f"line {line}", f"expected {len(header)} columns, got {len(row)}")
+    return header, body
+
+
+def _numbers(path: Path, header: list[str], body: list[list[str]], columns: Sequence[str]) -> np.ndarray:
+    out = np.empty((len(body), len(columns)))
+    for j, col in enumerate(columns):
+        c = header.index(col)
+        for i, row in enumerate(body):
+            try:
+                value = float(row[c])
+            except ValueError:
+                raise InputError(path, f"line {i + 2}, column {col}", f"not a number: {row[c]!r}") from None
+            if not math.isfinite(value):
+                raise InputError(path, f"line {i + 2}, column {col}", f"must be finite, got {row[c]!r}")
+            out[i, j] = value
+    return out
+
+
+def _table(path: Path, name: str, units: Units) -> Table:
+    id_cols, value_cols, kind = TABLES[name]
+    header, body = _read_csv(path, [*id_cols, *value_cols])
+    values = _numbers(path, header, body, value_cols)
+    if kind == "length":
+        values *= units.to_m
+    ids = {c: np.array([row[header.index(c)].strip() for row in body], dtype=object) for c in id_cols}
+    return Table(ids, values)
+
+
+def load_dataset(path: str | Path) -> Dataset:
+    """Load and validate a dataset directory (or its dataset.yaml); converts to SI."""
+    path = Path(path)
+    header_path = path / "dataset.yaml" if path.is_dir() else path
+    root = header_path.parent
+    doc = Fields(read_yaml(header_path), header_path)
+    doc.check_keys(HEADER_KEYS)
+    fmt = doc.string("format")
+    if fmt != FORMAT:
+        raise doc.error("format", f"unsupported format {fmt!r} (this fgcal reads {FORMAT})")
+    units = parse_units(doc.raw("units", None), header_path)
+    robot_ref = doc.string("robot")
+    try:
+        robot = load_robot(root / robot_ref if robot_ref.endswith((".yaml", ".yml")) else robot_ref)
+    except InputError as exc:
+        raise InputError(header_path, "robot", str(exc)) from None
+    files = doc.sub("files")
+    files.check_keys(("configurations", *TABLES))
+    measured = doc.items("measured")
+    for i, kind in enumerate(measured):
+        if kind not in MEASUREMENTS:
+            raise InputError(
+                header_path, f"measured[{i}]", f"unknown measurement kind {kind!r} (known: {MEASUREMENTS})"
+            )
+        if not files.has(kind):
+            raise files.error(kind, f"'{kind}' is listed in measured but has no file")
+
+    config_path = root / files.string("configurations")
+    joint_cols = [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    cfg_header, cfg_body = _read_csv(config_path, ["config"])
+    present = [c for c in cfg_header if c.startswith("q") and c[1:].isdigit()]
+    if present != joint_cols:
+        raise InputError(
+            config_path,
+            "header",
+            f"{robot.name} has {robot.n_joints} joints: expected columns "
+            f"{', '.join(joint_cols)}, got {', '.join(present) or 'none'}",
+        )
+    if not cfg_body:
+        raise InputError(config_path, None, "no configurations")
+    q = _numbers(config_path, cfg_header, cfg_body, joint_cols) * units.to_rad
+    configs = np.array([row[cfg_header.index("config")].strip() for row in cfg_body], dtype=object)
+    if len(set(configs)) != len(configs):
+        raise InputError(config_path, "config", "duplicate configuration ids")
+
+    dataset = Dataset(root, robot, configs, q, header=dict(doc.data))
+    known = set(configs)
+    for name in TABLES:
+        if not files.has(name):
+            continue
+        table_path = root / files.string(name)
+        table = _table(table_path, name, units)
+        if "config" in table.ids:
+            unknown = [c for c in table.ids["config"] if c not in known]
+            if unknown:
+                raise InputError(table_path, "config", f"unknown configuration id {unknown[0]!r}")
+        dataset.tables[name] = table
+    if "camera_points" in dataset.tables or "pixels" in dataset.tables:
+        if "points" not in dataset.tables:
+            raise files.error("points", "camera measurements need the points table (object drawings)")
+        point_names = set(dataset.tables["points"].ids["point"])
+        for name in ("camera_points", "pixels"):
+            if name in dataset.tables:
+                bad = [p for p in dataset.tables[name].ids["point"] if p not in point_names]
+                if bad:
+                    raise InputError(root / files.string(name), "point", f"unknown point {bad[0]!r}")
+    if doc.has("camera"):
+        cam = doc.sub("camera")
+        cam.check_keys(("image_size", "intrinsics", "distortion", "mounting"))
+        dataset.camera = parse_camera(cam)
+        mount = cam.sub("mounting", {})
+        dataset.camera_mounting = pose_from_xyz_rpy(
+            mount.vector("xyz", 3, [0, 0, 0], units.to_m), mount.vector("rpy", 3, [0, 0, 0], units.to_rad)
+        )
+    return dataset
+
+
+def write_header(path: Path, header: dict) -> None:
+    (path / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False), encoding="utf-8")

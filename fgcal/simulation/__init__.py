@@ -1,0 +1,1 @@
+"""Simulated calibration cell (SPEC section 5): true robot, designs, measurements."""

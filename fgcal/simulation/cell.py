@@ -1,0 +1,279 @@
+"""Calibration cell description (YAML): robot, calibration objects, camera, tracker,
+noise, perturbation ranges of the simulated true robot, and the design of configurations.
+The schema is documented in docs/formats.md."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera, parse_camera
+from ..errors import InputError
+from ..fields import Fields, read_yaml
+from ..robot import Robot
+from ..robot_io import load_robot
+from ..se3 import pose_from_xyz_rpy, transform_points
+from ..units import parse_units
+
+SIDES = ("+x", "-x", "+y", "-y", "+z", "-z")
+CELL_KEYS = (
+    "name",
+    "robot",
+    "units",
+    "base",
+    "fixture",
+    "objects",
+    "grid",
+    "camera",
+    "payload",
+    "tracker",
+    "noise",
+    "perturbation",
+    "design",
+    "notes",
+)
+DESIGNS = ("seed", "space_filling")
+
+
+@dataclass(frozen=True)
+class GridPoint:
+    """A point on a calibration object's side; ``position_F`` in the fixture frame (m)."""
+
+    name: str
+    obj: str
+    side: str
+    row: int
+    col: int
+    position_F: np.ndarray
+
+
+@dataclass(frozen=True)
+class Side:
+    """One grid-carrying side of a cuboid: points[row][col], outward normal in F."""
+
+    obj: str
+    side: str
+    normal_F: np.ndarray
+    points: list[list[GridPoint]]
+
+    def block(self, row: int, col: int) -> list[GridPoint]:
+        """The 2x2 block of grid points whose first corner is (row, col)."""
+        return [
+            self.points[row][col],
+            self.points[row][col + 1],
+            self.points[row + 1][col + 1],
+            self.points[row + 1][col],
+        ]
+
+    @property
+    def n_block_rows(self) -> int:
+        return len(self.points) - 1
+
+    @property
+    def n_block_cols(self) -> int:
+        return len(self.points[0]) - 1
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """Half-widths of the uniform deviations of the simulated true robot (SI)."""
+
+    length_m: float
+    angle_rad: float
+    distortion_rad: float
+    compliance_range: tuple[float, float]
+    compliant_joints: tuple[int, ...]
+    base_length_m: float
+    base_angle_rad: float
+    tool_length_m: float
+    tool_angle_rad: float
+
+
+@dataclass(frozen=True)
+class Design:
+    kind: str
+    n_configurations: int
+    blocks_per_side: int
+    views_per_block: int
+    standoff_m: tuple[float, float]
+    max_view_angle_rad: float
+
+
+@dataclass(frozen=True)
+class Cell:
+    name: str
+    source: str
+    robot: Robot  # carrying the nominal camera mounting and payload
+    fixture_pose: np.ndarray  # T_W_F
+    sides: list[Side]
+    camera: Camera
+    tracker_pose: np.ndarray  # T_W_T
+    tracker_targets: np.ndarray  # (m, 3) in the flange frame, m
+    camera_point_sigma_m: float
+    pixel_sigma_px: float
+    tracker_sigma_m: float
+    perturbation: Perturbation
+    design: Design
+
+    def points(self) -> list[GridPoint]:
+        return [p for side in self.sides for row in side.points for p in row]
+
+
+def _pose(fields: Fields, key: str, to_m: float, to_rad: float) -> np.ndarray:
+    sub = fields.sub(key, {})
+    sub.check_keys(("xyz", "rpy"))
+    return pose_from_xyz_rpy(sub.vector("xyz", 3, [0, 0, 0], to_m), sub.vector("rpy", 3, [0, 0, 0], to_rad))
+
+
+def _cuboid_sides(obj: Fields, index: int, pitch: float, margin: float, to_m: float, to_rad: float) -> list[Side]:
+    obj.check_keys(("name", "size", "pose", "sides"))
+    name = obj.string("name")
+    size = obj.vector("size", 3, scale=to_m)
+    if np.any(size <= 0):
+        raise obj.error("size", "cuboid edge lengths must be > 0")
+    T_F_O = _pose(obj, "pose", to_m, to_rad)
+    sides = []
+    for j, label in enumerate(obj.items("sides")):
+        if label not in SIDES:
+            raise InputError(obj.source, f"{obj.path('sides')}[{j}]", f"unknown side {label!r} (one of {SIDES})")
+        axis = "xyz".index(label[1])
+        sign = 1.0 if label[0] == "+" else -1.0
+        u_axis, v_axis = [a for a in range(3) if a != axis]
+        counts = [int(np.floor((size[a] - 2 * margin) / pitch + 1e-9)) + 1 for a in (u_axis, v_axis)]
+        if min(counts) < 2:
+            raise obj.error(
+                "size", f"side {label} is too small for a 2x2 block at pitch {pitch} m and margin {margin} m"
+            )
+        rows = []
+        for r in range(counts[1]):
+            row = []
+            for c in range(counts[0]):
+                local = np.zeros(3)
+                local[axis] = sign * size[axis] / 2
+                local[u_axis] = (
+                    -size[u_axis] / 2 + margin + c * pitch + (size[u_axis] - 2 * margin - (counts[0] - 1) * pitch) / 2
+                )
+                local[v_axis] = (
+                    -size[v_axis] / 2 + margin + r * pitch + (size[v_axis] - 2 * margin - (counts[1] - 1) * pitch) / 2
+                )
+                row.append(
+                    GridPoint(f"{name}{label}_r{r:02d}c{c:02d}", name, label, r, c, transform_points(T_F_O, local))
+                )
+            rows.append(row)
+        normal = np.zeros(3)
+        normal[axis] = sign
+        sides.append(Side(name, label, T_F_O[:3, :3] @ normal, rows))
+    return sides
+
+
+def load_cell(path: str | Path) -> Cell:
+    """Load and validate a cell file; every error names the file and field."""
+    path = Path(path)
+    doc = Fields(read_yaml(path), path)
+    doc.check_keys(CELL_KEYS)
+    units = parse_units(doc.raw("units", None), path)
+    to_m, to_rad = units.to_m, units.to_rad
+    robot_ref = doc.string("robot")
+    robot_path = path.parent / robot_ref
+    try:
+        robot = load_robot(robot_path if robot_path.suffix in (".yaml", ".yml") else robot_ref)
+    except InputError as exc:
+        raise InputError(path, "robot", str(exc)) from None
+
+    camera_fields = doc.sub("camera")
+    camera_fields.check_keys(("mounting", "image_size", "intrinsics", "distortion"))
+    camera = parse_camera(camera_fields)
+    payload = doc.sub("payload", {})
+    payload.check_keys(("mass", "com"))
+    robot = robot.with_tool(
+        _pose(camera_fields, "mounting", to_m, to_rad),
+        payload_mass=payload.number("mass", robot.payload_mass, nonnegative=True),
+        payload_com=payload.vector("com", 3, robot.payload_com.tolist(), to_m),
+    )
+    if doc.has("base"):
+        robot = replace(robot, base_pose=_pose(doc, "base", to_m, to_rad))
+
+    grid = doc.sub("grid", {})
+    grid.check_keys(("pitch", "margin"))
+    pitch = grid.number("pitch", 40.0 * 1e-3 / to_m, to_m, positive=True)
+    margin = grid.number("margin", pitch / to_m, to_m, nonnegative=True)
+    sides = []
+    for i, obj in enumerate(doc.sub_list("objects")):
+        sides += _cuboid_sides(obj, i, pitch, margin, to_m, to_rad)
+    if not sides:
+        raise doc.error("objects", "at least one object side with a grid is needed")
+    names = [s.obj for s in sides]
+    if len({(s.obj, s.side) for s in sides}) != len(sides):
+        raise doc.error("objects", f"duplicate object name or side among {sorted(set(names))}")
+
+    tracker = doc.sub("tracker", {})
+    tracker.check_keys(("pose", "targets"))
+    raw_targets = tracker.items("targets", [[0, 0, 0.1 / to_m]])
+    targets = [
+        Fields({"t": t}, path, tracker.path(f"targets[{i}]")).vector("t", 3, scale=to_m)
+        for i, t in enumerate(raw_targets)
+    ]
+
+    noise = doc.sub("noise", {})
+    noise.check_keys(("camera_point_sigma", "pixel_sigma_px", "tracker_sigma"))
+    pert = doc.sub("perturbation", {})
+    pert.check_keys(
+        (
+            "length",
+            "angle",
+            "distortion",
+            "compliance",
+            "compliant_joints",
+            "base_length",
+            "base_angle",
+            "tool_length",
+            "tool_angle",
+        )
+    )
+    compliance = pert.vector("compliance", 2, [1e-6, 1e-5])
+    if not 0 <= compliance[0] <= compliance[1]:
+        raise pert.error("compliance", "expected [low, high] with 0 <= low <= high, rad/(N m)")
+    joints = tuple(int(j) for j in pert.items("compliant_joints", [1, 2, 3]))
+    for j in joints:
+        if not 1 <= j <= robot.n_joints:
+            raise pert.error("compliant_joints", f"joint {j} does not exist on a {robot.n_joints}-joint robot")
+
+    design = doc.sub("design", {})
+    design.check_keys(("kind", "n_configurations", "blocks_per_side", "views_per_block", "standoff", "max_view_angle"))
+    standoff = design.vector("standoff", 2, [0.3 / to_m, 0.5 / to_m], to_m)
+    if not 0 < standoff[0] <= standoff[1]:
+        raise design.error("standoff", "expected [near, far] with 0 < near <= far")
+    return Cell(
+        name=doc.string("name"),
+        source=str(path),
+        robot=robot,
+        fixture_pose=_pose(doc, "fixture", to_m, to_rad),
+        sides=sides,
+        camera=camera,
+        tracker_pose=_pose(tracker, "pose", to_m, to_rad),
+        tracker_targets=np.array(targets),
+        camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, nonnegative=True),
+        pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, nonnegative=True),
+        tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, nonnegative=True),
+        perturbation=Perturbation(
+            length_m=pert.number("length", 5e-3 / to_m, to_m, nonnegative=True),
+            angle_rad=pert.number("angle", 2e-3 / to_rad, to_rad, nonnegative=True),
+            distortion_rad=pert.number("distortion", 2e-3 / to_rad, to_rad, nonnegative=True),
+            compliance_range=(float(compliance[0]), float(compliance[1])),
+            compliant_joints=joints,
+            base_length_m=pert.number("base_length", 5e-3 / to_m, to_m, nonnegative=True),
+            base_angle_rad=pert.number("base_angle", 2e-3 / to_rad, to_rad, nonnegative=True),
+            tool_length_m=pert.number("tool_length", 1e-3 / to_m, to_m, nonnegative=True),
+            tool_angle_rad=pert.number("tool_angle", 1e-3 / to_rad, to_rad, nonnegative=True),
+        ),
+        design=Design(
+            kind=design.string("kind", "seed", DESIGNS),
+            n_configurations=design.integer("n_configurations", 300, minimum=1),
+            blocks_per_side=design.integer("blocks_per_side", 3, minimum=1),
+            views_per_block=design.integer("views_per_block", 2, minimum=1),
+            standoff_m=(float(standoff[0]), float(standoff[1])),
+            max_view_angle_rad=design.number("max_view_angle", 30.0 * np.pi / 180 / to_rad, to_rad, positive=True),
+        ),
+    )

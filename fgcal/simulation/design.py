@@ -1,0 +1,174 @@
+"""Designs of configurations: camera viewpoints onto 2x2 blocks of grid points, reached by
+inverse kinematics on the nominal model and kept only where the true robot's camera sees
+all four points.
+
+- ``seed``: the seed paper's design: on every side, ``blocks_per_side`` blocks spread over
+  the side, each seen from ``views_per_block`` configurations.
+- ``space_filling``: many random viewpoints on random blocks of every side, reduced to N
+  configurations by greedy max-min distance in normalised joint space, so that the
+  configurations spread over the robot's joint space rather than cluster.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..robot import Robot
+from ..se3 import inverse, pose, transform_points
+from .cell import Cell, GridPoint, Side
+from .ik import solve_ik
+
+
+@dataclass(frozen=True)
+class View:
+    """A configuration and the block of points its camera sees."""
+
+    q: np.ndarray
+    side: Side
+    block: tuple[GridPoint, ...]
+
+
+def look_at(camera_position: np.ndarray, target: np.ndarray, roll_rad: float) -> np.ndarray:
+    """Camera pose T_W_C with optical axis (z) from ``camera_position`` to ``target``."""
+    z = target - camera_position
+    z = z / np.linalg.norm(z)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z], axis=1)
+    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    R = R @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    return pose(R, camera_position)
+
+
+def _random_view(cell: Cell, side: Side, block: list[GridPoint], rng: np.random.Generator) -> np.ndarray:
+    """A camera pose at a random standoff, viewing angle and roll onto the block centre."""
+    centre_F = np.mean([p.position_F for p in block], axis=0)
+    centre = transform_points(cell.fixture_pose, centre_F)
+    normal = cell.fixture_pose[:3, :3] @ side.normal_F
+    tilt = np.arccos(rng.uniform(np.cos(cell.design.max_view_angle_rad), 1.0))
+    azimuth = rng.uniform(-np.pi, np.pi)
+    helper = np.array([1.0, 0, 0]) if abs(normal[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(normal, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    direction = np.cos(tilt) * normal + np.sin(tilt) * (np.cos(azimuth) * e1 + np.sin(azimuth) * e2)
+    standoff = rng.uniform(*cell.design.standoff_m)
+    return look_at(centre + standoff * direction, centre, rng.uniform(-np.pi, np.pi))
+
+
+def _solve_views(
+    cell: Cell,
+    requests: list[tuple[Side, list[GridPoint]]],
+    true_camera: Callable,
+    rng: np.random.Generator,
+    starts: int = 6,
+) -> list[View]:
+    """IK for one random viewpoint per request; keep the reachable, visible ones."""
+    robot: Robot = cell.robot
+    nominal = robot.parameter_vector()
+    targets_C = np.array([_random_view(cell, side, block, rng) for side, block in requests])
+    T_target = targets_C @ inverse(robot.tool_pose)
+    T_rep = np.repeat(T_target, starts, axis=0)
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    span_low, span_high = np.maximum(low, -np.pi), np.minimum(high, np.pi)
+    q0 = rng.uniform(span_low, span_high, size=(len(T_rep), robot.n_joints))
+    q, ok = solve_ik(robot, nominal, T_rep, q0)
+    views = []
+    for i, (side, block) in enumerate(requests):
+        candidates = [j for j in range(i * starts, (i + 1) * starts) if ok[j]]
+        if not candidates:
+            continue
+        q_i = q[candidates[0]]
+        T_W_C = true_camera(q_i[None])[0]
+        points_C = transform_points(
+            inverse(T_W_C), np.array([transform_points(cell.fixture_pose, p.position_F) for p in block])
+        )
+        if cell.camera.sees(points_C):
+            views.append(View(q_i, side, tuple(block)))
+    return views
+
+
+def _spread_blocks(side: Side, count: int) -> list[tuple[int, int]]:
+    """``count`` block corners spread over a side (along its diagonal and centre)."""
+    rows, cols = side.n_block_rows, side.n_block_cols
+    fractions = [0.5] if count == 1 else np.linspace(0.15, 0.85, count)
+    corners = [
+        (round(f * (rows - 1)), round((f if k % 2 == 0 else 1 - f) * (cols - 1))) for k, f in enumerate(fractions)
+    ]
+    return corners
+
+
+def seed_design(cell: Cell, true_camera: Callable, rng: np.random.Generator, max_rounds: int = 20) -> list[View]:
+    """The seed's design: per side, blocks_per_side blocks, each from views_per_block views."""
+    design = cell.design
+    wanted = [
+        (side, side.block(*corner))
+        for side in cell.sides
+        for corner in _spread_blocks(side, design.blocks_per_side)
+        for _ in range(design.views_per_block)
+    ]
+    views: list[View | None] = [None] * len(wanted)
+    for _ in range(max_rounds):
+        missing = [i for i, v in enumerate(views) if v is None]
+        if not missing:
+            break
+        solved = _solve_views(cell, [wanted[i] for i in missing], true_camera, rng)
+        solved_by_key: dict[str, list[View]] = {}
+        for v in solved:
+            solved_by_key.setdefault(v.block[0].name, []).append(v)
+        for i in missing:
+            pool = solved_by_key.get(wanted[i][1][0].name)
+            if pool:
+                views[i] = pool.pop()
+    missing = [i for i, v in enumerate(views) if v is None]
+    if missing:
+        side, block = wanted[missing[0]]
+        raise RuntimeError(
+            f"no reachable, visible viewpoint found for block {block[0].name} on {side.obj}{side.side} "
+            f"after {max_rounds} rounds: move the object or widen standoff/max_view_angle"
+        )
+    return [v for v in views if v is not None]
+
+
+def space_filling_design(
+    cell: Cell,
+    true_camera: Callable,
+    rng: np.random.Generator,
+    oversample: int = 3,
+    progress: Callable[[str], None] | None = None,
+) -> list[View]:
+    """N configurations: random reachable views, thinned by greedy max-min joint distance."""
+    n_wanted = cell.design.n_configurations
+    pool: list[View] = []
+    rounds = 0
+    while len(pool) < oversample * n_wanted and rounds < 30:
+        rounds += 1
+        requests = []
+        for _ in range(max(64, oversample * n_wanted - len(pool))):
+            side = cell.sides[rng.integers(len(cell.sides))]
+            requests.append(
+                (side, side.block(int(rng.integers(side.n_block_rows)), int(rng.integers(side.n_block_cols))))
+            )
+        pool += _solve_views(cell, requests, true_camera, rng)
+        if progress:
+            progress(f"  space-filling design: {len(pool)} candidate configurations")
+    if len(pool) < n_wanted:
+        raise RuntimeError(f"only {len(pool)} reachable, visible configurations found for {n_wanted} wanted")
+    return [pool[i] for i in max_min_selection(np.array([v.q for v in pool]), cell.robot.limits, n_wanted, rng)]
+
+
+def max_min_selection(q: np.ndarray, limits: np.ndarray, count: int, rng: np.random.Generator) -> list[int]:
+    """Greedy farthest-point selection of ``count`` rows of q, normalised by joint range."""
+    x = q / (limits[:, 1] - limits[:, 0])
+    chosen = [int(rng.integers(len(x)))]
+    dist = np.linalg.norm(x - x[chosen[0]], axis=1)
+    for _ in range(count - 1):
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(x - x[nxt], axis=1))
+    return chosen

@@ -1,0 +1,63 @@
+"""Batched numerical inverse kinematics (damped least squares on the analytic Jacobian)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import kinematics
+from ..robot import Robot
+from ..se3 import so3_log
+
+
+def pose_error(T: np.ndarray, T_target: np.ndarray) -> np.ndarray:
+    """Body-frame error (N, 6) ``[rotvec, R^T dp]`` from poses T to T_target."""
+    R_t = np.swapaxes(T[:, :3, :3], 1, 2)
+    rot = so3_log(R_t @ T_target[:, :3, :3])
+    trans = (R_t @ (T_target[:, :3, 3] - T[:, :3, 3])[..., None])[..., 0]
+    return np.concatenate([rot, trans], axis=1)
+
+
+def solve_ik(
+    robot: Robot,
+    params: np.ndarray,
+    T_target: np.ndarray,
+    q0: np.ndarray,
+    frame: str = "flange",
+    iterations: int = 80,
+    tol: float = 1e-9,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint angles (N, n) reaching ``T_target`` (N, 4, 4) from starts ``q0``.
+
+    Returns (q, converged) where converged means rotation and translation errors below
+    ``tol`` (rad, m) and all joints within limits (after wrapping by 2 pi where possible).
+    """
+    joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    q = q0.copy()
+    damping = 1e-4
+    for _ in range(iterations):
+        data = kinematics.forward(robot, params, q)
+        err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
+        J = kinematics.jacobian(robot, data, joints, frame=frame)
+        JtJ = np.swapaxes(J, 1, 2) @ J + damping * np.eye(robot.n_joints)
+        step = np.linalg.solve(JtJ, (np.swapaxes(J, 1, 2) @ err[..., None]))[..., 0]
+        # Limit the step so that far starts do not jump across the workspace.
+        norm = np.linalg.norm(step, axis=1, keepdims=True)
+        q = q + step * np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))
+        q = np.arctan2(np.sin(q), np.cos(q))
+    data = kinematics.forward(robot, params, q)
+    err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
+    q = wrap_into_limits(robot, q)
+    within = np.all((q >= robot.limits[:, 0]) & (q <= robot.limits[:, 1]), axis=1)
+    converged = (np.linalg.norm(err[:, :3], axis=1) < tol) & (np.linalg.norm(err[:, 3:], axis=1) < tol) & within
+    return q, converged
+
+
+def wrap_into_limits(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """Shift angles by multiples of 2 pi toward the joint range (joints may exceed +-pi)."""
+    out = q.copy()
+    for shift in (2 * np.pi, -2 * np.pi):
+        moved = out + shift
+        better = (out < robot.limits[:, 0]) | (out > robot.limits[:, 1])
+        ok = (moved >= robot.limits[:, 0]) & (moved <= robot.limits[:, 1])
+        out = np.where(better & ok, moved, out)
+    return out

@@ -1,0 +1,217 @@
+"""``fgcal simulate``: the true robot, a design of configurations and the measurements,
+written as a dataset; the ground truth goes to ``truth/``, which no estimation code reads."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..dataset import FORMAT, write_csv, write_header
+from ..se3 import inverse, rpy_from_rotation, transform_points
+from .cell import Cell, load_cell
+from .design import View, seed_design, space_filling_design
+from .truth import perturb_parameters
+
+
+@dataclass
+class SimulationResult:
+    out_dir: Path
+    seed: int
+    design: str
+    n_configurations: int
+    n_observations: dict[str, int]
+    deviation_mean_m: float
+    deviation_max_m: float
+    time_s: float
+
+    def summary(self) -> str:
+        obs = ", ".join(f"{k} {v}" for k, v in self.n_observations.items())
+        return (
+            f"simulated {self.n_configurations} configurations ({self.design} design, seed {self.seed}) "
+            f"-> {self.out_dir}\n"
+            f"  observations: {obs}\n"
+            f"  true robot vs nominal model, flange position in the base frame over these configurations:\n"
+            f"    deviation mean {self.deviation_mean_m:.4e} m, max {self.deviation_max_m:.4e} m\n"
+            f"  time {self.time_s:.1f} s"
+        )
+
+
+def _pose_doc(T: np.ndarray) -> dict:
+    # "+ 0.0" turns -0.0 into 0.0 so that files read cleanly.
+    return {"xyz": [float(v) + 0.0 for v in T[:3, 3]], "rpy": [float(v) + 0.0 for v in rpy_from_rotation(T[:3, :3])]}
+
+
+def positioning_deviation(cell: Cell, q: np.ndarray, true_params: dict[str, float]) -> np.ndarray:
+    """Flange position error (m) of the nominal model against the true robot, in the base
+    frame (the robot's own accuracy: base and tool perturbations excluded)."""
+    robot = cell.robot
+    kinematic = {k: v for k, v in true_params.items() if not k.startswith(("base.", "tool."))}
+    T_0_true = inverse(robot.base_pose) @ robot.fk(q, kinematic)
+    T_0_nominal = inverse(robot.base_pose) @ robot.fk(q)
+    return np.linalg.norm(T_0_true[:, :3, 3] - T_0_nominal[:, :3, 3], axis=1)
+
+
+def simulate(
+    cell_path: str | Path,
+    out_dir: str | Path,
+    seed: int,
+    design: str | None = None,
+    n_configurations: int | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> SimulationResult:
+    started = time.perf_counter()
+    say = progress or (lambda _msg: None)
+    cell = load_cell(cell_path)
+    if design is not None or n_configurations is not None:
+        cell = replace(
+            cell,
+            design=replace(
+                cell.design,
+                kind=design or cell.design.kind,
+                n_configurations=n_configurations or cell.design.n_configurations,
+            ),
+        )
+    robot = cell.robot
+    # Independent streams: changing the design does not change the true robot or the noise.
+    truth_rng, design_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    true_params = perturb_parameters(robot, cell.perturbation, truth_rng)
+
+    def true_camera(q: np.ndarray) -> np.ndarray:
+        return robot.fk_tool(q, true_params)
+
+    say(f"designing configurations ({cell.design.kind}) for {robot.name} in {cell.name}")
+    if cell.design.kind == "seed":
+        views = seed_design(cell, true_camera, design_rng)
+    else:
+        views = space_filling_design(cell, true_camera, design_rng, progress=say)
+    q = np.array([v.q for v in views])
+    config_ids = [f"c{i:04d}" for i in range(len(views))]
+    say(f"  {len(views)} configurations; measuring")
+
+    out = Path(out_dir)
+    (out / "truth").mkdir(parents=True, exist_ok=True)
+    counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng)
+    deviation = positioning_deviation(cell, q, true_params)
+    _write_header(out, cell, seed, len(views), counts)
+    truth = {
+        "note": "Ground truth of a simulation: for scoring only; no estimation code reads this file.",
+        "seed": seed,
+        "cell": Path(cell.source).name,
+        "design": cell.design.kind,
+        "units": {"length": "m", "angle": "rad", "compliance": "rad/(N m)"},
+        "parameters": true_params,
+        "camera_mounting_nominal": _pose_doc(robot.tool_pose),
+        "base_pose_nominal": _pose_doc(robot.base_pose),
+        "fixture_pose": _pose_doc(cell.fixture_pose),
+        "tracker_pose": _pose_doc(cell.tracker_pose),
+        "tracker_targets": {f"t{i + 1}": [float(v) for v in t] for i, t in enumerate(cell.tracker_targets)},
+        "noise_sigma": {
+            "camera_point_m": cell.camera_point_sigma_m,
+            "pixel_px": cell.pixel_sigma_px,
+            "tracker_m": cell.tracker_sigma_m,
+        },
+        "deviation_before_calibration_m": {"mean": float(deviation.mean()), "max": float(deviation.max())},
+    }
+    (out / "truth" / "ground_truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
+    return SimulationResult(
+        out,
+        seed,
+        cell.design.kind,
+        len(views),
+        counts,
+        float(deviation.mean()),
+        float(deviation.max()),
+        time.perf_counter() - started,
+    )
+
+
+def _write_measurements(
+    out: Path,
+    cell: Cell,
+    views: list[View],
+    q: np.ndarray,
+    config_ids: list[str],
+    true_params: dict[str, float],
+    rng: np.random.Generator,
+) -> dict[str, int]:
+    robot = cell.robot
+    write_csv(
+        out / "configurations.csv",
+        ["config"] + [f"q{i}" for i in range(1, robot.n_joints + 1)],
+        [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)],
+    )
+    write_csv(
+        out / "points.csv",
+        ["point", "object", "side", "x", "y", "z"],
+        [[p.name, p.obj, p.side, *map(float, p.position_F)] for p in cell.points()],
+    )
+
+    T_C_W = inverse(robot.fk_tool(q, true_params))
+    cam_rows, cam_noise, px_rows, px_noise = [], [], [], []
+    for cid, view, T in zip(config_ids, views, T_C_W, strict=True):
+        names = [p.name for p in view.block]
+        p_W = transform_points(cell.fixture_pose, np.array([p.position_F for p in view.block]))
+        p_C = transform_points(T, p_W)
+        noise = rng.normal(0.0, cell.camera_point_sigma_m, p_C.shape)
+        pixels = cell.camera.project(p_C)
+        pixel_noise = rng.normal(0.0, cell.pixel_sigma_px, pixels.shape)
+        for name, p, n, px, pn in zip(names, p_C, noise, pixels, pixel_noise, strict=True):
+            cam_rows.append([cid, name, *map(float, p + n)])
+            cam_noise.append([cid, name, *map(float, n)])
+            px_rows.append([cid, name, *map(float, px + pn)])
+            px_noise.append([cid, name, *map(float, pn)])
+    write_csv(out / "camera_points.csv", ["config", "point", "x", "y", "z"], cam_rows)
+    write_csv(out / "pixels.csv", ["config", "point", "u", "v"], px_rows)
+    write_csv(out / "truth" / "camera_points_noise.csv", ["config", "point", "x", "y", "z"], cam_noise)
+    write_csv(out / "truth" / "pixels_noise.csv", ["config", "point", "u", "v"], px_noise)
+
+    T_T_n = inverse(cell.tracker_pose) @ robot.fk(q, true_params)
+    trk_rows, trk_noise = [], []
+    for cid, T in zip(config_ids, T_T_n, strict=True):
+        for i, target in enumerate(cell.tracker_targets):
+            n = rng.normal(0.0, cell.tracker_sigma_m, 3)
+            trk_rows.append([cid, f"t{i + 1}", *map(float, transform_points(T, target) + n)])
+            trk_noise.append([cid, f"t{i + 1}", *map(float, n)])
+    write_csv(out / "tracker_points.csv", ["config", "target", "x", "y", "z"], trk_rows)
+    write_csv(out / "truth" / "tracker_points_noise.csv", ["config", "target", "x", "y", "z"], trk_noise)
+    return {"camera_points": len(cam_rows), "pixels": len(px_rows), "tracker_points": len(trk_rows)}
+
+
+def _write_header(out: Path, cell: Cell, seed: int, n_configurations: int, counts: dict[str, int]) -> None:
+    robot = cell.robot
+    header = {
+        "format": FORMAT,
+        "robot": _robot_reference(cell),
+        "units": {"length": "m", "angle": "rad"},
+        "measured": list(counts),
+        "files": {
+            "configurations": "configurations.csv",
+            "points": "points.csv",
+            "camera_points": "camera_points.csv",
+            "pixels": "pixels.csv",
+            "tracker_points": "tracker_points.csv",
+        },
+        "camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)},
+        "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
+        "source": f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
+        f"{n_configurations} configurations); noise sigma: camera points {cell.camera_point_sigma_m} m, "
+        f"pixels {cell.pixel_sigma_px} px, tracker {cell.tracker_sigma_m} m",
+    }
+    write_header(out, header)
+
+
+def _robot_reference(cell: Cell) -> str:
+    """The bundled robot name the cell refers to (datasets stay relocatable)."""
+    return load_cell_robot_name(cell.source)
+
+
+def load_cell_robot_name(cell_path: str) -> str:
+    doc = yaml.safe_load(Path(cell_path).read_text(encoding="utf-8"))
+    ref = str(doc["robot"])
+    path = Path(cell_path).parent / ref
+    return str(path.resolve()) if path.suffix in (".yaml", ".yml") else ref

@@ -1,0 +1,34 @@
+"""The simulated "true" robot: parameters perturbed from nominal within the cell's ranges."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..parameters import split_name
+from ..robot import Robot
+from .cell import Perturbation
+
+
+def perturb_parameters(robot: Robot, pert: Perturbation, rng: np.random.Generator) -> dict[str, float]:
+    """True parameter values (SI): uniform deviations of +-half-width on lengths and angles,
+    uniform compliances in [low, high] on the compliant joints, zero compliance elsewhere."""
+    true = robot.nominal_parameters()
+    low, high = pert.compliance_range
+    for name in robot.parameter_names:
+        kind, owner = split_name(name)
+        if owner == "base":
+            width = pert.base_length_m if kind.startswith("t") else pert.base_angle_rad
+        elif owner == "tool":
+            width = pert.tool_length_m if kind.startswith("t") else pert.tool_angle_rad
+        elif kind in ("d", "a"):
+            width = pert.length_m
+        elif kind in ("theta", "alpha"):
+            width = pert.angle_rad
+        elif kind in ("sx", "sy"):
+            width = pert.distortion_rad
+        else:  # compliance
+            if owner in pert.compliant_joints and high > 0:
+                true[name] = float(rng.uniform(low, high))
+            continue
+        true[name] += float(rng.uniform(-width, width))
+    return true
