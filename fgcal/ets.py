@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .se3 import so3_exp, so3_left_jacobian
+from .se3 import cross, so3_exp, so3_left_jacobian
 
 AXES = ("Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "Rvec")
 
@@ -110,14 +110,14 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
         if et.axis == "Rvec":
             omega = rot @ so3_left_jacobian(params[et.param : et.param + 3])  # (N, 3, 3): columns
             omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
-            v0 = -np.cross(omega, origin[:, None, :])
+            v0 = -cross(omega, origin[:, None, :])
             twists.append(np.concatenate([omega, v0], axis=-1))
             continue
         axis = rot[:, :, et.axis_index]
         twist = np.zeros((n_conf, 1, 6))
         if et.is_rotation:
             twist[:, 0, :3] = axis
-            twist[:, 0, 3:] = -np.cross(axis, origin)
+            twist[:, 0, 3:] = -cross(axis, origin)
         else:
             twist[:, 0, 3:] = axis
         twists.append(twist)

@@ -23,6 +23,7 @@ import numpy as np
 
 from .errors import InputError
 from .ets import element_twists, evaluate
+from .se3 import cross
 
 if TYPE_CHECKING:
     from .robot import Robot
@@ -83,7 +84,7 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray) -> KinematicsData:
     moments = np.empty((n_conf, 3 * n))
     for i in range(n):
         bend = rigid[chain.bend[i]]
-        torque_world[:, i] = np.cross(first_moment[:, i] - suffix_mass[i] * bend[:, :3, 3], g)
+        torque_world[:, i] = cross(first_moment[:, i] - suffix_mass[i] * bend[:, :3, 3], g)
         moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
     frames = evaluate(chain.elements, params, q, moments) if robot.model == "DH,s,e" else rigid
     return KinematicsData(params, q, frames, rigid, moments, first_moment, suffix_mass, torque_world)
@@ -105,79 +106,100 @@ def frame_pose(robot: Robot, data: KinematicsData, frame: str = "flange") -> np.
     return data.frames[frame_index(robot, frame)]
 
 
-def moment_derivative(robot: Robot, data: KinematicsData, element: int, twist: np.ndarray) -> np.ndarray:
-    """Derivative (N, 3n) of all gravity moments w.r.t. one column of a rigid-chain element.
+def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray, twists: np.ndarray) -> np.ndarray:
+    """Derivatives (N, E, 3n) of all gravity moments w.r.t. E columns of rigid-chain elements.
 
-    ``twist`` (N, 6) is that column's spatial twist on the undeformed chain.
+    ``elements`` (E,) are the element indices, ``twists`` (N, E, 6) the columns' spatial
+    twists on the undeformed chain. For bodies S beyond joint i moved by the column::
+
+        d tau_i = ((omega x C_S + M_S v0) - [upstream of B_i] M_i (omega x o_i + v0)) x g
+        d t_i   = R_i^T (d tau_i - [upstream of B_i] omega x tau_i)
     """
     chain = robot.chain
     n = robot.n_joints
-    omega, v0 = twist[:, :3], twist[:, 3:]
-    body_frames = _body_frames(robot)
-    first_body = next((b for b, f in enumerate(body_frames) if f > element), n + 1)
+    omega, v0 = twists[..., None, :3], twists[..., None, 3:]  # (N, E, 1, 3)
+    body_frames = np.array(_body_frames(robot))
+    # First body each column moves: bodies are ordered along the chain.
+    first_body = np.searchsorted(body_frames, elements, side="right")
+    joints = np.arange(n)
+    start = np.maximum(joints[None, :], first_body[:, None])  # (E, n)
+    upstream = (elements[:, None] < np.array(chain.bend)[None, :])[None, :, :, None]  # (1, E, n, 1)
+    first_moment = data.first_moment[:, start]  # (N, E, n, 3)
+    moved = cross(omega, first_moment) + data.suffix_mass[start][None, :, :, None] * v0
+    bends = data.frames_rigid[list(chain.bend)]  # (n, N, 4, 4)
+    origins = np.swapaxes(bends[:, :, :3, 3], 0, 1)[:, None]  # (N, 1, n, 3)
+    rotations = np.swapaxes(bends[:, :, :3, :3], 0, 1)  # (N, n, 3, 3)
+    origin_rate = cross(omega, origins) + v0
     g = robot.gravity
-    out = np.zeros((data.q.shape[0], 3 * n))
-    for i in range(n):
-        start = max(i, first_body)
-        moved = np.cross(omega, data.first_moment[:, start]) + data.suffix_mass[start] * v0
-        bend = data.frames_rigid[chain.bend[i]]
-        if element < chain.bend[i]:
-            origin_rate = np.cross(omega, bend[:, :3, 3]) + v0
-            d_tau = np.cross(moved - data.suffix_mass[i] * origin_rate, g) - np.cross(omega, data.torque_world[:, i])
-        else:
-            d_tau = np.cross(moved, g)
-        out[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], d_tau)
-    return out
+    lever = moved - np.where(upstream, data.suffix_mass[:n][None, None, :, None] * origin_rate, 0.0)
+    d_tau = cross(lever, g) - np.where(upstream, cross(omega, data.torque_world[:, None]), 0.0)
+    # (R_i^T d)^T = d^T R_i, as one batched matmul.
+    d_t = np.matmul(d_tau[..., None, :], rotations[:, None])[..., 0, :]
+    return d_t.reshape(d_t.shape[0], d_t.shape[1], 3 * n)
 
 
-def _direct_columns(robot: Robot, name: str) -> list[tuple[int, int, float | None]]:
-    """Elements through which ``name`` enters directly: (element, column, joint sign or None)."""
+def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float]]:
+    """Entries (target, element, column, scale) through which each name enters directly."""
     chain = robot.chain
-    if name.startswith("q") and name[1:].isdigit():
-        joint = int(name[1:]) - 1
-        if not 0 <= joint < robot.n_joints:
-            raise InputError(None, "wrt", f"{robot.name} has no joint {name}")
-        return [(k, 0, et.sign) for k, et in enumerate(chain.elements) if et.joint == joint]
-    try:
-        p = robot.parameter_names.index(name)
-    except ValueError:
-        raise InputError(None, "wrt", f"unknown parameter or joint name {name!r}") from None
-    out = []
+    index = {name: t for t, name in enumerate(robot.parameter_names)}
+    by_param: dict[int, list[tuple[int, int]]] = {}
+    by_joint: dict[int, list[tuple[int, float]]] = {}
     for k, et in enumerate(chain.elements):
-        if et.axis == "Rvec" and et.param <= p < et.param + 3:
-            out.append((k, p - et.param, None))
-        elif et.param == p and et.axis != "Rvec":
-            out.append((k, 0, None))
-    return out
+        if et.axis == "Rvec":
+            for c in range(3):
+                by_param.setdefault(et.param + c, []).append((k, c))
+        elif et.param is not None:
+            by_param.setdefault(et.param, []).append((k, 0))
+        if et.joint is not None:
+            by_joint.setdefault(et.joint, []).append((k, et.sign))
+    entries = []
+    for t, name in enumerate(wrt):
+        if name.startswith("q") and name[1:].isdigit():
+            joint = int(name[1:]) - 1
+            if not 0 <= joint < robot.n_joints:
+                raise InputError(None, "wrt", f"{robot.name} has no joint {name}")
+            entries += [(t, k, 0, sign) for k, sign in by_joint.get(joint, [])]
+        elif name in index:
+            entries += [(t, k, c, 1.0) for k, c in by_param.get(index[name], [])]
+        else:
+            raise InputError(None, "wrt", f"unknown parameter or joint name {name!r}")
+    return entries
 
 
 def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], frame: str = "flange") -> np.ndarray:
     """Spatial twists (N, len(wrt), 6) of ``frame`` w.r.t. each name in ``wrt``."""
     chain = robot.chain
     out_index = frame_index(robot, frame)
-    twists = data.twists(chain.elements, rigid=False)
-    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and k < out_index]
     n_conf = data.q.shape[0]
+    entries = _direct_columns(robot, wrt)
     result = np.zeros((n_conf, len(wrt), 6))
-    for col, name in enumerate(wrt):
-        moment_rate = np.zeros((n_conf, 3 * robot.n_joints))
-        for k, c, sign in _direct_columns(robot, name):
-            et = chain.elements[k]
-            scale = 1.0 if sign is None else sign
-            if et.moment is not None:
-                if k < out_index:
-                    result[:, col] += twists[k][:, c] * (scale * data.moments[:, et.moment])[:, None]
-                continue
-            if k < out_index:
-                result[:, col] += scale * twists[k][:, c]
-            if deflections:
-                rigid_twist = data.twists(chain.elements, rigid=True)[k][:, c]
-                moment_rate += scale * moment_derivative(robot, data, k, rigid_twist)
-        for k in deflections:
-            et = chain.elements[k]
-            compliance = data.params[et.param]
-            if compliance != 0.0:
-                result[:, col] += twists[k][:, 0] * (compliance * moment_rate[:, et.moment])[:, None]
+    if not entries:
+        return result
+    targets, elements, columns, scales = (np.array(v) for v in zip(*entries, strict=True))
+    deformed = data.twists(chain.elements, rigid=False)
+    twist = np.stack([deformed[k][:, c] for k, c in zip(elements, columns, strict=True)], axis=1)  # (N, E, 6)
+    moment_of = np.array([-1 if chain.elements[k].moment is None else chain.elements[k].moment for k in elements])
+    is_compliance = moment_of >= 0
+    coefficient = np.broadcast_to(scales, (n_conf, len(entries))).copy()
+    coefficient[:, is_compliance] *= data.moments[:, moment_of[is_compliance]]
+    coefficient[:, elements >= out_index] = 0.0
+    contribution = twist * coefficient[..., None]
+
+    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and k < out_index]
+    geometric = ~is_compliance
+    if deflections and np.any(geometric):
+        compliances = np.array([data.params[chain.elements[k].param] for k in deflections])
+        moment_index = [chain.elements[k].moment for k in deflections]
+        if np.any(compliances != 0.0):
+            rigid = data.twists(chain.elements, rigid=True)
+            rigid_twist = np.stack(
+                [rigid[k][:, c] for k, c in zip(elements[geometric], columns[geometric], strict=True)], axis=1
+            )
+            rates = moment_derivatives(robot, data, elements[geometric], rigid_twist)[:, :, moment_index]
+            deflection_twists = np.stack([deformed[k][:, 0] for k in deflections], axis=1)  # (N, M, 6)
+            weighted = rates * (compliances[None, None, :] * scales[geometric][None, :, None])
+            contribution[:, geometric] += np.matmul(weighted, deflection_twists)
+    np.add.at(result, (slice(None), targets), contribution)
     return result
 
 
@@ -191,9 +213,9 @@ def jacobian(
     T = frame_pose(robot, data, frame)
     if point is not None:
         p_world = T[:, :3, :3] @ np.asarray(point, float) + T[:, :3, 3]
-        return np.swapaxes(np.cross(omega, p_world[:, None, :]) + v0, 1, 2)
+        return np.swapaxes(cross(omega, p_world[:, None, :]) + v0, 1, 2)
     rot_t = np.swapaxes(T[:, :3, :3], 1, 2)
-    origin_velocity = np.cross(omega, T[:, None, :3, 3]) + v0
+    origin_velocity = cross(omega, T[:, None, :3, 3]) + v0
     body_omega = np.einsum("nij,ntj->nit", rot_t, omega)
     body_v = np.einsum("nij,ntj->nit", rot_t, origin_velocity)
     return np.concatenate([body_omega, body_v], axis=1)

@@ -20,6 +20,14 @@ def skew(w: np.ndarray) -> np.ndarray:
     return out
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis with broadcasting (much faster than np.cross on
+    small stacked arrays, which dominates the Jacobian's cost)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def rot_axis(axis: str, angle_rad: float) -> np.ndarray:
     """3x3 rotation about the principal ``axis`` ('x', 'y' or 'z')."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)
