@@ -1,0 +1,2 @@
+"""Batch calibration on a GTSAM factor graph: problem assembly, identifiability, staged
+solving, covariances, validation and reports."""

@@ -1,0 +1,61 @@
+"""Kinematics of every configuration at once, for the kinematic factors of one graph."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from .. import kinematics
+from ..robot import Robot
+
+
+class BatchKinematics:
+    """FK (N, 4, 4) and body Jacobians (N, 6, m) of ``frame`` at all configurations ``q``,
+    as functions of the m released parameters; the others stay at ``full_params``.
+
+    Results are cached on the released values: when GTSAM evaluates or linearises the
+    graph, the first kinematic factor triggers one vectorised evaluation and the others
+    reuse it.
+    """
+
+    def __init__(
+        self, robot: Robot, full_params: np.ndarray, released: Sequence[str], q: np.ndarray, frame: str
+    ) -> None:
+        self.robot = robot
+        self.base = np.array(full_params, dtype=float)
+        self.released = list(released)
+        self.index = np.array([robot.parameter_names.index(name) for name in self.released], dtype=int)
+        self.q = np.asarray(q, dtype=float)
+        self.frame = frame
+        self._cache: dict[bytes, dict] = {}
+
+    @property
+    def n_released(self) -> int:
+        return len(self.released)
+
+    def full(self, released_values: np.ndarray) -> np.ndarray:
+        params = self.base.copy()
+        params[self.index] = released_values
+        return params
+
+    def _entry(self, released_values: np.ndarray) -> dict:
+        values = np.asarray(released_values, dtype=float)
+        key = values.tobytes()
+        entry = self._cache.get(key)
+        if entry is None:
+            if len(self._cache) >= 4:  # LM alternates between a few trial points
+                self._cache.pop(next(iter(self._cache)))
+            data = kinematics.forward(self.robot, self.full(values), self.q)
+            entry = {"data": data, "poses": kinematics.frame_pose(self.robot, data, self.frame)}
+            self._cache[key] = entry
+        return entry
+
+    def poses(self, released_values: np.ndarray) -> np.ndarray:
+        return self._entry(released_values)["poses"]
+
+    def jacobians(self, released_values: np.ndarray) -> np.ndarray:
+        entry = self._entry(released_values)
+        if "jacobians" not in entry:
+            entry["jacobians"] = kinematics.jacobian(self.robot, entry["data"], self.released, frame=self.frame)
+        return entry["jacobians"]
