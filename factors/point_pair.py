@@ -8,52 +8,77 @@ import numpy as np
 from .base import CheckedFactor, point_jacobian
 
 
-class PointPairFactor(CheckedFactor):
-    """``r_h = X_j c_u - X_k c_v + R_W_F uv_F`` for every pair h of the factor  (m).
+def helmert(count: int) -> np.ndarray:
+    """(count-1, count) orthonormal contrasts: rows sum to zero and are orthonormal.
 
-    ``c_u`` (M, 3): points U measured in the camera frame at configuration j; ``c_v`` (M, 3):
-    points V measured at configuration k; ``uv_F`` (M, 3) = V - U from the object drawings, in
-    the fixture frame F. The fixture orientation ``R_W_F`` is a constant (``fixture_rotation``)
-    or, with ``fixture_key``, a Rot3 variable. With j == k (pairs within one image) the
-    factor has one pose variable.
+    Row 0 is (e_1 - e_2)/sqrt(2); row r contrasts observation r+2 with the mean of the
+    first r+1 ones.
+    """
+    rows = np.zeros((count - 1, count))
+    for r in range(count - 1):
+        k = r + 1
+        rows[r, :k] = 1.0
+        rows[r, k] = -k
+        rows[r] /= np.sqrt(k * (k + 1))
+    return rows
+
+
+class PointPairFactor(CheckedFactor):
+    """``r = H (X_j(o) c_o - R_W_F p_o)`` over the observations o of a group  (m).
+
+    Observation o: point with drawing coordinates ``p_o`` (fixture frame F) measured at
+    ``c_o`` in the camera frame of configuration j(o). H holds the orthonormal contrasts
+    (:func:`helmert`): each row is a combination of the seed's point-pair residuals
+    ``X_j c_u - X_k c_v + R_W_F (p_V - p_U)`` (eq. 3; row 0 is the pair of the first two
+    observations over sqrt 2), and together they carry every point pair of the group. With
+    independent measurement noise sigma per coordinate the rows have covariance sigma^2 I
+    exactly, however many pairs share an observation. The unknown common position of the
+    points (the base) cancels. ``R_W_F`` is a constant or, with ``fixture_key``, a Rot3
+    variable.
     """
 
     def __init__(
         self,
-        pose_j: int,
-        pose_k: int,
-        c_u: np.ndarray,
-        c_v: np.ndarray,
-        uv_F: np.ndarray,
+        pose_keys: list[int],
+        owner: np.ndarray,
+        c: np.ndarray,
+        p_F: np.ndarray,
         noise: gtsam.noiseModel.Base,
         sigmas: np.ndarray,
         fixture_key: int | None = None,
         fixture_rotation: np.ndarray | None = None,
     ) -> None:
-        self.c_u, self.c_v, self.uv_F = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (c_u, c_v, uv_F))
-        self.same_pose = pose_j == pose_k
+        self.owner = np.asarray(owner, dtype=int)  # observation -> index into pose_keys
+        self.c = np.asarray(c, dtype=float).reshape(-1, 3)
+        self.p_F = np.asarray(p_F, dtype=float).reshape(-1, 3)
+        if len(self.c) < 2 or not len(self.c) == len(self.p_F) == len(self.owner):
+            raise ValueError("a point-pair factor needs at least two observations, each with a drawing point")
+        self.contrasts = helmert(len(self.c))
         self.fixture_rotation = np.eye(3) if fixture_rotation is None else np.asarray(fixture_rotation, float)
-        variables = [(pose_j, "pose3", None)] + ([] if self.same_pose else [(pose_k, "pose3", None)])
+        self.estimate_fixture = fixture_key is not None
+        variables = [(key, "pose3", None) for key in pose_keys]
         if fixture_key is not None:
             variables.append((fixture_key, "rot3", None))
-        self.estimate_fixture = fixture_key is not None
         super().__init__(variables, noise, sigmas)
 
     def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        pose_j = inputs[0]
-        pose_k = pose_j if self.same_pose else inputs[1]
+        n_poses = len(inputs) - (1 if self.estimate_fixture else 0)
+        poses = [inputs[i].matrix() for i in range(n_poses)]
         R_W_F = inputs[-1].matrix() if self.estimate_fixture else self.fixture_rotation
-        T_j, T_k = pose_j.matrix(), pose_k.matrix()
-        x_u = self.c_u @ T_j[:3, :3].T + T_j[:3, 3]
-        x_v = self.c_v @ T_k[:3, :3].T + T_k[:3, 3]
-        uv_W = self.uv_F @ R_W_F.T
-        residual = (x_u - x_v + uv_W).reshape(-1)
+        rotations = np.array([T[:3, :3] for T in poses])[self.owner]
+        translations = np.array([T[:3, 3] for T in poses])[self.owner]
+        world = np.einsum("oij,oj->oi", rotations, self.c) + translations - self.p_F @ R_W_F.T
+        residual = (self.contrasts @ world).reshape(-1)
         if not jacobians:
             return residual, []
-        d_j = np.vstack([point_jacobian(T_j[:3, :3], c) for c in self.c_u])
-        d_k = -np.vstack([point_jacobian(T_k[:3, :3], c) for c in self.c_v])
-        blocks = [d_j + d_k] if self.same_pose else [d_j, d_k]
+        blocks = []
+        for i in range(n_poses):
+            block = np.zeros((residual.size, 6))
+            for o in np.flatnonzero(self.owner == i):
+                block += np.kron(self.contrasts[:, o : o + 1], point_jacobian(rotations[o], self.c[o]))
+            blocks.append(block)
         if self.estimate_fixture:
-            # R Exp(w) uv = R uv + R (w x uv) = R uv - R [uv]x w
-            blocks.append(np.vstack([point_jacobian(R_W_F, uv)[:, :3] for uv in self.uv_F]))
+            # d(-R Exp(w) p)/dw = R [p]x
+            per_obs = [-point_jacobian(R_W_F, p)[:, :3] for p in self.p_F]
+            blocks.append(sum(np.kron(self.contrasts[:, o : o + 1], per_obs[o]) for o in range(len(self.p_F))))
         return residual, blocks

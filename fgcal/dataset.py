@@ -8,6 +8,8 @@ Header fields (documented in docs/formats.md)::
     measured: [camera_points, pixels, tracker_points]
     files: {configurations: configurations.csv, points: points.csv, ...}
     camera: {image_size, intrinsics, distortion, mounting: {xyz, rpy}}   # when a camera was used
+    payload: {mass, com}           # kg; com in the flange frame (gravity moments need it)
+    fixture: {xyz, rpy}            # nominal T_W_F of the calibration objects (drawing)
     tracker: {targets: [names]}    # when a tracker was used
     source: free text (simulation seed, converter, instrument)
 
@@ -41,7 +43,19 @@ from .se3 import pose_from_xyz_rpy
 from .units import Units, parse_units
 
 FORMAT = "fgcal-dataset/1"
-HEADER_KEYS = ("format", "robot", "units", "measured", "files", "camera", "tracker", "source", "notes")
+HEADER_KEYS = (
+    "format",
+    "robot",
+    "units",
+    "measured",
+    "files",
+    "camera",
+    "payload",
+    "fixture",
+    "tracker",
+    "source",
+    "notes",
+)
 # table name -> (id columns, numeric columns, kind of numeric columns)
 TABLES = {
     "points": (("point", "object", "side"), ("x", "y", "z"), "length"),
@@ -73,6 +87,7 @@ class Dataset:
     tables: dict[str, Table] = field(default_factory=dict)
     camera: Camera | None = None
     camera_mounting: np.ndarray | None = None  # nominal T_n_C
+    fixture_pose: np.ndarray | None = None  # nominal T_W_F
     header: dict = field(default_factory=dict)
 
     def config_index(self, config_ids: np.ndarray) -> np.ndarray:
@@ -210,10 +225,27 @@ def load_dataset(path: str | Path) -> Dataset:
         cam.check_keys(("image_size", "intrinsics", "distortion", "mounting"))
         dataset.camera = parse_camera(cam)
         mount = cam.sub("mounting", {})
-        dataset.camera_mounting = pose_from_xyz_rpy(
-            mount.vector("xyz", 3, [0, 0, 0], units.to_m), mount.vector("rpy", 3, [0, 0, 0], units.to_rad)
+        dataset.camera_mounting = _pose(mount, units)
+        # The camera is the robot's tool: its mounting is the nominal T_n_C.
+        dataset.robot = dataset.robot.with_tool(dataset.camera_mounting)
+    if doc.has("payload"):
+        payload = doc.sub("payload")
+        payload.check_keys(("mass", "com"))
+        dataset.robot = dataset.robot.with_tool(
+            dataset.robot.tool_pose,
+            payload.number("mass", nonnegative=True),
+            payload.vector("com", 3, [0, 0, 0], units.to_m),
         )
+    if doc.has("fixture"):
+        dataset.fixture_pose = _pose(doc.sub("fixture"), units)
     return dataset
+
+
+def _pose(fields: Fields, units: Units) -> np.ndarray:
+    fields.check_keys(("xyz", "rpy"))
+    return pose_from_xyz_rpy(
+        fields.vector("xyz", 3, [0, 0, 0], units.to_m), fields.vector("rpy", 3, [0, 0, 0], units.to_rad)
+    )
 
 
 def write_header(path: Path, header: dict) -> None:

@@ -51,17 +51,17 @@ def _cases():
     values.insert(1, _pose())
     values.insert(2, _pose())
     values.insert(3, gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)))
-    pts = RNG.normal(0, 0.3, (4, 3))
+    pts = RNG.normal(0, 0.3, (6, 3))
+    drawings = RNG.normal(0, 0.5, (6, 3))
     cases.append(
         (
             PointPairFactor(
-                1,
-                2,
+                [1, 2],
+                np.array([0, 0, 0, 1, 1, 1]),
                 pts,
-                pts[::-1],
-                RNG.normal(0, 0.1, (4, 3)),
-                gaussian(np.full(12, 1e-4)),
-                np.full(12, 1e-4),
+                drawings,
+                gaussian(np.full(15, 1e-4)),
+                np.full(15, 1e-4),
                 fixture_key=3,
             ),
             values,
@@ -70,11 +70,10 @@ def _cases():
     cases.append(
         (
             PointPairFactor(
-                1,
-                1,
-                pts[:2],
-                pts[2:],
-                RNG.normal(0, 0.1, (2, 3)),
+                [1],
+                np.zeros(3, dtype=int),
+                pts[:3],
+                drawings[:3],
                 gaussian(np.full(6, 1e-4)),
                 np.full(6, 1e-4),
                 fixture_rotation=gtsam.Rot3.Rz(0.3).matrix(),
@@ -153,6 +152,24 @@ class _WrongShape(CheckedFactor):
     def evaluate(self, inputs, jacobians):
         # A non-zero residual, so that the optimiser has to linearise.
         return np.ones(3), [np.zeros((3, 2))] if jacobians else []
+
+
+def test_helmert_contrasts_are_orthonormal_and_carry_the_pair():
+    from fgcal.factors.point_pair import helmert
+
+    H = helmert(5)
+    np.testing.assert_allclose(H @ H.T, np.eye(4), atol=1e-15)
+    np.testing.assert_allclose(H.sum(axis=1), 0.0, atol=1e-15)
+    # Two observations: the seed's pair residual x_u - x_v + (p_V - p_U), over sqrt(2).
+    values = gtsam.Values()
+    pose_j, pose_k = _pose(), _pose()
+    values.insert(1, pose_j)
+    values.insert(2, pose_k)
+    c = RNG.normal(0, 0.3, (2, 3))
+    p_F = RNG.normal(0, 0.5, (2, 3))
+    factor = PointPairFactor([1, 2], np.array([0, 1]), c, p_F, gaussian(np.full(3, 1.0)), np.full(3, 1.0))
+    seed_pair = pose_j.transformFrom(c[0]) - pose_k.transformFrom(c[1]) + (p_F[1] - p_F[0])
+    np.testing.assert_allclose(factor.factor.unwhitenedError(values), seed_pair / np.sqrt(2), atol=1e-12)
 
 
 def test_malformed_jacobian_raises_instead_of_crashing():

@@ -197,6 +197,8 @@ def _write_header(out: Path, cell: Cell, seed: int, n_configurations: int, count
             "tracker_points": "tracker_points.csv",
         },
         "camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)},
+        "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
+        "fixture": _pose_doc(cell.fixture_pose),
         "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
         "source": f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
         f"{n_configurations} configurations); noise sigma: camera points {cell.camera_point_sigma_m} m, "

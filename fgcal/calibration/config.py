@@ -1,0 +1,166 @@
+"""Calibration configuration (YAML, documented in docs/calibration.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..fields import Fields, read_yaml
+from ..parameters import JOINT_KINDS
+from ..robot import MODELS
+from ..units import parse_units
+
+FORMULATIONS = ("pairs", "tracker")
+KINDS = (*JOINT_KINDS, "base", "tool")
+SEED_STAGES = (
+    ("theta",),
+    ("alpha", "sx", "sy"),
+    ("kx", "ky", "kz"),
+    ("theta", "alpha", "sx", "sy", "kx", "ky", "kz", "d", "a", "base", "tool"),
+)
+ONE_SHOT = (SEED_STAGES[-1],)
+PARTNERS = ("other_object", "same_object", "same_side", "any")
+CONFIG_KEYS = (
+    "dataset",
+    "units",
+    "formulation",
+    "model",
+    "compliant_joints",
+    "fixture_orientation",
+    "schedule",
+    "stages",
+    "bounds",
+    "noise",
+    "robust",
+    "pairs",
+    "validation",
+    "identifiability",
+    "solver",
+    "notes",
+)
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    path: Path
+    dataset: Path
+    formulation: str
+    model: str
+    compliant_joints: tuple[int, ...]
+    fixture_orientation: str
+    schedule: str
+    stages: tuple[tuple[str, ...], ...]
+    length_bound_m: float
+    camera_point_sigma_m: float
+    tracker_sigma_m: float
+    kinematic_sigma: float | None  # None: 1% of the measurement sigma
+    robust: dict
+    pair_partner: str
+    group_images: int
+    pair_seed: int
+    holdout: float
+    split_seed: int
+    min_information: float
+    max_iterations: int
+
+    @property
+    def measurement_sigma_m(self) -> float:
+        return self.camera_point_sigma_m if self.formulation == "pairs" else self.tracker_sigma_m
+
+    @property
+    def pose_tie_sigma(self) -> float:
+        """Sigma of the kinematic factors (rad, m): the pose variables follow the kinematics
+        a hundred times more tightly than the measurements constrain them, so they cannot
+        absorb measurement residuals, yet Levenberg-Marquardt stays well conditioned."""
+        return self.kinematic_sigma if self.kinematic_sigma is not None else 1e-2 * self.measurement_sigma_m
+
+    @staticmethod
+    def defaults(dataset: str | Path, **overrides) -> CalibrationConfig:
+        """A configuration with every default, for the API and tests."""
+        raw = {"dataset": str(dataset), **overrides}
+        return parse_config(raw, Path("<defaults>"), base_dir=Path("."))
+
+
+def _robust(fields: Fields, key: str, default):
+    raw = fields.raw(key, default)
+    if raw is None or raw == "none":
+        return None
+    if not (isinstance(raw, list) and len(raw) == 2 and raw[0] in ("huber", "cauchy")):
+        raise fields.error(key, f"expected [huber|cauchy, threshold in sigmas] or none, got {raw!r}")
+    threshold = Fields({"k": raw[1]}, fields.source, fields.path(key)).number("k", positive=True)
+    return (str(raw[0]), threshold)
+
+
+def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> CalibrationConfig:
+    doc = Fields(raw, source)
+    doc.check_keys(CONFIG_KEYS)
+    units = parse_units(doc.raw("units", None), source)
+    base = base_dir if base_dir is not None else source.parent
+    formulation = doc.string("formulation", "pairs", FORMULATIONS)
+    schedule = doc.string("schedule", "staged", ("staged", "one_shot", "custom"))
+    if doc.has("stages"):
+        schedule = "custom"
+        stages = []
+        for i, stage in enumerate(doc.items("stages")):
+            if not isinstance(stage, list) or not stage:
+                raise doc.error(f"stages[{i}]", "each stage is a non-empty list of parameter kinds")
+            for kind in stage:
+                if kind not in KINDS:
+                    raise doc.error(f"stages[{i}]", f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})")
+            stages.append(tuple(stage))
+    elif schedule == "custom":
+        raise doc.error("stages", "schedule 'custom' needs a stages list")
+    else:
+        stages = list(SEED_STAGES if schedule == "staged" else ONE_SHOT)
+    joints = tuple(doc.items("compliant_joints", [1, 2, 3]))
+    for j in joints:
+        if isinstance(j, bool) or not isinstance(j, int) or j < 1:
+            raise doc.error("compliant_joints", f"joint numbers are integers >= 1, got {j!r}")
+    bounds = doc.sub("bounds", {})
+    bounds.check_keys(("length",))
+    noise = doc.sub("noise", {})
+    noise.check_keys(("camera_point_sigma", "tracker_sigma", "kinematic_sigma"))
+    robust = doc.sub("robust", {})
+    robust.check_keys(("camera_points", "tracker_points"))
+    pairs = doc.sub("pairs", {})
+    pairs.check_keys(("partner", "seed", "group_images"))
+    validation = doc.sub("validation", {})
+    validation.check_keys(("holdout", "seed"))
+    holdout = validation.number("holdout", 0.25)
+    if not 0.0 <= holdout < 0.9:
+        raise validation.error("holdout", f"fraction of configurations held out must be in [0, 0.9), got {holdout}")
+    ident = doc.sub("identifiability", {})
+    ident.check_keys(("min_information",))
+    solver = doc.sub("solver", {})
+    solver.check_keys(("max_iterations",))
+    to_m = units.to_m
+    return CalibrationConfig(
+        path=source,
+        dataset=(base / doc.string("dataset")),
+        formulation=formulation,
+        model=doc.string("model", "DH,s,e", MODELS),
+        compliant_joints=joints,
+        fixture_orientation=doc.string("fixture_orientation", "known", ("known", "estimate")),
+        schedule=schedule,
+        stages=tuple(stages),
+        length_bound_m=bounds.number("length", 0.01 / to_m, to_m, positive=True),
+        camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, positive=True),
+        tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, positive=True),
+        kinematic_sigma=noise.number("kinematic_sigma", None, positive=True) if noise.has("kinematic_sigma") else None,
+        robust={
+            "camera_points": _robust(robust, "camera_points", None),
+            "tracker_points": _robust(robust, "tracker_points", ["huber", 3.0]),
+        },
+        pair_partner=pairs.string("partner", "other_object", PARTNERS),
+        pair_seed=pairs.integer("seed", 0),
+        group_images=pairs.integer("group_images", 4, minimum=1),
+        holdout=holdout,
+        split_seed=validation.integer("seed", 0),
+        min_information=ident.number("min_information", 3.0, positive=True),
+        max_iterations=solver.integer("max_iterations", 100, minimum=1),
+    )
+
+
+def load_config(path: str | Path) -> CalibrationConfig:
+    path = Path(path)
+    return parse_config(read_yaml(path), path)

@@ -1,0 +1,180 @@
+"""The factor graph of one stage: parameter vector P (released parameters), a pose
+variable per fitting configuration, auxiliary unknowns and the measurement factors."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from ..factors import KinematicFactor, ParameterBoundFactor, PointPairFactor, TrackerPointFactor, gaussian
+from ..parameters import split_name
+from ..se3 import transform_points
+from .batch import BatchKinematics
+from .problem import Problem
+
+P_KEY = gtsam.symbol("p", 0)
+FIXTURE_KEY = gtsam.symbol("f", 0)
+TRACKER_KEY = gtsam.symbol("l", 0)
+
+
+def pose_key(j: int) -> int:
+    return gtsam.symbol("x", j)
+
+
+def point_key(t: int) -> int:
+    return gtsam.symbol("s", t)
+
+
+@dataclass
+class State:
+    """Current estimate of everything: full parameter vector (SI) and auxiliary unknowns."""
+
+    params: np.ndarray
+    fixture_rotation: np.ndarray | None = None  # R_W_F, when estimated
+    tracker_pose: np.ndarray | None = None  # T_T_W
+    tool_points: np.ndarray | None = None  # (m, 3) in the flange frame
+
+
+@dataclass
+class StageGraph:
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    model: BatchKinematics
+    released: list[str]
+    measurements: list = field(default_factory=list)
+    pose_index: dict[int, int] = field(default_factory=dict)
+    aux: dict[int, tuple[str, int]] = field(default_factory=dict)  # key -> (name, dim)
+
+
+def initial_state(problem: Problem) -> State:
+    params = problem.robot.parameter_vector()
+    state = State(params)
+    if problem.config.formulation == "pairs" and problem.config.fixture_orientation == "estimate":
+        state.fixture_rotation = problem.fixture_rotation.copy()
+    if problem.config.formulation == "tracker":
+        state.tracker_pose, state.tool_points = initial_tracker(problem, params)
+    return state
+
+
+def initial_tracker(problem: Problem, params: np.ndarray, rounds: int = 15) -> tuple[np.ndarray, np.ndarray]:
+    """Tracker pose T_T_W and tool points from the nominal model, no guess needed:
+    alternate a Kabsch fit of the tracker pose with a linear fit of the tool points."""
+    flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
+    j = np.array([o[0] for o in problem.tracker_obs])
+    t = np.array([o[1] for o in problem.tracker_obs])
+    measured = np.array([o[2] for o in problem.tracker_obs])
+    n_targets = len(problem.targets)
+    points = np.zeros((n_targets, 3))
+    R_L, t_L = np.eye(3), np.zeros(3)
+    for _ in range(rounds):
+        world = transform_points(flange[j], points[t])
+        R_L, t_L = kabsch(world, measured)
+        # m - R_L p_j = R_L R_j s_t + t_L: linear in the tool points and t_L.
+        A = np.zeros((3 * len(j), 3 * n_targets + 3))
+        for row, (jj, tt) in enumerate(zip(j, t, strict=True)):
+            A[3 * row : 3 * row + 3, 3 * tt : 3 * tt + 3] = R_L @ flange[jj, :3, :3]
+            A[3 * row : 3 * row + 3, -3:] = np.eye(3)
+        b = (measured - flange[j, :3, 3] @ R_L.T).reshape(-1)
+        solution = np.linalg.lstsq(A, b, rcond=None)[0]
+        points = solution[:-3].reshape(n_targets, 3)
+    T_L = np.eye(4)
+    T_L[:3, :3], T_L[:3, 3] = R_L, t_L
+    return T_L, points
+
+
+def kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t minimising |R source + t - target|."""
+    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
+    H = (source - mu_s).T @ (target - mu_t)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, mu_t - R @ mu_s
+
+
+def build_graph(problem: Problem, released: Sequence[str], state: State) -> StageGraph:
+    config = problem.config
+    model = BatchKinematics(problem.robot, state.params, released, problem.q_fit, problem.frame)
+    p0 = model.base[model.index]
+    poses = model.poses(p0)
+    stage = StageGraph(gtsam.NonlinearFactorGraph(), gtsam.Values(), model, list(released))
+    kinematic_sigmas = np.full(6, config.pose_tie_sigma)
+    if released:
+        stage.values.insert(P_KEY, p0)
+    for j, T in enumerate(poses):
+        key = pose_key(j)
+        stage.values.insert(key, gtsam.Pose3(T))
+        stage.pose_index[key] = j
+        if released:
+            stage.graph.add(KinematicFactor(P_KEY, key, j, model, kinematic_sigmas).factor)
+        else:  # nothing released: the poses follow the current model exactly
+            stage.graph.add(gtsam.PriorFactorPose3(key, gtsam.Pose3(T), gaussian(kinematic_sigmas)))
+    nominal = problem.robot.nominal_parameters()
+    bounded = [i for i, name in enumerate(released) if split_name(name)[0] in ("d", "a")]
+    if bounded:
+        stage.graph.add(
+            ParameterBoundFactor(
+                P_KEY,
+                len(released),
+                np.array(bounded),
+                np.array([nominal[released[i]] for i in bounded]),
+                np.full(len(bounded), config.length_bound_m),
+            ).factor
+        )
+    if config.formulation == "pairs":
+        _add_pairs(problem, state, stage)
+    else:
+        _add_tracker(problem, state, stage)
+    return stage
+
+
+def _add_pairs(problem: Problem, state: State, stage: StageGraph) -> None:
+    config = problem.config
+    fixture_key = None
+    if state.fixture_rotation is not None:
+        fixture_key = FIXTURE_KEY
+        stage.values.insert(FIXTURE_KEY, gtsam.Rot3(state.fixture_rotation))
+        stage.aux[FIXTURE_KEY] = ("fixture.r", 3)
+    for group in problem.pairs:
+        sigmas = np.full(3 * (len(group.c) - 1), config.camera_point_sigma_m)
+        factor = PointPairFactor(
+            [pose_key(j) for j in group.images],
+            group.owner,
+            group.c,
+            group.p_F,
+            gaussian(sigmas, config.robust["camera_points"]),
+            sigmas,
+            fixture_key=fixture_key,
+            fixture_rotation=problem.fixture_rotation,
+        )
+        stage.graph.add(factor.factor)
+        stage.measurements.append(factor)
+
+
+def _add_tracker(problem: Problem, state: State, stage: StageGraph) -> None:
+    config = problem.config
+    stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
+    stage.aux[TRACKER_KEY] = ("tracker", 6)
+    for t, point in enumerate(state.tool_points):
+        stage.values.insert(point_key(t), np.asarray(point, dtype=float))
+        stage.aux[point_key(t)] = (f"tool_point.{problem.targets[t]}", 3)
+    sigmas = np.full(3, config.tracker_sigma_m)
+    noise = gaussian(sigmas, config.robust["tracker_points"])
+    for j, t, measured in problem.tracker_obs:
+        factor = TrackerPointFactor(TRACKER_KEY, pose_key(j), point_key(t), measured, noise, sigmas)
+        stage.graph.add(factor.factor)
+        stage.measurements.append(factor)
+
+
+def read_state(problem: Problem, stage: StageGraph, values: gtsam.Values, previous: State) -> State:
+    params = stage.model.full(values.atVector(P_KEY)) if stage.released else previous.params.copy()
+    state = State(params)
+    if previous.fixture_rotation is not None:
+        state.fixture_rotation = values.atRot3(FIXTURE_KEY).matrix()
+    if previous.tracker_pose is not None:
+        state.tracker_pose = values.atPose3(TRACKER_KEY).matrix()
+        state.tool_points = np.array([values.atPoint3(point_key(t)) for t in range(len(previous.tool_points))])
+    return state

@@ -1,0 +1,119 @@
+"""Which parameters the data determine, found numerically before solving.
+
+From the whitened measurement Jacobian at the initial estimate (pose variables
+eliminated through the kinematics, auxiliary unknowns such as the tracker pose projected
+out), columns scaled by each parameter's plausible deviation are selected greedily
+(Gram-Schmidt with pivoting) in priority order: DH (theta, d, a, alpha), then axis
+distortions, compliances, tool, base. A column whose information, after projecting out the
+columns already selected, is below ``min_information`` (1 = its standard deviation would
+exceed its plausible deviation) is unidentifiable: it is fixed at its current value and
+reported with the selected parameters it is (nearly) a combination of.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..parameters import split_name
+from .graph import StageGraph
+
+GROUPS = (("theta", "d", "a", "alpha"), ("sx", "sy"), ("kx", "ky", "kz"), ("tool",), ("base",))
+SCALE = {"length": 1e-2, "angle": 1e-2, "compliance": 1e-6}  # plausible deviations: m, rad, rad/(N m)
+
+
+@dataclass
+class Identifiability:
+    identifiable: list[str]
+    unidentifiable: dict[str, str]  # name -> reason
+    singular_values: np.ndarray  # of the scaled, whitened Jacobian of the identifiable set
+    condition_number: float
+    n_rows: int
+
+
+def parameter_scale(name: str) -> float:
+    kind, owner = split_name(name)
+    if kind in ("kx", "ky", "kz"):
+        return SCALE["compliance"]
+    if kind in ("d", "a", "tx", "ty", "tz"):
+        return SCALE["length"]
+    return SCALE["angle"]
+
+
+def group_of(name: str) -> int:
+    kind, owner = split_name(name)
+    label = owner if isinstance(owner, str) else kind
+    return next(i for i, group in enumerate(GROUPS) if label in group)
+
+
+def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened Jacobians of the measurement residuals w.r.t. the released parameters and
+    the auxiliary unknowns: (rows x m), (rows x n_aux)."""
+    p_values = stage.model.base[stage.model.index]
+    fk_jacobians = stage.model.jacobians(p_values)
+    aux_offsets, offset = {}, 0
+    for key, (_, dim) in stage.aux.items():
+        aux_offsets[key] = offset
+        offset += dim
+    rows_p, rows_aux = [], []
+    for factor in stage.measurements:
+        _, blocks = factor.checked(factor.read(stage.values), True)
+        whiten = 1.0 / factor.sigmas[:, None]
+        J_p = np.zeros((factor.dim, stage.model.n_released))
+        J_aux = np.zeros((factor.dim, offset))
+        for block, (key, _, dim) in zip(blocks, factor.variables, strict=True):
+            if key in stage.pose_index:
+                J_p += block @ fk_jacobians[stage.pose_index[key]]
+            else:
+                J_aux[:, aux_offsets[key] : aux_offsets[key] + dim] += block
+        rows_p.append(whiten * J_p)
+        rows_aux.append(whiten * J_aux)
+    return np.vstack(rows_p), np.vstack(rows_aux)
+
+
+def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
+    names = stage.released
+    J_p, J_aux = reduced_jacobian(stage)
+    if J_aux.shape[1]:
+        Q, R = np.linalg.qr(J_aux)
+        keep = np.abs(np.diag(R)) > 1e-9 * max(1.0, np.abs(np.diag(R)).max())
+        Q = Q[:, keep]
+        J_p = J_p - Q @ (Q.T @ J_p)
+    scaled = J_p * np.array([parameter_scale(n) for n in names])[None, :]
+    basis = np.zeros((scaled.shape[0], 0))
+    selected: list[int] = []
+    rejected: list[int] = []
+    for group in range(len(GROUPS)):
+        members = [i for i, n in enumerate(names) if group_of(n) == group]
+        while members:
+            residual = scaled[:, members] - basis @ (basis.T @ scaled[:, members])
+            norms = np.linalg.norm(residual, axis=0)
+            best = int(np.argmax(norms))
+            if norms[best] < min_information:
+                rejected += members
+                break
+            basis = np.hstack([basis, (residual[:, best] / norms[best])[:, None]])
+            selected.append(members.pop(best))
+    unidentifiable = {}
+    kept = scaled[:, selected]
+    for i in rejected:
+        column = scaled[:, i]
+        information = float(np.linalg.norm(column))
+        if information < min_information:
+            unidentifiable[names[i]] = f"no effect on the measurements (information {information:.2g})"
+            continue
+        coefficients = np.linalg.lstsq(kept, column, rcond=None)[0] if selected else np.zeros(0)
+        partners = sorted(zip(coefficients, [names[s] for s in selected], strict=True), key=lambda c: -abs(c[0]))
+        described = ", ".join(f"{c:+.3g} {n}" for c, n in partners[:3] if abs(c) > 0.05)
+        rest = float(np.linalg.norm(column - kept @ coefficients)) if selected else information
+        unidentifiable[names[i]] = (
+            f"a combination of other parameters ({described or 'several'}); information left {rest:.2g}"
+        )
+    if selected:
+        singular = np.linalg.svd(scaled[:, selected], compute_uv=False)
+        condition = float(singular[0] / singular[-1])
+    else:
+        singular, condition = np.zeros(0), float("inf")
+    order = [names[i] for i in sorted(selected)]
+    return Identifiability(order, unidentifiable, singular, condition, scaled.shape[0])

@@ -1,0 +1,211 @@
+"""The calibration problem: configurations split into fitting and validation sets, the
+candidate parameters, and the measurements of the chosen formulation.
+
+Pair selection (the seed's relative formulation): the fitting images are split into
+groups of ``pairs.group_images`` images by a seeded random draw; each next image of a group
+is drawn, where possible, from the category the config asks for relative to the previous
+one (default: another object, which the seed found essential). A group's factor carries
+every point pair among its observations through orthonormal contrasts (see
+fgcal.factors.PointPairFactor), so each observation belongs to exactly one factor and the
+factors' noise is independent and exact. With four points per image and G images, a group
+keeps 4G - 1 of its 4G coordinates' worth of information; the lost one is the unobservable
+common position.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..dataset import Dataset
+from ..errors import InputError
+from ..parameters import split_name
+from ..robot import Robot
+from .config import CalibrationConfig
+
+CATEGORIES = ("same_image", "same_side", "same_object", "other_object")
+
+
+@dataclass
+class PairGroup:
+    """Observations of a group of images: fitting-set index of each image, and per
+    observation the image it belongs to, the camera-frame point and the drawing point."""
+
+    images: list[int]
+    owner: np.ndarray  # observation -> position in images
+    c: np.ndarray
+    p_F: np.ndarray
+    labels: list[tuple[str, str]]  # (object, side) of each image
+
+
+@dataclass
+class Problem:
+    config: CalibrationConfig
+    dataset: Dataset
+    robot: Robot
+    frame: str
+    fit: np.ndarray  # indices into dataset configurations
+    test: np.ndarray
+    candidates: list[str]
+    pairs: list[PairGroup] = field(default_factory=list)
+    fixture_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    tracker_obs: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (fit index, target, m)
+    targets: list[str] = field(default_factory=list)
+
+    @property
+    def q_fit(self) -> np.ndarray:
+        return self.dataset.q[self.fit]
+
+    @property
+    def n_residuals(self) -> int:
+        if self.config.formulation == "pairs":
+            return sum(3 * (len(p.c) - 1) for p in self.pairs)
+        return 3 * len(self.tracker_obs)
+
+    def pair_categories(self) -> dict[str, int]:
+        """Point pairs of each category carried by the factors (every pair within a group)."""
+        counts: Counter = Counter()
+        for group in self.pairs:
+            sizes = Counter(group.owner.tolist())
+            for a in sizes:
+                counts["same_image"] += sizes[a] * (sizes[a] - 1) // 2
+                for b in sizes:
+                    if a < b:
+                        counts[category(group.labels[a], group.labels[b])] += sizes[a] * sizes[b]
+        return {c: counts.get(c, 0) for c in CATEGORIES}
+
+
+def category(a: tuple[str, str], b: tuple[str, str]) -> str:
+    """Pair category of two images from their (object, side)."""
+    if a[0] != b[0]:
+        return "other_object"
+    return "same_side" if a[1] == b[1] else "same_object"
+
+
+def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
+    """Parameters the model could estimate: the model's kinds, compliances of the compliant
+    joints, base and tool. Identifiability analysis decides which the data determine."""
+    kinds = {"theta", "d", "a", "alpha"}
+    if config.model in ("DH,s", "DH,s,e"):
+        kinds |= {"sx", "sy"}
+    names = []
+    for name in robot.parameter_names:
+        kind, owner = split_name(name)
+        if isinstance(owner, str) or kind in kinds or (
+            config.model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in config.compliant_joints
+        ):
+            names.append(name)
+    return names
+
+
+def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded random split of n configurations into fitting and held-out indices."""
+    order = np.random.default_rng(seed).permutation(n)
+    n_test = int(round(holdout * n))
+    return np.sort(order[n_test:]), np.sort(order[:n_test])
+
+
+def build_problem(dataset: Dataset, config: CalibrationConfig) -> Problem:
+    robot = dataset.robot.with_model(config.model)
+    for j in config.compliant_joints:
+        if j > robot.n_joints:
+            raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
+    fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
+    frame = "tool" if config.formulation == "pairs" else "flange"
+    problem = Problem(config, dataset, robot, frame, fit, test, candidate_parameters(robot, config))
+    if config.formulation == "pairs":
+        _build_pairs(problem)
+    else:
+        _build_tracker(problem)
+    return problem
+
+
+def _build_pairs(problem: Problem) -> None:
+    data, config = problem.dataset, problem.config
+    if "camera_points" not in data.tables:
+        raise InputError(
+            data.path / "dataset.yaml",
+            "measured",
+            "the pair formulation needs camera_points (3D points in the camera frame)",
+        )
+    if data.fixture_pose is not None:
+        problem.fixture_rotation = data.fixture_pose[:3, :3]
+    points = data.tables["points"]
+    where = {name: i for i, name in enumerate(points.ids["point"])}
+    table = data.tables["camera_points"]
+    config_pos = {c: i for i, c in enumerate(data.configs)}
+    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
+    images: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for cid, point, xyz in zip(table.ids["config"], table.ids["point"], table.values, strict=True):
+        index = fit_pos.get(config_pos[cid])
+        if index is not None:
+            images.setdefault(index, []).append((where[point], xyz))
+    if len(images) < 2:
+        raise InputError(
+            data.path / "camera_points.csv",
+            None,
+            f"only {len(images)} fitting images with points: the pair formulation needs several",
+        )
+
+    def label(j: int) -> tuple[str, str]:
+        first = images[j][0][0]
+        return str(points.ids["object"][first]), str(points.ids["side"][first])
+
+    preference = {
+        "other_object": ("other_object", "same_object", "same_side"),
+        "same_object": ("same_object", "other_object", "same_side"),
+        "same_side": ("same_side", "same_object", "other_object"),
+        "any": (),
+    }[config.pair_partner]
+    rng = np.random.default_rng(config.pair_seed)
+    remaining = [int(j) for j in rng.permutation(sorted(images))]
+    size = config.group_images
+    while remaining:
+        group = [remaining.pop(0)]
+        while len(group) < size and remaining:
+            previous = label(group[-1])
+            choice = None
+            for wanted in preference:
+                options = [k for k in remaining if category(previous, label(k)) == wanted]
+                if options:
+                    choice = options[int(rng.integers(len(options)))]
+                    break
+            if choice is None:
+                choice = remaining[int(rng.integers(len(remaining)))]
+            remaining.remove(choice)
+            group.append(choice)
+        observations = [(i, point, xyz) for i, j in enumerate(group) for point, xyz in images[j]]
+        if len(observations) < 2:
+            continue
+        problem.pairs.append(
+            PairGroup(
+                images=group,
+                owner=np.array([o[0] for o in observations]),
+                c=np.array([o[2] for o in observations]),
+                p_F=points.values[[o[1] for o in observations]],
+                labels=[label(j) for j in group],
+            )
+        )
+
+
+def _build_tracker(problem: Problem) -> None:
+    data = problem.dataset
+    if "tracker_points" not in data.tables:
+        raise InputError(data.path / "dataset.yaml", "measured", "the tracker formulation needs tracker_points")
+    table = data.tables["tracker_points"]
+    problem.targets = sorted(set(table.ids["target"]))
+    target_index = {t: i for i, t in enumerate(problem.targets)}
+    config_pos = {c: i for i, c in enumerate(data.configs)}
+    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
+    for cid, target, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True):
+        index = fit_pos.get(config_pos[cid])
+        if index is not None:
+            problem.tracker_obs.append((index, target_index[target], xyz))
+    if len(problem.tracker_obs) < 3 * len(problem.targets) + 2:
+        raise InputError(
+            data.path / "tracker_points.csv",
+            None,
+            f"only {len(problem.tracker_obs)} tracker measurements in the fitting set: too few",
+        )
