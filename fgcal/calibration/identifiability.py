@@ -33,7 +33,7 @@ class Identifiability:
 
 
 def parameter_scale(name: str) -> float:
-    kind, owner = split_name(name)
+    kind, _ = split_name(name)
     if kind in ("kx", "ky", "kz"):
         return SCALE["compliance"]
     if kind in ("d", "a", "tx", "ty", "tz"):

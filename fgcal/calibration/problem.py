@@ -103,7 +103,7 @@ def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
 def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Seeded random split of n configurations into fitting and held-out indices."""
     order = np.random.default_rng(seed).permutation(n)
-    n_test = int(round(holdout * n))
+    n_test = round(holdout * n)
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
