@@ -36,6 +36,49 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibration.config import load_config
+    from .calibration.report import write_report
+    from .calibration.run import calibrate
+
+    result = calibrate(load_config(args.config), progress=lambda msg: print(msg, flush=True))
+    write_report(result, args.out)
+    print(f"wrote {args.out}/report.md, report.json, calibrated_robot.yaml ({result.timing['total_s']:.1f} s)")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    import yaml
+
+    from .calibration.config import load_config
+    from .calibration.report import write_report
+    from .calibration.run import calibrate
+    from .simulation.simulate import simulate
+
+    out = Path(args.out)
+    print(f"1/3 simulating the seed cell: space-filling design of {args.n} configurations, seed {args.seed}")
+    sim = simulate(
+        _bundled_cell("kr125_seed"),
+        out / "data",
+        args.seed,
+        design="space_filling",
+        n_configurations=args.n,
+        progress=lambda msg: print(msg, flush=True),
+    )
+    print(sim.summary())
+    config_path = out / "calibration.yaml"
+    config_path.write_text(
+        yaml.safe_dump({"dataset": "data", "formulation": args.formulation, "model": "DH,s,e"}, sort_keys=False),
+        encoding="utf-8",
+    )
+    print(f"2/3 calibrating ({config_path})")
+    result = calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True))
+    print("3/3 writing the report")
+    write_report(result, out / "report")
+    print(f"report: {out / 'report' / 'report.md'}")
+    return 0
+
+
 def cmd_convert_faro(args: argparse.Namespace) -> int:
     from .faro import convert_faro
 
@@ -77,6 +120,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--design", choices=("seed", "space_filling"), help="override the cell's design kind")
     p.add_argument("--n", type=int, help="number of configurations of a space-filling design")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("calibrate", help="calibrate from a dataset as a calibration config describes")
+    p.add_argument("config", help="calibration config YAML (docs/calibration.md)")
+    p.add_argument("--out", required=True, help="output directory for the report and calibrated robot")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("demo", help="simulate the seed cell, calibrate it and write the report")
+    p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    p.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
+    p.add_argument("--n", type=int, default=300, help="configurations of the space-filling design (default 300)")
+    p.add_argument("--formulation", choices=("pairs", "tracker"), default="pairs")
+    p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("convert-faro", help="convert the IRB 120 / FARO tracker text files to an fgcal dataset")
     p.add_argument("src", help="folder with measured_joints.txt and measured_SMR_*.txt")

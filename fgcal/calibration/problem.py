@@ -93,8 +93,10 @@ def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
     names = []
     for name in robot.parameter_names:
         kind, owner = split_name(name)
-        if isinstance(owner, str) or kind in kinds or (
-            config.model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in config.compliant_joints
+        if (
+            isinstance(owner, str)
+            or kind in kinds
+            or (config.model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in config.compliant_joints)
         ):
             names.append(name)
     return names

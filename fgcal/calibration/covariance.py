@@ -1,0 +1,43 @@
+"""Marginal covariances of the estimated parameters and of predicted positions."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+
+from .. import kinematics
+from ..robot import Robot
+from .graph import P_KEY, StageGraph
+
+
+def parameter_covariance(stage: StageGraph, values: gtsam.Values) -> np.ndarray:
+    """Marginal covariance (m x m) of the released parameters, SI units squared."""
+    if not stage.released:
+        return np.zeros((0, 0))
+    return gtsam.Marginals(stage.graph, values).marginalCovariance(P_KEY)
+
+
+def correlation(covariance: np.ndarray) -> np.ndarray:
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    scale = np.where(sigma > 0, 1.0 / np.where(sigma > 0, sigma, 1.0), 0.0)
+    return covariance * scale[:, None] * scale[None, :]
+
+
+def position_covariance(
+    robot: Robot,
+    params: np.ndarray,
+    released: Sequence[str],
+    covariance: np.ndarray,
+    q: np.ndarray,
+    frame: str,
+    point: np.ndarray,
+) -> np.ndarray:
+    """Covariance (N, 3, 3) of the world position of ``point`` (fixed in ``frame``) at
+    configurations q, carried from the parameter covariance through the FK Jacobian."""
+    if not released:
+        return np.zeros((len(q), 3, 3))
+    data = kinematics.forward(robot, params, np.atleast_2d(q))
+    J = kinematics.jacobian(robot, data, list(released), frame=frame, point=point)
+    return J @ covariance @ np.swapaxes(J, 1, 2)

@@ -1,0 +1,262 @@
+"""Calibration outputs: calibrated_robot.yaml, report.json, report.md with PNG plots."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from .. import kinematics
+from ..parameters import unit_of
+from ..robot_io import save_robot
+from .covariance import correlation
+from .run import CalibrationResult
+
+
+def report_dict(result: CalibrationResult) -> dict:
+    problem, config = result.problem, result.config
+    robot = problem.robot
+    nominal = robot.nominal_parameters()
+    estimate = robot.parameter_dict(result.state.params)
+    sigmas = result.sigmas
+    truth = result.truth["parameters"] if result.truth else None
+    parameters = {}
+    for name in problem.candidates:
+        entry = {
+            "unit": unit_of(name),
+            "nominal": nominal[name],
+            "estimate": estimate[name],
+            "sigma": sigmas.get(name),
+            "status": "estimated" if name in sigmas else "fixed",
+        }
+        if truth is not None:
+            entry["truth"] = float(truth[name])
+        parameters[name] = entry
+    validation = {}
+    for label, entries in result.validation.items():
+        validation[label] = {
+            f"{key}_error_m" if key != "tool_point" else "position_error_m": value.as_dict()
+            for key, value in entries.items()
+        }
+    predicted = predicted_sigma(result)
+    return {
+        "model": config.model,
+        "formulation": config.formulation,
+        "robot": robot.name,
+        "dataset": str(config.dataset),
+        "n_configurations": len(problem.dataset.configs),
+        "n_fit_configurations": len(problem.fit),
+        "n_validation_configurations": len(problem.test),
+        "n_residuals": int(problem.n_residuals),
+        "pair_categories": problem.pair_categories() if config.formulation == "pairs" else None,
+        "schedule": config.schedule,
+        "stages": [
+            {
+                "stage": s.name,
+                "released": s.released,
+                "residual_norm": s.residual_norm,
+                "residual_rms_m": s.residual_rms_m,
+                "iterations": s.iterations,
+                "time_s": s.time_s,
+            }
+            for s in result.stages
+        ],
+        "parameters": parameters,
+        "unidentifiable": sorted(result.final_identifiability.unidentifiable),
+        "unidentifiable_reasons": result.final_identifiability.unidentifiable,
+        "unidentifiable_at_nominal": result.identifiability.unidentifiable,
+        "identifiability": {
+            "min_information": config.min_information,
+            "condition_number": result.final_identifiability.condition_number,
+            "singular_values": [float(v) for v in result.final_identifiability.singular_values],
+        },
+        "correlation": {"names": result.released, "matrix": correlation(result.covariance).tolist()},
+        "validation": {
+            **validation,
+            "scored_point_m": [float(v) for v in result.tool_point] if config.formulation == "pairs" else None,
+            "reference": "ground truth" if result.truth else "held-out measurements",
+            "gauge_removed": {
+                "pairs": "translation" if config.fixture_orientation == "known" else "rigid",
+                "tracker": "none",
+            }[config.formulation],
+            "predicted_position_sigma_m": predicted,
+        },
+        "seed": _seed(result),
+        "timing": {"total_s": result.timing["total_s"], "solve_s": result.timing["solve_s"]},
+    }
+
+
+def predicted_sigma(result: CalibrationResult) -> dict:
+    """Predicted position uncertainty (m, 3D RMS) of the scored quantity at the held-out
+    configurations, from the parameter covariance; the common offset that scoring removes
+    as the gauge (pair formulation) is removed here too, and reported separately."""
+    problem, config = result.problem, result.config
+    q_test = problem.dataset.q[problem.test]
+    if not len(q_test) or not result.released:
+        return {}
+    frame = "tool" if config.formulation == "pairs" else "flange"
+    point = result.tool_point if config.formulation == "pairs" else result.state.tool_points[0]
+    data = kinematics.forward(problem.robot, result.state.params, q_test)
+    J = kinematics.jacobian(problem.robot, data, result.released, frame=frame, point=point)
+
+    def rms(jac: np.ndarray) -> float:
+        cov = jac @ result.covariance @ np.swapaxes(jac, 1, 2)
+        return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))
+
+    if config.formulation == "pairs":
+        return {"rms": rms(J - J.mean(axis=0, keepdims=True)), "rms_with_common_offset": rms(J)}
+    return {"rms": rms(J)}
+
+
+def _seed(result: CalibrationResult) -> int | None:
+    return int(result.truth["seed"]) if result.truth else None
+
+
+def write_report(result: CalibrationResult, out: str | Path) -> dict:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = report_dict(result)
+    (out / "report.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
+    save_robot(
+        out / "calibrated_robot.yaml",
+        result.problem.robot,
+        result.problem.robot.parameter_dict(result.state.params),
+        notes=f"calibrated by fgcal ({doc['model']}, {doc['formulation']} formulation)",
+    )
+    plots = _plots(result, out)
+    (out / "report.md").write_text(_markdown(doc, plots), encoding="utf-8")
+    return doc
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not serialisable: {type(value)}")
+
+
+def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
+    plots = {}
+    before = result.validation.get("before", {}).get("tool_point")
+    after = result.validation.get("after", {}).get("tool_point")
+    if before is not None and after is not None and after.errors.size:
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+        for ax, stat, label in ((axes[0], before, "before"), (axes[1], after, "after")):
+            ax.hist(stat.errors * 1e3, bins=30, color="tab:red" if label == "before" else "tab:green")
+            ax.set_xlabel("position error (mm)")
+            ax.set_ylabel("held-out configurations")
+            ax.set_title(f"{label} calibration: RMS {stat.rms * 1e3:.4f} mm")
+        fig.tight_layout()
+        fig.savefig(out / "errors.png", dpi=110)
+        plt.close(fig)
+        plots["errors"] = "errors.png"
+    if result.released:
+        corr = correlation(result.covariance)
+        fig, ax = plt.subplots(figsize=(9, 8))
+        image = ax.imshow(corr, cmap="coolwarm", vmin=-1, vmax=1)
+        ax.set_xticks(range(len(result.released)), result.released, rotation=90, fontsize=7)
+        ax.set_yticks(range(len(result.released)), result.released, fontsize=7)
+        fig.colorbar(image, ax=ax, label="correlation")
+        ax.set_title("Correlation of the estimated parameters")
+        fig.tight_layout()
+        fig.savefig(out / "correlation.png", dpi=110)
+        plt.close(fig)
+        plots["correlation"] = "correlation.png"
+    singular = result.final_identifiability.singular_values
+    if singular.size:
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.semilogy(range(1, singular.size + 1), singular, "o-")
+        ax.axhline(result.config.min_information, color="tab:red", ls="--", label="min_information")
+        ax.set_xlabel("index")
+        ax.set_ylabel("singular value (scaled, whitened)")
+        ax.set_title(f"Identifiable parameters: condition number {result.final_identifiability.condition_number:.3g}")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "singular_values.png", dpi=110)
+        plt.close(fig)
+        plots["singular_values"] = "singular_values.png"
+    return plots
+
+
+def _fmt(value, unit: str = "") -> str:
+    if value is None:
+        return "-"
+    return f"{value:.6g}{(' ' + unit) if unit else ''}"
+
+
+def _markdown(doc: dict, plots: dict[str, str]) -> str:
+    lines = [
+        f"# Calibration report: {doc['robot']}",
+        "",
+        f"Model **{doc['model']}**, **{doc['formulation']}** formulation, schedule {doc['schedule']}. "
+        f"{doc['n_fit_configurations']} configurations for fitting, {doc['n_validation_configurations']} held "
+        f"out, {doc['n_residuals']} residuals. Total time {doc['timing']['total_s']:.2f} s."
+        + (f" Simulation seed {doc['seed']}." if doc["seed"] is not None else ""),
+        "",
+    ]
+    val = doc["validation"]
+    if "after" in val and "position_error_m" in val["after"]:
+        lines += [
+            "## Held-out positioning error",
+            "",
+            f"Reference: {val['reference']}; gauge removed: {val['gauge_removed']}."
+            + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else ""),
+            "",
+            "| | mean (m) | RMS (m) | max (m) |",
+            "|---|---|---|---|",
+        ]
+        for label in ("before", "after"):
+            for key, stat in val[label].items():
+                lines.append(f"| {label}: {key} | {stat['mean']:.3e} | {stat['rms']:.3e} | {stat['max']:.3e} |")
+        if val.get("predicted_position_sigma_m"):
+            p = val["predicted_position_sigma_m"]
+            lines += [
+                "",
+                f"Predicted position uncertainty (from the covariance) at the held-out configurations: "
+                f"mean {p['mean']:.3e} m, max {p['max']:.3e} m.",
+            ]
+        if "errors" in plots:
+            lines += ["", f"![errors]({plots['errors']})"]
+    lines += [
+        "",
+        "## Stages",
+        "",
+        "| stage | released | residual norm | residual RMS (m) | iterations | time (s) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for s in doc["stages"]:
+        lines.append(
+            f"| {s['stage']} | {len(s['released'])}: {', '.join(s['released'])} | {s['residual_norm']:.4g} | "
+            f"{s['residual_rms_m']:.3e} | {s['iterations']} | {s['time_s']:.2f} |"
+        )
+    has_truth = any("truth" in p for p in doc["parameters"].values())
+    lines += [
+        "",
+        "## Parameters",
+        "",
+        "| name | unit | nominal | estimate | sigma | " + ("truth | " if has_truth else "") + "status |",
+        "|---|---|---|---|---|" + ("---|" if has_truth else "") + "---|",
+    ]
+    for name, p in doc["parameters"].items():
+        lines.append(
+            f"| {name} | {p['unit']} | {_fmt(p['nominal'])} | {_fmt(p['estimate'])} | {_fmt(p['sigma'])} | "
+            + (f"{_fmt(p.get('truth'))} | " if has_truth else "")
+            + f"{p['status']} |"
+        )
+    lines += ["", "## Unidentifiable parameters (fixed at their current values)", ""]
+    for name, reason in doc["unidentifiable_reasons"].items():
+        lines.append(f"- `{name}`: {reason}")
+    ident = doc["identifiability"]
+    lines += [
+        "",
+        f"Condition number of the identifiable set (scaled, whitened Jacobian): "
+        f"{ident['condition_number']:.4g}; threshold min_information = {ident['min_information']}.",
+    ]
+    for key, title in (("singular_values", "Singular values"), ("correlation", "Correlations")):
+        if key in plots:
+            lines += ["", f"## {title}", "", f"![{key}]({plots[key]})"]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,115 @@
+"""``fgcal calibrate``: identifiability, staged solving, covariances, validation."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..dataset import load_dataset
+from ..errors import InputError
+from .config import CalibrationConfig
+from .covariance import parameter_covariance
+from .graph import State, build_graph, initial_state
+from .identifiability import Identifiability, analyse
+from .problem import Problem, build_problem
+from .scoring import load_truth
+from .solve import StageReport, solve_stage, stage_parameters
+from .validation import ErrorStats, default_tool_point, held_out_errors, stats
+
+
+@dataclass
+class CalibrationResult:
+    config: CalibrationConfig
+    problem: Problem
+    identifiability: Identifiability
+    final_identifiability: Identifiability
+    stages: list[StageReport]
+    before: State
+    state: State
+    released: list[str]
+    covariance: np.ndarray
+    tool_point: np.ndarray
+    validation: dict[str, dict[str, ErrorStats]] = field(default_factory=dict)
+    truth: dict | None = None
+    timing: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def sigmas(self) -> dict[str, float]:
+        return {n: float(np.sqrt(max(self.covariance[i, i], 0.0))) for i, n in enumerate(self.released)}
+
+
+def _check_enough(problem: Problem, identifiable: list[str], state: State) -> None:
+    unknowns = len(identifiable)
+    if state.tracker_pose is not None:
+        unknowns += 6 + 3 * len(state.tool_points)
+    if state.fixture_rotation is not None:
+        unknowns += 3
+    if problem.n_residuals < 2 * unknowns:
+        raise InputError(
+            problem.dataset.path,
+            None,
+            f"too few measurements: {problem.n_residuals} residuals for {unknowns} unknowns "
+            f"(at least twice as many needed)",
+        )
+    if not identifiable:
+        raise InputError(problem.dataset.path, None, "the data determine none of the candidate parameters")
+
+
+def calibrate(config: CalibrationConfig, progress: Callable[[str], None] | None = None) -> CalibrationResult:
+    say = progress or (lambda _m: None)
+    started = time.perf_counter()
+    dataset = load_dataset(config.dataset)
+    problem = build_problem(dataset, config)
+    say(
+        f"calibrating {problem.robot.name}, model {config.model}, {config.formulation} formulation: "
+        f"{len(problem.fit)} configurations for fitting, {len(problem.test)} held out, "
+        f"{problem.n_residuals} residuals"
+    )
+    state = initial_state(problem)
+    t = time.perf_counter()
+    identifiability = analyse(build_graph(problem, problem.candidates, state), config.min_information)
+    _check_enough(problem, identifiability.identifiable, state)
+    say(
+        f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
+        f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"
+    )
+    stages: list[StageReport] = []
+    solve_started = time.perf_counter()
+    if state.tracker_pose is not None or state.fixture_rotation is not None:
+        state, report, _, _ = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
+        stages.append(report)
+    before = state
+    final_ident = identifiability
+    last_stage = last_values = None
+    for i, kinds in enumerate(config.stages, start=1):
+        if i == len(config.stages):
+            # Redundancies exact at nominal (e.g. d of parallel axes) may be broken at the
+            # estimate: decide the last stage's parameters there.
+            final_ident = analyse(build_graph(problem, problem.candidates, state), config.min_information)
+        released = stage_parameters(kinds, final_ident.identifiable)
+        if not released:
+            say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
+            continue
+        state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
+        stages.append(report)
+    solve_time = time.perf_counter() - solve_started
+    covariance = parameter_covariance(last_stage, last_values) if last_stage is not None else np.zeros((0, 0))
+    released = list(last_stage.released) if last_stage is not None else []
+    truth = load_truth(dataset.path)
+    point = default_tool_point(problem)
+    result = CalibrationResult(
+        config, problem, identifiability, final_ident, stages, before, state, released, covariance, point, truth=truth
+    )
+    for label, st in (("before", before), ("after", state)):
+        result.validation[label] = {k: stats(v) for k, v in held_out_errors(problem, st, truth, point).items()}
+    result.timing = {"solve_s": solve_time, "total_s": time.perf_counter() - started}
+    after = result.validation["after"].get("tool_point")
+    if after is not None and after.errors.size:
+        say(
+            f"  held-out positioning error: before {result.validation['before']['tool_point'].rms:.3e} m RMS, "
+            f"after {after.rms:.3e} m RMS"
+        )
+    return result

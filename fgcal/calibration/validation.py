@@ -1,0 +1,112 @@
+"""Positioning error on configurations not used for fitting.
+
+- Pair formulation: the error at a tool point in the camera frame (default: the mean of the
+  measured points, i.e. where the camera works), in W. The relative formulation cannot fix
+  the robot's position in W (the base translation is a gauge; with an estimated fixture
+  orientation also its rotation), so the common offset (or best rigid motion) over the held-out
+  configurations is removed before scoring. The camera origin's error is reported too.
+- Tracker formulation: the predicted reflector positions in the tracker frame; no gauge.
+
+References: the ground truth in simulation; held-out measurements with real tracker data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..se3 import transform_points
+from .graph import State, kabsch
+from .problem import Problem
+from .scoring import true_positions
+
+
+@dataclass
+class ErrorStats:
+    mean: float
+    rms: float
+    max: float
+    errors: np.ndarray
+
+    def as_dict(self) -> dict:
+        return {"mean": self.mean, "rms": self.rms, "max": self.max}
+
+
+def stats(errors: np.ndarray) -> ErrorStats:
+    errors = np.asarray(errors, dtype=float)
+    if errors.size == 0:
+        return ErrorStats(float("nan"), float("nan"), float("nan"), errors)
+    return ErrorStats(float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors)
+
+
+def remove_gauge(predicted: np.ndarray, reference: np.ndarray, gauge: str) -> np.ndarray:
+    """Residual positions after removing the gauge: 'none', 'translation' or 'rigid'."""
+    if gauge == "none":
+        return predicted - reference
+    if gauge == "translation":
+        difference = predicted - reference
+        return difference - difference.mean(axis=0)
+    R, t = kabsch(predicted, reference)
+    return predicted @ R.T + t - reference
+
+
+def default_tool_point(problem: Problem) -> np.ndarray:
+    """The mean measured point in the camera frame: where the camera works (m)."""
+    table = problem.dataset.tables.get("camera_points")
+    return table.values.mean(axis=0) if table is not None and len(table) else np.zeros(3)
+
+
+def gauge_of(problem: Problem) -> str:
+    if problem.config.formulation == "tracker":
+        return "none"
+    return "rigid" if problem.config.fixture_orientation == "estimate" else "translation"
+
+
+def predicted_positions(
+    problem: Problem, state: State, q: np.ndarray, point: np.ndarray | None, target_index: int | None
+) -> np.ndarray:
+    robot = problem.robot
+    params = robot.parameter_dict(state.params)
+    if problem.config.formulation == "pairs":
+        return transform_points(robot.fk_tool(q, params), point)
+    return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
+
+
+def held_out_errors(problem: Problem, state: State, truth: dict | None, point: np.ndarray) -> dict[str, np.ndarray]:
+    """Error norms (m) on the held-out configurations, per scored point."""
+    data = problem.dataset
+    q = data.q[problem.test]
+    out = {}
+    if problem.config.formulation == "pairs":
+        if truth is None:
+            return out
+        for label, p in (("tool_point", point), ("camera_origin", np.zeros(3))):
+            residual = remove_gauge(
+                predicted_positions(problem, state, q, p, None),
+                true_positions(problem, truth, q, p, None),
+                gauge_of(problem),
+            )
+            out[label] = np.linalg.norm(residual, axis=1)
+        return out
+    errors = []
+    if truth is not None:
+        for t, target in enumerate(problem.targets):
+            errors.append(
+                np.linalg.norm(
+                    predicted_positions(problem, state, q, None, t) - true_positions(problem, truth, q, None, target),
+                    axis=1,
+                )
+            )
+    else:
+        table = data.tables["tracker_points"]
+        config_pos = {c: i for i, c in enumerate(data.configs)}
+        test_pos = {int(c): i for i, c in enumerate(problem.test)}
+        target_index = {t: i for i, t in enumerate(problem.targets)}
+        for cid, target, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True):
+            i = test_pos.get(config_pos[cid])
+            if i is not None and target in target_index:
+                predicted = predicted_positions(problem, state, q[i : i + 1], None, target_index[target])[0]
+                errors.append(np.array([np.linalg.norm(predicted - xyz)]))
+    out["tool_point"] = np.concatenate(errors) if errors else np.zeros(0)
+    return out
