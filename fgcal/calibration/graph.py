@@ -131,6 +131,32 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
     return stage
 
 
+def robust_scale(factors: list, values: gtsam.Values) -> float:
+    """Robust scale of the whitened residuals (1.4826 MAD of their RMS per factor), at least 1.
+
+    A robust loss's threshold is in units of this scale: while the model is still far off,
+    residuals are many sigmas and a fixed 3-sigma threshold would treat them all as
+    outliers; once the model fits, the scale returns to 1 and the threshold to k sigma.
+    """
+    norms = []
+    for factor in factors:
+        residual, _ = factor.checked(factor.read(values), False)
+        norms.append(np.sqrt(np.mean((residual / factor.sigmas) ** 2)))
+    return max(1.0, 1.4826 * float(np.median(norms))) if norms else 1.0
+
+
+def _add_measurements(stage: StageGraph, make, robust: tuple[str, float] | None) -> None:
+    """Create the measurement factors with ``make(noise_or_None) -> list``; with a robust
+    loss, its threshold is scaled by the residuals' robust scale at the stage's start."""
+    factors = make(None)
+    if robust is not None:
+        kind, threshold = robust
+        factors = make((kind, threshold * robust_scale(factors, stage.values)))
+    for factor in factors:
+        stage.graph.add(factor.factor)
+    stage.measurements.extend(factors)
+
+
 def _add_pairs(problem: Problem, state: State, stage: StageGraph) -> None:
     config = problem.config
     fixture_key = None
@@ -138,20 +164,26 @@ def _add_pairs(problem: Problem, state: State, stage: StageGraph) -> None:
         fixture_key = FIXTURE_KEY
         stage.values.insert(FIXTURE_KEY, gtsam.Rot3(state.fixture_rotation))
         stage.aux[FIXTURE_KEY] = ("fixture.r", 3)
-    for group in problem.pairs:
-        sigmas = np.full(3 * (len(group.c) - 1), config.camera_point_sigma_m)
-        factor = PointPairFactor(
-            [pose_key(j) for j in group.images],
-            group.owner,
-            group.c,
-            group.p_F,
-            gaussian(sigmas, config.robust["camera_points"]),
-            sigmas,
-            fixture_key=fixture_key,
-            fixture_rotation=problem.fixture_rotation,
-        )
-        stage.graph.add(factor.factor)
-        stage.measurements.append(factor)
+
+    def make(robust):
+        factors = []
+        for group in problem.pairs:
+            sigmas = np.full(3 * (len(group.c) - 1), config.camera_point_sigma_m)
+            factors.append(
+                PointPairFactor(
+                    [pose_key(j) for j in group.images],
+                    group.owner,
+                    group.c,
+                    group.p_F,
+                    gaussian(sigmas, robust),
+                    sigmas,
+                    fixture_key=fixture_key,
+                    fixture_rotation=problem.fixture_rotation,
+                )
+            )
+        return factors
+
+    _add_measurements(stage, make, config.robust["camera_points"])
 
 
 def _add_tracker(problem: Problem, state: State, stage: StageGraph) -> None:
@@ -162,11 +194,15 @@ def _add_tracker(problem: Problem, state: State, stage: StageGraph) -> None:
         stage.values.insert(point_key(t), np.asarray(point, dtype=float))
         stage.aux[point_key(t)] = (f"tool_point.{problem.targets[t]}", 3)
     sigmas = np.full(3, config.tracker_sigma_m)
-    noise = gaussian(sigmas, config.robust["tracker_points"])
-    for j, t, measured in problem.tracker_obs:
-        factor = TrackerPointFactor(TRACKER_KEY, pose_key(j), point_key(t), measured, noise, sigmas)
-        stage.graph.add(factor.factor)
-        stage.measurements.append(factor)
+
+    def make(robust):
+        noise = gaussian(sigmas, robust)
+        return [
+            TrackerPointFactor(TRACKER_KEY, pose_key(j), point_key(t), measured, noise, sigmas)
+            for j, t, measured in problem.tracker_obs
+        ]
+
+    _add_measurements(stage, make, config.robust["tracker_points"])
 
 
 def read_state(problem: Problem, stage: StageGraph, values: gtsam.Values, previous: State) -> State:

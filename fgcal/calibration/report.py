@@ -216,8 +216,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             p = val["predicted_position_sigma_m"]
             lines += [
                 "",
-                f"Predicted position uncertainty (from the covariance) at the held-out configurations: "
-                f"mean {p['mean']:.3e} m, max {p['max']:.3e} m.",
+                "Predicted position uncertainty of the scored point (from the parameter covariance, "
+                f"same gauge removed): {p['rms']:.3e} m RMS.",
             ]
         if "errors" in plots:
             lines += ["", f"![errors]({plots['errors']})"]

@@ -85,11 +85,7 @@ def calibrate(config: CalibrationConfig, progress: Callable[[str], None] | None 
     final_ident = identifiability
     last_stage = last_values = None
     for i, kinds in enumerate(config.stages, start=1):
-        if i == len(config.stages):
-            # Redundancies exact at nominal (e.g. d of parallel axes) may be broken at the
-            # estimate: decide the last stage's parameters there.
-            final_ident = analyse(build_graph(problem, problem.candidates, state), config.min_information)
-        released = stage_parameters(kinds, final_ident.identifiable)
+        released = stage_parameters(kinds, identifiability.identifiable)
         if not released:
             say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
             continue
