@@ -20,7 +20,7 @@ from ..parameters import split_name
 from .graph import StageGraph
 
 GROUPS = (("theta", "d", "a", "alpha"), ("sx", "sy"), ("kx", "ky", "kz"), ("tool",), ("base",))
-SCALE = {"length": 1e-2, "angle": 1e-2, "compliance": 1e-6}  # plausible deviations: m, rad, rad/(N m)
+SCALE = {"length": 1e-2, "angle": 1e-2}  # plausible deviations: m, rad
 
 
 @dataclass
@@ -32,10 +32,14 @@ class Identifiability:
     n_rows: int
 
 
-def parameter_scale(name: str) -> float:
-    kind, _ = split_name(name)
+def parameter_scale(name: str, moments_rms: np.ndarray) -> float:
+    """Plausible deviation of a parameter: 1 cm for lengths, 10 mrad for angles and, for a
+    compliance, the value that deflects its joint by 10 mrad at the RMS gravity moment of
+    its component over the data (so the scale suits a 3 kg arm and a 125 kg arm alike)."""
+    kind, joint = split_name(name)
     if kind in ("kx", "ky", "kz"):
-        return SCALE["compliance"]
+        moment = moments_rms[3 * (joint - 1) + "xyz".index(kind[1])]
+        return SCALE["angle"] / max(float(moment), 1e-9)
     if kind in ("d", "a", "tx", "ty", "tz"):
         return SCALE["length"]
     return SCALE["angle"]
@@ -80,7 +84,9 @@ def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
         keep = np.abs(np.diag(R)) > 1e-9 * max(1.0, np.abs(np.diag(R)).max())
         Q = Q[:, keep]
         J_p = J_p - Q @ (Q.T @ J_p)
-    scaled = J_p * np.array([parameter_scale(n) for n in names])[None, :]
+    moments = stage.model._entry(stage.model.base[stage.model.index])["data"].moments
+    moments_rms = np.sqrt(np.mean(moments**2, axis=0))
+    scaled = J_p * np.array([parameter_scale(n, moments_rms) for n in names])[None, :]
     basis = np.zeros((scaled.shape[0], 0))
     selected: list[int] = []
     rejected: list[int] = []
