@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..dataset import load_dataset
+from ..dataset import Dataset, load_dataset
 from ..errors import InputError
 from .config import CalibrationConfig
 from .covariance import parameter_covariance
@@ -42,6 +42,9 @@ class CalibrationResult:
 
 
 def _check_enough(problem: Problem, identifiable: list[str], state: State) -> None:
+    """At least two residuals per unknown: the candidate parameters (before any is found
+    unidentifiable, so thin data are refused rather than quietly reduced) and the auxiliary
+    unknowns."""
     unknowns = len(identifiable)
     if state.tracker_pose is not None:
         unknowns += 6 + 3 * len(state.tool_points)
@@ -54,14 +57,19 @@ def _check_enough(problem: Problem, identifiable: list[str], state: State) -> No
             f"too few measurements: {problem.n_residuals} residuals for {unknowns} unknowns "
             f"(at least twice as many needed)",
         )
-    if not identifiable:
-        raise InputError(problem.dataset.path, None, "the data determine none of the candidate parameters")
 
 
 def calibrate(config: CalibrationConfig, progress: Callable[[str], None] | None = None) -> CalibrationResult:
+    """Load the config's dataset and calibrate (see :func:`calibrate_dataset`)."""
+    return calibrate_dataset(load_dataset(config.dataset), config, progress)
+
+
+def calibrate_dataset(
+    dataset: Dataset, config: CalibrationConfig, progress: Callable[[str], None] | None = None
+) -> CalibrationResult:
+    """Identifiability analysis, staged solving, covariances and held-out validation."""
     say = progress or (lambda _m: None)
     started = time.perf_counter()
-    dataset = load_dataset(config.dataset)
     problem = build_problem(dataset, config)
     say(
         f"calibrating {problem.robot.name}, model {config.model}, {config.formulation} formulation: "
@@ -69,9 +77,9 @@ def calibrate(config: CalibrationConfig, progress: Callable[[str], None] | None 
         f"{problem.n_residuals} residuals"
     )
     state = initial_state(problem)
+    _check_enough(problem, problem.candidates, state)
     t = time.perf_counter()
     identifiability = analyse(build_graph(problem, problem.candidates, state), config.min_information)
-    _check_enough(problem, identifiability.identifiable, state)
     say(
         f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
         f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"

@@ -86,7 +86,8 @@ class Perturbation:
     compliance_range: tuple[float, float]
     compliant_joints: tuple[int, ...]
     base_length_m: float
-    base_angle_rad: float
+    base_angle_rad: float  # about the vertical (yaw)
+    base_tilt_rad: float  # about the horizontal axes: unmeasured tilt against gravity
     tool_length_m: float
     tool_angle_rad: float
 
@@ -228,6 +229,7 @@ def load_cell(path: str | Path) -> Cell:
             "compliant_joints",
             "base_length",
             "base_angle",
+            "base_tilt",
             "tool_length",
             "tool_angle",
         )
@@ -265,6 +267,7 @@ def load_cell(path: str | Path) -> Cell:
             compliant_joints=joints,
             base_length_m=pert.number("base_length", 5e-3 / to_m, to_m, nonnegative=True),
             base_angle_rad=pert.number("base_angle", 2e-3 / to_rad, to_rad, nonnegative=True),
+            base_tilt_rad=pert.number("base_tilt", 0.0, to_rad, nonnegative=True),
             tool_length_m=pert.number("tool_length", 1e-3 / to_m, to_m, nonnegative=True),
             tool_angle_rad=pert.number("tool_angle", 1e-3 / to_rad, to_rad, nonnegative=True),
         ),

@@ -17,7 +17,11 @@ def perturb_parameters(robot: Robot, pert: Perturbation, rng: np.random.Generato
     for name in robot.parameter_names:
         kind, owner = split_name(name)
         if owner == "base":
-            width = pert.base_length_m if kind.startswith("t") else pert.base_angle_rad
+            # A base is leveled at installation (or its measured tilt is in the robot file):
+            # its unknown rotation is about the vertical, plus an optional unmeasured tilt.
+            width = {"rz": pert.base_angle_rad, "rx": pert.base_tilt_rad, "ry": pert.base_tilt_rad}.get(
+                kind, pert.base_length_m
+            )
         elif owner == "tool":
             width = pert.tool_length_m if kind.startswith("t") else pert.tool_angle_rad
         elif kind in ("d", "a"):

@@ -1,0 +1,200 @@
+"""Batch calibration on simulated cells and real tracker data (issue: batch calibration)."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import pytest
+from conftest import SEED_CELL, SHARED
+
+import fgcal
+from fgcal.calibration.config import CalibrationConfig, parse_config
+from fgcal.calibration.report import write_report
+from fgcal.calibration.run import calibrate, calibrate_dataset
+from fgcal.dataset import load_dataset
+from fgcal.simulation.simulate import simulate
+
+FARO = SHARED / "data" / "irb120_faro"
+
+
+@pytest.fixture(scope="module")
+def small_cell(tmp_path_factory):
+    """The acceptance case: the seed cell, space-filling design of 300 configurations, seed 1."""
+    out = tmp_path_factory.mktemp("cal")
+    simulate(SEED_CELL, out, seed=1, design="space_filling", n_configurations=300)
+    return out
+
+
+def _noise_free(dataset):
+    """The same dataset with the recorded noise removed (test-side: reads the truth)."""
+    clean = copy.deepcopy(dataset)
+    noise = np.loadtxt(dataset.path / "truth" / "camera_points_noise.csv", delimiter=",", skiprows=1, usecols=(2, 3, 4))
+    clean.tables["camera_points"].values = dataset.tables["camera_points"].values - noise
+    noise = np.loadtxt(
+        dataset.path / "truth" / "tracker_points_noise.csv", delimiter=",", skiprows=1, usecols=(2, 3, 4)
+    )
+    clean.tables["tracker_points"].values = dataset.tables["tracker_points"].values - noise
+    return clean
+
+
+def test_pairs_with_camera_noise(small_cell, tmp_path):
+    result = calibrate(CalibrationConfig.defaults(small_cell))
+    before = result.validation["before"]["tool_point"].rms
+    after = result.validation["after"]["tool_point"].rms
+    assert after <= 5e-5 and after * 100 <= before
+    doc = write_report(result, tmp_path)
+    for key in (
+        "model",
+        "formulation",
+        "n_configurations",
+        "n_residuals",
+        "stages",
+        "parameters",
+        "unidentifiable",
+        "validation",
+        "timing",
+    ):
+        assert key in doc
+    assert json.loads((tmp_path / "report.json").read_text())["validation"]["after"]["position_error_m"]["rms"] == after
+    assert [set(s) for s in doc["stages"]] and all(
+        {"released", "residual_norm", "iterations", "time_s"} <= set(s) for s in doc["stages"]
+    )
+    assert (tmp_path / "errors.png").exists() and (tmp_path / "report.md").exists()
+    # The calibrated robot file reproduces the estimate.
+    calibrated = fgcal.load_robot(tmp_path / "calibrated_robot.yaml")
+    q = result.problem.dataset.q[:5]
+    np.testing.assert_allclose(
+        calibrated.fk_tool(q),
+        result.problem.robot.fk_tool(q, result.problem.robot.parameter_dict(result.state.params)),
+        atol=1e-12,
+    )
+
+
+def test_pairs_noise_free_is_exact(small_cell):
+    dataset = _noise_free(load_dataset(small_cell))
+    # The config states the data's precision: these data are exact.
+    config = CalibrationConfig.defaults(small_cell, noise={"camera_point_sigma": 1e-7})
+    result = calibrate_dataset(dataset, config)
+    assert result.validation["after"]["tool_point"].rms < 1e-6
+
+
+def test_tracker_with_noise(small_cell):
+    result = calibrate(CalibrationConfig.defaults(small_cell, formulation="tracker"))
+    before = result.validation["before"]["tool_point"].rms
+    after = result.validation["after"]["tool_point"].rms
+    assert after <= 5e-5 and after * 100 <= before
+
+
+def test_tracker_noise_free_is_exact(small_cell):
+    dataset = _noise_free(load_dataset(small_cell))
+    config = CalibrationConfig.defaults(small_cell, formulation="tracker", noise={"tracker_sigma": 1e-8})
+    result = calibrate_dataset(dataset, config)
+    assert result.validation["after"]["tool_point"].rms < 1e-6
+
+
+def test_unidentifiable_parameters_are_found(small_cell):
+    result = calibrate(CalibrationConfig.defaults(small_cell))
+    fixed = result.identifiability.unidentifiable
+    # Relative measurements: the base pose (and d1, a base translation) cannot be determined.
+    assert {"base.tx", "base.ty", "base.tz", "base.rx", "base.ry", "base.rz", "d1"} <= set(fixed)
+    # Each alpha_{i-1} / sx_i pair: one of the two is fixed, naming the other.
+    for i in range(2, 7):
+        alpha, sx = f"alpha{i - 1}", f"sx{i}"
+        assert (sx in fixed and alpha in fixed[sx]) or (alpha in fixed and sx in fixed[alpha]), (alpha, sx)
+    assert not set(fixed) & set(result.released)
+    # Nothing fixed moved.
+    nominal = result.problem.robot.nominal_parameters()
+    estimate = result.problem.robot.parameter_dict(result.state.params)
+    assert all(estimate[name] == nominal[name] for name in fixed)
+
+
+def test_sigmas_cover_the_truth(small_cell):
+    """95% intervals from the reported sigmas contain the true parameters about 95% of the time.
+
+    The identifiable parameters' true values are those of the exact (noise-free) fit; where a
+    fixed redundant partner has a true deviation, that fit shifts its partner (alpha1 takes
+    sx2's), so coverage is measured against the noise-free fit, and directly against the
+    simulated truth for the parameters the noise-free fit recovers exactly.
+    """
+    dataset = load_dataset(small_cell)
+    clean = _noise_free(dataset)
+    truth = __import__("yaml").safe_load((small_cell / "truth" / "ground_truth.yaml").read_text())["parameters"]
+    config = CalibrationConfig.defaults(small_cell)
+    reference = calibrate_dataset(clean, config)
+    names = reference.released
+    exact = reference.problem.robot.parameter_dict(reference.state.params)
+    rng = np.random.default_rng(2024)
+    inside, inside_truth, total, total_truth = 0, 0, 0, 0
+    for _ in range(12):
+        noisy = copy.deepcopy(clean)
+        table = noisy.tables["camera_points"]
+        table.values = table.values + rng.normal(0.0, 1e-4, table.values.shape)
+        result = calibrate_dataset(noisy, config)
+        assert result.released == names
+        estimate = result.problem.robot.parameter_dict(result.state.params)
+        for name, sigma in result.sigmas.items():
+            total += 1
+            inside += abs(estimate[name] - exact[name]) <= 1.96 * sigma
+            if abs(exact[name] - truth[name]) < 0.1 * sigma:
+                total_truth += 1
+                inside_truth += abs(estimate[name] - truth[name]) <= 1.96 * sigma
+    assert 0.88 <= inside / total <= 0.99, inside / total
+    assert total_truth >= 60 and 0.85 <= inside_truth / total_truth <= 1.0, (inside_truth, total_truth)
+
+
+def test_one_shot_schedule(small_cell):
+    result = calibrate(CalibrationConfig.defaults(small_cell, schedule="one_shot"))
+    assert len(result.stages) == 1
+    assert result.validation["after"]["tool_point"].rms < 1e-4
+
+
+@pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
+def test_real_tracker_data(tmp_path):
+    from fgcal.faro import convert_faro
+
+    convert_faro(FARO, tmp_path / "faro")
+    config = CalibrationConfig.defaults(
+        tmp_path / "faro",
+        formulation="tracker",
+        units={"length": "mm"},
+        noise={"tracker_sigma": 0.05},
+        validation={"holdout": 0.5, "seed": 0},
+    )
+    result = calibrate(config)
+    # A plain DH least-squares fit gets 0.48 mm mean on the held-out half (seed 0).
+    assert result.validation["after"]["tool_point"].mean <= 0.45e-3
+    assert result.validation["before"]["tool_point"].mean > 0.7e-3
+
+
+@pytest.mark.parametrize(
+    ("raw", "field"),
+    [
+        ({}, "dataset"),
+        ({"dataset": "x", "formulation": "laser"}, "formulation"),
+        ({"dataset": "x", "model": "DH,q"}, "model"),
+        ({"dataset": "x", "noise": {"camera_point_sigma": float("nan")}}, "noise.camera_point_sigma"),
+        ({"dataset": "x", "stages": [["theta", "beta"]]}, "stages[0]"),
+        ({"dataset": "x", "robust": {"tracker_points": ["tukey", 2]}}, "robust.tracker_points"),
+        ({"dataset": "x", "validation": {"holdout": 1.5}}, "validation.holdout"),
+        ({"dataset": "x", "solvr": {}}, "solvr"),
+    ],
+)
+def test_bad_configs_name_the_field(tmp_path, raw, field):
+    with pytest.raises(fgcal.InputError) as info:
+        parse_config(raw, tmp_path / "cal.yaml")
+    assert field in str(info.value) and "cal.yaml" in str(info.value)
+
+
+def test_too_few_measurements(small_cell):
+    dataset = load_dataset(small_cell)
+    keep = set(dataset.configs[:6])
+    dataset.configs, dataset.q = dataset.configs[:6], dataset.q[:6]
+    for table in dataset.tables.values():
+        if "config" in table.ids:
+            mask = np.array([c in keep for c in table.ids["config"]])
+            table.ids = {k: v[mask] for k, v in table.ids.items()}
+            table.values = table.values[mask]
+    with pytest.raises(fgcal.InputError, match="too few measurements"):
+        calibrate_dataset(dataset, CalibrationConfig.defaults(small_cell))
