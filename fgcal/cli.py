@@ -79,6 +79,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import run_bench
+
+    run_bench(Path(args.out), seed=args.seed, n=args.n, repeats=args.repeats)
+    return 0
+
+
 def cmd_convert_faro(args: argparse.Namespace) -> int:
     from .faro import convert_faro
 
@@ -132,6 +139,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, default=300, help="configurations of the space-filling design (default 300)")
     p.add_argument("--formulation", choices=("pairs", "tracker"), default="pairs")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("bench", help="time the seed-scale calibration against a scipy least-squares baseline")
+    p.add_argument("--out", default="out/bench", help="where the simulated case is kept between runs")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--n", type=int, default=300, help="configurations (default 300)")
+    p.add_argument("--repeats", type=int, default=3, help="fgcal runs; the best time is reported")
+    p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("convert-faro", help="convert the IRB 120 / FARO tracker text files to an fgcal dataset")
     p.add_argument("src", help="folder with measured_joints.txt and measured_SMR_*.txt")

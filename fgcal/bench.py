@@ -1,0 +1,133 @@
+"""``fgcal bench``: times measured in one run, printed with their ratios.
+
+1. fgcal's full four-stage calibration of the seed cell's 300-configuration space-filling
+   case (pair formulation, DH,s,e), on the GTSAM factor graph.
+2. The same calibration with ``scipy.optimize.least_squares`` (trust-region reflective,
+   finite-difference Jacobian): the same residuals (the point-pair contrasts of the same
+   groups, vectorised in NumPy, poses computed directly from the parameters), the same
+   released parameters per stage, the same starting point.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+import scipy.sparse
+
+from . import kinematics
+from .calibration.config import CalibrationConfig
+from .calibration.graph import build_graph, initial_state
+from .calibration.identifiability import analyse
+from .calibration.problem import Problem, build_problem
+from .calibration.run import calibrate_dataset
+from .calibration.solve import solve_stage, stage_parameters
+from .dataset import load_dataset
+from .factors.point_pair import helmert
+from .robot_io import robots_dir
+from .simulation.simulate import simulate
+
+
+class PairResiduals:
+    """Whitened point-pair contrasts of all groups as a function of the released parameters."""
+
+    def __init__(self, problem: Problem, full_params: np.ndarray, released: list[str]) -> None:
+        self.problem = problem
+        self.base = full_params.copy()
+        self.index = np.array([problem.robot.parameter_names.index(n) for n in released], dtype=int)
+        images, c, p_F, blocks = [], [], [], []
+        for group in problem.pairs:
+            images.append(np.array(group.images)[group.owner])
+            c.append(group.c)
+            p_F.append(group.p_F)
+            blocks.append(helmert(len(group.c)))
+        self.images = np.concatenate(images)
+        self.c = np.concatenate(c)
+        self.p_W = np.concatenate(p_F) @ problem.fixture_rotation.T
+        self.H = scipy.sparse.block_diag(blocks, format="csr")
+        self.sigma = problem.config.camera_point_sigma_m
+
+    def __call__(self, released_values: np.ndarray) -> np.ndarray:
+        params = self.base.copy()
+        params[self.index] = released_values
+        data = kinematics.forward(self.problem.robot, params, self.problem.q_fit)
+        T = kinematics.frame_pose(self.problem.robot, data, "tool")[self.images]
+        world = np.einsum("oij,oj->oi", T[:, :3, :3], self.c) + T[:, :3, 3] - self.p_W
+        return (self.H @ world).reshape(-1) / self.sigma
+
+
+def scipy_calibration(problem: Problem, identifiable: list[str]) -> tuple[np.ndarray, float, list[int]]:
+    params = problem.robot.parameter_vector()
+    evaluations = []
+    started = time.perf_counter()
+    for kinds in problem.config.stages:
+        released = stage_parameters(kinds, identifiable)
+        residuals = PairResiduals(problem, params, released)
+        solution = scipy.optimize.least_squares(residuals, params[residuals.index], jac="2-point", method="trf")
+        params[residuals.index] = solution.x
+        evaluations.append(int(solution.nfev))
+    return params, time.perf_counter() - started, evaluations
+
+
+def fgcal_stages(problem: Problem, identifiable: list[str]) -> tuple[np.ndarray, float]:
+    state = initial_state(problem)
+    started = time.perf_counter()
+    for i, kinds in enumerate(problem.config.stages, start=1):
+        state, _, _, _ = solve_stage(problem, str(i), stage_parameters(kinds, identifiable), state)
+    return state.params, time.perf_counter() - started
+
+
+def run_bench(out: Path, seed: int = 1, n: int = 300, repeats: int = 3) -> dict:
+    data_dir = out / f"seed{seed}_n{n}"
+    if not (data_dir / "dataset.yaml").exists():
+        print(f"simulating the seed cell, space-filling design of {n} configurations (seed {seed}) -> {data_dir}")
+        simulate(
+            robots_dir().parent / "cells" / "kr125_seed.yaml",
+            data_dir,
+            seed,
+            design="space_filling",
+            n_configurations=n,
+        )
+    dataset = load_dataset(data_dir)
+    config = CalibrationConfig.defaults(data_dir)
+    problem = build_problem(dataset, config)
+    identifiable = analyse(
+        build_graph(problem, problem.candidates, initial_state(problem)), config.min_information
+    ).identifiable
+    sizes = [len(stage_parameters(k, identifiable)) for k in config.stages]
+    print(
+        f"{len(problem.fit)} configurations for fitting, {problem.n_residuals} residuals, "
+        f"{len(identifiable)} identifiable parameters, parameters per stage {sizes}"
+    )
+
+    stage_times, total_times = [], []
+    for _ in range(repeats):
+        fg_params, stage_time = fgcal_stages(problem, identifiable)
+        stage_times.append(stage_time)
+        started = time.perf_counter()
+        calibrate_dataset(dataset, config)
+        total_times.append(time.perf_counter() - started)
+    sp_params, sp_time, evaluations = scipy_calibration(problem, identifiable)
+    final = PairResiduals(problem, fg_params, identifiable)
+    cost_fgcal = float(np.sum(final(fg_params[final.index]) ** 2))
+    cost_scipy = float(np.sum(final(sp_params[final.index]) ** 2))
+    result = {
+        "fgcal_four_stages_s": min(stage_times),
+        "fgcal_calibrate_total_s": min(total_times),
+        "scipy_four_stages_s": sp_time,
+        "scipy_function_evaluations": evaluations,
+        "ratio_scipy_over_fgcal": sp_time / min(stage_times),
+        "chi2_fgcal": cost_fgcal,
+        "chi2_scipy": cost_scipy,
+    }
+    print(f"fgcal, four stages (best of {repeats}):          {result['fgcal_four_stages_s']:.3f} s")
+    print(
+        f"fgcal, whole calibrate() incl. identifiability, covariance, validation: "
+        f"{result['fgcal_calibrate_total_s']:.3f} s"
+    )
+    print(f"scipy least_squares, finite differences:   {sp_time:.3f} s ({sum(evaluations)} residual evaluations)")
+    print(f"ratio scipy / fgcal (four stages):         {result['ratio_scipy_over_fgcal']:.1f}")
+    print(f"final chi2: fgcal {cost_fgcal:.6g}, scipy {cost_scipy:.6g} (same residuals)")
+    return result
