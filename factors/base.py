@@ -64,7 +64,7 @@ class CheckedFactor:
         residual = np.asarray(residual, dtype=float).reshape(-1)
         if residual.shape != (self.dim,):
             raise FactorError(f"{name}: residual has shape {residual.shape}, expected ({self.dim},)")
-        if not np.all(np.isfinite(residual)):
+        if not np.isfinite(residual).all():
             raise FactorError(f"{name} on keys {self.keys}: non-finite residual {residual}")
         if not jacobians:
             return residual, []
@@ -77,7 +77,7 @@ class CheckedFactor:
                 raise FactorError(
                     f"{name}: Jacobian for key {key} ({kind}) has shape {block.shape}, expected ({self.dim}, {dim})"
                 )
-            if not np.all(np.isfinite(block)):
+            if not np.isfinite(block).all():
                 raise FactorError(f"{name} on keys {self.keys}: non-finite Jacobian")
             checked.append(block)
         return residual, checked

@@ -5,7 +5,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from .base import CheckedFactor, point_jacobian
+from .base import CheckedFactor
 
 
 def helmert(count: int) -> np.ndarray:
@@ -71,14 +71,21 @@ class PointPairFactor(CheckedFactor):
         residual = (self.contrasts @ world).reshape(-1)
         if not jacobians:
             return residual, []
+        # d world_o / d xi of its pose = [-R [c_o]x, R]; a pose's block sums its observations
+        # through the contrasts.
+        skew = np.zeros((len(self.c), 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -self.c[:, 2], self.c[:, 1], -self.c[:, 0]
+        skew -= np.swapaxes(skew, 1, 2)
+        per_obs = np.concatenate([-rotations @ skew, rotations], axis=2)  # (O, 3, 6)
+        rows = self.contrasts.shape[0]
         blocks = []
         for i in range(n_poses):
-            block = np.zeros((residual.size, 6))
-            for o in np.flatnonzero(self.owner == i):
-                block += np.kron(self.contrasts[:, o : o + 1], point_jacobian(rotations[o], self.c[o]))
-            blocks.append(block)
+            mine = self.owner == i
+            blocks.append(np.einsum("ro,oab->rab", self.contrasts[:, mine], per_obs[mine]).reshape(3 * rows, 6))
         if self.estimate_fixture:
             # d(-R Exp(w) p)/dw = R [p]x
-            per_obs = [-point_jacobian(R_W_F, p)[:, :3] for p in self.p_F]
-            blocks.append(sum(np.kron(self.contrasts[:, o : o + 1], per_obs[o]) for o in range(len(self.p_F))))
+            skew_p = np.zeros((len(self.p_F), 3, 3))
+            skew_p[:, 0, 1], skew_p[:, 0, 2], skew_p[:, 1, 2] = -self.p_F[:, 2], self.p_F[:, 1], -self.p_F[:, 0]
+            skew_p -= np.swapaxes(skew_p, 1, 2)
+            blocks.append(np.einsum("ro,oab->rab", self.contrasts, R_W_F @ skew_p).reshape(3 * rows, 3))
         return residual, blocks

@@ -92,7 +92,8 @@ def optimise(stage: StageGraph, max_iterations: int) -> tuple[gtsam.Values, int]
             scale /= 2.0
         if not accepted:
             break
-        converged = error - new_error <= 1e-10 * error + 1e-14
+        # Same criterion as scipy.optimize.least_squares' default ftol: relative cost change 1e-8.
+        converged = error - new_error <= 1e-8 * error + 1e-14
         values, error = candidate, new_error
         if converged:
             break
