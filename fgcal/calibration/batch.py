@@ -51,6 +51,10 @@ class BatchKinematics:
             self._cache[key] = entry
         return entry
 
+    def data(self, released_values: np.ndarray) -> kinematics.KinematicsData:
+        """The full kinematics evaluation (frames, gravity moments) at these values."""
+        return self._entry(released_values)["data"]
+
     def poses(self, released_values: np.ndarray) -> np.ndarray:
         return self._entry(released_values)["poses"]
 

@@ -84,7 +84,7 @@ def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
         keep = np.abs(np.diag(R)) > 1e-9 * max(1.0, np.abs(np.diag(R)).max())
         Q = Q[:, keep]
         J_p = J_p - Q @ (Q.T @ J_p)
-    moments = stage.model._entry(stage.model.base[stage.model.index])["data"].moments
+    moments = stage.model.data(stage.model.base[stage.model.index]).moments
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
     scaled = J_p * np.array([parameter_scale(n, moments_rms) for n in names])[None, :]
     basis = np.zeros((scaled.shape[0], 0))

@@ -41,11 +41,11 @@ class CalibrationResult:
         return {n: float(np.sqrt(max(self.covariance[i, i], 0.0))) for i, n in enumerate(self.released)}
 
 
-def _check_enough(problem: Problem, identifiable: list[str], state: State) -> None:
+def _check_enough(problem: Problem, parameters: list[str], state: State) -> None:
     """At least two residuals per unknown: the candidate parameters (before any is found
     unidentifiable, so thin data are refused rather than quietly reduced) and the auxiliary
     unknowns."""
-    unknowns = len(identifiable)
+    unknowns = len(parameters)
     if state.tracker_pose is not None:
         unknowns += 6 + 3 * len(state.tool_points)
     if state.fixture_rotation is not None:

@@ -99,14 +99,18 @@ def held_out_errors(problem: Problem, state: State, truth: dict | None, point: n
                 )
             )
     else:
+        # Held-out measurements: predict each reflector at every held-out configuration once.
         table = data.tables["tracker_points"]
         config_pos = {c: i for i, c in enumerate(data.configs)}
         test_pos = {int(c): i for i, c in enumerate(problem.test)}
-        target_index = {t: i for i, t in enumerate(problem.targets)}
-        for cid, target, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True):
-            i = test_pos.get(config_pos[cid])
-            if i is not None and target in target_index:
-                predicted = predicted_positions(problem, state, q[i : i + 1], None, target_index[target])[0]
-                errors.append(np.array([np.linalg.norm(predicted - xyz)]))
+        for t, target in enumerate(problem.targets):
+            rows = [
+                (test_pos[config_pos[cid]], xyz)
+                for cid, name, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
+                if name == target and config_pos[cid] in test_pos
+            ]
+            if rows:
+                predicted = predicted_positions(problem, state, q, None, t)[[i for i, _ in rows]]
+                errors.append(np.linalg.norm(predicted - np.array([xyz for _, xyz in rows]), axis=1))
     out["tool_point"] = np.concatenate(errors) if errors else np.zeros(0)
     return out

@@ -106,6 +106,7 @@ class Design:
 class Cell:
     name: str
     source: str
+    robot_reference: str  # bundled robot name, or the robot file's absolute path
     robot: Robot  # carrying the nominal camera mounting and payload
     fixture_pose: np.ndarray  # T_W_F
     sides: list[Side]
@@ -179,7 +180,8 @@ def load_cell(path: str | Path) -> Cell:
     robot_ref = doc.string("robot")
     robot_path = path.parent / robot_ref
     try:
-        robot = load_robot(robot_path if robot_path.suffix in (".yaml", ".yml") else robot_ref)
+        is_file = robot_path.suffix in (".yaml", ".yml")
+        robot = load_robot(robot_path if is_file else robot_ref)
     except InputError as exc:
         raise InputError(path, "robot", str(exc)) from None
 
@@ -250,6 +252,7 @@ def load_cell(path: str | Path) -> Cell:
     return Cell(
         name=doc.string("name"),
         source=str(path),
+        robot_reference=str(robot_path.resolve()) if is_file else robot_ref,
         robot=robot,
         fixture_pose=_pose(doc, "fixture", to_m, to_rad),
         sides=sides,

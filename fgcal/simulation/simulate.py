@@ -186,7 +186,7 @@ def _write_header(out: Path, cell: Cell, seed: int, n_configurations: int, count
     robot = cell.robot
     header = {
         "format": FORMAT,
-        "robot": _robot_reference(cell),
+        "robot": cell.robot_reference,
         "units": {"length": "m", "angle": "rad"},
         "measured": list(counts),
         "files": {
@@ -205,15 +205,3 @@ def _write_header(out: Path, cell: Cell, seed: int, n_configurations: int, count
         f"pixels {cell.pixel_sigma_px} px, tracker {cell.tracker_sigma_m} m",
     }
     write_header(out, header)
-
-
-def _robot_reference(cell: Cell) -> str:
-    """The bundled robot name the cell refers to (datasets stay relocatable)."""
-    return load_cell_robot_name(cell.source)
-
-
-def load_cell_robot_name(cell_path: str) -> str:
-    doc = yaml.safe_load(Path(cell_path).read_text(encoding="utf-8"))
-    ref = str(doc["robot"])
-    path = Path(cell_path).parent / ref
-    return str(path.resolve()) if path.suffix in (".yaml", ".yml") else ref
