@@ -5,6 +5,7 @@ from .base import CheckedFactor, FactorError, gaussian, point_jacobian
 from .kinematic import KinematicFactor
 from .point_pair import PointPairFactor
 from .priors import ParameterBoundFactor
+from .projection import ProjectionFactor, project
 from .tracker import DistanceFactor, PoseFactor, TrackerPointFactor
 
 __all__ = [
@@ -15,7 +16,9 @@ __all__ = [
     "ParameterBoundFactor",
     "PointPairFactor",
     "PoseFactor",
+    "ProjectionFactor",
     "TrackerPointFactor",
     "gaussian",
     "point_jacobian",
+    "project",
 ]

@@ -17,6 +17,7 @@ from fgcal.factors import (
     ParameterBoundFactor,
     PointPairFactor,
     PoseFactor,
+    ProjectionFactor,
     TrackerPointFactor,
     gaussian,
 )
@@ -95,6 +96,33 @@ def _cases():
     cases.append((PoseFactor(1, 2, 4, _pose(), gaussian(np.full(6, 1e-4)), np.full(6, 1e-4)), values))
 
     values = gtsam.Values()
+    camera = gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), RNG.normal(0, 0.3, 3))
+    values.insert(1, camera)
+    # An object 0.5 m in front of the camera, so that its points project.
+    values.insert(
+        2, camera.compose(gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), np.array([0.02, -0.03, 0.5])))
+    )
+    intrinsics = np.array([1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05])
+    values.insert(3, intrinsics)
+    point = np.array([0.05, -0.04, 0.02])
+    cases.append(
+        (
+            ProjectionFactor(
+                1, 2, point, np.array([700.0, 400.0]), gaussian(np.full(2, 0.5)), np.full(2, 0.5), intrinsics_key=3
+            ),
+            values,
+        )
+    )
+    cases.append(
+        (
+            ProjectionFactor(
+                1, 2, point, np.array([700.0, 400.0]), gaussian(np.full(2, 0.5)), np.full(2, 0.5), intrinsics=intrinsics
+            ),
+            values,
+        )
+    )
+
+    values = gtsam.Values()
     values.insert(7, RNG.normal(0, 1, 5))
     cases.append((ParameterBoundFactor(7, 5, np.array([1, 3]), np.array([0.2, -0.1]), np.array([0.01, 0.02])), values))
     return cases
@@ -170,6 +198,19 @@ def test_helmert_contrasts_are_orthonormal_and_carry_the_pair():
     factor = PointPairFactor([1, 2], np.array([0, 1]), c, p_F, gaussian(np.full(3, 1.0)), np.full(3, 1.0))
     seed_pair = pose_j.transformFrom(c[0]) - pose_k.transformFrom(c[1]) + (p_F[1] - p_F[0])
     np.testing.assert_allclose(factor.factor.unwhitenedError(values), seed_pair / np.sqrt(2), atol=1e-12)
+
+
+def test_projection_matches_opencv():
+    import cv2
+
+    from fgcal.factors import project
+
+    intrinsics = np.array([1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05])
+    points = RNG.normal(0, 0.1, (20, 3)) + np.array([0.0, 0.0, 0.6])
+    K = np.array([[1500.0, 0, 640.0], [0, 1450.0, 480.0], [0, 0, 1]])
+    expected, _ = cv2.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, intrinsics[4:])
+    ours = np.array([project(intrinsics, p) for p in points])
+    np.testing.assert_allclose(ours, expected.reshape(-1, 2), rtol=0, atol=1e-9)
 
 
 def test_malformed_jacobian_raises_instead_of_crashing():
