@@ -87,6 +87,15 @@ def test_tracker_with_noise(small_cell):
     assert after <= 5e-5 and after * 100 <= before
 
 
+def test_projection_with_unknown_fixture_and_mounting(small_cell):
+    """Pixels (0.1 px noise) through OpenCV's model; fixture pose from solvePnP, mounting released."""
+    result = calibrate(CalibrationConfig.defaults(small_cell, formulation="projection"))
+    assert "tool.ty" in result.released and result.state.fixture_pose is not None
+    before = result.validation["before"]["tool_point"].rms
+    after = result.validation["after"]["tool_point"].rms
+    assert after <= 5e-5 and after * 100 <= before
+
+
 def test_tracker_noise_free_is_exact(small_cell):
     dataset = _noise_free(load_dataset(small_cell))
     config = CalibrationConfig.defaults(small_cell, formulation="tracker", noise={"tracker_sigma": 1e-8})

@@ -10,7 +10,7 @@ from ..parameters import JOINT_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 
-FORMULATIONS = ("pairs", "tracker")
+FORMULATIONS = ("pairs", "tracker", "projection")
 KINDS = (*JOINT_KINDS, "base", "tool")
 SEED_STAGES = (
     ("theta",),
@@ -53,6 +53,7 @@ class CalibrationConfig:
     length_bound_m: float
     camera_point_sigma_m: float
     tracker_sigma_m: float
+    pixel_sigma_px: float
     kinematic_sigma: float | None  # None: 1% of the measurement sigma
     robust: dict
     pair_partner: str
@@ -65,7 +66,12 @@ class CalibrationConfig:
 
     @property
     def measurement_sigma_m(self) -> float:
-        return self.camera_point_sigma_m if self.formulation == "pairs" else self.tracker_sigma_m
+        """Measurement sigma in metres (pixels: at 1 m depth for a 1000 px focal length)."""
+        return {
+            "pairs": self.camera_point_sigma_m,
+            "tracker": self.tracker_sigma_m,
+            "projection": 1e-3 * self.pixel_sigma_px,
+        }[self.formulation]
 
     @property
     def pose_tie_sigma(self) -> float:
@@ -119,9 +125,9 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     bounds = doc.sub("bounds", {})
     bounds.check_keys(("length",))
     noise = doc.sub("noise", {})
-    noise.check_keys(("camera_point_sigma", "tracker_sigma", "kinematic_sigma"))
+    noise.check_keys(("camera_point_sigma", "tracker_sigma", "pixel_sigma_px", "kinematic_sigma"))
     robust = doc.sub("robust", {})
-    robust.check_keys(("camera_points", "tracker_points"))
+    robust.check_keys(("camera_points", "tracker_points", "pixels"))
     pairs = doc.sub("pairs", {})
     pairs.check_keys(("partner", "seed", "group_images"))
     validation = doc.sub("validation", {})
@@ -146,10 +152,12 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         length_bound_m=bounds.number("length", 0.01 / to_m, to_m, positive=True),
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, positive=True),
         tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, positive=True),
+        pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, positive=True),
         kinematic_sigma=noise.number("kinematic_sigma", None, positive=True) if noise.has("kinematic_sigma") else None,
         robust={
             "camera_points": _robust(robust, "camera_points", None),
             "tracker_points": _robust(robust, "tracker_points", ["huber", 3.0]),
+            "pixels": _robust(robust, "pixels", ["huber", 3.0]),
         },
         pair_partner=pairs.string("partner", "other_object", PARTNERS),
         pair_seed=pairs.integer("seed", 0),

@@ -6,10 +6,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import gtsam
 import numpy as np
 
-from ..factors import KinematicFactor, ParameterBoundFactor, PointPairFactor, TrackerPointFactor, gaussian
+from ..errors import InputError
+from ..factors import (
+    KinematicFactor,
+    ParameterBoundFactor,
+    PointPairFactor,
+    ProjectionFactor,
+    TrackerPointFactor,
+    gaussian,
+)
 from ..parameters import split_name
 from ..se3 import transform_points
 from .batch import BatchKinematics
@@ -18,6 +27,7 @@ from .problem import Problem
 P_KEY = gtsam.symbol("p", 0)
 FIXTURE_KEY = gtsam.symbol("f", 0)
 TRACKER_KEY = gtsam.symbol("l", 0)
+OBJECT_KEY = gtsam.symbol("o", 0)
 
 
 def pose_key(j: int) -> int:
@@ -56,7 +66,40 @@ def initial_state(problem: Problem) -> State:
         state.fixture_rotation = problem.fixture_rotation.copy()
     if problem.config.formulation == "tracker":
         state.tracker_pose, state.tool_points = initial_tracker(problem, params)
+    if problem.config.formulation == "projection":
+        state.fixture_pose = initial_fixture_pose(problem, params)
     return state
+
+
+def initial_fixture_pose(problem: Problem, params: np.ndarray) -> np.ndarray:
+    """T_W_F from the images alone: OpenCV solvePnP per image (T_C_F) composed with the
+    nominal camera pose, rotations averaged (chordal mean) and translations averaged."""
+    camera = problem.dataset.camera
+    K, dist = camera.K, camera.distortion
+    T_W_C = problem.robot.fk_tool(problem.q_fit, problem.robot.parameter_dict(params))
+    images: dict[int, list] = {}
+    for j, p_F, uv in problem.pixel_obs:
+        images.setdefault(j, []).append((p_F, uv))
+    estimates = []
+    for j, obs in images.items():
+        if len(obs) < 4:
+            continue
+        object_points = np.array([o[0] for o in obs])
+        image_points = np.array([o[1] for o in obs])
+        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, K, dist, flags=cv2.SOLVEPNP_IPPE)
+        if ok:
+            T_C_F = np.eye(4)
+            T_C_F[:3, :3] = cv2.Rodrigues(rvec)[0]
+            T_C_F[:3, 3] = tvec.ravel()
+            estimates.append(T_W_C[j] @ T_C_F)
+    if not estimates:
+        raise InputError(problem.dataset.path / "pixels.csv", None, "solvePnP found no image with 4 usable points")
+    stacked = np.array(estimates)
+    U, _, Vt = np.linalg.svd(stacked[:, :3, :3].sum(axis=0))
+    T = np.eye(4)
+    T[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    T[:3, 3] = np.median(stacked[:, :3, 3], axis=0)
+    return T
 
 
 def initial_tracker(problem: Problem, params: np.ndarray, rounds: int = 15) -> tuple[np.ndarray, np.ndarray]:
@@ -126,6 +169,8 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
         )
     if config.formulation == "pairs":
         _add_pairs(problem, state, stage)
+    elif config.formulation == "projection":
+        _add_projection(problem, state, stage)
     else:
         _add_tracker(problem, state, stage)
     return stage
@@ -186,6 +231,24 @@ def _add_pairs(problem: Problem, state: State, stage: StageGraph) -> None:
     _add_measurements(stage, make, config.robust["camera_points"])
 
 
+def _add_projection(problem: Problem, state: State, stage: StageGraph) -> None:
+    config = problem.config
+    stage.values.insert(OBJECT_KEY, gtsam.Pose3(state.fixture_pose))
+    stage.aux[OBJECT_KEY] = ("fixture", 6)
+    camera = problem.dataset.camera
+    intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion])
+    sigmas = np.full(2, config.pixel_sigma_px)
+
+    def make(robust):
+        noise = gaussian(sigmas, robust)
+        return [
+            ProjectionFactor(pose_key(j), OBJECT_KEY, p_F, uv, noise, sigmas, intrinsics=intrinsics)
+            for j, p_F, uv in problem.pixel_obs
+        ]
+
+    _add_measurements(stage, make, config.robust["pixels"])
+
+
 def _add_tracker(problem: Problem, state: State, stage: StageGraph) -> None:
     config = problem.config
     stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
@@ -210,6 +273,8 @@ def read_state(problem: Problem, stage: StageGraph, values: gtsam.Values, previo
     state = State(params)
     if previous.fixture_rotation is not None:
         state.fixture_rotation = values.atRot3(FIXTURE_KEY).matrix()
+    if previous.fixture_pose is not None:
+        state.fixture_pose = values.atPose3(OBJECT_KEY).matrix()
     if previous.tracker_pose is not None:
         state.tracker_pose = values.atPose3(TRACKER_KEY).matrix()
         state.tool_points = np.array([values.atPoint3(point_key(t)) for t in range(len(previous.tool_points))])

@@ -52,6 +52,7 @@ class Problem:
     pairs: list[PairGroup] = field(default_factory=list)
     fixture_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     tracker_obs: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (fit index, target, m)
+    pixel_obs: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)  # (fit index, p_F, px)
     targets: list[str] = field(default_factory=list)
 
     @property
@@ -62,6 +63,8 @@ class Problem:
     def n_residuals(self) -> int:
         if self.config.formulation == "pairs":
             return sum(3 * (len(p.c) - 1) for p in self.pairs)
+        if self.config.formulation == "projection":
+            return 2 * len(self.pixel_obs)
         return 3 * len(self.tracker_obs)
 
     def pair_categories(self) -> dict[str, int]:
@@ -115,10 +118,12 @@ def build_problem(dataset: Dataset, config: CalibrationConfig) -> Problem:
         if j > robot.n_joints:
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
-    frame = "tool" if config.formulation == "pairs" else "flange"
+    frame = "flange" if config.formulation == "tracker" else "tool"
     problem = Problem(config, dataset, robot, frame, fit, test, candidate_parameters(robot, config))
     if config.formulation == "pairs":
         _build_pairs(problem)
+    elif config.formulation == "projection":
+        _build_projection(problem)
     else:
         _build_tracker(problem)
     return problem
@@ -190,6 +195,27 @@ def _build_pairs(problem: Problem) -> None:
                 labels=[label(j) for j in group],
             )
         )
+
+
+def _build_projection(problem: Problem) -> None:
+    data = problem.dataset
+    if "pixels" not in data.tables or data.camera is None:
+        raise InputError(
+            data.path / "dataset.yaml",
+            "measured",
+            "the projection formulation needs pixels and the camera's intrinsics (camera:)",
+        )
+    points = data.tables["points"]
+    where = {name: i for i, name in enumerate(points.ids["point"])}
+    table = data.tables["pixels"]
+    config_pos = {c: i for i, c in enumerate(data.configs)}
+    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
+    for cid, point, uv in zip(table.ids["config"], table.ids["point"], table.values, strict=True):
+        index = fit_pos.get(config_pos[cid])
+        if index is not None:
+            problem.pixel_obs.append((index, points.values[where[point]], uv))
+    if len({o[0] for o in problem.pixel_obs}) < 3:
+        raise InputError(data.path / "pixels.csv", None, "too few fitting images with pixels")
 
 
 def _build_tracker(problem: Problem) -> None:

@@ -16,6 +16,7 @@ from ..parameters import unit_of
 from ..robot_io import save_robot
 from .covariance import correlation
 from .run import CalibrationResult
+from .validation import gauge_of
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -60,7 +61,7 @@ def report_dict(result: CalibrationResult) -> dict:
                 "stage": s.name,
                 "released": s.released,
                 "residual_norm": s.residual_norm,
-                "residual_rms_m": s.residual_rms_m,
+                f"residual_rms_{s.unit}": s.residual_rms,
                 "iterations": s.iterations,
                 "time_s": s.time_s,
             }
@@ -78,12 +79,9 @@ def report_dict(result: CalibrationResult) -> dict:
         "correlation": {"names": result.released, "matrix": correlation(result.covariance).tolist()},
         "validation": {
             **validation,
-            "scored_point_m": [float(v) for v in result.tool_point] if config.formulation == "pairs" else None,
+            "scored_point_m": [float(v) for v in result.tool_point] if config.formulation != "tracker" else None,
             "reference": "ground truth" if result.truth else "held-out measurements",
-            "gauge_removed": {
-                "pairs": "translation" if config.fixture_orientation == "known" else "rigid",
-                "tracker": "none",
-            }[config.formulation],
+            "gauge_removed": gauge_of(problem),
             "predicted_position_sigma_m": predicted,
         },
         "seed": _seed(result),
@@ -99,8 +97,8 @@ def predicted_sigma(result: CalibrationResult) -> dict:
     q_test = problem.dataset.q[problem.test]
     if not len(q_test) or not result.released:
         return {}
-    frame = "tool" if config.formulation == "pairs" else "flange"
-    point = result.tool_point if config.formulation == "pairs" else result.state.tool_points[0]
+    frame = "tool" if config.formulation != "tracker" else "flange"
+    point = result.tool_point if config.formulation != "tracker" else result.state.tool_points[0]
     data = kinematics.forward(problem.robot, result.state.params, q_test)
     J = kinematics.jacobian(problem.robot, data, result.released, frame=frame, point=point)
 
@@ -108,7 +106,7 @@ def predicted_sigma(result: CalibrationResult) -> dict:
         cov = jac @ result.covariance @ np.swapaxes(jac, 1, 2)
         return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))
 
-    if config.formulation == "pairs":
+    if config.formulation != "tracker":
         return {"rms": rms(J - J.mean(axis=0, keepdims=True)), "rms_with_common_offset": rms(J)}
     return {"rms": rms(J)}
 
@@ -225,13 +223,14 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         "",
         "## Stages",
         "",
-        "| stage | released | residual norm | residual RMS (m) | iterations | time (s) |",
+        "| stage | released | residual norm | residual RMS | iterations | time (s) |",
         "|---|---|---|---|---|---|",
     ]
     for s in doc["stages"]:
         lines.append(
             f"| {s['stage']} | {len(s['released'])}: {', '.join(s['released'])} | {s['residual_norm']:.4g} | "
-            f"{s['residual_rms_m']:.3e} | {s['iterations']} | {s['time_s']:.2f} |"
+            f"{s.get('residual_rms_m', s.get('residual_rms_px')):.3e} {'m' if 'residual_rms_m' in s else 'px'} | "
+            f"{s['iterations']} | {s['time_s']:.2f} |"
         )
     has_truth = any("truth" in p for p in doc["parameters"].values())
     lines += [

@@ -50,6 +50,8 @@ def _check_enough(problem: Problem, parameters: list[str], state: State) -> None
         unknowns += 6 + 3 * len(state.tool_points)
     if state.fixture_rotation is not None:
         unknowns += 3
+    if state.fixture_pose is not None:
+        unknowns += 6
     if problem.n_residuals < 2 * unknowns:
         raise InputError(
             problem.dataset.path,
@@ -86,7 +88,7 @@ def calibrate_dataset(
     )
     stages: list[StageReport] = []
     solve_started = time.perf_counter()
-    if state.tracker_pose is not None or state.fixture_rotation is not None:
+    if state.tracker_pose is not None or state.fixture_rotation is not None or state.fixture_pose is not None:
         state, report, _, _ = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
         stages.append(report)
     before = state

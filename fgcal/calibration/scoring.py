@@ -29,7 +29,7 @@ def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None
     camera frame, in W; for the tracker, the reflector ``target`` in the tracker frame."""
     robot = problem.robot
     params = truth["parameters"]
-    if problem.config.formulation == "pairs":
+    if problem.config.formulation != "tracker":
         return transform_points(robot.fk_tool(q, params), point)
     T_T_W = inverse(_pose(truth["tracker_pose"]))
     return transform_points(T_T_W @ robot.fk(q, params), np.array(truth["tracker_targets"][target], float))

@@ -19,7 +19,8 @@ class StageReport:
     name: str
     released: list[str]
     residual_norm: float  # sqrt(sum of squared whitened measurement residuals)
-    residual_rms_m: float  # RMS of the measurement residuals, m
+    residual_rms: float  # RMS of the measurement residuals, in unit
+    unit: str  # m, or px for the projection formulation
     iterations: int
     time_s: float
 
@@ -108,9 +109,10 @@ def solve_stage(
     result, iterations = optimise(stage, problem.config.max_iterations)
     new_state = read_state(problem, stage, result, state)
     norm, rms = measurement_residuals(stage, result)
-    report = StageReport(name, released, norm, rms, iterations, time.perf_counter() - started)
+    unit = "px" if problem.config.formulation == "projection" else "m"
+    report = StageReport(name, released, norm, rms, unit, iterations, time.perf_counter() - started)
     say(
         f"  stage {name}: {len(released)} parameters, {report.iterations} iterations, "
-        f"residual RMS {rms:.3e} m, {report.time_s:.2f} s"
+        f"residual RMS {rms:.3e} {unit}, {report.time_s:.2f} s"
     )
     return new_state, report, stage, result

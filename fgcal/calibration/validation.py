@@ -60,6 +60,9 @@ def default_tool_point(problem: Problem) -> np.ndarray:
 def gauge_of(problem: Problem) -> str:
     if problem.config.formulation == "tracker":
         return "none"
+    if problem.config.formulation == "projection":
+        # The fixture pose is estimated relative to the robot: W is tied to the nominal base.
+        return "rigid"
     return "rigid" if problem.config.fixture_orientation == "estimate" else "translation"
 
 
@@ -68,7 +71,7 @@ def predicted_positions(
 ) -> np.ndarray:
     robot = problem.robot
     params = robot.parameter_dict(state.params)
-    if problem.config.formulation == "pairs":
+    if problem.config.formulation != "tracker":
         return transform_points(robot.fk_tool(q, params), point)
     return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
 
@@ -78,7 +81,7 @@ def held_out_errors(problem: Problem, state: State, truth: dict | None, point: n
     data = problem.dataset
     q = data.q[problem.test]
     out = {}
-    if problem.config.formulation == "pairs":
+    if problem.config.formulation != "tracker":
         if truth is None:
             return out
         for label, p in (("tool_point", point), ("camera_origin", np.zeros(3))):
