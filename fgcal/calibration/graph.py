@@ -46,6 +46,7 @@ class State:
     fixture_rotation: np.ndarray | None = None  # R_W_F, when estimated
     tracker_pose: np.ndarray | None = None  # T_T_W
     tool_points: np.ndarray | None = None  # (m, 3) in the flange frame
+    fixture_pose: np.ndarray | None = None  # T_W_F, when the projection formulation estimates it
 
 
 @dataclass
