@@ -96,6 +96,26 @@ def test_projection_with_unknown_fixture_and_mounting(small_cell):
     assert after <= 5e-5 and after * 100 <= before
 
 
+def test_hand_eye_recovers_a_bad_mounting_guess(small_cell):
+    """A mounting drawing off by 5 cm and 5 degrees: calibrateHandEye starts it, the graph finishes."""
+    from fgcal.se3 import pose_from_xyz_rpy, so3_log
+
+    dataset = load_dataset(small_cell)
+    offset = pose_from_xyz_rpy(np.array([0.03, -0.03, 0.03]), np.deg2rad([3.0, -3.0, 2.5]))
+    assert np.linalg.norm(offset[:3, 3]) > 0.05 and np.rad2deg(np.linalg.norm(so3_log(offset[:3, :3]))) > 4.9
+    dataset.robot = dataset.robot.with_tool(dataset.robot.tool_pose @ offset)
+    result = calibrate_dataset(dataset, CalibrationConfig.defaults(small_cell, formulation="projection"))
+    after = result.validation["after"]["tool_point"].rms
+    assert after <= 5e-5 and after * 100 <= result.validation["before"]["tool_point"].rms
+
+
+def test_pairs_from_pixels(small_cell):
+    """The seed's relative formulation on points computed from detections (PnP per block)."""
+    result = calibrate(CalibrationConfig.defaults(small_cell, pairs={"points_from": "pixels"}))
+    after = result.validation["after"]["tool_point"].rms
+    assert after * 50 <= result.validation["before"]["tool_point"].rms
+
+
 def test_tracker_noise_free_is_exact(small_cell):
     dataset = _noise_free(load_dataset(small_cell))
     config = CalibrationConfig.defaults(small_cell, formulation="tracker", noise={"tracker_sigma": 1e-8})

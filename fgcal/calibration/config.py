@@ -58,6 +58,7 @@ class CalibrationConfig:
     robust: dict
     pair_partner: str
     group_images: int
+    pair_points_from: str
     pair_seed: int
     holdout: float
     split_seed: int
@@ -129,7 +130,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     robust = doc.sub("robust", {})
     robust.check_keys(("camera_points", "tracker_points", "pixels"))
     pairs = doc.sub("pairs", {})
-    pairs.check_keys(("partner", "seed", "group_images"))
+    pairs.check_keys(("partner", "seed", "group_images", "points_from"))
     validation = doc.sub("validation", {})
     validation.check_keys(("holdout", "seed"))
     holdout = validation.number("holdout", 0.25)
@@ -162,6 +163,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         pair_partner=pairs.string("partner", "other_object", PARTNERS),
         pair_seed=pairs.integer("seed", 0),
         group_images=pairs.integer("group_images", 4, minimum=1),
+        pair_points_from=pairs.string("points_from", "camera_points", ("camera_points", "pixels")),
         holdout=holdout,
         split_seed=validation.integer("seed", 0),
         min_information=ident.number("min_information", 3.0, positive=True),

@@ -20,7 +20,7 @@ from ..factors import (
     gaussian,
 )
 from ..parameters import split_name
-from ..se3 import transform_points
+from ..se3 import so3_log, transform_points
 from .batch import BatchKinematics
 from .problem import Problem
 
@@ -68,34 +68,76 @@ def initial_state(problem: Problem) -> State:
     if problem.config.formulation == "tracker":
         state.tracker_pose, state.tool_points = initial_tracker(problem, params)
     if problem.config.formulation == "projection":
-        state.fixture_pose = initial_fixture_pose(problem, params)
+        # Nobody measured the mounting or the fixture: both start from the images.
+        T_C_F = pnp_per_image(problem)
+        state.params = with_mounting(problem, params, hand_eye_mounting(problem, params, T_C_F))
+        state.fixture_pose = initial_fixture_pose(problem, state.params, T_C_F)
     return state
 
 
-def initial_fixture_pose(problem: Problem, params: np.ndarray) -> np.ndarray:
-    """T_W_F from the images alone: OpenCV solvePnP per image (T_C_F) composed with the
-    nominal camera pose, rotations averaged (chordal mean) and translations averaged."""
+def pnp_per_image(problem: Problem) -> dict[int, np.ndarray]:
+    """T_C_F of every fitting image with at least four points, from OpenCV's solvePnP (IPPE)."""
     camera = problem.dataset.camera
-    K, dist = camera.K, camera.distortion
-    T_W_C = problem.robot.fk_tool(problem.q_fit, problem.robot.parameter_dict(params))
     images: dict[int, list] = {}
     for j, p_F, uv in problem.pixel_obs:
         images.setdefault(j, []).append((p_F, uv))
-    estimates = []
+    poses = {}
     for j, obs in images.items():
         if len(obs) < 4:
             continue
-        object_points = np.array([o[0] for o in obs])
-        image_points = np.array([o[1] for o in obs])
-        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, K, dist, flags=cv2.SOLVEPNP_IPPE)
+        ok, rvec, tvec = cv2.solvePnP(
+            np.array([o[0] for o in obs]),
+            np.array([o[1] for o in obs]),
+            camera.K,
+            camera.distortion,
+            flags=cv2.SOLVEPNP_IPPE,
+        )
         if ok:
-            T_C_F = np.eye(4)
-            T_C_F[:3, :3] = cv2.Rodrigues(rvec)[0]
-            T_C_F[:3, 3] = tvec.ravel()
-            estimates.append(T_W_C[j] @ T_C_F)
-    if not estimates:
-        raise InputError(problem.dataset.path / "pixels.csv", None, "solvePnP found no image with 4 usable points")
-    stacked = np.array(estimates)
+            T = np.eye(4)
+            T[:3, :3] = cv2.Rodrigues(rvec)[0]
+            T[:3, 3] = tvec.ravel()
+            poses[j] = T
+    if len(poses) < 3:
+        raise InputError(
+            problem.dataset.path / "pixels.csv",
+            None,
+            f"solvePnP succeeded on {len(poses)} images: at least 3 with 4 points are needed",
+        )
+    return poses
+
+
+def hand_eye_mounting(problem: Problem, params: np.ndarray, T_C_F: dict[int, np.ndarray]) -> np.ndarray:
+    """Camera mounting T_n_C from OpenCV's calibrateHandEye (Park), with the flange poses of
+    the current model and the per-image target poses."""
+    flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
+    images = sorted(T_C_F)
+    R, t = cv2.calibrateHandEye(
+        [flange[j][:3, :3] for j in images],
+        [flange[j][:3, 3] for j in images],
+        [T_C_F[j][:3, :3] for j in images],
+        [T_C_F[j][:3, 3] for j in images],
+        method=cv2.CALIB_HAND_EYE_PARK,
+    )
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, np.ravel(t)
+    return T
+
+
+def with_mounting(problem: Problem, params: np.ndarray, T_n_C: np.ndarray) -> np.ndarray:
+    """Parameters whose tool.* perturbation turns the nominal mounting into ``T_n_C``."""
+    local = np.linalg.inv(problem.robot.tool_pose) @ T_n_C
+    names = problem.robot.parameter_names
+    out = params.copy()
+    out[names.index("tool.tx") : names.index("tool.tz") + 1] = local[:3, 3]
+    out[names.index("tool.rx") : names.index("tool.rz") + 1] = so3_log(local[:3, :3])
+    return out
+
+
+def initial_fixture_pose(problem: Problem, params: np.ndarray, T_C_F: dict[int, np.ndarray]) -> np.ndarray:
+    """T_W_F from the images: per-image T_C_F composed with the current camera pose, the
+    rotations averaged (chordal mean), the translations by their median."""
+    T_W_C = problem.robot.fk_tool(problem.q_fit, problem.robot.parameter_dict(params))
+    stacked = np.array([T_W_C[j] @ T for j, T in T_C_F.items()])
     U, _, Vt = np.linalg.svd(stacked[:, :3, :3].sum(axis=0))
     T = np.eye(4)
     T[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt

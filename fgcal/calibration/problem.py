@@ -14,12 +14,14 @@ common position.
 
 from __future__ import annotations
 
+import copy
 from collections import Counter
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
-from ..dataset import Dataset
+from ..dataset import Dataset, Table
 from ..errors import InputError
 from ..parameters import split_name
 from ..robot import Robot
@@ -129,8 +131,47 @@ def build_problem(dataset: Dataset, config: CalibrationConfig) -> Problem:
     return problem
 
 
+def camera_points_from_pixels(dataset: Dataset) -> Table:
+    """3D points in the camera frame from detections: OpenCV solvePnP (IPPE) on each image's
+    points with their drawing coordinates, then ``c = T_C_F p_F``, as the seed does. Images
+    with fewer than four points are skipped."""
+    if "pixels" not in dataset.tables or dataset.camera is None:
+        raise InputError(
+            dataset.path / "dataset.yaml",
+            "measured",
+            "pairs from pixels need the pixels table and the camera intrinsics (camera:)",
+        )
+    points = dataset.tables["points"]
+    where = {name: i for i, name in enumerate(points.ids["point"])}
+    table = dataset.tables["pixels"]
+    images: dict[str, list[int]] = {}
+    for row, cid in enumerate(table.ids["config"]):
+        images.setdefault(str(cid), []).append(row)
+    configs, names, values = [], [], []
+    for cid, rows in images.items():
+        if len(rows) < 4:
+            continue
+        p_F = points.values[[where[table.ids["point"][r]] for r in rows]]
+        ok, rvec, tvec = cv2.solvePnP(
+            p_F, table.values[rows], dataset.camera.K, dataset.camera.distortion, flags=cv2.SOLVEPNP_IPPE
+        )
+        if not ok:
+            continue
+        values.append(p_F @ cv2.Rodrigues(rvec)[0].T + tvec.ravel())
+        configs += [cid] * len(rows)
+        names += [table.ids["point"][r] for r in rows]
+    return Table(
+        {"config": np.array(configs, dtype=object), "point": np.array(names, dtype=object)},
+        np.vstack(values) if values else np.zeros((0, 3)),
+    )
+
+
 def _build_pairs(problem: Problem) -> None:
     data, config = problem.dataset, problem.config
+    if config.pair_points_from == "pixels":
+        # The dataset itself is left as loaded; the problem works on its own copy of the tables.
+        data = problem.dataset = copy.copy(data)
+        data.tables = {**data.tables, "camera_points": camera_points_from_pixels(data)}
     if "camera_points" not in data.tables:
         raise InputError(
             data.path / "dataset.yaml",

@@ -30,6 +30,9 @@ def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None
     robot = problem.robot
     params = truth["parameters"]
     if problem.config.formulation != "tracker":
-        return transform_points(robot.fk_tool(q, params), point)
+        # The true tool.* perturbs the simulation's nominal mounting, which a dataset's (or a
+        # user's) mounting guess need not equal.
+        true_robot = robot.with_tool(_pose(truth["camera_mounting_nominal"]))
+        return transform_points(true_robot.fk_tool(q, params), point)
     T_T_W = inverse(_pose(truth["tracker_pose"]))
     return transform_points(T_T_W @ robot.fk(q, params), np.array(truth["tracker_targets"][target], float))
