@@ -75,3 +75,26 @@ def parse_camera(fields: Fields) -> Camera:
         width=int(size[0]),
         height=int(size[1]),
     )
+
+
+def solve_pnp(object_points: np.ndarray, image_points: np.ndarray, camera: Camera) -> np.ndarray | None:
+    """T_C_O of points known in a frame O, from their pixels; None when OpenCV fails.
+
+    The points are centred on their centroid first: IPPE (the planar solver, for points on
+    one board or side) is numerically poor for points far from the origin of their frame,
+    which calibration objects placed in a cell are.
+    """
+    object_points = np.asarray(object_points, dtype=np.float64)
+    centroid = object_points.mean(axis=0)
+    centred = object_points - centroid
+    planar = np.linalg.svd(centred, compute_uv=False)[-1] < 1e-6 * max(1.0, np.abs(centred).max())
+    flags = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
+    ok, rvec, tvec = cv2.solvePnP(
+        centred, np.asarray(image_points, dtype=np.float64), camera.K, camera.distortion, flags=flags
+    )
+    if not ok:
+        return None
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = tvec.ravel() - T[:3, :3] @ centroid
+    return T

@@ -31,6 +31,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         design=args.design,
         n_configurations=args.n,
         progress=lambda msg: print(msg, flush=True),
+        render=args.render,
     )
     print(result.summary())
     return 0
@@ -126,6 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1); same seed, same files")
     p.add_argument("--design", choices=("seed", "space_filling"), help="override the cell's design kind")
     p.add_argument("--n", type=int, help="number of configurations of a space-filling design")
+    p.add_argument("--render", action="store_true", help="also render the camera images (ChArUco boards)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("calibrate", help="calibrate from a dataset as a calibration config describes")

@@ -52,6 +52,8 @@ HEADER_KEYS = (
     "camera",
     "payload",
     "fixture",
+    "images",
+    "markers",
     "tracker",
     "source",
     "notes",
@@ -88,6 +90,8 @@ class Dataset:
     camera: Camera | None = None
     camera_mounting: np.ndarray | None = None  # nominal T_n_C
     fixture_pose: np.ndarray | None = None  # nominal T_W_F
+    images_dir: Path | None = None  # camera images, one per configuration: <config>.png
+    boards: list = field(default_factory=list)  # fgcal.markers.SideBoard of each marked side
     header: dict = field(default_factory=dict)
 
     def config_index(self, config_ids: np.ndarray) -> np.ndarray:
@@ -238,7 +242,38 @@ def load_dataset(path: str | Path) -> Dataset:
         )
     if doc.has("fixture"):
         dataset.fixture_pose = _pose(doc.sub("fixture"), units)
+    if doc.has("images"):
+        dataset.images_dir = root / doc.string("images")
+        if not dataset.images_dir.is_dir():
+            raise doc.error("images", f"no such directory: {dataset.images_dir}")
+        dataset.boards = _boards(doc.sub("markers"), units)
     return dataset
+
+
+def _boards(markers: Fields, units: Units) -> list:
+    from .markers import DICTIONARY, SideBoard
+
+    markers.check_keys(("dictionary", "marker_ratio", "boards"))
+    if markers.string("dictionary", DICTIONARY) != DICTIONARY:
+        raise markers.error("dictionary", f"only {DICTIONARY} is supported")
+    boards = []
+    for board in markers.sub_list("boards"):
+        board.check_keys(("name", "squares", "square", "first_id", "pose", "corners"))
+        squares = board.vector("squares", 2)
+        corners = [str(c) for c in board.items("corners")]
+        if len(corners) != int(squares[0] - 1) * int(squares[1] - 1):
+            raise board.error("corners", f"expected {(squares[0] - 1) * (squares[1] - 1):.0f} corner names")
+        boards.append(
+            SideBoard(
+                board.string("name"),
+                (int(squares[0]), int(squares[1])),
+                board.number("square", scale=units.to_m, positive=True),
+                board.integer("first_id", minimum=0),
+                _pose(board.sub("pose"), units),
+                tuple(corners),
+            )
+        )
+    return boards
 
 
 def _pose(fields: Fields, units: Units) -> np.ndarray:

@@ -221,3 +221,51 @@ class Detector:
         if ok and inliers is not None:
             keep[inliers.ravel()] = True
         return keep
+
+
+@dataclass
+class ImageDetections:
+    """Detections over a dataset's images: a pixels table, and what was skipped and why."""
+
+    pixels: object  # fgcal.dataset.Table
+    skipped: list[tuple[str, str]]
+    corners: int
+    rejected: int
+
+
+def detect_images(dataset, gate_px: float = 2.0, progress=None) -> ImageDetections:
+    """Detect every configuration's image ``<config>.png``. An unreadable image or one without
+    markers is skipped and reported; nothing else is lost."""
+    from .dataset import Table
+
+    if dataset.images_dir is None or not dataset.boards or dataset.camera is None:
+        from .errors import InputError
+
+        raise InputError(
+            dataset.path / "dataset.yaml",
+            "images",
+            "detection needs images, markers (the boards) and the camera intrinsics",
+        )
+    detector = Detector(dataset.boards, dataset.camera, gate_px)
+    configs, names, pixels, skipped, rejected = [], [], [], [], 0
+    for i, cid in enumerate(dataset.configs):
+        path = dataset.images_dir / f"{cid}.png"
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.exists() else None
+        if image is None:
+            skipped.append((str(cid), f"cannot read {path.name}" if path.exists() else f"missing {path.name}"))
+            continue
+        detection = detector.detect(image)
+        rejected += detection.rejected
+        if not detection.names:
+            skipped.append((str(cid), detection.message))
+            continue
+        configs += [cid] * len(detection.names)
+        names += detection.names
+        pixels.append(detection.pixels)
+        if progress and (i + 1) % 50 == 0:
+            progress(f"  detected {i + 1}/{len(dataset.configs)} images")
+    table = Table(
+        {"config": np.array(configs, dtype=object), "point": np.array(names, dtype=object)},
+        np.vstack(pixels) if pixels else np.zeros((0, 2)),
+    )
+    return ImageDetections(table, skipped, len(names), rejected)

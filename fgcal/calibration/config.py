@@ -36,6 +36,7 @@ CONFIG_KEYS = (
     "validation",
     "identifiability",
     "solver",
+    "pixels_from",
     "notes",
 )
 
@@ -64,6 +65,7 @@ class CalibrationConfig:
     split_seed: int
     min_information: float
     max_iterations: int
+    pixels_from: str = "table"
 
     @property
     def measurement_sigma_m(self) -> float:
@@ -168,6 +170,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         split_seed=validation.integer("seed", 0),
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
+        pixels_from=doc.string("pixels_from", "table", ("table", "images")),
     )
 
 

@@ -10,6 +10,7 @@ import cv2
 import gtsam
 import numpy as np
 
+from ..camera import solve_pnp
 from ..errors import InputError
 from ..factors import (
     KinematicFactor,
@@ -83,20 +84,10 @@ def pnp_per_image(problem: Problem) -> dict[int, np.ndarray]:
         images.setdefault(j, []).append((p_F, uv))
     poses = {}
     for j, obs in images.items():
-        if len(obs) < 4:
-            continue
-        ok, rvec, tvec = cv2.solvePnP(
-            np.array([o[0] for o in obs]),
-            np.array([o[1] for o in obs]),
-            camera.K,
-            camera.distortion,
-            flags=cv2.SOLVEPNP_IPPE,
-        )
-        if ok:
-            T = np.eye(4)
-            T[:3, :3] = cv2.Rodrigues(rvec)[0]
-            T[:3, 3] = tvec.ravel()
-            poses[j] = T
+        if len(obs) >= 4:
+            T = solve_pnp(np.array([o[0] for o in obs]), np.array([o[1] for o in obs]), camera)
+            if T is not None:
+                poses[j] = T
     if len(poses) < 3:
         raise InputError(
             problem.dataset.path / "pixels.csv",

@@ -18,9 +18,9 @@ import copy
 from collections import Counter
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
+from ..camera import solve_pnp
 from ..dataset import Dataset, Table
 from ..errors import InputError
 from ..parameters import split_name
@@ -56,6 +56,8 @@ class Problem:
     tracker_obs: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (fit index, target, m)
     pixel_obs: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)  # (fit index, p_F, px)
     targets: list[str] = field(default_factory=list)
+    skipped_images: list[tuple[str, str]] = field(default_factory=list)
+    detection: dict = field(default_factory=dict)
 
     @property
     def q_fit(self) -> np.ndarray:
@@ -114,14 +116,29 @@ def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
-def build_problem(dataset: Dataset, config: CalibrationConfig) -> Problem:
+def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) -> Problem:
     robot = dataset.robot.with_model(config.model)
     for j in config.compliant_joints:
         if j > robot.n_joints:
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
+    detections = None
+    if config.pixels_from == "images":
+        from ..markers import detect_images
+
+        detections = detect_images(dataset, progress=progress)
+        dataset = copy.copy(dataset)
+        dataset.tables = {**dataset.tables, "pixels": detections.pixels}
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
     frame = "flange" if config.formulation == "tracker" else "tool"
     problem = Problem(config, dataset, robot, frame, fit, test, candidate_parameters(robot, config))
+    if detections is not None:
+        problem.skipped_images = detections.skipped
+        problem.detection = {
+            "images": len(dataset.configs),
+            "skipped": len(detections.skipped),
+            "corners": detections.corners,
+            "rejected_by_gate": detections.rejected,
+        }
     if config.formulation == "pairs":
         _build_pairs(problem)
     elif config.formulation == "projection":
@@ -152,12 +169,10 @@ def camera_points_from_pixels(dataset: Dataset) -> Table:
         if len(rows) < 4:
             continue
         p_F = points.values[[where[table.ids["point"][r]] for r in rows]]
-        ok, rvec, tvec = cv2.solvePnP(
-            p_F, table.values[rows], dataset.camera.K, dataset.camera.distortion, flags=cv2.SOLVEPNP_IPPE
-        )
-        if not ok:
+        T_C_F = solve_pnp(p_F, table.values[rows], dataset.camera)
+        if T_C_F is None:
             continue
-        values.append(p_F @ cv2.Rodrigues(rvec)[0].T + tvec.ravel())
+        values.append(p_F @ T_C_F[:3, :3].T + T_C_F[:3, 3])
         configs += [cid] * len(rows)
         names += [table.ids["point"][r] for r in rows]
     return Table(

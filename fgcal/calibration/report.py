@@ -56,6 +56,8 @@ def report_dict(result: CalibrationResult) -> dict:
         "n_residuals": int(problem.n_residuals),
         "pair_categories": problem.pair_categories() if config.formulation == "pairs" else None,
         "schedule": config.schedule,
+        "detection": problem.detection or None,
+        "skipped_images": [{"config": c, "reason": r} for c, r in problem.skipped_images],
         "stages": [
             {
                 "stage": s.name,

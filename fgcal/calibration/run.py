@@ -72,12 +72,20 @@ def calibrate_dataset(
     """Identifiability analysis, staged solving, covariances and held-out validation."""
     say = progress or (lambda _m: None)
     started = time.perf_counter()
-    problem = build_problem(dataset, config)
+    problem = build_problem(dataset, config, say)
     say(
         f"calibrating {problem.robot.name}, model {config.model}, {config.formulation} formulation: "
         f"{len(problem.fit)} configurations for fitting, {len(problem.test)} held out, "
         f"{problem.n_residuals} residuals"
     )
+    if problem.detection:
+        say(
+            f"  detection: {problem.detection['corners']} corners in {problem.detection['images']} images, "
+            f"{problem.detection['rejected_by_gate']} rejected by the gate, "
+            f"{len(problem.skipped_images)} images skipped"
+        )
+        for cid, reason in problem.skipped_images:
+            say(f"    skipped {cid}: {reason}")
     state = initial_state(problem)
     _check_enough(problem, problem.candidates, state)
     t = time.perf_counter()

@@ -63,6 +63,7 @@ def simulate(
     design: str | None = None,
     n_configurations: int | None = None,
     progress: Callable[[str], None] | None = None,
+    render: bool = False,
 ) -> SimulationResult:
     started = time.perf_counter()
     say = progress or (lambda _msg: None)
@@ -78,7 +79,10 @@ def simulate(
         )
     robot = cell.robot
     # Independent streams: changing the design does not change the true robot or the noise.
-    truth_rng, design_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    # Independent child streams (spawning four leaves the first three as they were).
+    truth_rng, design_rng, noise_rng, image_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)
+    )
     true_params = perturb_parameters(robot, cell.perturbation, truth_rng)
 
     def true_camera(q: np.ndarray) -> np.ndarray:
@@ -97,7 +101,11 @@ def simulate(
     (out / "truth").mkdir(parents=True, exist_ok=True)
     counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng)
     deviation = positioning_deviation(cell, q, true_params)
-    _write_header(out, cell, seed, len(views), counts)
+    boards = None
+    if render:
+        boards = _render_images(out, cell, views, q, config_ids, true_params, image_rng, say)
+        counts["images"] = len(views)
+    _write_header(out, cell, seed, len(views), counts, boards)
     truth = {
         "note": "Ground truth of a simulation: for scoring only; no estimation code reads this file.",
         "seed": seed,
@@ -182,13 +190,44 @@ def _write_measurements(
     return {"camera_points": len(cam_rows), "pixels": len(px_rows), "tracker_points": len(trk_rows)}
 
 
-def _write_header(out: Path, cell: Cell, seed: int, n_configurations: int, counts: dict[str, int]) -> None:
+def _render_images(
+    out: Path,
+    cell: Cell,
+    views: list[View],
+    q: np.ndarray,
+    config_ids: list[str],
+    true_params: dict[str, float],
+    rng: np.random.Generator,
+    say: Callable[[str], None],
+) -> list:
+    """Synthetic images: each view's side board through the true camera (docs/simulation.md)."""
+    import cv2
+
+    from ..markers import Renderer, board_pose_in_camera, side_boards
+
+    boards = side_boards(cell.sides)
+    by_side = {b.name: b for b in boards}
+    renderer = Renderer(cell.camera)
+    T_W_C = cell.robot.fk_tool(q, true_params)
+    (out / "images").mkdir(exist_ok=True)
+    for i, (cid, view) in enumerate(zip(config_ids, views, strict=True)):
+        board = by_side[f"{view.side.obj}{view.side.side}"]
+        image = renderer.render(board, board_pose_in_camera(T_W_C[i], cell.fixture_pose, board), rng)
+        cv2.imwrite(str(out / "images" / f"{cid}.png"), image)
+        if (i + 1) % 50 == 0:
+            say(f"  rendered {i + 1}/{len(views)} images")
+    return boards
+
+
+def _write_header(
+    out: Path, cell: Cell, seed: int, n_configurations: int, counts: dict[str, int], boards: list | None = None
+) -> None:
     robot = cell.robot
     header = {
         "format": FORMAT,
         "robot": cell.robot_reference,
         "units": {"length": "m", "angle": "rad"},
-        "measured": list(counts),
+        "measured": [k for k in counts if k != "images"],
         "files": {
             "configurations": "configurations.csv",
             "points": "points.csv",
@@ -196,6 +235,18 @@ def _write_header(out: Path, cell: Cell, seed: int, n_configurations: int, count
             "pixels": "pixels.csv",
             "tracker_points": "tracker_points.csv",
         },
+        **(
+            {
+                "images": "images",
+                "markers": {
+                    "dictionary": "DICT_5X5_1000",
+                    "marker_ratio": 0.75,
+                    "boards": [b.to_document() for b in boards],
+                },
+            }
+            if boards
+            else {}
+        ),
         "camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)},
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         "fixture": _pose_doc(cell.fixture_pose),
