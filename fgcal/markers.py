@@ -179,6 +179,9 @@ class Detector:
         charuco = cv2.aruco.CharucoParameters()
         charuco.cameraMatrix = camera.K
         charuco.distCoeffs = camera.distortion
+        # One adjacent marker suffices for a corner (OpenCV's default of two loses corners at
+        # the edge of what a marker pair covers); every corner is still checked by the gate.
+        charuco.minMarkers = 1
         self.charuco = [cv2.aruco.CharucoDetector(b.opencv(), charuco) for b in boards]
 
     def detect(self, image: np.ndarray) -> Detection:

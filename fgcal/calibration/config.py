@@ -160,7 +160,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         robust={
             "camera_points": _robust(robust, "camera_points", None),
             "tracker_points": _robust(robust, "tracker_points", ["huber", 3.0]),
-            "pixels": _robust(robust, "pixels", ["huber", 3.0]),
+            # Cauchy: the influence of a gross false detection fades (Huber's stays k sigma).
+            "pixels": _robust(robust, "pixels", ["cauchy", 3.0]),
         },
         pair_partner=pairs.string("partner", "other_object", PARTNERS),
         pair_seed=pairs.integer("seed", 0),

@@ -59,6 +59,7 @@ class StageGraph:
     measurements: list = field(default_factory=list)
     pose_index: dict[int, int] = field(default_factory=dict)
     aux: dict[int, tuple[str, int]] = field(default_factory=dict)  # key -> (name, dim)
+    robust_scale: float | None = None  # scale of the robust loss's threshold, when there is one
 
 
 def initial_state(problem: Problem) -> State:
@@ -230,7 +231,8 @@ def _add_measurements(stage: StageGraph, make, robust: tuple[str, float] | None)
     factors = make(None)
     if robust is not None:
         kind, threshold = robust
-        factors = make((kind, threshold * robust_scale(factors, stage.values)))
+        stage.robust_scale = robust_scale(factors, stage.values)
+        factors = make((kind, threshold * stage.robust_scale))
     for factor in factors:
         stage.graph.add(factor.factor)
     stage.measurements.extend(factors)

@@ -57,6 +57,7 @@ class Problem:
     pixel_obs: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)  # (fit index, p_F, px)
     targets: list[str] = field(default_factory=list)
     skipped_images: list[tuple[str, str]] = field(default_factory=list)
+    rejected: list[tuple[int, str]] = field(default_factory=list)  # (configuration index, kind) of outliers
     detection: dict = field(default_factory=dict)
 
     @property

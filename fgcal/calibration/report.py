@@ -58,6 +58,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "schedule": config.schedule,
         "detection": problem.detection or None,
         "skipped_images": [{"config": c, "reason": r} for c, r in problem.skipped_images],
+        "rejected_measurements": [{"config": str(problem.dataset.configs[i]), "kind": k} for i, k in problem.rejected],
         "stages": [
             {
                 "stage": s.name,

@@ -12,7 +12,7 @@ from ..dataset import Dataset, load_dataset
 from ..errors import InputError
 from .config import CalibrationConfig
 from .covariance import parameter_covariance
-from .graph import State, build_graph, initial_state
+from .graph import State, build_graph, initial_state, robust_scale
 from .identifiability import Identifiability, analyse
 from .problem import Problem, build_problem
 from .scoring import load_truth
@@ -59,6 +59,33 @@ def _check_enough(problem: Problem, parameters: list[str], state: State) -> None
             f"too few measurements: {problem.n_residuals} residuals for {unknowns} unknowns "
             f"(at least twice as many needed)",
         )
+
+
+REJECT_SIGMA = 5.0
+MAX_REJECTED_FRACTION = 0.1
+
+
+def reject_outliers(problem: Problem, stage, values) -> bool:
+    """Remove per-observation measurements (pixels, tracker points) whose whitened residual
+    exceeds REJECT_SIGMA at the solution of the last stage, when the config asks for a robust
+    loss on them; they are listed in the report. Pair groups mix many observations and keep
+    only the robust loss."""
+    kind = {"projection": "pixels", "tracker": "tracker_points"}.get(problem.config.formulation)
+    if kind is None or problem.config.robust.get(kind) is None:
+        return False
+    observations = problem.pixel_obs if kind == "pixels" else problem.tracker_obs
+    # In units of the residuals' robust scale, like the robust loss: when the model cannot fit
+    # the data to the declared noise, everything is many sigmas and nothing is an outlier.
+    threshold = REJECT_SIGMA * robust_scale(stage.measurements, values)
+    outlier = []
+    for factor in stage.measurements:
+        residual, _ = factor.checked(factor.read(values), False)
+        outlier.append(np.sqrt(np.mean((residual / factor.sigmas) ** 2)) > threshold)
+    if not any(outlier) or sum(outlier) > MAX_REJECTED_FRACTION * len(outlier):
+        return False  # more than a few "outliers" means a model problem, not bad measurements
+    problem.rejected += [(int(problem.fit[o[0]]), kind) for o, bad in zip(observations, outlier, strict=True) if bad]
+    observations[:] = [o for o, bad in zip(observations, outlier, strict=True) if not bad]
+    return True
 
 
 def calibrate(config: CalibrationConfig, progress: Callable[[str], None] | None = None) -> CalibrationResult:
@@ -108,6 +135,15 @@ def calibrate_dataset(
             say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
             continue
         state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
+        stages.append(report)
+    if last_stage is not None and reject_outliers(problem, last_stage, last_values):
+        say(
+            f"  rejected {len(problem.rejected)} measurements beyond {REJECT_SIGMA:g} sigma; "
+            "solving the last stage again"
+        )
+        state, report, last_stage, last_values = solve_stage(
+            problem, f"{len(config.stages)} (after rejection)", last_stage.released, state, say
+        )
         stages.append(report)
     solve_time = time.perf_counter() - solve_started
     covariance = parameter_covariance(last_stage, last_values) if last_stage is not None else np.zeros((0, 0))

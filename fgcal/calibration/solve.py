@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 
 from ..parameters import split_name
-from .graph import P_KEY, StageGraph, State, build_graph, read_state
+from .graph import P_KEY, StageGraph, State, build_graph, read_state, robust_scale
 from .problem import Problem
 
 
@@ -108,6 +108,18 @@ def solve_stage(
     stage = build_graph(problem, released, state)
     result, iterations = optimise(stage, problem.config.max_iterations)
     new_state = read_state(problem, stage, result, state)
+    # With a robust loss, the scale of its threshold was taken from the residuals at the stage's
+    # start; once the model fits better, re-take it and solve again, until it settles.
+    for _ in range(5):
+        if stage.robust_scale is None:
+            break
+        new_scale = robust_scale(stage.measurements, result)
+        if new_scale > 0.9 * stage.robust_scale:
+            break
+        stage = build_graph(problem, released, new_state)
+        result, more = optimise(stage, problem.config.max_iterations)
+        iterations += more
+        new_state = read_state(problem, stage, result, new_state)
     norm, rms = measurement_residuals(stage, result)
     unit = "px" if problem.config.formulation == "projection" else "m"
     report = StageReport(name, released, norm, rms, unit, iterations, time.perf_counter() - started)
