@@ -92,6 +92,17 @@ def category(a: tuple[str, str], b: tuple[str, str]) -> str:
     return "same_side" if a[1] == b[1] else "same_object"
 
 
+def fitting_rows(problem: Problem, table: Table, key: str):
+    """(fitting-set index, id in column ``key``, values) of each row of ``table`` that belongs to
+    a fitting configuration; rows of held-out configurations are left out."""
+    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
+    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
+    for cid, name, values in zip(table.ids["config"], table.ids[key], table.values, strict=True):
+        index = fit_pos.get(config_pos[cid])
+        if index is not None:
+            yield index, name, values
+
+
 def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
     """Parameters the model could estimate: the model's kinds, compliances of the compliant
     joints, base and tool. Identifiability analysis decides which the data determine."""
@@ -199,13 +210,9 @@ def _build_pairs(problem: Problem) -> None:
     points = data.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["camera_points"]
-    config_pos = {c: i for i, c in enumerate(data.configs)}
-    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
     images: dict[int, list[tuple[int, np.ndarray]]] = {}
-    for cid, point, xyz in zip(table.ids["config"], table.ids["point"], table.values, strict=True):
-        index = fit_pos.get(config_pos[cid])
-        if index is not None:
-            images.setdefault(index, []).append((where[point], xyz))
+    for index, point, xyz in fitting_rows(problem, table, "point"):
+        images.setdefault(index, []).append((where[point], xyz))
     if len(images) < 2:
         raise InputError(
             data.path / "camera_points.csv",
@@ -265,12 +272,8 @@ def _build_projection(problem: Problem) -> None:
     points = data.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["pixels"]
-    config_pos = {c: i for i, c in enumerate(data.configs)}
-    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
-    for cid, point, uv in zip(table.ids["config"], table.ids["point"], table.values, strict=True):
-        index = fit_pos.get(config_pos[cid])
-        if index is not None:
-            problem.pixel_obs.append((index, points.values[where[point]], uv))
+    for index, point, uv in fitting_rows(problem, table, "point"):
+        problem.pixel_obs.append((index, points.values[where[point]], uv))
     if len({o[0] for o in problem.pixel_obs}) < 3:
         raise InputError(data.path / "pixels.csv", None, "too few fitting images with pixels")
 
@@ -282,12 +285,8 @@ def _build_tracker(problem: Problem) -> None:
     table = data.tables["tracker_points"]
     problem.targets = sorted(set(table.ids["target"]))
     target_index = {t: i for i, t in enumerate(problem.targets)}
-    config_pos = {c: i for i, c in enumerate(data.configs)}
-    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
-    for cid, target, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True):
-        index = fit_pos.get(config_pos[cid])
-        if index is not None:
-            problem.tracker_obs.append((index, target_index[target], xyz))
+    for index, target, xyz in fitting_rows(problem, table, "target"):
+        problem.tracker_obs.append((index, target_index[target], xyz))
     if len(problem.tracker_obs) < 3 * len(problem.targets) + 2:
         raise InputError(
             data.path / "tracker_points.csv",
