@@ -51,26 +51,34 @@ def so3_exp(rotvec: np.ndarray) -> np.ndarray:
 
 
 def so3_log(rot: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3), in rad, of rotation matrices (..., 3, 3)."""
+    """Rotation vectors (..., 3), in rad, of rotation matrices (..., 3, 3).
+
+    The angle comes from atan2 (precise everywhere, unlike arccos near 0 and pi). Near pi,
+    where the antisymmetric part vanishes, the axis comes from the symmetric part,
+    ``(R + R^T)/2 - cos(theta) I = (1 - cos(theta)) a a^T``, signed by the antisymmetric part.
+    """
     rot = np.asarray(rot, dtype=float)
-    cos = np.clip((np.trace(rot, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    theta = np.arccos(cos)
     vee = np.stack(
         [rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0], rot[..., 1, 0] - rot[..., 0, 1]],
         axis=-1,
     )
-    sin = np.sin(theta)
-    small = sin < 1e-6
+    sin = np.linalg.norm(vee, axis=-1) / 2.0
+    cos = (np.trace(rot, axis1=-2, axis2=-1) - 1.0) / 2.0
+    theta = np.arctan2(sin, cos)
+    small = sin < 1e-9
+    # theta / (2 sin theta) -> 1/2 (1 + theta^2 / 6) as theta -> 0
     scale = np.where(small, 0.5 + theta**2 / 12.0, theta / (2.0 * np.where(small, 1.0, sin)))
     out = scale[..., None] * vee
-    # Near pi the antisymmetric part vanishes; recover the axis from the symmetric part.
-    near_pi = small & (cos < 0)
+    near_pi = (sin < 1e-3) & (cos < 0)
     if np.any(near_pi):
-        sym = (rot[near_pi] + np.eye(3)) / 2.0
-        diag = np.diagonal(sym, axis1=-2, axis2=-1)
-        idx = np.argmax(diag, axis=-1)
-        axis = sym[np.arange(len(idx)), :, idx] / np.sqrt(diag[np.arange(len(idx)), idx])[..., None]
-        out[near_pi] = axis * theta[near_pi][..., None]
+        R = rot[near_pi]
+        c = cos[near_pi][:, None, None]
+        B = (R + np.swapaxes(R, -1, -2)) / 2.0 - c * np.eye(3)
+        k = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
+        rows = np.arange(len(k))
+        axis = B[rows, :, k] / np.sqrt(np.clip(B[rows, k, k] * (1.0 - c[:, 0, 0]), 1e-300, None))[:, None]
+        sign = np.where(np.sum(axis * vee[near_pi], axis=-1) < 0, -1.0, 1.0)
+        out[near_pi] = (sign * theta[near_pi])[:, None] * axis
     return out
 
 
@@ -103,11 +111,17 @@ def pose_from_xyz_rpy(xyz: np.ndarray, rpy_rad: np.ndarray) -> np.ndarray:
 
 
 def rpy_from_rotation(rot: np.ndarray) -> np.ndarray:
-    """Inverse of the rotation in :func:`pose_from_xyz_rpy`, (roll, pitch, yaw) in rad."""
-    pitch = np.arcsin(np.clip(-rot[2, 0], -1.0, 1.0))
-    roll = np.arctan2(rot[2, 1], rot[2, 2])
-    yaw = np.arctan2(rot[1, 0], rot[0, 0])
-    return np.array([roll, pitch, yaw])
+    """Inverse of the rotation in :func:`pose_from_xyz_rpy`, (roll, pitch, yaw) in rad.
+
+    At pitch = +-90 deg (gimbal lock) roll and yaw turn about one axis; yaw is set to 0 and
+    roll carries the whole turn, so that the angles still reproduce the rotation.
+    """
+    sin_pitch = float(np.clip(-rot[2, 0], -1.0, 1.0))
+    if abs(sin_pitch) < 1.0 - 1e-12:
+        return np.array([np.arctan2(rot[2, 1], rot[2, 2]), np.arcsin(sin_pitch), np.arctan2(rot[1, 0], rot[0, 0])])
+    if sin_pitch > 0:  # pitch +90: R = [[0, sin r, cos r], [0, cos r, -sin r], [-1, 0, 0]] (yaw 0)
+        return np.array([np.arctan2(rot[0, 1], rot[0, 2]), np.pi / 2, 0.0])
+    return np.array([np.arctan2(-rot[0, 1], -rot[0, 2]), -np.pi / 2, 0.0])
 
 
 def inverse(T: np.ndarray) -> np.ndarray:
