@@ -109,6 +109,29 @@ def test_hand_eye_recovers_a_bad_mounting_guess(small_cell):
     assert after <= 5e-5 and after * 100 <= result.validation["before"]["tool_point"].rms
 
 
+def test_estimated_intrinsics_correct_an_earlier_calibration(small_cell):
+    """Intrinsics from an earlier calibration that is off (fx +0.3%, cx -4 px, k1 +0.005):
+    estimated under their prior, they move back toward the truth and the calibration improves
+    on keeping them fixed."""
+    import dataclasses
+
+    dataset = load_dataset(small_cell)
+    camera = dataset.camera
+    distortion = camera.distortion.copy()
+    distortion[0] += 0.005
+    dataset.camera = dataclasses.replace(
+        camera, fx=camera.fx * 1.003, fy=camera.fy * 1.003, cx=camera.cx - 4.0, distortion=distortion
+    )
+    fixed = calibrate_dataset(dataset, CalibrationConfig.defaults(small_cell, formulation="projection"))
+    estimated = calibrate_dataset(
+        dataset, CalibrationConfig.defaults(small_cell, formulation="projection", intrinsics={"estimate": True})
+    )
+    fx, cx, k1 = estimated.state.intrinsics[[0, 2, 4]]
+    assert abs(fx - camera.fx) < 0.3 * abs(dataset.camera.fx - camera.fx)
+    assert abs(cx - camera.cx) < 0.3 * 4.0 and abs(k1 - camera.distortion[0]) < 0.5 * 0.005
+    assert estimated.validation["after"]["tool_point"].rms * 3 <= fixed.validation["after"]["tool_point"].rms
+
+
 def test_pairs_from_pixels(small_cell):
     """The seed's relative formulation on points computed from detections (PnP per block)."""
     result = calibrate(CalibrationConfig.defaults(small_cell, pairs={"points_from": "pixels"}))

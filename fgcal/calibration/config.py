@@ -37,6 +37,7 @@ CONFIG_KEYS = (
     "identifiability",
     "solver",
     "pixels_from",
+    "intrinsics",
     "notes",
 )
 
@@ -66,6 +67,9 @@ class CalibrationConfig:
     min_information: float
     max_iterations: int
     pixels_from: str = "table"
+    # Camera intrinsics (projection): None = fixed at the dataset's values; otherwise the prior
+    # sigmas (fx, fy, cx, cy in px; k1, k2, p1, p2, k3) around them, from an earlier calibration.
+    intrinsics_prior_sigmas: tuple[float, ...] | None = None
 
     @property
     def measurement_sigma_m(self) -> float:
@@ -98,6 +102,24 @@ def _robust(fields: Fields, key: str, default):
         raise fields.error(key, f"expected [huber|cauchy, threshold in sigmas] or none, got {raw!r}")
     threshold = Fields({"k": raw[1]}, fields.source, fields.path(key)).number("k", positive=True)
     return (str(raw[0]), threshold)
+
+
+def _intrinsics(doc: Fields) -> tuple[float, ...] | None:
+    """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``."""
+    section = doc.sub("intrinsics", {})
+    section.check_keys(("estimate", "prior_sigma"))
+    estimate = section.raw("estimate", False)
+    if not isinstance(estimate, bool):
+        raise section.error("estimate", f"expected true or false, got {estimate!r}")
+    if not estimate:
+        return None
+    prior = section.sub("prior_sigma", {})
+    prior.check_keys(("focal_px", "centre_px", "radial", "tangential"))
+    focal = prior.number("focal_px", 5.0, positive=True)
+    centre = prior.number("centre_px", 5.0, positive=True)
+    radial = prior.number("radial", 0.01, positive=True)
+    tangential = prior.number("tangential", 0.001, positive=True)
+    return (focal, focal, centre, centre, radial, radial, tangential, tangential, radial)
 
 
 def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> CalibrationConfig:
@@ -172,6 +194,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),
+        intrinsics_prior_sigmas=_intrinsics(doc),
     )
 
 

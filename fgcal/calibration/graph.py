@@ -29,6 +29,7 @@ P_KEY = gtsam.symbol("p", 0)
 FIXTURE_KEY = gtsam.symbol("f", 0)
 TRACKER_KEY = gtsam.symbol("l", 0)
 OBJECT_KEY = gtsam.symbol("o", 0)
+INTRINSICS_KEY = gtsam.symbol("k", 0)
 
 
 def pose_key(j: int) -> int:
@@ -48,6 +49,7 @@ class State:
     tracker_pose: np.ndarray | None = None  # T_T_W
     tool_points: np.ndarray | None = None  # (m, 3) in the flange frame
     fixture_pose: np.ndarray | None = None  # T_W_F, when the projection formulation estimates it
+    intrinsics: np.ndarray | None = None  # (fx, fy, cx, cy, k1, k2, p1, p2, k3), when estimated
 
 
 @dataclass
@@ -74,6 +76,8 @@ def initial_state(problem: Problem) -> State:
         T_C_F = pnp_per_image(problem)
         state.params = with_mounting(problem, params, hand_eye_mounting(problem, params, T_C_F))
         state.fixture_pose = initial_fixture_pose(problem, state.params, T_C_F)
+        if problem.config.intrinsics_prior_sigmas is not None:
+            state.intrinsics = dataset_intrinsics(problem)
     return state
 
 
@@ -267,18 +271,33 @@ def _add_pairs(problem: Problem, state: State, stage: StageGraph) -> None:
     _add_measurements(stage, make, config.robust["camera_points"])
 
 
+def dataset_intrinsics(problem: Problem) -> np.ndarray:
+    camera = problem.dataset.camera
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion])
+
+
 def _add_projection(problem: Problem, state: State, stage: StageGraph) -> None:
     config = problem.config
     stage.values.insert(OBJECT_KEY, gtsam.Pose3(state.fixture_pose))
     stage.aux[OBJECT_KEY] = ("fixture", 6)
-    camera = problem.dataset.camera
-    intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion])
     sigmas = np.full(2, config.pixel_sigma_px)
+    if state.intrinsics is not None:
+        # Estimated, with a prior from the earlier intrinsic calibration (the dataset's values).
+        stage.values.insert(INTRINSICS_KEY, state.intrinsics)
+        stage.aux[INTRINSICS_KEY] = ("intrinsics", 9)
+        stage.graph.add(
+            gtsam.PriorFactorVector(
+                INTRINSICS_KEY, dataset_intrinsics(problem), gaussian(np.array(config.intrinsics_prior_sigmas))
+            )
+        )
+        constant, key = None, INTRINSICS_KEY
+    else:
+        constant, key = dataset_intrinsics(problem), None
 
     def make(robust):
         noise = gaussian(sigmas, robust)
         return [
-            ProjectionFactor(pose_key(j), OBJECT_KEY, p_F, uv, noise, sigmas, intrinsics=intrinsics)
+            ProjectionFactor(pose_key(j), OBJECT_KEY, p_F, uv, noise, sigmas, intrinsics=constant, intrinsics_key=key)
             for j, p_F, uv in problem.pixel_obs
         ]
 
@@ -311,6 +330,8 @@ def read_state(problem: Problem, stage: StageGraph, values: gtsam.Values, previo
         state.fixture_rotation = values.atRot3(FIXTURE_KEY).matrix()
     if previous.fixture_pose is not None:
         state.fixture_pose = values.atPose3(OBJECT_KEY).matrix()
+    if previous.intrinsics is not None:
+        state.intrinsics = values.atVector(INTRINSICS_KEY)
     if previous.tracker_pose is not None:
         state.tracker_pose = values.atPose3(TRACKER_KEY).matrix()
         state.tool_points = np.array([values.atPoint3(point_key(t)) for t in range(len(previous.tool_points))])

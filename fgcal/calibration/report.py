@@ -56,6 +56,15 @@ def report_dict(result: CalibrationResult) -> dict:
         "n_residuals": int(problem.n_residuals),
         "pair_categories": problem.pair_categories() if config.formulation == "pairs" else None,
         "schedule": config.schedule,
+        "intrinsics": None
+        if result.state.intrinsics is None
+        else dict(
+            zip(
+                ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3"),
+                [float(v) for v in result.state.intrinsics],
+                strict=True,
+            )
+        ),
         "detection": problem.detection or None,
         "skipped_images": [{"config": c, "reason": r} for c, r in problem.skipped_images],
         "rejected_measurements": [{"config": str(problem.dataset.configs[i]), "kind": k} for i, k in problem.rejected],

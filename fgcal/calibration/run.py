@@ -52,6 +52,8 @@ def _check_enough(problem: Problem, parameters: list[str], state: State) -> None
         unknowns += 3
     if state.fixture_pose is not None:
         unknowns += 6
+    if state.intrinsics is not None:
+        unknowns += 9
     if problem.n_residuals < 2 * unknowns:
         raise InputError(
             problem.dataset.path,
