@@ -32,18 +32,19 @@ def _truth(path):
 
 
 def test_detection_round_trip_and_recall(rendered):
-    found, visible = _round_trip(rendered)
+    found, visible, markers_found, markers_visible = _round_trip(rendered)
     assert found / visible >= 0.99, (found, visible)
+    assert markers_visible > 100 and markers_found / markers_visible >= 0.99, (markers_found, markers_visible)
 
 
-def _round_trip(rendered) -> tuple[int, int]:
+def _round_trip(rendered) -> tuple[int, int, int, int]:
     dataset = load_dataset(rendered)
     truth = _truth(rendered)
     T_W_C = dataset.robot.fk_tool(dataset.q, truth["parameters"])
     points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
     detector = Detector(dataset.boards, dataset.camera)
     camera = dataset.camera
-    visible_total = found_total = 0
+    visible_total = found_total = markers_visible = markers_found = 0
     errors = []
     for j, cid in enumerate(dataset.configs[:20]):
         image = cv2.imread(str(dataset.images_dir / f"{cid}.png"), cv2.IMREAD_GRAYSCALE)
@@ -60,6 +61,15 @@ def _round_trip(rendered) -> tuple[int, int]:
         square = board.square_m
         offsets = np.array([[-square, -square, 0], [square, -square, 0], [square, square, 0], [-square, square, 0]])
         detected = set(detection.names)
+        # Markers whose four corners are in front of the camera and inside the image.
+        _, ids, _ = detector.marker_detector.detectMarkers(image)
+        found_ids = set(ids.ravel().tolist()) if ids is not None else set()
+        cv_board = board.opencv()
+        for marker_id, marker in zip(cv_board.getIds().ravel(), cv_board.getObjPoints(), strict=True):
+            m_C = transform_points(T_C_B, np.asarray(marker, dtype=float).reshape(-1, 3))
+            if np.all(m_C[:, 2] > 0.05) and camera.sees(m_C, margin_px=5.0):
+                markers_visible += 1
+                markers_found += int(marker_id) in found_ids
         for name, corner in zip(board.corner_names, board.opencv().getChessboardCorners(), strict=True):
             p_C = transform_points(T_C_B, corner + offsets)
             if np.all(p_C[:, 2] > 0.05) and camera.sees(p_C, margin_px=5.0):
@@ -69,7 +79,7 @@ def _round_trip(rendered) -> tuple[int, int]:
     assert len(errors) > 200
     assert errors.max() < 0.3 and np.sqrt(np.mean(errors**2)) < 0.1  # px
     assert visible_total > 200
-    return found_total, visible_total
+    return found_total, visible_total, markers_found, markers_visible
 
 
 def test_gate_rejects_false_detections(rendered):
