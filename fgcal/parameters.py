@@ -35,12 +35,6 @@ def split_name(name: str) -> tuple[str, int | str]:
     raise ValueError(f"unknown parameter name {name!r}")
 
 
-def kind_of(name: str) -> str:
-    """The kind of a parameter: 'theta', 'd', ..., 'kz', or 'base'/'tool'."""
-    kind, owner = split_name(name)
-    return owner if isinstance(owner, str) else kind
-
-
 def unit_of(name: str) -> str:
     """SI unit of a parameter value."""
     kind, _ = split_name(name)

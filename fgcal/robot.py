@@ -17,7 +17,7 @@ from . import kinematics
 from .errors import InputError
 from .ets import ET
 from .parameters import JOINT_KINDS, parameter_names
-from .se3 import pose_from_xyz_rpy, rpy_from_rotation
+from .se3 import rpy_from_rotation
 
 MODELS = ("DH", "DH,s", "DH,s,e")
 
@@ -233,7 +233,3 @@ def build_chain(robot: Robot) -> Chain:
         link_end.append(len(elements))
     elements += _pose_elements(robot.tool_pose, tool_param)
     return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end))
-
-
-def pose_from_config(xyz_m: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
-    return pose_from_xyz_rpy(np.asarray(xyz_m, float), np.asarray(rpy_rad, float))

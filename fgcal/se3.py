@@ -133,8 +133,3 @@ def inverse(T: np.ndarray) -> np.ndarray:
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply poses (..., 4, 4) to points (..., 3)."""
     return (T[..., :3, :3] @ points[..., None])[..., 0] + T[..., :3, 3]
-
-
-def pose_log(T: np.ndarray) -> np.ndarray:
-    """Approximate body twist of a small pose: ``[rotvec, translation]`` (GTSAM order)."""
-    return np.concatenate([so3_log(T[..., :3, :3]), T[..., :3, 3]], axis=-1)

@@ -43,11 +43,18 @@ def position_covariance(
     q: np.ndarray,
     frame: str,
     point: np.ndarray,
+    remove_common_offset: bool = False,
 ) -> np.ndarray:
     """Covariance (N, 3, 3) of the world position of ``point`` (fixed in ``frame``) at
-    configurations q, carried from the parameter covariance through the FK Jacobian."""
+    configurations q, carried from the parameter covariance through the FK Jacobian.
+
+    With ``remove_common_offset``, of the positions minus their mean over the configurations
+    (what scoring a relative calibration, whose translation is a gauge, measures).
+    """
     if not released:
         return np.zeros((len(q), 3, 3))
     data = kinematics.forward(robot, params, np.atleast_2d(q))
     J = kinematics.jacobian(robot, data, list(released), frame=frame, point=point)
+    if remove_common_offset:
+        J = J - J.mean(axis=0, keepdims=True)
     return J @ covariance @ np.swapaxes(J, 1, 2)

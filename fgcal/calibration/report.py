@@ -11,10 +11,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .. import kinematics
 from ..parameters import unit_of
 from ..robot_io import save_robot
-from .covariance import correlation
+from .covariance import correlation, position_covariance
 from .run import CalibrationResult
 from .validation import gauge_of
 
@@ -111,16 +110,23 @@ def predicted_sigma(result: CalibrationResult) -> dict:
         return {}
     frame = "tool" if config.formulation != "tracker" else "flange"
     point = result.tool_point if config.formulation != "tracker" else result.state.tool_points[0]
-    data = kinematics.forward(problem.robot, result.state.params, q_test)
-    J = kinematics.jacobian(problem.robot, data, result.released, frame=frame, point=point)
 
-    def rms(jac: np.ndarray) -> float:
-        cov = jac @ result.covariance @ np.swapaxes(jac, 1, 2)
+    def rms(remove_common_offset: bool) -> float:
+        cov = position_covariance(
+            problem.robot,
+            result.state.params,
+            result.released,
+            result.covariance,
+            q_test,
+            frame,
+            point,
+            remove_common_offset,
+        )
         return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))
 
     if config.formulation != "tracker":
-        return {"rms": rms(J - J.mean(axis=0, keepdims=True)), "rms_with_common_offset": rms(J)}
-    return {"rms": rms(J)}
+        return {"rms": rms(True), "rms_with_common_offset": rms(False)}
+    return {"rms": rms(False)}
 
 
 def _seed(result: CalibrationResult) -> int | None:

@@ -1,4 +1,4 @@
-"""Staged Levenberg-Marquardt on the factor graph (QR factorisation)."""
+"""Staged solving on the factor graph: Gauss-Newton with variable projection on GTSAM QR."""
 
 from __future__ import annotations
 
@@ -43,16 +43,6 @@ def measurement_residuals(stage: StageGraph, values: gtsam.Values) -> tuple[floa
         raw += float(np.sum(residual**2))
         count += residual.size
     return float(np.sqrt(whitened)), float(np.sqrt(raw / max(count, 1)))
-
-
-def lm_params(max_iterations: int) -> gtsam.LevenbergMarquardtParams:
-    params = gtsam.LevenbergMarquardtParams()
-    params.setLinearSolverType("MULTIFRONTAL_QR")
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-10)
-    params.setAbsoluteErrorTol(1e-12)
-    params.setDiagonalDamping(True)
-    return params
 
 
 def project(stage: StageGraph, values: gtsam.Values) -> gtsam.Values:
