@@ -129,7 +129,7 @@ def _pose(fields: Fields, key: str, to_m: float, to_rad: float) -> np.ndarray:
     return pose_from_xyz_rpy(sub.vector("xyz", 3, [0, 0, 0], to_m), sub.vector("rpy", 3, [0, 0, 0], to_rad))
 
 
-def _cuboid_sides(obj: Fields, index: int, pitch: float, margin: float, to_m: float, to_rad: float) -> list[Side]:
+def _cuboid_sides(obj: Fields, pitch: float, margin: float, to_m: float, to_rad: float) -> list[Side]:
     obj.check_keys(("name", "size", "pose", "sides"))
     name = obj.string("name")
     size = obj.vector("size", 3, scale=to_m)
@@ -203,8 +203,8 @@ def load_cell(path: str | Path) -> Cell:
     pitch = grid.number("pitch", 40.0 * 1e-3 / to_m, to_m, positive=True)
     margin = grid.number("margin", pitch / to_m, to_m, nonnegative=True)
     sides = []
-    for i, obj in enumerate(doc.sub_list("objects")):
-        sides += _cuboid_sides(obj, i, pitch, margin, to_m, to_rad)
+    for obj in doc.sub_list("objects"):
+        sides += _cuboid_sides(obj, pitch, margin, to_m, to_rad)
     if not sides:
         raise doc.error("objects", "at least one object side with a grid is needed")
     names = [s.obj for s in sides]
