@@ -4,7 +4,7 @@ from :class:`CheckedFactor`; its docstring states the residual."""
 from .base import CheckedFactor, FactorError, gaussian, point_jacobian
 from .kinematic import KinematicFactor
 from .point_pair import PointPairFactor
-from .priors import ParameterBoundFactor
+from .priors import ParameterBoundFactor, RandomWalkFactor
 from .projection import ProjectionFactor, project
 from .tracker import DistanceFactor, PoseFactor, TrackerPointFactor
 
@@ -17,6 +17,7 @@ __all__ = [
     "PointPairFactor",
     "PoseFactor",
     "ProjectionFactor",
+    "RandomWalkFactor",
     "TrackerPointFactor",
     "gaussian",
     "point_jacobian",

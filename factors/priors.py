@@ -25,3 +25,17 @@ class ParameterBoundFactor(CheckedFactor):
         params = np.asarray(inputs[0], dtype=float)
         residual = params[self.indices] - self.nominal
         return residual, ([self.selection] if jacobians else [])
+
+
+class RandomWalkFactor(CheckedFactor):
+    """``r = p_c - p_{c-1}``: the parameters of two consecutive work cycles differ by a random
+    walk step with the given sigmas (SI units of each parameter)."""
+
+    def __init__(self, previous_key: int, key: int, sigmas: np.ndarray) -> None:
+        dim = len(sigmas)
+        self._identity = np.eye(dim)
+        super().__init__([(previous_key, "vector", dim), (key, "vector", dim)], gaussian(sigmas), sigmas)
+
+    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
+        previous, current = (np.asarray(v, dtype=float) for v in inputs)
+        return current - previous, ([-self._identity, self._identity] if jacobians else [])

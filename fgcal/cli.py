@@ -32,8 +32,50 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         n_configurations=args.n,
         progress=lambda msg: print(msg, flush=True),
         render=args.render,
+        drift=_parse_drift(args.drift),
     )
     print(result.summary())
+    return 0
+
+
+def _parse_drift(text: str | None):
+    from .errors import InputError
+    from .simulation.simulate import Drift
+
+    if text is None:
+        return None
+    try:
+        name, rest = text.split("=", 1)
+        value, start = rest.split("@", 1)
+        return Drift(name.strip(), float(value), int(start))
+    except ValueError:
+        raise InputError(None, "--drift", f"expected NAME=CHANGE@CONFIGURATION (SI units), got {text!r}") from None
+
+
+def cmd_online(args: argparse.Namespace) -> int:
+    from .online.service import OnlineService
+
+    service = OnlineService(args.state, args.inbox, args.setup, say=lambda msg: print(msg, flush=True))
+    try:
+        service.run(once=args.once, poll_s=args.poll)
+    except KeyboardInterrupt:
+        service.write_final()
+    finally:
+        service.close()
+    report = service.report()
+    accuracy = report["predicted_accuracy"] or {"rms_m": float("nan")}
+    print(
+        f"{report['n_images']} images; predicted RMS flange sigma {accuracy['rms_m']:.3e} m; "
+        f"{len(report['alarms'])} drift alarms; wrote {args.state}/report.json, report.md, calibrated_robot.yaml"
+    )
+    return 0
+
+
+def cmd_online_feed(args: argparse.Namespace) -> int:
+    from .online.feed import feed_dataset
+
+    written = feed_dataset(args.dataset, args.inbox, args.first, args.n, args.cycle_size)
+    print(f"wrote {written} measurement files to {args.inbox}")
     return 0
 
 
@@ -128,6 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--design", choices=("seed", "space_filling"), help="override the cell's design kind")
     p.add_argument("--n", type=int, help="number of configurations of a space-filling design")
     p.add_argument("--render", action="store_true", help="also render the camera images (ChArUco boards)")
+    p.add_argument(
+        "--drift", help="step change of one true parameter for the camera measurements, NAME=CHANGE@CONFIG (SI)"
+    )
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("calibrate", help="calibrate from a dataset as a calibration config describes")
@@ -148,6 +193,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, default=300, help="configurations (default 300)")
     p.add_argument("--repeats", type=int, default=3, help="fgcal runs; the best time is reported")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("online", help="online recalibration: fold measurement files from an inbox into the estimate")
+    p.add_argument("--state", required=True, help="state directory (log, checkpoints, outputs)")
+    p.add_argument("--inbox", required=True, help="directory where measurement files appear (docs/online.md)")
+    p.add_argument("--setup", help="setup YAML for a new state directory (dataset with robot, camera, points)")
+    p.add_argument("--once", action="store_true", help="process what is in the inbox, then exit")
+    p.add_argument("--poll", type=float, default=1.0, help="seconds between looks at the inbox (default 1)")
+    p.set_defaults(func=cmd_online)
+
+    p = sub.add_parser("online-feed", help="write a dataset's images as measurement files into an inbox")
+    p.add_argument("dataset", help="dataset directory with pixels")
+    p.add_argument("--inbox", required=True)
+    p.add_argument("--first", type=int, default=0, help="first configuration (default 0)")
+    p.add_argument("--n", type=int, help="number of images (default all)")
+    p.add_argument("--cycle-size", type=int, help="images per work cycle (default: no cycles)")
+    p.set_defaults(func=cmd_online_feed)
 
     p = sub.add_parser("convert-faro", help="convert the IRB 120 / FARO tracker text files to an fgcal dataset")
     p.add_argument("src", help="folder with measured_joints.txt and measured_SMR_*.txt")

@@ -51,47 +51,122 @@ class ET:
         return "xyz".index(self.axis[1]) if self.axis != "Rvec" else -1
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """Static index arrays of a chain, so that evaluation loops over elements only where
+    it must (the cumulative product)."""
+
+    const: np.ndarray  # (K,)
+    param: np.ndarray  # (K,) parameter index, or 0 with has_param False
+    has_param: np.ndarray
+    moment: np.ndarray  # (K,) moment index, or 0 with has_moment False
+    has_moment: np.ndarray
+    joint: np.ndarray
+    joint_sign: np.ndarray  # (K,) sign, or 0 without a joint
+    axis: np.ndarray  # (K,) 0, 1, 2 (0 for Rvec)
+    rotations: tuple[np.ndarray, np.ndarray, np.ndarray]  # element indices of Rx, Ry, Rz
+    translations: tuple[np.ndarray, np.ndarray, np.ndarray]
+    is_rotation: np.ndarray  # (K,) Rx/Ry/Rz (not Rvec)
+    rvecs: tuple[int, ...]
+
+
+# Up to this many configurations, evaluation multiplies the elements' 4x4 transforms.
+_FEW = 8
+
+_LAYOUTS: dict[int, tuple[tuple[ET, ...], _Layout]] = {}
+
+
+def _layout(chain: tuple[ET, ...]) -> _Layout:
+    # Keyed on identity: hashing a chain hashes every element, which costs more than a
+    # single-configuration evaluation. The entry keeps the chain alive, so ids stay unique.
+    entry = _LAYOUTS.get(id(chain))
+    if entry is None or entry[0] is not chain:
+        if len(_LAYOUTS) > 256:
+            _LAYOUTS.clear()
+        entry = _LAYOUTS[id(chain)] = (chain, _make_layout(chain))
+    return entry[1]
+
+
+def _make_layout(chain: tuple[ET, ...]) -> _Layout:
+    def indices(axis: str) -> np.ndarray:
+        return np.array([k for k, et in enumerate(chain) if et.axis == axis], dtype=int)
+
+    return _Layout(
+        const=np.array([et.const for et in chain], dtype=float),
+        param=np.array([et.param or 0 for et in chain], dtype=int),
+        has_param=np.array([et.param is not None and et.axis != "Rvec" for et in chain]),
+        moment=np.array([et.moment or 0 for et in chain], dtype=int),
+        has_moment=np.array([et.moment is not None for et in chain]),
+        joint=np.array([et.joint or 0 for et in chain], dtype=int),
+        joint_sign=np.array([et.sign if et.joint is not None else 0.0 for et in chain], dtype=float),
+        axis=np.array([max(et.axis_index, 0) for et in chain], dtype=int),
+        rotations=tuple(indices(a) for a in ("Rx", "Ry", "Rz")),
+        translations=tuple(indices(a) for a in ("Tx", "Ty", "Tz")),
+        is_rotation=np.array([et.axis in ("Rx", "Ry", "Rz") for et in chain]),
+        rvecs=tuple(k for k, et in enumerate(chain) if et.axis == "Rvec"),
+    )
+
+
 def element_values(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> np.ndarray:
     """Scalar values (N, K) of the chain's elements (0 for Rvec elements)."""
-    n_conf = q.shape[0]
-    values = np.zeros((n_conf, len(chain)))
-    for k, et in enumerate(chain):
-        if et.axis == "Rvec":
-            continue
-        value = np.full(n_conf, et.const)
-        if et.param is not None:
-            scale = moments[:, et.moment] if et.moment is not None else 1.0
-            value = value + params[et.param] * scale
-        if et.joint is not None:
-            value = value + et.sign * q[:, et.joint]
-        values[:, k] = value
-    return values
+    layout = _layout(chain)
+    scale = np.where(layout.has_moment, moments[:, layout.moment], 1.0) if moments.shape[1] else 1.0
+    by_param = np.where(layout.has_param, params[layout.param], 0.0) * scale
+    return layout.const + by_param + layout.joint_sign * q[:, layout.joint]
+
+
+def element_transforms(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> np.ndarray:
+    """Local transforms (K, N, 4, 4) of the chain's elements."""
+    layout = _layout(chain)
+    values = element_values(chain, params, q, moments).T  # (K, N)
+    transforms = np.zeros((len(chain), q.shape[0], 4, 4))
+    transforms[..., [0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
+    for i, rows in enumerate(layout.rotations):
+        if rows.size:
+            j, m = (i + 1) % 3, (i + 2) % 3
+            c, s = np.cos(values[rows]), np.sin(values[rows])
+            transforms[rows, :, j, j] = c
+            transforms[rows, :, m, m] = c
+            transforms[rows, :, j, m] = -s
+            transforms[rows, :, m, j] = s
+    for i, rows in enumerate(layout.translations):
+        if rows.size:
+            transforms[rows, :, i, 3] = values[rows]
+    for k in layout.rvecs:
+        transforms[k, :, :3, :3] = so3_exp(params[chain[k].param : chain[k].param + 3])
+    return transforms
 
 
 def evaluate(
     chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray, root: np.ndarray | None = None
 ) -> np.ndarray:
     """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints)."""
-    values = element_values(chain, params, q, moments)
     n_conf = q.shape[0]
     frames = np.empty((len(chain) + 1, n_conf, 4, 4))
     frames[0] = np.eye(4) if root is None else root
+    if n_conf <= _FEW:
+        transforms = element_transforms(chain, params, q, moments)
+        for k in range(len(chain)):
+            np.matmul(frames[k], transforms[k], out=frames[k + 1])
+        return frames
+    # Many configurations: numpy's stacked 4x4 matmul is slow per matrix, so each element
+    # updates only what it changes (two columns of the rotation, or the origin).
+    layout = _layout(chain)
+    values = element_values(chain, params, q, moments).T[..., None]  # (K, N, 1)
+    cosines, sines = np.cos(values), np.sin(values)
     for k, et in enumerate(chain):
-        current = frames[k].copy()
-        v = values[:, k]
+        current = frames[k + 1]
+        current[:] = frames[k]
         if et.axis == "Rvec":
-            current[:, :3, :3] = current[:, :3, :3] @ so3_exp(params[et.param : et.param + 3])
-        elif et.is_rotation:
-            # Right-multiplying by a principal rotation mixes two columns of the rotation.
-            i = et.axis_index
+            current[:, :3, :3] = frames[k][:, :3, :3] @ so3_exp(params[et.param : et.param + 3])
+        elif layout.is_rotation[k]:
+            i = layout.axis[k]
             j, m = (i + 1) % 3, (i + 2) % 3
-            c, s = np.cos(v)[:, None], np.sin(v)[:, None]
-            col_j, col_m = current[:, :3, j].copy(), current[:, :3, m].copy()
-            current[:, :3, j] = c * col_j + s * col_m
-            current[:, :3, m] = -s * col_j + c * col_m
+            col_j, col_m = frames[k][:, :3, j], frames[k][:, :3, m]
+            current[:, :3, j] = cosines[k] * col_j + sines[k] * col_m
+            current[:, :3, m] = cosines[k] * col_m - sines[k] * col_j
         else:
-            current[:, :3, 3] += v[:, None] * current[:, :3, et.axis_index]
-        frames[k + 1] = current
+            current[:, :3, 3] += values[k] * frames[k][:, :3, layout.axis[k]]
     return frames
 
 
@@ -102,23 +177,20 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
     ``[omega, v0]`` such that a point p downstream of the element moves by
     ``dp = omega x p + v0`` per unit change of the element's value.
     """
-    twists = []
-    for k, et in enumerate(chain):
+    layout = _layout(chain)
+    n_elements = len(chain)
+    origin = frames[:n_elements, :, :3, 3]  # (K, N, 3)
+    axis = frames[np.arange(n_elements), :, :3, layout.axis]  # (K, N, 3)
+    twists = np.zeros((n_elements, frames.shape[1], 1, 6))
+    rotation = layout.is_rotation
+    twists[rotation, :, 0, :3] = axis[rotation]
+    twists[rotation, :, 0, 3:] = -cross(axis[rotation], origin[rotation])
+    twists[~rotation, :, 0, 3:] = axis[~rotation]
+    out = list(twists)
+    for k in layout.rvecs:
         rot = frames[k][:, :3, :3]
-        origin = frames[k][:, :3, 3]
-        n_conf = rot.shape[0]
-        if et.axis == "Rvec":
-            omega = rot @ so3_left_jacobian(params[et.param : et.param + 3])  # (N, 3, 3): columns
-            omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
-            v0 = -cross(omega, origin[:, None, :])
-            twists.append(np.concatenate([omega, v0], axis=-1))
-            continue
-        axis = rot[:, :, et.axis_index]
-        twist = np.zeros((n_conf, 1, 6))
-        if et.is_rotation:
-            twist[:, 0, :3] = axis
-            twist[:, 0, 3:] = -cross(axis, origin)
-        else:
-            twist[:, 0, 3:] = axis
-        twists.append(twist)
-    return twists
+        omega = rot @ so3_left_jacobian(params[chain[k].param : chain[k].param + 3])  # (N, 3, 3): columns
+        omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
+        v0 = -cross(omega, origin[k][:, None, :])
+        out[k] = np.concatenate([omega, v0], axis=-1)
+    return out

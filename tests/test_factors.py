@@ -18,6 +18,7 @@ from fgcal.factors import (
     PointPairFactor,
     PoseFactor,
     ProjectionFactor,
+    RandomWalkFactor,
     TrackerPointFactor,
     gaussian,
 )
@@ -125,6 +126,10 @@ def _cases():
     values = gtsam.Values()
     values.insert(7, RNG.normal(0, 1, 5))
     cases.append((ParameterBoundFactor(7, 5, np.array([1, 3]), np.array([0.2, -0.1]), np.array([0.01, 0.02])), values))
+    values = gtsam.Values()
+    values.insert(8, RNG.normal(0, 1, 4))
+    values.insert(9, RNG.normal(0, 1, 4))
+    cases.append((RandomWalkFactor(8, 9, np.array([1e-6, 2e-6, 1e-3, 1e-9])), values))
     return cases
 
 

@@ -77,14 +77,22 @@ def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
 
 
 def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
-    names = stage.released
     J_p, J_aux = reduced_jacobian(stage)
+    moments = stage.model.data(stage.model.base[stage.model.index]).moments
+    return select(J_p, J_aux, stage.released, moments, min_information)
+
+
+def select(
+    J_p: np.ndarray, J_aux: np.ndarray, names: list[str], moments: np.ndarray, min_information: float
+) -> Identifiability:
+    """The pivoted Gram-Schmidt selection on whitened Jacobians (rows x m) and (rows x n_aux),
+    the auxiliary unknowns projected out; ``moments`` (N, 3n) are the gravity moments over
+    the data, for the compliances' plausible deviations."""
     if J_aux.shape[1]:
         Q, R = np.linalg.qr(J_aux)
         keep = np.abs(np.diag(R)) > 1e-9 * max(1.0, np.abs(np.diag(R)).max())
         Q = Q[:, keep]
         J_p = J_p - Q @ (Q.T @ J_p)
-    moments = stage.model.data(stage.model.base[stage.model.index]).moments
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
     scaled = J_p * np.array([parameter_scale(n, moments_rms) for n in names])[None, :]
     basis = np.zeros((scaled.shape[0], 0))

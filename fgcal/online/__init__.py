@@ -1,5 +1,5 @@
 """Online recalibration with iSAM2 (issue: online recalibration)."""
 
-from .calibrator import OnlineCalibrator, OnlineEstimate
+from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 
-__all__ = ["OnlineCalibrator", "OnlineEstimate"]
+__all__ = ["OnlineCalibrator", "OnlineSettings", "OnlineUpdate"]

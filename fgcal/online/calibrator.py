@@ -1,10 +1,20 @@
 """``OnlineCalibrator``: fold each new image into the calibration with iSAM2.
 
-Graph: the parameter vector P (every candidate of the model, except the base, which defines
-W) under priors by kind; the fixture pose O (the calibration objects, unknown); per image a
-camera pose variable tied to P by a KinematicFactor, and its ProjectionFactors. The priors make
-every early state well posed, so the first images give an estimate dominated by the priors,
-never an exception. iSAM2 uses QR and relinearises only when the estimate moves.
+Graph, per work cycle c, a parameter vector ``p_c`` (the released parameters), tied to the
+previous cycle's by a random walk ``p_c - p_{c-1} ~ N(0, k Q)`` (k cycles elapsed); the
+fixture pose O (unknown, constant); per image a camera pose ``x_j`` tied to ``p_c`` by a
+KinematicFactor, and its ProjectionFactors. A prior on ``p_0`` around the starting model
+makes every early state well posed: the first images give an estimate dominated by the
+prior, never an exception.
+
+The solver is GTSAM's IncrementalFixedLagSmoother (iSAM2, QR): images older than the
+window are marginalised into a Gaussian on the variables that remain, so memory and the
+cost of relinearising ``p_c`` stay bounded however long the run. Outliers are gated when an
+image arrives (its points against the image's common offset from the prediction), so that
+the graph is purely Gaussian: a robust loss would freeze down-weighted information into the
+marginals. After each image a drift test (:mod:`.drift`) compares the estimate with the one a
+few images earlier; an alarm lets the flagged parameters jump (their random-walk sigma is
+the prior sigma) at the next image.
 """
 
 from __future__ import annotations
@@ -17,31 +27,65 @@ import numpy as np
 
 from ..camera import Camera, solve_pnp
 from ..errors import InputError
-from ..factors import KinematicFactor, ProjectionFactor, gaussian
+from ..factors import CheckedFactor, KinematicFactor, ProjectionFactor, RandomWalkFactor, gaussian
 from ..parameters import split_name
 from ..robot import Robot
+from ..se3 import inverse, transform_points
+from .drift import Alarm, DriftTest
 from .growing import GrowingKinematics
+from .released import candidates, structural_identifiability
 
-P_KEY = gtsam.symbol("p", 0)
 OBJECT_KEY = gtsam.symbol("o", 0)
 
-# Prior sigmas around the starting model, by kind (SI): what an earlier calibration or the
-# manufacturer leaves open.
-PRIOR_SIGMA = {"length": 5e-3, "angle": 5e-3, "compliance": 1e-6}
+
+def params_key(cycle: int) -> int:
+    return gtsam.symbol("p", cycle)
 
 
 def pose_key(j: int) -> int:
     return gtsam.symbol("x", j)
 
 
+@dataclass(frozen=True)
+class OnlineSettings:
+    """Settings of an online calibration (SI units; per-cycle sigmas of the random walk)."""
+
+    pixel_sigma_px: float = 0.1
+    prior_sigma_m: float = 5e-3
+    prior_sigma_rad: float = 5e-3
+    prior_sigma_compliance: float = 1e-6  # rad/(N m)
+    drift_sigma_m: float = 1e-6  # per cycle
+    drift_sigma_rad: float = 1e-6
+    drift_sigma_compliance: float = 1e-10
+    window_images: int = 30
+    marginalise_every: int = 5  # images leave the window in blocks: fewer, larger reorderings
+    alarm_lag_images: int = 5
+    alarm_false_rate: float = 1e-3  # per image, over all parameters
+    outlier_gate_px: float = 3.0
+    compliant_joints: tuple[int, ...] = (1, 2, 3)
+    # Relinearise p_c when it moved by this fraction of its prior sigma, a pose by this (rad, m).
+    relinearize_fraction: float = 0.1
+    relinearize_pose: float = 1e-4
+
+    def by_kind(self, name: str, what: str) -> float:
+        kind, _ = split_name(name)
+        if kind in ("kx", "ky", "kz"):
+            return getattr(self, f"{what}_sigma_compliance")
+        is_length = kind in ("d", "a", "tx", "ty", "tz")
+        return getattr(self, f"{what}_sigma_m" if is_length else f"{what}_sigma_rad")
+
+
 @dataclass
-class OnlineEstimate:
-    """The current estimate after an image: parameters and marginal sigmas (SI)."""
+class OnlineUpdate:
+    """The estimate after an image: released parameters and their marginal sigmas (SI)."""
 
     n_images: int
-    params: dict[str, float]
-    sigmas: dict[str, float]
+    cycle: int
+    params: dict[str, float]  # every parameter of the robot
+    sigmas: dict[str, float]  # the released ones
     fixture_pose: np.ndarray
+    alarms: list[Alarm]
+    rejected_points: list[str]
     update_s: float
     extra: dict = field(default_factory=dict)
 
@@ -51,6 +95,9 @@ class OnlineCalibrator:
 
     ``robot`` carries the starting model (a calibrated robot file or the nominal model) with
     the camera as its tool; ``points_F`` the calibration points (drawings, fixture frame).
+    ``released`` defaults to the parameters that camera poses determine in general position
+    (:mod:`.released`). With ``keep_graph`` every factor and initial value is also kept, for
+    comparing with a batch solve (memory then grows with the images).
     """
 
     def __init__(
@@ -58,98 +105,186 @@ class OnlineCalibrator:
         robot: Robot,
         camera: Camera,
         points_F: dict[str, np.ndarray],
-        pixel_sigma_px: float = 0.1,
-        compliant_joints: tuple[int, ...] = (1, 2, 3),
-        relinearize_fraction: float = 0.01,
-        relinearize_skip: int = 1,
+        settings: OnlineSettings | None = None,
+        released: list[str] | None = None,
+        keep_graph: bool = False,
     ) -> None:
+        self.settings = settings or OnlineSettings()
+        s = self.settings
+        if s.marginalise_every < 1 or s.window_images < 2 * s.marginalise_every:
+            raise InputError(
+                None,
+                "window_images",
+                f"must be at least twice marginalise_every ({s.marginalise_every}), got {s.window_images}",
+            )
         self.robot = robot
         self.camera = camera
-        self.points_F = points_F
-        self.pixel_sigma = float(pixel_sigma_px)
+        self.points_F = {name: np.asarray(p, dtype=float) for name, p in points_F.items()}
         self.intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion])
-        self.released = [n for n in robot.parameter_names if self._released(n, compliant_joints)]
         self.start = robot.parameter_vector()
+        if released is None:
+            found = candidates(robot, s.compliant_joints)
+            released = structural_identifiability(robot, self.start, found).identifiable
+        unknown = [n for n in released if n not in robot.parameter_names]
+        if unknown:
+            raise InputError(None, "released", f"unknown parameter {unknown[0]!r} for {robot.name}")
+        self.released = list(released)
         self.model = GrowingKinematics(robot, self.start, self.released, "tool")
-        self.prior_sigmas = np.array([self._prior_sigma(n) for n in self.released])
+        self.prior_sigmas = np.array([s.by_kind(n, "prior") for n in self.released])
+        self.drift_sigmas = np.array([s.by_kind(n, "drift") for n in self.released])
+        self.drift = DriftTest(self.released, self.drift_sigmas**2, s.alarm_lag_images, s.alarm_false_rate)
+        self.smoother = gtsam.IncrementalFixedLagSmoother(
+            float(s.window_images // s.marginalise_every), self._isam_params()
+        )
+        self.n_images = 0
+        self.cycle = 0  # index of the current parameter variable p_c
+        self.drift_time = 0.0  # cycles elapsed, summed over the random-walk factors
+        self._cycle_label: int | None = None
+        self._jump: set[int] = set()
+        self._p = self.start[self.model.index].copy()
+        self._sigmas = self.prior_sigmas.copy()
+        self._fixture: np.ndarray | None = None
+        self.keep_graph = keep_graph
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.initial = gtsam.Values()
+
+    def _isam_params(self) -> gtsam.ISAM2Params:
+        s = self.settings
         params = gtsam.ISAM2Params()
         params.setFactorization("QR")
-        # Relinearise a variable when it has moved by a fraction of its prior sigma (per
-        # component: P mixes rad, m and compliances of 1e-7), checked every few images:
-        # relinearising P touches every kinematic factor.
         thresholds = gtsam.ISAM2ThresholdMap()
-        thresholds.insert(("p", relinearize_fraction * self.prior_sigmas))
-        thresholds.insert(("x", np.full(6, 1e-5)))
-        thresholds.insert(("o", np.full(6, 1e-5)))
+        thresholds.insert(("p", s.relinearize_fraction * self.prior_sigmas))
+        thresholds.insert(("x", np.full(6, s.relinearize_pose)))
+        thresholds.insert(("o", np.full(6, s.relinearize_pose)))
         params.setRelinearizeThreshold(thresholds)
-        params.relinearizeSkip = relinearize_skip
-        # Full back-substitution: the default wildfire threshold (1e-3) would leave P's small
-        # components (compliances of 1e-7) unchanged.
+        params.relinearizeSkip = 1
+        # Full back-substitution: the default wildfire threshold (1e-3) would leave the
+        # compliances (1e-7) unchanged.
         params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(0.0))
-        self.isam = gtsam.ISAM2(params)
-        self.n_images = 0
-        self._p: np.ndarray | None = None
-        self._fixture: np.ndarray | None = None
+        return params
 
-    @staticmethod
-    def _released(name: str, compliant_joints: tuple[int, ...]) -> bool:
-        kind, owner = split_name(name)
-        if owner == "base":
+    # -- one image ------------------------------------------------------------------------
+
+    def add(self, q: np.ndarray, observations: list[tuple[str, np.ndarray]], cycle: int | None = None) -> OnlineUpdate:
+        """Fold one image into the estimate: joint angles ``q`` (rad), observations
+        ``[(point name, pixel (u, v))]`` and optionally the work-cycle number it was taken
+        in (images of one cycle share a parameter vector)."""
+        started = time.perf_counter()
+        q = self.robot.check_q(q)[0]
+        known = self._check_observations(observations)
+        if cycle is not None and self._cycle_label is not None and cycle < self._cycle_label:
+            raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {self._cycle_label}")
+        new_cycle = self._starts_cycle(cycle)
+        row = self.model.add(q, self.cycle + (1 if new_cycle else 0))
+        # At the parameters' linearisation point, where the kinematic factor will be
+        # linearised: one kinematics evaluation serves both.
+        p_lin = self._p if self.n_images == 0 or new_cycle else self._linearization_point()
+        T_W_C = self.model.poses(p_lin)[row]
+        if self._fixture is None:
+            self._fixture = self._first_fixture_guess(T_W_C, known)
+        kept, rejected = self._gate(T_W_C, known)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        P = params_key(self.cycle)
+        if self.n_images == 0:
+            graph.add(gtsam.PriorFactorVector(P, self._p, gaussian(self.prior_sigmas)))
+            values.insert(P, self._p)
+            values.insert(OBJECT_KEY, gtsam.Pose3(self._fixture))
+            self._cycle_label = cycle
+        elif new_cycle:
+            elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
+            sigmas = self.drift_sigmas * np.sqrt(elapsed)
+            jumped = sorted(self._jump)
+            sigmas[jumped] = self.prior_sigmas[jumped]
+            self.cycle += 1
+            self.drift_time += elapsed
+            P = params_key(self.cycle)
+            graph.add(RandomWalkFactor(params_key(self.cycle - 1), P, sigmas).factor)
+            values.insert(P, self._p)
+            self._jump = set()
+            if cycle is not None:
+                self._cycle_label = cycle
+        X = pose_key(row)
+        values.insert(X, gtsam.Pose3(T_W_C))
+        for factor in self.image_factors(P, row, kept):
+            graph.add(factor.factor)
+        stamp = float(row // self.settings.marginalise_every)
+        self.smoother.update(graph, values, {P: stamp, OBJECT_KEY: stamp, X: stamp})
+        if not self.keep_graph:
+            every = self.settings.marginalise_every
+            self.model.forget_before((row // every - self.settings.window_images // every) * every)
+        else:
+            self.graph.push_back(graph)
+            self.initial.insert(values)
+        self._p = self.smoother.calculateEstimateVector(P)
+        self._fixture = self.smoother.calculateEstimatePose3(OBJECT_KEY).matrix()
+        covariance = self.smoother.marginalCovariance(P)
+        self._sigmas = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        self._covariance = covariance
+        self.n_images += 1
+        alarms = self.drift.check(self.n_images - 1, self.drift_time, self._p, self._sigmas)
+        if alarms:
+            self._jump = {self.released.index(a.parameter) for a in alarms}
+            self.drift.reset()
+        return OnlineUpdate(
+            self.n_images,
+            self.cycle,
+            self.robot.parameter_dict(self.current_params()),
+            dict(zip(self.released, self._sigmas.tolist(), strict=True)),
+            self._fixture.copy(),
+            alarms,
+            rejected,
+            time.perf_counter() - started,
+        )
+
+    def _linearization_point(self) -> np.ndarray:
+        return self.smoother.getLinearizationPoint().atVector(params_key(self.cycle))
+
+    def _starts_cycle(self, cycle: int | None) -> bool:
+        if self.n_images == 0:
             return False
-        if kind in ("kx", "ky", "kz"):
-            return owner in compliant_joints
-        return True
+        return bool(self._jump) or (cycle is not None and cycle != self._cycle_label)
 
-    @staticmethod
-    def _prior_sigma(name: str) -> float:
-        kind, _ = split_name(name)
-        if kind in ("kx", "ky", "kz"):
-            return PRIOR_SIGMA["compliance"]
-        return PRIOR_SIGMA["length"] if kind in ("d", "a", "tx", "ty", "tz") else PRIOR_SIGMA["angle"]
-
-    def prior_factors(self) -> list:
-        """The priors of the first update (also used by the batch comparison)."""
-        return [gtsam.PriorFactorVector(P_KEY, self.start[self.model.index], gaussian(self.prior_sigmas))]
-
-    def image_factors(self, j: int, observations: list[tuple[str, np.ndarray]]) -> list:
-        sigmas = np.full(2, self.pixel_sigma)
-        noise = gaussian(sigmas, ("cauchy", 3.0))
-        factors = [KinematicFactor(P_KEY, pose_key(j), j, self.model, np.full(6, 1e-3 * self.pixel_sigma * 1e-2))]
+    def image_factors(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> list[CheckedFactor]:
+        sigmas = np.full(2, self.settings.pixel_sigma_px)
+        noise = gaussian(sigmas)
+        # The tie is 1% of a pixel's worth of pose (rad, and m at 1 m): stiff next to the
+        # measurements, yet well conditioned.
+        tie = np.full(6, 1e-2 * self.settings.pixel_sigma_px / self.camera.fx)
+        factors: list[CheckedFactor] = [KinematicFactor(P, pose_key(row), row, self.model, tie)]
         for name, uv in observations:
             factors.append(
-                ProjectionFactor(
-                    pose_key(j), OBJECT_KEY, self.points_F[name], uv, noise, sigmas, intrinsics=self.intrinsics
-                )
+                ProjectionFactor(pose_key(row), OBJECT_KEY, self.points_F[name], uv, noise, sigmas, self.intrinsics)
             )
         return factors
 
-    def add(self, q: np.ndarray, observations: list[tuple[str, np.ndarray]]) -> OnlineEstimate:
-        """Fold one image (joint angles q in rad, [(point name, pixel)]) into the estimate."""
-        started = time.perf_counter()
-        q = self.robot.check_q(q)[0]
-        known = [(n, np.asarray(uv, dtype=float)) for n, uv in observations if n in self.points_F]
-        if len(known) != len(observations):
-            unknown = next(n for n, _ in observations if n not in self.points_F)
-            raise InputError(None, "observations", f"unknown calibration point {unknown!r}")
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        params = self.current_params()
-        j = self.model.add(q)
-        # The kinematic factor will evaluate this row at these parameters: compute it once.
-        T_W_C = self.model.poses(params[self.model.index])[j]
-        if self.n_images == 0:
-            for factor in self.prior_factors():
-                graph.add(factor)
-            values.insert(P_KEY, params[self.model.index])
-            values.insert(OBJECT_KEY, gtsam.Pose3(self._first_fixture_guess(T_W_C, known)))
-        values.insert(pose_key(j), gtsam.Pose3(T_W_C))
-        for factor in self.image_factors(j, known):
-            graph.add(factor.factor)
-        self.isam.update(graph, values)
-        # Only P and the fixture pose are read back: the full estimate grows with the images.
-        self._p = self.isam.calculateEstimateVector(P_KEY)
-        self._fixture = self.isam.calculateEstimatePose3(OBJECT_KEY).matrix()
-        self.n_images += 1
-        return self.estimate(time.perf_counter() - started, with_sigmas=False)
+    def _check_observations(self, observations: list[tuple[str, np.ndarray]]) -> list[tuple[str, np.ndarray]]:
+        known = []
+        for name, uv in observations:
+            if name not in self.points_F:
+                raise InputError(None, "observations", f"unknown calibration point {name!r}")
+            uv = np.asarray(uv, dtype=float)
+            if uv.shape != (2,) or not np.isfinite(uv).all():
+                raise InputError(None, f"observations.{name}", f"a pixel is two finite numbers, got {uv.tolist()}")
+            known.append((name, uv))
+        if not known:
+            raise InputError(None, "observations", "an image needs at least one observed point")
+        return known
+
+    def _gate(self, T_W_C: np.ndarray, known: list) -> tuple[list, list[str]]:
+        """Reject points whose residual against the prediction differs from the image's
+        median residual by more than the gate: a model error or drift moves all the points
+        of an image together, a wrong detection moves one."""
+        if len(known) < 3:
+            return known, []
+        points_W = transform_points(self._fixture, np.array([self.points_F[n] for n, _ in known]))
+        points_C = transform_points(inverse(T_W_C), points_W)
+        if np.any(points_C[:, 2] <= 0.0):
+            raise InputError(None, "observations", "the points are behind the camera at the current estimate")
+        residuals = np.array([uv for _, uv in known]) - self.camera.project(points_C)
+        offset = np.linalg.norm(residuals - np.median(residuals, axis=0), axis=1)
+        kept = [obs for obs, d in zip(known, offset, strict=True) if d <= self.settings.outlier_gate_px]
+        rejected = [name for (name, _), d in zip(known, offset, strict=True) if d > self.settings.outlier_gate_px]
+        return kept, rejected
 
     def _first_fixture_guess(self, T_W_C: np.ndarray, known: list) -> np.ndarray:
         if len(known) >= 4:
@@ -160,21 +295,22 @@ class OnlineCalibrator:
                 return T_W_C @ T_C_F
         raise InputError(None, "observations", "the first image needs at least four points to place the objects")
 
+    # -- the estimate ---------------------------------------------------------------------
+
     def current_params(self) -> np.ndarray:
-        if self._p is None:
-            return self.start.copy()
+        """Every parameter of the robot (SI), the released ones at their current estimate."""
         return self.model.full(self._p)
 
-    def estimate(self, update_s: float = 0.0, with_sigmas: bool = True) -> OnlineEstimate:
-        params = self.current_params()
-        sigmas = {}
-        if with_sigmas:
-            sigma = np.sqrt(np.clip(np.diag(self.isam.marginalCovariance(P_KEY)), 0.0, None))
-            sigmas = dict(zip(self.released, sigma.tolist(), strict=True))
-        return OnlineEstimate(
-            self.n_images,
-            self.robot.parameter_dict(params),
-            sigmas,
-            self._fixture,
-            update_s,
-        )
+    @property
+    def sigmas(self) -> np.ndarray:
+        """Marginal sigmas of the released parameters (SI), in ``released`` order."""
+        return self._sigmas.copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Marginal covariance of the released parameters (current cycle)."""
+        return self._covariance.copy() if self.n_images else np.diag(self.prior_sigmas**2)
+
+    @property
+    def fixture_pose(self) -> np.ndarray | None:
+        return None if self._fixture is None else self._fixture.copy()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 
 from .. import kinematics
@@ -21,12 +23,15 @@ class _Row:
 class GrowingKinematics:
     """FK and body Jacobians of ``frame`` for configurations added one at a time.
 
-    A new configuration's factor is linearised alone (one single-configuration evaluation);
-    when iSAM2 relinearises many kinematic factors at the same parameter values, the first few
-    are computed singly and then every row at once, vectorised.
+    Each configuration belongs to a group (the parameter variable of its work cycle). A new
+    configuration's factor is linearised alone (one single-configuration evaluation); when
+    iSAM2 relinearises many kinematic factors of a group at the same parameter values, the
+    first few are computed singly and then every live row of the group at once, vectorised.
+    Rows whose factors have been marginalised are forgotten, so memory stays bounded.
     """
 
     BATCH_AFTER = 4
+    CACHED_VALUES = 16
 
     def __init__(self, robot: Robot, full_params: np.ndarray, released: list[str], frame: str) -> None:
         self.robot = robot
@@ -34,18 +39,27 @@ class GrowingKinematics:
         self.released = list(released)
         self.index = np.array([robot.parameter_names.index(n) for n in released], dtype=int)
         self.frame = frame
-        self.q: list[np.ndarray] = []
-        self._key: bytes | None = None
-        self._rows: dict[tuple[int, str], np.ndarray] = {}
-        self._batched = False
+        self.q: dict[int, np.ndarray] = {}
+        self.group: dict[int, int] = {}
+        self._next = 0
+        # values bytes -> {"rows": {(row, what): array}, "asked": {group: count}, "batched": set}
+        self._cache: OrderedDict[bytes, dict] = OrderedDict()
 
     @property
     def n_released(self) -> int:
         return len(self.released)
 
-    def add(self, q: np.ndarray) -> int:
-        self.q.append(np.asarray(q, dtype=float))
-        return len(self.q) - 1
+    def add(self, q: np.ndarray, group: int = 0) -> int:
+        row = self._next
+        self.q[row] = np.asarray(q, dtype=float)
+        self.group[row] = group
+        self._next += 1
+        return row
+
+    def forget_before(self, row: int) -> None:
+        """Drop the configurations before ``row`` (their factors are gone)."""
+        for old in [r for r in self.q if r < row]:
+            del self.q[old], self.group[old]
 
     def full(self, released_values: np.ndarray) -> np.ndarray:
         params = self.base.copy()
@@ -60,20 +74,27 @@ class GrowingKinematics:
 
     def row(self, values: np.ndarray, j: int, what: str) -> np.ndarray:
         key = values.tobytes()
-        if key != self._key:
-            self._key, self._rows, self._batched = key, {}, False
-        if (j, what) not in self._rows:
-            wanted = sorted({jj for jj, _ in self._rows} | {j})
-            if len(wanted) > self.BATCH_AFTER and not self._batched:
-                wanted, self._batched = list(range(len(self.q))), True
-            self._evaluate(values, [jj for jj in wanted if (jj, what) not in self._rows] or [j])
-        return self._rows[(j, what)]
+        entry = self._cache.get(key)
+        if entry is None:
+            if len(self._cache) >= self.CACHED_VALUES:
+                self._cache.popitem(last=False)
+            entry = self._cache[key] = {"rows": {}, "asked": {}, "batched": set()}
+        rows = entry["rows"]
+        if (j, what) not in rows:
+            group = self.group[j]
+            entry["asked"][group] = entry["asked"].get(group, 0) + 1
+            wanted = [j]
+            if entry["asked"][group] > self.BATCH_AFTER and group not in entry["batched"]:
+                entry["batched"].add(group)
+                wanted = [r for r, g in self.group.items() if g == group and (r, what) not in rows]
+            self._evaluate(values, wanted, rows)
+        return rows[(j, what)]
 
-    def _evaluate(self, values: np.ndarray, rows: list[int]) -> None:
-        q = np.array([self.q[j] for j in rows])
+    def _evaluate(self, values: np.ndarray, wanted: list[int], rows: dict) -> None:
+        q = np.array([self.q[j] for j in wanted])
         data = kinematics.forward(self.robot, self.full(values), q)
         poses = kinematics.frame_pose(self.robot, data, self.frame)
         jacobians = kinematics.jacobian(self.robot, data, self.released, frame=self.frame)
-        for i, j in enumerate(rows):
-            self._rows[(j, "pose")] = poses[i]
-            self._rows[(j, "jacobian")] = jacobians[i]
+        for i, j in enumerate(wanted):
+            rows[(j, "pose")] = poses[i]
+            rows[(j, "jacobian")] = jacobians[i]

@@ -12,10 +12,20 @@ import numpy as np
 import yaml
 
 from ..dataset import FORMAT, write_csv, write_header
+from ..errors import InputError
 from ..se3 import inverse, rpy_from_rotation, transform_points
 from .cell import Cell, load_cell
 from .design import View, seed_design, space_filling_design
 from .truth import perturb_parameters
+
+
+@dataclass(frozen=True)
+class Drift:
+    """A step change of one true parameter (SI units) from configuration ``start`` on."""
+
+    parameter: str
+    change: float
+    start: int
 
 
 @dataclass
@@ -64,7 +74,10 @@ def simulate(
     n_configurations: int | None = None,
     progress: Callable[[str], None] | None = None,
     render: bool = False,
+    drift: Drift | None = None,
 ) -> SimulationResult:
+    """Simulate a dataset of the cell. With ``drift``, one true parameter changes by a step
+    from a configuration on (what online recalibration must notice)."""
     started = time.perf_counter()
     say = progress or (lambda _msg: None)
     cell = load_cell(cell_path)
@@ -84,6 +97,8 @@ def simulate(
         np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)
     )
     true_params = perturb_parameters(robot, cell.perturbation, truth_rng)
+    if drift is not None and drift.parameter not in true_params:
+        raise InputError(None, "drift", f"unknown parameter {drift.parameter!r} for {robot.name}")
 
     def true_camera(q: np.ndarray) -> np.ndarray:
         return robot.fk_tool(q, true_params)
@@ -99,7 +114,7 @@ def simulate(
 
     out = Path(out_dir)
     (out / "truth").mkdir(parents=True, exist_ok=True)
-    counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng)
+    counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift)
     deviation = positioning_deviation(cell, q, true_params)
     boards = None
     if render:
@@ -125,6 +140,8 @@ def simulate(
         },
         "deviation_before_calibration_m": {"mean": float(deviation.mean()), "max": float(deviation.max())},
     }
+    if drift is not None:
+        truth["drift"] = {"parameter": drift.parameter, "change": drift.change, "from_configuration": drift.start}
     (out / "truth" / "ground_truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
     return SimulationResult(
         out,
@@ -146,6 +163,7 @@ def _write_measurements(
     config_ids: list[str],
     true_params: dict[str, float],
     rng: np.random.Generator,
+    drift: Drift | None = None,
 ) -> dict[str, int]:
     robot = cell.robot
     write_csv(
@@ -160,6 +178,9 @@ def _write_measurements(
     )
 
     T_C_W = inverse(robot.fk_tool(q, true_params))
+    if drift is not None:
+        drifted = {**true_params, drift.parameter: true_params[drift.parameter] + drift.change}
+        T_C_W[drift.start :] = inverse(robot.fk_tool(q[drift.start :], drifted))
     cam_rows, cam_noise, px_rows, px_noise = [], [], [], []
     for cid, view, T in zip(config_ids, views, T_C_W, strict=True):
         names = [p.name for p in view.block]

@@ -1,0 +1,89 @@
+"""One online measurement: an image's joint angles and observed pixels (docs/online.md).
+
+Inbox files are JSON (``*.json``)::
+
+    {"format": "fgcal-measurement/1", "cycle": 12, "units": {"angle": "deg"},
+     "joints": [10.0, -45.0, 80.0, 0.0, 30.0, 0.0],
+     "pixels": {"X+x_r00c00": [812.4, 533.1], "X+x_r00c01": [901.7, 530.2]}}
+
+``cycle`` (optional, integer, non-decreasing) is the work cycle the image was taken in.
+Writers write a temporary file whose name does not end in ``.json`` (``write_measurement``
+uses ``.NAME.tmp``) in the inbox and rename it to ``NAME.json`` when complete: rename is atomic
+on one filesystem, so fgcal never reads a half-written file. Names must be unique.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..fields import Fields
+from ..units import parse_units
+
+FORMAT = "fgcal-measurement/1"
+
+
+@dataclass(frozen=True)
+class Measurement:
+    name: str  # the inbox file name: the measurement's identity
+    q: np.ndarray  # rad
+    pixels: tuple[tuple[str, np.ndarray], ...]  # (point, (u, v) px)
+    cycle: int | None = None
+
+    def to_record(self) -> dict:
+        """JSON-ready, SI units (what the state log stores)."""
+        return {
+            "format": FORMAT,
+            "name": self.name,
+            "cycle": self.cycle,
+            "joints": [float(v) for v in self.q],
+            "pixels": {n: [float(u), float(v)] for n, (u, v) in self.pixels},
+        }
+
+
+def parse_measurement(data: object, name: str, source: str | Path, n_joints: int) -> Measurement:
+    fields = Fields(data, source)
+    fields.check_keys(["format", "name", "cycle", "units", "joints", "pixels"])
+    if fields.string("format", FORMAT) != FORMAT:
+        raise fields.error("format", f"expected {FORMAT!r}, got {fields.raw('format')!r}")
+    units = parse_units(fields.raw("units", None), source)
+    q = fields.vector("joints", n_joints, scale=units.to_rad) if isinstance(fields.raw("joints"), list) else None
+    if q is None:
+        raise fields.error("joints", "expected a list of joint angles")
+    raw_pixels = fields.sub("pixels")
+    pixels = tuple((str(point), raw_pixels.vector(str(point), 2)) for point in raw_pixels.data)
+    if not pixels:
+        raise fields.error("pixels", "an image needs at least one observed point")
+    cycle = fields.integer("cycle", None, minimum=0) if fields.has("cycle") else None
+    return Measurement(name, q, pixels, cycle)
+
+
+def read_measurement(path: Path, n_joints: int) -> Measurement:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(path, None, f"cannot read: {error}") from error
+    except json.JSONDecodeError as error:
+        raise InputError(path, None, f"not valid JSON: {error}") from error
+    return parse_measurement(data, path.name, path, n_joints)
+
+
+def write_measurement(inbox: str | Path, measurement: Measurement) -> Path:
+    """Drop a measurement into an inbox with the atomic-rename protocol."""
+    inbox = Path(inbox)
+    inbox.mkdir(parents=True, exist_ok=True)
+    final = inbox / measurement.name
+    temporary = inbox / f".{measurement.name}.tmp"
+    record = measurement.to_record()
+    record.pop("name")
+    with open(temporary, "w", encoding="utf-8") as handle:
+        json.dump(record, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(temporary, final)
+    return final

@@ -1,0 +1,102 @@
+"""The online report: ``report.md`` and ``sigmas.png`` (sigma / prior sigma image by image)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+
+def read_history(state: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """(released names, image numbers, predicted RMS accuracy (m), sigmas (images x names))."""
+    with open(state / "history.csv", encoding="utf-8") as handle:
+        rows = list(csv.reader(handle))
+    header, body = rows[0], [r for r in rows[1:] if len(r) == len(rows[0])]
+    names = [h.removeprefix("sigma_") for h in header if h.startswith("sigma_")]
+    first = header.index(f"sigma_{names[0]}") if names else len(header)
+    images = np.array([int(r[0]) for r in body])
+    predicted = np.array([float(r[header.index("predicted_rms_m")]) for r in body])
+    sigmas = np.array([[float(v) for v in r[first:]] for r in body]).reshape(len(body), len(names))
+    return names, images, predicted, sigmas
+
+
+def plot_sigmas(state: Path, report: dict) -> Path | None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names, images, predicted, sigmas = read_history(state)
+    if not len(images):
+        return None
+    prior = np.array([report["parameters"][n]["prior_sigma"] for n in names])
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 8), sharex=True)
+    for i, name in enumerate(names):
+        top.semilogy(images, sigmas[:, i] / prior[i], lw=0.8, label=name)
+    top.set_ylabel("sigma / prior sigma")
+    top.set_title(f"{report['robot']}: marginal sigmas image by image")
+    top.legend(ncol=4, fontsize=6, loc="lower left")
+    bottom.semilogy(images, predicted * 1e3, color="k", label="predicted RMS flange position sigma")
+    bottom.axhline(report["stopping_rule"]["target_m"] * 1e3, color="tab:green", ls="--", label="target")
+    for alarm in report["alarms"]:
+        bottom.axvline(alarm["image"] + 1, color="tab:red", lw=0.8)
+    bottom.set_xlabel("image")
+    bottom.set_ylabel("mm")
+    bottom.legend(fontsize=8)
+    fig.tight_layout()
+    path = state / "sigmas.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_final_report(state: Path, report: dict) -> None:
+    plot = plot_sigmas(state, report)
+    rule = report["stopping_rule"]
+    accuracy = report["predicted_accuracy"]
+    lines = [
+        f"# Online calibration of {report['robot']}",
+        "",
+        f"- images folded in: {report['n_images']} (logged {report['n_logged']}, skipped {len(report['skipped'])})",
+        f"- predicted flange position sigma over the window: RMS {accuracy['rms_m']:.3e} m, "
+        f"max {accuracy['max_m']:.3e} m ({accuracy['n_configurations']} configurations)",
+        f"- stopping rule ({rule['rule']}, target {rule['target_m']:.1e} m): "
+        + (f"met at image {rule['met_at_image']}" if rule["met"] else "not met yet"),
+        f"- drift alarms: {len(report['alarms'])} (test: false-alarm rate "
+        f"{report['alarm_test']['false_alarm_rate_per_image']:g} per image, |z| > "
+        f"{report['alarm_test']['threshold_z']:.2f}, lag {report['alarm_test']['lag_images']} images)",
+    ]
+    if report["latency_ms"]["n_updates"]:
+        latency = report["latency_ms"]
+        lines.append(
+            f"- update latency over {latency['n_updates']} updates: median {latency['median']:.1f} ms, "
+            f"p99 {latency['p99']:.1f} ms"
+        )
+    if report["prior_dominated"]:
+        lines.append(f"- still dominated by their priors (sigma > prior/2): {', '.join(report['prior_dominated'])}")
+    for problem in report["problems"]:
+        lines.append(f"- problem: {problem}")
+    lines += ["", "| parameter | unit | estimate | sigma | sigma / prior |", "|---|---|---|---|---|"]
+    for name, entry in report["parameters"].items():
+        if entry["status"] == "released":
+            lines.append(
+                f"| {name} | {entry['unit']} | {entry['estimate']:.6g} | {entry['sigma']:.3e} | "
+                f"{entry['sigma'] / entry['prior_sigma']:.3g} |"
+            )
+    if report["alarms"]:
+        lines += [
+            "",
+            "## Drift alarms",
+            "",
+            "| image | file | parameter | z | change | unit |",
+            "|---|---|---|---|---|---|",
+        ]
+        for alarm in report["alarms"]:
+            lines.append(
+                f"| {alarm['image'] + 1} | {alarm['name']} | {alarm['parameter']} | {alarm['z']:+.1f} | "
+                f"{alarm['change']:+.3e} | {alarm['unit']} |"
+            )
+    if plot is not None:
+        lines += ["", f"![sigmas]({plot.name})"]
+    (state / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -1,0 +1,174 @@
+"""The online state directory: what survives a crash.
+
+- ``lock``: held (``fcntl.flock``) by the one process working on the directory; a second
+  process is refused with the holder's pid.
+- ``measurements.log``: append-only, one record per line, ``<crc32 hex> <json>\\n``. A
+  measurement is *acknowledged* once its record is written and fsync'ed; only then is its
+  inbox file moved aside. Reading the log checks every record: a truncated or corrupted
+  last record (a crash during the append) is reported, skipped and cut off, so that later
+  appends start clean; a corrupted earlier record is reported and skipped.
+- ``checkpoint.json``: every few images, written atomically (temporary file, fsync, rename):
+  the number of records and the estimate at that point. A restart replays the log (the
+  estimate is a deterministic function of it) and checks that the replay reproduces the
+  checkpoint.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import InputError
+
+LOG = "measurements.log"
+CHECKPOINT = "checkpoint.json"
+
+
+@dataclass
+class LogContents:
+    records: list[dict]
+    problems: list[str] = field(default_factory=list)
+
+
+def encode_record(record: dict) -> bytes:
+    payload = json.dumps(record, separators=(",", ":"), sort_keys=True).encode("utf-8")
+    return b"%08x " % zlib.crc32(payload) + payload + b"\n"
+
+
+def decode_line(line: bytes) -> dict | None:
+    """The record of a complete line, or None if it is corrupted."""
+    if len(line) < 10 or line[8:9] != b" ":
+        return None
+    payload = line[9:]
+    try:
+        if int(line[:8], 16) != zlib.crc32(payload):
+            return None
+        record = json.loads(payload)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    temporary = path.with_name(f".{path.name}.tmp")
+    with open(temporary, "wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(temporary, path)
+    _fsync_directory(path.parent)
+
+
+def _fsync_directory(directory: Path) -> None:
+    descriptor = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+class StateDir:
+    """Lock, log and checkpoint of one online calibration (see the module docstring)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.mkdir(parents=True, exist_ok=True)
+        self._lock_handle = None
+        self._log_handle = None
+
+    # -- lock -------------------------------------------------------------------------------
+
+    def lock(self) -> None:
+        handle = open(self.path / "lock", "a+")  # noqa: SIM115 (held while the lock is)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "unknown"
+            handle.close()
+            raise InputError(self.path, None, f"state directory is in use by another process (pid {holder})") from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        self._lock_handle = handle
+
+    def close(self) -> None:
+        if self._log_handle is not None:
+            self._log_handle.close()
+            self._log_handle = None
+        if self._lock_handle is not None:
+            fcntl.flock(self._lock_handle, fcntl.LOCK_UN)
+            self._lock_handle.close()
+            self._lock_handle = None
+
+    def __enter__(self) -> StateDir:
+        self.lock()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- log --------------------------------------------------------------------------------
+
+    def read_log(self) -> LogContents:
+        """Every valid record, in order; problems are described, and a damaged tail is cut
+        off the file (only under the lock)."""
+        path = self.path / LOG
+        if not path.exists():
+            return LogContents([])
+        data = path.read_bytes()
+        contents = LogContents([])
+        position, good_end = 0, 0
+        number = 0
+        while position < len(data):
+            newline = data.find(b"\n", position)
+            number += 1
+            if newline < 0:
+                size = len(data) - position
+                contents.problems.append(
+                    f"{path}: record {number} is truncated ({size} bytes, a crash while writing): skipped"
+                )
+                break
+            record = decode_line(data[position:newline])
+            if record is None:
+                contents.problems.append(f"{path}: record {number} is corrupted (checksum or JSON): skipped")
+            else:
+                contents.records.append(record)
+            position = newline + 1
+            good_end = position
+        if good_end < len(data) and self._lock_handle is not None:
+            with open(path, "r+b") as handle:
+                handle.truncate(good_end)
+                handle.flush()
+                os.fsync(handle.fileno())
+        return contents
+
+    def append(self, record: dict) -> None:
+        """Append one record and make it durable: after this returns, it is acknowledged."""
+        if self._lock_handle is None:
+            raise RuntimeError("append needs the state directory's lock")
+        if self._log_handle is None:
+            self._log_handle = open(self.path / LOG, "ab")  # noqa: SIM115 (appended to for the run)
+        self._log_handle.write(encode_record(record))
+        self._log_handle.flush()
+        os.fsync(self._log_handle.fileno())
+
+    # -- checkpoint -------------------------------------------------------------------------
+
+    def read_checkpoint(self) -> dict | None:
+        path = self.path / CHECKPOINT
+        if not path.exists():
+            return None
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        return data if isinstance(data, dict) else None
+
+    def write_checkpoint(self, checkpoint: dict) -> None:
+        write_atomic(self.path / CHECKPOINT, json.dumps(checkpoint, indent=1).encode("utf-8"))
