@@ -130,4 +130,47 @@ def run_bench(out: Path, seed: int = 1, n: int = 300, repeats: int = 3) -> dict:
     print(f"scipy least_squares, finite differences:   {sp_time:.3f} s ({sum(evaluations)} residual evaluations)")
     print(f"ratio scipy / fgcal (four stages):         {result['ratio_scipy_over_fgcal']:.1f}")
     print(f"final chi2: fgcal {cost_fgcal:.6g}, scipy {cost_scipy:.6g} (same residuals)")
+    result.update(online_bench(data_dir))
+    return result
+
+
+def online_bench(data_dir: Path) -> dict:
+    """Latency of OnlineCalibrator.add over the dataset's images, and a batch re-solve (LM on
+    the same graph, from the nominal model) beside it."""
+    import gtsam
+
+    from .online import OnlineCalibrator
+    from .online.calibrator import OBJECT_KEY, params_key, pose_key
+    from .online.feed import dataset_measurements
+
+    dataset = load_dataset(data_dir)
+    points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
+    measurements = dataset_measurements(data_dir)
+    calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points, keep_graph=True)
+    latency = np.array([calibrator.add(m.q, list(m.pixels), m.cycle).update_s for m in measurements]) * 1e3
+    start = calibrator.start[calibrator.model.index]
+    initial = gtsam.Values()
+    initial.insert(params_key(0), start)
+    initial.insert(OBJECT_KEY, calibrator.initial.atPose3(OBJECT_KEY))
+    poses = calibrator.model.poses(start)
+    for j in range(len(measurements)):
+        initial.insert(pose_key(j), gtsam.Pose3(poses[j]))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setLinearSolverType("MULTIFRONTAL_QR")
+    params.setDiagonalDamping(True)
+    started = time.perf_counter()
+    gtsam.LevenbergMarquardtOptimizer(calibrator.graph, initial, params).optimize()
+    batch_s = time.perf_counter() - started
+    result = {
+        "online_images": len(measurements),
+        "online_update_median_ms": float(np.median(latency)),
+        "online_update_p99_ms": float(np.percentile(latency, 99)),
+        "online_update_max_ms": float(latency.max()),
+        "online_batch_resolve_s": batch_s,
+    }
+    print(
+        f"online update latency over {len(measurements)} images: median {result['online_update_median_ms']:.1f} ms, "
+        f"p99 {result['online_update_p99_ms']:.1f} ms, max {result['online_update_max_ms']:.1f} ms"
+    )
+    print(f"batch re-solve of the same graph (LM from the nominal model): {batch_s:.2f} s")
     return result

@@ -162,10 +162,13 @@ class OnlineService:
             self._write_outputs()
 
     def _check_checkpoint(self, checkpoint: dict) -> None:
-        values = np.array([checkpoint["estimate"][n] for n in self.calibrator.released])
-        here = self.calibrator.current_params()[self.calibrator.model.index]
-        if not np.allclose(values, here, rtol=1e-9, atol=1e-15):
-            message = "the replay does not reproduce the checkpoint's estimate"
+        cal = self.calibrator
+        values = np.array([checkpoint["estimate"][n] for n in cal.released])
+        sigmas = np.array([checkpoint["sigma"][n] for n in cal.released])
+        here = cal.current_params()[cal.model.index]
+        # GTSAM's multithreaded elimination does not sum in a fixed order: equal to rounding.
+        if np.any(np.abs(values - here) > 1e-6 * sigmas):
+            message = "the replay does not reproduce the checkpoint's estimate (to 1e-6 sigma)"
             self.say(f"warning: {message}")
             self.problems.append(message)
 
@@ -251,6 +254,7 @@ class OnlineService:
                 "n_records": len(self.logged),
                 "n_images": cal.n_images,
                 "estimate": dict(zip(cal.released, cal.current_params()[cal.model.index].tolist(), strict=True)),
+                "sigma": dict(zip(cal.released, cal.sigmas.tolist(), strict=True)),
                 "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             }
         )

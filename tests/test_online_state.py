@@ -1,0 +1,118 @@
+"""The online state directory survives crashes: log checks, lock, SIGKILL at random points."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from conftest import SEED_CELL
+
+import fgcal
+from fgcal.online.feed import feed_dataset
+from fgcal.online.service import OnlineService
+from fgcal.online.state import LOG, StateDir, encode_record
+from fgcal.simulation.simulate import simulate
+
+
+def test_damaged_log_records_are_reported_and_skipped(tmp_path):
+    with StateDir(tmp_path) as state:
+        for i in range(3):
+            state.append({"name": f"m{i}", "i": i})
+    log = tmp_path / LOG
+    lines = log.read_bytes().splitlines(keepends=True)
+    corrupted = lines[1].replace(b'"i":1', b'"i":7')  # checksum no longer matches
+    log.write_bytes(lines[0] + corrupted + lines[2] + encode_record({"name": "m3"})[:-9])  # torn last record
+    with StateDir(tmp_path) as state:
+        contents = state.read_log()
+        assert [r["name"] for r in contents.records] == ["m0", "m2"]
+        assert any("record 2 is corrupted" in p for p in contents.problems)
+        assert any("record 4 is truncated" in p for p in contents.problems)
+        state.append({"name": "m4"})  # the torn tail was cut off: appends start clean
+        assert [r["name"] for r in state.read_log().records] == ["m0", "m2", "m4"]
+
+
+def test_a_second_process_is_refused(tmp_path):
+    with StateDir(tmp_path):
+        code = (
+            "import sys; from fgcal.online.state import StateDir\n"
+            "try:\n    StateDir(sys.argv[1]).lock()\nexcept fgcal.InputError as e:\n    print(e); sys.exit(3)\n"
+        )
+        result = subprocess.run(
+            [sys.executable, "-c", "import fgcal\n" + code, str(tmp_path)], capture_output=True, text=True
+        )
+    assert result.returncode == 3 and f"in use by another process (pid {os.getpid()})" in result.stdout
+
+
+@pytest.fixture(scope="module")
+def small_case(tmp_path_factory):
+    root = tmp_path_factory.mktemp("crash")
+    simulate(SEED_CELL, root / "data", seed=4, design="space_filling", n_configurations=40)
+    (root / "setup.yaml").write_text("dataset: data\n")
+    return root
+
+
+def _estimate(state) -> tuple[np.ndarray, np.ndarray]:
+    """Released estimates and sigmas of a state's report."""
+    report = json.loads((state / "report.json").read_text())
+    released = sorted(n for n, e in report["parameters"].items() if e["status"] == "released")
+    entries = [report["parameters"][n] for n in released]
+    return np.array([e["estimate"] for e in entries]), np.array([e["sigma"] for e in entries])
+
+
+def test_sigkill_at_random_points_loses_nothing(small_case, tmp_path):
+    # The uninterrupted run.
+    reference_inbox = tmp_path / "inbox_ref"
+    n = feed_dataset(small_case / "data", reference_inbox, cycle_size=10)
+    service = OnlineService(tmp_path / "state_ref", reference_inbox, small_case / "setup.yaml")
+    service.run(once=True)
+    service.close()
+    expected = _estimate(tmp_path / "state_ref")
+
+    inbox, state = tmp_path / "inbox", tmp_path / "state"
+    feed_dataset(small_case / "data", inbox, cycle_size=10)
+    names = sorted(p.name for p in inbox.glob("*.json"))
+    command = [sys.executable, "-m", "fgcal.cli", "online", "--state", str(state), "--inbox", str(inbox)]
+    command += ["--setup", str(small_case / "setup.yaml"), "--once"]
+    rng = np.random.default_rng(0)
+    progress = []  # records logged when each kill landed
+    for _ in range(6):
+        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(rng.uniform(1.0, 5.0))
+        if process.poll() is None:
+            process.send_signal(signal.SIGKILL)
+            process.wait()
+            log = state / LOG
+            progress.append(log.read_bytes().count(b"\n") if log.exists() else 0)
+    finished = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert finished.returncode == 0, finished.stderr
+    assert any(0 < p < n for p in progress), progress  # some kills landed mid-run
+    with StateDir(state) as locked:
+        logged = [r["name"] for r in locked.read_log().records]
+    assert sorted(logged) == names  # every acknowledged measurement, once
+    assert not list(inbox.glob("*.json"))
+    assert sorted(p.name for p in (state / "processed").iterdir()) == names
+    # The log replays to the same estimate; GTSAM's multithreaded elimination does not sum in
+    # a fixed order, so equal means equal to rounding, here 1e-6 sigma.
+    estimate, sigma = _estimate(state)
+    assert np.all(np.abs(estimate - expected[0]) <= 1e-6 * sigma)
+    assert json.loads((state / "report.json").read_text())["n_images"] == n
+
+
+def test_bad_measurement_files_are_rejected_with_the_reason(small_case, tmp_path):
+    inbox = tmp_path / "inbox"
+    feed_dataset(small_case / "data", inbox, n=3)
+    (inbox / "zz_bad.json").write_text('{"joints": [0, 0, 0], "pixels": {}}')
+    service = OnlineService(tmp_path / "state", inbox, small_case / "setup.yaml")
+    service.run(once=True)
+    service.close()
+    reason = (tmp_path / "state" / "rejected" / "zz_bad.json.error.txt").read_text()
+    assert "joints" in reason and "6 numbers" in reason
+    assert service.calibrator.n_images == 3
+    with pytest.raises(fgcal.InputError, match=r"no config\.yaml"):
+        OnlineService(tmp_path / "other", inbox)
