@@ -80,15 +80,27 @@ def test_sigkill_at_random_points_loses_nothing(small_case, tmp_path):
     command = [sys.executable, "-m", "fgcal.cli", "online", "--state", str(state), "--inbox", str(inbox)]
     command += ["--setup", str(small_case / "setup.yaml"), "--once"]
     rng = np.random.default_rng(0)
+    log = state / LOG
+
+    def logged_count() -> int:
+        return log.read_bytes().count(b"\n") if log.exists() else 0
+
     progress = []  # records logged when each kill landed
-    for _ in range(6):
+    for _ in range(5):
+        if logged_count() >= n - 1:
+            break
+        # Kill once the log reaches a random count, after a random extra moment (so that the
+        # kill lands in the append, the move, the solve or the outputs).
+        target = int(rng.integers(logged_count() + 1, n))
         process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rng.uniform(1.0, 5.0))
+        deadline = time.monotonic() + 120
+        while process.poll() is None and logged_count() < target and time.monotonic() < deadline:
+            time.sleep(0.005)
+        time.sleep(rng.uniform(0.0, 0.03))
         if process.poll() is None:
             process.send_signal(signal.SIGKILL)
             process.wait()
-            log = state / LOG
-            progress.append(log.read_bytes().count(b"\n") if log.exists() else 0)
+            progress.append(logged_count())
     finished = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert finished.returncode == 0, finished.stderr
     assert any(0 < p < n for p in progress), progress  # some kills landed mid-run

@@ -57,7 +57,7 @@ class OnlineSettings:
     drift_sigma_m: float = 1e-6  # per cycle
     drift_sigma_rad: float = 1e-6
     drift_sigma_compliance: float = 1e-10
-    window_images: int = 30
+    window_images: int = 20
     marginalise_every: int = 5  # images leave the window in blocks: fewer, larger reorderings
     alarm_lag_images: int = 5
     alarm_false_rate: float = 1e-3  # per image, over all parameters
