@@ -40,7 +40,7 @@ def plot_sigmas(state: Path, report: dict) -> Path | None:
     bottom.semilogy(images, predicted * 1e3, color="k", label="predicted RMS flange position sigma")
     bottom.axhline(report["stopping_rule"]["target_m"] * 1e3, color="tab:green", ls="--", label="target")
     for alarm in report["alarms"]:
-        bottom.axvline(alarm["image"] + 1, color="tab:red", lw=0.8)
+        bottom.axvline(alarm["image"], color="tab:red", lw=0.8)
     bottom.set_xlabel("image")
     bottom.set_ylabel("mm")
     bottom.legend(fontsize=8)
@@ -63,7 +63,7 @@ def write_final_report(state: Path, report: dict) -> None:
         f"max {accuracy['max_m']:.3e} m ({accuracy['n_configurations']} configurations)",
         f"- stopping rule ({rule['rule']}, target {rule['target_m']:.1e} m): "
         + (f"met at image {rule['met_at_image']}" if rule["met"] else "not met yet"),
-        f"- drift alarms: {len(report['alarms'])} (test: false-alarm rate "
+        f"- drift alarms (images that raised one): {len(report['alarms'])} (test: false-alarm rate "
         f"{report['alarm_test']['false_alarm_rate_per_image']:g} per image, |z| > "
         f"{report['alarm_test']['threshold_z']:.2f}, lag {report['alarm_test']['lag_images']} images)",
     ]
@@ -85,18 +85,12 @@ def write_final_report(state: Path, report: dict) -> None:
                 f"{entry['sigma'] / entry['prior_sigma']:.3g} |"
             )
     if report["alarms"]:
-        lines += [
-            "",
-            "## Drift alarms",
-            "",
-            "| image | file | parameter | z | change | unit |",
-            "|---|---|---|---|---|---|",
-        ]
+        lines += ["", "## Drift alarms", "", "| image | file | parameters (z, change) |", "|---|---|---|"]
         for alarm in report["alarms"]:
-            lines.append(
-                f"| {alarm['image'] + 1} | {alarm['name']} | {alarm['parameter']} | {alarm['z']:+.1f} | "
-                f"{alarm['change']:+.3e} | {alarm['unit']} |"
-            )
+            shown = alarm["parameters"][:6]
+            flagged = "; ".join(f"{p['parameter']} ({p['z']:+.1f}, {p['change']:+.2e} {p['unit']})" for p in shown)
+            more = len(alarm["parameters"]) - len(shown)
+            lines.append(f"| {alarm['image']} | {alarm['name']} | {flagged}{f'; {more} more' if more else ''} |")
     if plot is not None:
         lines += ["", f"![sigmas]({plot.name})"]
     (state / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")

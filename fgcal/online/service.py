@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import fields, replace
 from pathlib import Path
@@ -53,7 +54,7 @@ def load_config(path: Path) -> dict:
     allowed = [f.name for f in fields(OnlineSettings)]
     settings.check_keys(allowed)
     config["settings"] = dict(settings.data)
-    config["target_accuracy_m"] = fields_.number("target_accuracy_m", 1e-5, positive=True)
+    config["target_accuracy_m"] = fields_.number("target_accuracy_m", 5e-5, positive=True)
     return config
 
 
@@ -120,10 +121,9 @@ class OnlineService:
             robot, dataset.camera, points, _settings(self.config, config_path), self.config.get("released")
         )
         self.target_m = float(self.config["target_accuracy_m"])
-        self.history: list[dict] = []
         self.alarms: list[dict] = []
         self.skipped: list[dict] = []
-        self.latencies: list[float] = []
+        self.latencies: deque[float] = deque(maxlen=10000)  # bounded: the last 10000 updates
         self.met_at: int | None = None
         self.logged: set[str] = set()
         self._history_handle = open(self.state.path / "history.csv", "w", encoding="utf-8")  # noqa: SIM115 (kept open for the run)
@@ -186,16 +186,16 @@ class OnlineService:
         predicted = self.predicted_accuracy()
         if self.met_at is None and predicted["rms_m"] <= self.target_m:
             self.met_at = update.n_images
-        for alarm in update.alarms:
+        if update.alarms:
             self.alarms.append(
                 {
-                    "image": alarm.image,
+                    "image": update.n_images,
                     "name": measurement.name,
-                    "parameter": alarm.parameter,
-                    "z": alarm.z,
-                    "change": alarm.change,
-                    "unit": unit_of(alarm.parameter),
-                    "threshold_z": alarm.threshold,
+                    "threshold_z": update.alarms[0].threshold,
+                    "parameters": [
+                        {"parameter": a.parameter, "z": a.z, "change": a.change, "unit": unit_of(a.parameter)}
+                        for a in update.alarms
+                    ],
                 }
             )
         if update.alarms:
