@@ -43,8 +43,9 @@ def test_a_second_process_is_refused(tmp_path):
             "import sys; from fgcal.online.state import StateDir\n"
             "try:\n    StateDir(sys.argv[1]).lock()\nexcept fgcal.InputError as e:\n    print(e); sys.exit(3)\n"
         )
+        # cwd away from the repository: there ``fgcal`` would be the source tree, not the install.
         result = subprocess.run(
-            [sys.executable, "-c", "import fgcal\n" + code, str(tmp_path)], capture_output=True, text=True
+            [sys.executable, "-c", "import fgcal\n" + code, str(tmp_path)], capture_output=True, text=True, cwd=tmp_path
         )
     assert result.returncode == 3 and f"in use by another process (pid {os.getpid()})" in result.stdout
 
@@ -92,7 +93,7 @@ def test_sigkill_at_random_points_loses_nothing(small_case, tmp_path):
         # Kill once the log reaches a random count, after a random extra moment (so that the
         # kill lands in the append, the move, the solve or the outputs).
         target = int(rng.integers(logged_count() + 1, n))
-        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path)
         deadline = time.monotonic() + 120
         while process.poll() is None and logged_count() < target and time.monotonic() < deadline:
             time.sleep(0.005)
@@ -101,7 +102,7 @@ def test_sigkill_at_random_points_loses_nothing(small_case, tmp_path):
             process.send_signal(signal.SIGKILL)
             process.wait()
             progress.append(logged_count())
-    finished = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    finished = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert finished.returncode == 0, finished.stderr
     assert any(0 < p < n for p in progress), progress  # some kills landed mid-run
     with StateDir(state) as locked:
