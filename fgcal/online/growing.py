@@ -23,14 +23,13 @@ class _Row:
 class GrowingKinematics:
     """FK and body Jacobians of ``frame`` for configurations added one at a time.
 
-    Each configuration belongs to a group (the parameter variable of its work cycle). A new
-    configuration's factor is linearised alone (one single-configuration evaluation); when
-    iSAM2 relinearises many kinematic factors of a group at the same parameter values, the
-    first few are computed singly and then every live row of the group at once, vectorised.
-    Rows whose factors have been marginalised are forgotten, so memory stays bounded.
+    Each configuration belongs to a group (the parameter variable of its work cycle). The
+    first request at new parameter values evaluates every live row of the group at once,
+    vectorised: iSAM2 relinearises all the kinematic factors of a parameter variable together.
+    A configuration added later is evaluated alone. Rows whose factors have been marginalised
+    are forgotten, so memory stays bounded.
     """
 
-    BATCH_AFTER = 4
     CACHED_VALUES = 16
 
     def __init__(self, robot: Robot, full_params: np.ndarray, released: list[str], frame: str) -> None:
@@ -42,7 +41,7 @@ class GrowingKinematics:
         self.q: dict[int, np.ndarray] = {}
         self.group: dict[int, int] = {}
         self._next = 0
-        # values bytes -> {"rows": {(row, what): array}, "asked": {group: count}, "batched": set}
+        # values bytes -> {"rows": {(row, what): array}, "batched": groups evaluated whole}
         self._cache: OrderedDict[bytes, dict] = OrderedDict()
 
     @property
@@ -78,13 +77,12 @@ class GrowingKinematics:
         if entry is None:
             if len(self._cache) >= self.CACHED_VALUES:
                 self._cache.popitem(last=False)
-            entry = self._cache[key] = {"rows": {}, "asked": {}, "batched": set()}
+            entry = self._cache[key] = {"rows": {}, "batched": set()}
         rows = entry["rows"]
         if (j, what) not in rows:
             group = self.group[j]
-            entry["asked"][group] = entry["asked"].get(group, 0) + 1
             wanted = [j]
-            if entry["asked"][group] > self.BATCH_AFTER and group not in entry["batched"]:
+            if group not in entry["batched"]:
                 entry["batched"].add(group)
                 wanted = [r for r, g in self.group.items() if g == group and (r, what) not in rows]
             self._evaluate(values, wanted, rows)
