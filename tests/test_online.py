@@ -122,8 +122,17 @@ def test_bad_observations_are_clear_errors(seed1):
     name = measurements[0].pixels[0][0]
     with pytest.raises(fgcal.InputError, match="finite"):
         calibrator.add(q, [(name, np.array([np.nan, 3.0]))])
-    with pytest.raises(fgcal.InputError, match="four points"):
-        calibrator.add(q, list(measurements[0].pixels)[:2])
+
+
+def test_images_before_the_objects_are_placed_wait_for_one_that_places_them(seed1):
+    dataset, points, measurements = seed1
+    calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points)
+    first, second = measurements[0], measurements[1]
+    update = calibrator.add(first.q, list(first.pixels)[:2])  # two points: PnP cannot place the objects
+    assert update.n_images == 0 and update.extra == {"pending_images": 1}
+    assert list(update.sigmas.values()) == calibrator.prior_sigmas.tolist()
+    update = calibrator.add(second.q, list(second.pixels))
+    assert update.n_images == 2 and calibrator.model.q.keys() == {0, 1}
 
 
 def test_an_outlier_pixel_is_gated(seed1):

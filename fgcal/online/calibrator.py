@@ -83,7 +83,7 @@ class OnlineUpdate:
     cycle: int
     params: dict[str, float]  # every parameter of the robot
     sigmas: dict[str, float]  # the released ones
-    fixture_pose: np.ndarray
+    fixture_pose: np.ndarray | None  # T_W_F; None until an image has placed the objects
     alarms: list[Alarm]
     rejected_points: list[str]
     update_s: float
@@ -144,6 +144,7 @@ class OnlineCalibrator:
         self._p = self.start[self.model.index].copy()
         self._sigmas = self.prior_sigmas.copy()
         self._fixture: np.ndarray | None = None
+        self._pending: list[tuple[np.ndarray, list, int | None]] = []
         self.keep_graph = keep_graph
         self.graph = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
@@ -168,20 +169,48 @@ class OnlineCalibrator:
     def add(self, q: np.ndarray, observations: list[tuple[str, np.ndarray]], cycle: int | None = None) -> OnlineUpdate:
         """Fold one image into the estimate: joint angles ``q`` (rad), observations
         ``[(point name, pixel (u, v))]`` and optionally the work-cycle number it was taken
-        in (images of one cycle share a parameter vector)."""
+        in (images of one cycle share a parameter vector).
+
+        Until an image places the calibration objects (PnP needs four points), images are
+        held back and the estimate is the prior; they are folded in, in order, with that
+        image."""
         started = time.perf_counter()
         q = self.robot.check_q(q)[0]
         known = self._check_observations(observations)
-        if cycle is not None and self._cycle_label is not None and cycle < self._cycle_label:
-            raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {self._cycle_label}")
+        latest = next((c for _, _, c in reversed(self._pending) if c is not None), self._cycle_label)
+        if cycle is not None and latest is not None and cycle < latest:
+            raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {latest}")
+        if self._fixture is None:
+            fixture = self._place_fixture(q, known)
+            if fixture is None:
+                self._pending.append((q, known, cycle))
+                return OnlineUpdate(
+                    0,
+                    0,
+                    self.robot.parameter_dict(self.current_params()),
+                    dict(zip(self.released, self.prior_sigmas.tolist(), strict=True)),
+                    None,
+                    [],
+                    [],
+                    time.perf_counter() - started,
+                    {"pending_images": len(self._pending)},
+                )
+            self._fixture = fixture
+            # The placing image first: its points determine the objects' pose in the graph.
+            update = self._fold(q, known, cycle, started)
+            pending, self._pending = self._pending, []
+            for pending_q, pending_known, _ in pending:  # into the placing image's cycle
+                update = self._fold(pending_q, pending_known, None, started)
+            return update
+        return self._fold(q, known, cycle, started)
+
+    def _fold(self, q: np.ndarray, known: list, cycle: int | None, started: float) -> OnlineUpdate:
         new_cycle = self._starts_cycle(cycle)
         row = self.model.add(q, self.cycle + (1 if new_cycle else 0))
         # At the parameters' linearisation point, where the kinematic factor will be
         # linearised: one kinematics evaluation serves both.
         p_lin = self._p if self.n_images == 0 or new_cycle else self._linearization_point()
         T_W_C = self.model.poses(p_lin)[row]
-        if self._fixture is None:
-            self._fixture = self._first_fixture_guess(T_W_C, known)
         kept, rejected = self._gate(T_W_C, known)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         P = params_key(self.cycle)
@@ -286,14 +315,18 @@ class OnlineCalibrator:
         rejected = [name for (name, _), d in zip(known, offset, strict=True) if d > self.settings.outlier_gate_px]
         return kept, rejected
 
-    def _first_fixture_guess(self, T_W_C: np.ndarray, known: list) -> np.ndarray:
-        if len(known) >= 4:
-            T_C_F = solve_pnp(
-                np.array([self.points_F[n] for n, _ in known]), np.array([uv for _, uv in known]), self.camera
-            )
-            if T_C_F is not None:
-                return T_W_C @ T_C_F
-        raise InputError(None, "observations", "the first image needs at least four points to place the objects")
+    def _place_fixture(self, q: np.ndarray, known: list) -> np.ndarray | None:
+        """T_W_F from one image by PnP and the current model, or None (fewer than four
+        points, or PnP failed)."""
+        if len(known) < 4:
+            return None
+        T_C_F = solve_pnp(
+            np.array([self.points_F[n] for n, _ in known]), np.array([uv for _, uv in known]), self.camera
+        )
+        if T_C_F is None:
+            return None
+        T_W_C = self.robot.fk_tool(q[None, :], self.robot.parameter_dict(self.current_params()))[0]
+        return T_W_C @ T_C_F
 
     # -- the estimate ---------------------------------------------------------------------
 

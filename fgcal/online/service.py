@@ -213,6 +213,8 @@ class OnlineService:
         """Predicted flange position sigma (m) at the configurations in the window."""
         cal = self.calibrator
         rows = sorted(cal.model.q)[-cal.settings.window_images :]
+        if not rows:
+            return {"rms_m": float("nan"), "max_m": float("nan"), "n_configurations": 0}
         q = np.array([cal.model.q[r] for r in rows])
         cov = position_covariance(
             cal.robot, cal.current_params(), cal.released, cal.covariance, q, "flange", np.zeros(3)
