@@ -8,6 +8,7 @@ the residual and each Jacobian (shape, finiteness) before handing them to GTSAM,
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import gtsam
@@ -28,8 +29,8 @@ class FactorError(RuntimeError):
 
 
 class CheckedFactor:
-    """Base of fgcal's factors. Subclasses call ``super().__init__`` with their variables
-    ``[(key, kind, dim)]`` and a noise model, and implement :meth:`evaluate`.
+    """Base of fgcal's factors. Subclasses set their state, then call ``super().__init__`` with
+    their variables ``[(key, kind, dim)]`` and a noise model, and implement :meth:`evaluate`.
 
     ``self.factor`` is the ``gtsam.CustomFactor`` to add to a graph; ``self.sigmas`` the
     standard deviations of the residual (before any robust loss), for whitening elsewhere.
@@ -47,7 +48,12 @@ class CheckedFactor:
         if noise.dim() != self.dim:
             raise ValueError(f"{type(self).__name__}: noise model has dimension {noise.dim()}, residual {self.dim}")
         self.keys = [key for key, _, _ in self.variables]
-        self.factor = gtsam.CustomFactor(noise, self.keys, self._callback)
+        # The callback runs on a shallow copy that does not hold ``factor``: a callback bound
+        # to self would close a cycle through C++ (self -> factor -> callback -> self) that
+        # Python's collector cannot see, and every factor would outlive its graph. Subclasses
+        # therefore set their state before calling this constructor.
+        evaluator = copy.copy(self)
+        self.factor = gtsam.CustomFactor(noise, self.keys, evaluator._callback)
 
     def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
         """Residual and, if ``jacobians``, one Jacobian per variable (residual dim x tangent dim)."""

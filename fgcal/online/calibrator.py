@@ -36,6 +36,8 @@ from .growing import GrowingKinematics
 from .released import candidates, structural_identifiability
 
 OBJECT_KEY = gtsam.symbol("o", 0)
+# Marginal factors of departed images are merged into one when there are more than this.
+MERGE_MARGINALS_ABOVE = 4
 
 
 def params_key(cycle: int) -> int:
@@ -145,6 +147,8 @@ class OnlineCalibrator:
         self._sigmas = self.prior_sigmas.copy()
         self._fixture: np.ndarray | None = None
         self._pending: list[tuple[np.ndarray, list, int | None]] = []
+        self._scanned = 0  # factor slots of the smoother already looked at
+        self._marginals: list[int] = []  # slots holding marginal factors
         self.keep_graph = keep_graph
         self.graph = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
@@ -238,6 +242,7 @@ class OnlineCalibrator:
             graph.add(factor.factor)
         stamp = float(row // self.settings.marginalise_every)
         self.smoother.update(graph, values, {P: stamp, OBJECT_KEY: stamp, X: stamp})
+        self._merge_marginals()
         if not self.keep_graph:
             every = self.settings.marginalise_every
             self.model.forget_before((row // every - self.settings.window_images // every) * every)
@@ -272,6 +277,68 @@ class OnlineCalibrator:
         if self.n_images == 0:
             return False
         return bool(self._jump) or (cycle is not None and cycle != self._cycle_label)
+
+    def _merge_marginals(self) -> None:
+        """Merge the marginal factors of the images that left the window.
+
+        Each marginalisation leaves a LinearContainerFactor on the separator (p_c, O); left
+        alone they pile up, and every update would eliminate them all again. Re-expressed at
+        the current linearisation point (which leaves each quadratic as it was), the ones on
+        the same variables are stacked and compressed by QR into one Jacobian factor (a
+        Hessian would do too, but QR elimination needs a Jacobian and a merged marginal may
+        be rank deficient)."""
+        factors = self.smoother.getFactors()
+        for i in range(self._scanned, factors.size()):
+            if isinstance(factors.at(i), gtsam.LinearContainerFactor):
+                self._marginals.append(i)
+        self._scanned = factors.size()
+        # A marginal factor goes away itself when one of its variables is marginalised.
+        self._marginals = [i for i in self._marginals if factors.at(i) is not None]
+        if len(self._marginals) <= MERGE_MARGINALS_ABOVE:
+            return
+        by_keys: dict[tuple[int, ...], list[int]] = {}
+        for i in self._marginals:
+            by_keys.setdefault(tuple(sorted(factors.at(i).keys())), []).append(i)
+        linearization_point = self.smoother.getLinearizationPoint()
+        merged, removed, kept = gtsam.NonlinearFactorGraph(), [], []
+        for keys, slots in by_keys.items():
+            if len(slots) < 2 or len(keys) > 3:  # GTSAM's Python JacobianFactor takes up to 3 keys
+                kept += slots
+                continue
+            merged.add(self._merged_factor(keys, [factors.at(i) for i in slots], linearization_point))
+            removed += slots
+        if removed:
+            self.smoother.update(merged, gtsam.Values(), {}, removed)
+        self._marginals = kept
+
+    @staticmethod
+    def _merged_factor(keys: tuple[int, ...], marginals: list, linearization_point: gtsam.Values):
+        point = gtsam.Values()
+        for key in keys:
+            if key == OBJECT_KEY:
+                point.insert(key, linearization_point.atPose3(key))
+            else:
+                point.insert(key, linearization_point.atVector(key))
+        dims = {key: (6 if key == OBJECT_KEY else len(point.atVector(key))) for key in keys}
+        offsets = dict(zip(keys, np.cumsum([0, *[dims[k] for k in keys]])[:-1].tolist(), strict=True))
+        width = sum(dims.values())
+        blocks = []
+        for marginal in marginals:
+            linear = marginal.linearize(linearization_point)
+            A, b = linear.jacobian()
+            stacked = np.zeros((A.shape[0], width + 1))
+            column = 0
+            for key in linear.keys():  # noqa: SIM118 (a GaussianFactor, not a dict)
+                stacked[:, offsets[key] : offsets[key] + dims[key]] = A[:, column : column + dims[key]]
+                column += dims[key]
+            stacked[:, width] = b
+            blocks.append(stacked)
+        R = np.linalg.qr(np.vstack(blocks), mode="r")
+        arguments = []
+        for key in keys:
+            arguments += [key, R[:, offsets[key] : offsets[key] + dims[key]]]
+        unit = gtsam.noiseModel.Unit.Create(R.shape[0])
+        return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), point)
 
     def image_factors(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> list[CheckedFactor]:
         sigmas = np.full(2, self.settings.pixel_sigma_px)

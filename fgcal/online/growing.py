@@ -59,6 +59,9 @@ class GrowingKinematics:
         """Drop the configurations before ``row`` (their factors are gone)."""
         for old in [r for r in self.q if r < row]:
             del self.q[old], self.group[old]
+        for entry in self._cache.values():
+            for key in [k for k in entry["rows"] if k[0] < row]:
+                del entry["rows"][key]
 
     def full(self, released_values: np.ndarray) -> np.ndarray:
         params = self.base.copy()
@@ -94,5 +97,6 @@ class GrowingKinematics:
         poses = kinematics.frame_pose(self.robot, data, self.frame)
         jacobians = kinematics.jacobian(self.robot, data, self.released, frame=self.frame)
         for i, j in enumerate(wanted):
-            rows[(j, "pose")] = poses[i]
-            rows[(j, "jacobian")] = jacobians[i]
+            # Copies: a view would keep the whole evaluation (every frame of the chain) alive.
+            rows[(j, "pose")] = poses[i].copy()
+            rows[(j, "jacobian")] = jacobians[i].copy()
