@@ -183,7 +183,6 @@ def online_bench(data_dir: Path) -> dict:
     import gtsam
 
     from .online import OnlineCalibrator
-    from .online.calibrator import OBJECT_KEY, params_key, pose_key
     from .online.feed import dataset_measurements
 
     dataset = load_dataset(data_dir)
@@ -191,13 +190,7 @@ def online_bench(data_dir: Path) -> dict:
     measurements = dataset_measurements(data_dir)
     calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points, keep_graph=True)
     latency = np.array([calibrator.add(m.q, list(m.pixels), m.cycle).update_s for m in measurements]) * 1e3
-    start = calibrator.start[calibrator.model.index]
-    initial = gtsam.Values()
-    initial.insert(params_key(0), start)
-    initial.insert(OBJECT_KEY, calibrator.initial.atPose3(OBJECT_KEY))
-    poses = calibrator.model.poses(start)
-    for j in range(len(measurements)):
-        initial.insert(pose_key(j), gtsam.Pose3(poses[j]))
+    initial = calibrator.batch_initial()
     params = gtsam.LevenbergMarquardtParams()
     params.setLinearSolverType("MULTIFRONTAL_QR")
     params.setDiagonalDamping(True)

@@ -11,7 +11,7 @@ from conftest import SEED_CELL
 import fgcal
 from fgcal.dataset import load_dataset
 from fgcal.online import OnlineCalibrator
-from fgcal.online.calibrator import OBJECT_KEY, params_key, pose_key
+from fgcal.online.calibrator import params_key
 from fgcal.online.feed import dataset_measurements
 from fgcal.simulation.simulate import Drift, simulate
 
@@ -52,16 +52,8 @@ def test_online_equals_batch_and_keeps_its_alarm_rate(seed1):
     dataset, points, measurements = seed1
     calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points, keep_graph=True)
     alarmed = run(calibrator, measurements)
-    # The batch solve starts where a batch calibration would: nominal parameters, camera poses
-    # from them, the fixture from the first image's PnP.
-    start = calibrator.start[calibrator.model.index]
-    initial = gtsam.Values()
-    for cycle in range(calibrator.cycle + 1):
-        initial.insert(params_key(cycle), start)
-    initial.insert(OBJECT_KEY, calibrator.initial.atPose3(OBJECT_KEY))
-    poses = calibrator.model.poses(start)
-    for j in range(len(measurements)):
-        initial.insert(pose_key(j), gtsam.Pose3(poses[j]))
+    # The batch solve starts where a batch calibration would (the nominal model).
+    initial = calibrator.batch_initial()
     params = gtsam.LevenbergMarquardtParams()
     params.setLinearSolverType("MULTIFRONTAL_QR")
     params.setDiagonalDamping(True)

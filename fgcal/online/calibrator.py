@@ -397,6 +397,22 @@ class OnlineCalibrator:
 
     # -- the estimate ---------------------------------------------------------------------
 
+    def batch_initial(self) -> gtsam.Values:
+        """Where a batch solve of ``graph`` (``keep_graph``) starts, as a batch calibration
+        would: every parameter vector at the starting model, the camera poses from it, the
+        fixture pose as the first image placed it."""
+        if not self.keep_graph:
+            raise RuntimeError("batch_initial needs keep_graph=True")
+        start = self.start[self.model.index]
+        initial = gtsam.Values()
+        for cycle in range(self.cycle + 1):
+            initial.insert(params_key(cycle), start)
+        initial.insert(OBJECT_KEY, self.initial.atPose3(OBJECT_KEY))
+        poses = self.model.poses(start)
+        for row in sorted(self.model.q):
+            initial.insert(pose_key(row), gtsam.Pose3(poses[row]))
+        return initial
+
     def current_params(self) -> np.ndarray:
         """Every parameter of the robot (SI), the released ones at their current estimate."""
         return self.model.full(self._p)
