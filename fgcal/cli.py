@@ -63,7 +63,10 @@ def cmd_online(args: argparse.Namespace) -> int:
     finally:
         service.close()
     report = service.report()
-    accuracy = report["predicted_accuracy"] or {"rms_m": float("nan")}
+    if not report["n_images"]:
+        print(f"no image folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
+        return 0
+    accuracy = report["predicted_accuracy"]
     print(
         f"{report['n_images']} images; predicted RMS flange sigma {accuracy['rms_m']:.3e} m; "
         f"{len(report['alarms'])} drift alarms; wrote {args.state}/report.json, report.md, calibrated_robot.yaml"

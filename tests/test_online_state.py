@@ -129,3 +129,16 @@ def test_bad_measurement_files_are_rejected_with_the_reason(small_case, tmp_path
     assert service.calibrator.n_images == 3
     with pytest.raises(fgcal.InputError, match=r"no config\.yaml"):
         OnlineService(tmp_path / "other", inbox)
+
+
+def test_a_bad_setup_names_the_field_and_leaves_no_config(small_case, tmp_path):
+    inbox = tmp_path / "inbox"
+    inbox.mkdir()
+    setup = small_case / "bad_setup.yaml"
+    setup.write_text("dataset: data\nsettings: {window_images: 3}\n")
+    with pytest.raises(fgcal.InputError, match=r"bad_setup\.yaml: settings\.window_images: must be at least twice"):
+        OnlineService(tmp_path / "state", inbox, setup)
+    assert not (tmp_path / "state" / "config.yaml").exists()
+    setup.write_text("dataset: data\nsettings: {window_imgs: 30}\n")
+    with pytest.raises(fgcal.InputError, match=r"settings\.window_imgs: unknown field"):
+        OnlineService(tmp_path / "state", inbox, setup)

@@ -105,21 +105,28 @@ class OnlineService:
             raise InputError(self.inbox, None, "inbox directory does not exist")
         config_path = self.state.path / CONFIG
         if setup is not None:
-            config = load_config(Path(setup))
-            if config_path.exists() and yaml.safe_load(config_path.read_text(encoding="utf-8")) != config:
+            self.config = load_config(Path(setup))
+            if config_path.exists() and yaml.safe_load(config_path.read_text(encoding="utf-8")) != self.config:
                 raise InputError(setup, None, f"{self.state.path} was set up differently; use a new state directory")
-            write_atomic(config_path, yaml.safe_dump(config, sort_keys=False).encode("utf-8"))
-        elif not config_path.exists():
+        elif config_path.exists():
+            self.config = yaml.safe_load(config_path.read_text(encoding="utf-8"))
+        else:
             raise InputError(self.state.path, None, "no config.yaml: set the state directory up with --setup FILE")
-        self.config = yaml.safe_load(config_path.read_text(encoding="utf-8"))
         dataset = load_dataset(self.config["dataset"])
         if dataset.camera is None or "points" not in dataset.tables:
             raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
         robot = load_robot(self.config["robot"]) if "robot" in self.config else dataset.robot
         points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
-        self.calibrator = OnlineCalibrator(
-            robot, dataset.camera, points, _settings(self.config, config_path), self.config.get("released")
-        )
+        try:
+            self.calibrator = OnlineCalibrator(
+                robot, dataset.camera, points, _settings(self.config, config_path), self.config.get("released")
+            )
+        except InputError as error:
+            if error.source is not None:
+                raise
+            raise InputError(setup or config_path, f"settings.{error.field}", error.message) from None
+        if not config_path.exists():  # written once the setup has proved usable
+            write_atomic(config_path, yaml.safe_dump(self.config, sort_keys=False).encode("utf-8"))
         self.target_m = float(self.config["target_accuracy_m"])
         self.alarms: list[dict] = []
         self.skipped: list[dict] = []
