@@ -127,6 +127,8 @@ class OnlineCalibrator:
         if released is None:
             found = candidates(robot, s.compliant_joints)
             released = structural_identifiability(robot, self.start, found).identifiable
+        if not released:
+            raise InputError(None, "released", "no parameter to estimate")
         unknown = [n for n in released if n not in robot.parameter_names]
         if unknown:
             raise InputError(None, "released", f"unknown parameter {unknown[0]!r} for {robot.name}")

@@ -23,6 +23,8 @@ from statistics import NormalDist
 
 import numpy as np
 
+from ..errors import InputError
+
 
 @dataclass
 class Alarm:
@@ -38,9 +40,9 @@ class DriftTest:
 
     def __init__(self, names: list[str], drift_variance: np.ndarray, lag: int, false_alarm_rate: float) -> None:
         if lag < 1:
-            raise ValueError("the drift test needs a lag of at least one image")
+            raise InputError(None, "alarm_lag_images", f"must be at least 1, got {lag}")
         if not 0.0 < false_alarm_rate < 1.0:
-            raise ValueError(f"false-alarm rate must be in (0, 1), got {false_alarm_rate}")
+            raise InputError(None, "alarm_false_rate", f"must be in (0, 1), got {false_alarm_rate}")
         self.names = list(names)
         self.drift_variance = np.asarray(drift_variance, dtype=float)
         self.lag = lag

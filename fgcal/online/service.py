@@ -124,7 +124,8 @@ class OnlineService:
         except InputError as error:
             if error.source is not None:
                 raise
-            raise InputError(setup or config_path, f"settings.{error.field}", error.message) from None
+            field_ = error.field if error.field == "released" else f"settings.{error.field}"
+            raise InputError(setup or config_path, field_, error.message) from None
         if not config_path.exists():  # written once the setup has proved usable
             write_atomic(config_path, yaml.safe_dump(self.config, sort_keys=False).encode("utf-8"))
         self.target_m = float(self.config["target_accuracy_m"])
