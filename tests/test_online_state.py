@@ -142,3 +142,23 @@ def test_a_bad_setup_names_the_field_and_leaves_no_config(small_case, tmp_path):
     setup.write_text("dataset: data\nsettings: {window_imgs: 30}\n")
     with pytest.raises(fgcal.InputError, match=r"settings\.window_imgs: unknown field"):
         OnlineService(tmp_path / "state", inbox, setup)
+
+
+def test_a_reused_name_is_rejected_not_lost(small_case, tmp_path):
+    inbox = tmp_path / "inbox"
+    feed_dataset(small_case / "data", inbox, n=5)
+    first = sorted(inbox.glob("*.json"))[0]
+    reused = first.read_text()
+    service = OnlineService(tmp_path / "state", inbox, small_case / "setup.yaml")
+    service.run(once=True)
+    # The same file again (a writer's retry after a crash): moved aside, not counted twice.
+    first.write_text(reused)
+    # Another measurement under a used name: rejected with the reason.
+    other = json.loads(reused)
+    other["joints"][0] += 0.01
+    (inbox / sorted((tmp_path / "state" / "processed").iterdir())[1].name).write_text(json.dumps(other))
+    service.run(once=True)
+    service.close()
+    assert service.calibrator.n_images == 5 and not list(inbox.glob("*.json"))
+    reasons = [p.read_text() for p in (tmp_path / "state" / "rejected").glob("*.error.txt")]
+    assert len(reasons) == 1 and "names must be unique" in reasons[0]

@@ -10,6 +10,7 @@ a restart after a crash continues with every acknowledged measurement.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import time
@@ -30,7 +31,7 @@ from ..robot_io import load_robot, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .measurement import Measurement, parse_measurement, read_measurement
 from .report import write_final_report
-from .state import StateDir, write_atomic
+from .state import StateDir, encode_record, write_atomic
 
 CONFIG = "config.yaml"
 CHECKPOINT_EVERY = 25
@@ -56,6 +57,10 @@ def load_config(path: Path) -> dict:
     config["settings"] = dict(settings.data)
     config["target_accuracy_m"] = fields_.number("target_accuracy_m", 5e-5, positive=True)
     return config
+
+
+def _digest(record: dict) -> bytes:
+    return hashlib.sha256(encode_record(record)).digest()[:16]
 
 
 def _joints(settings: Fields, key: str) -> tuple[int, ...]:
@@ -133,7 +138,7 @@ class OnlineService:
         self.skipped: list[dict] = []
         self.latencies: deque[float] = deque(maxlen=10000)  # bounded: the last 10000 updates
         self.met_at: int | None = None
-        self.logged: set[str] = set()
+        self.logged: dict[str, bytes] = {}  # name -> digest of the logged record
         self._history_handle = open(self.state.path / "history.csv", "w", encoding="utf-8")  # noqa: SIM115 (kept open for the run)
         self._history_handle.write(
             "image,name,cycle,update_ms,predicted_rms_m,alarms,"
@@ -156,7 +161,7 @@ class OnlineService:
             measurement = parse_measurement(
                 record, record.get("name", "?"), self.state.path / "measurements.log", self.calibrator.robot.n_joints
             )
-            self.logged.add(measurement.name)
+            self.logged[measurement.name] = _digest(measurement.to_record())
             self._fold(measurement, replaying=True)
             if checkpoint and checkpoint.get("n_records") == number:
                 self._check_checkpoint(checkpoint)
@@ -234,21 +239,29 @@ class OnlineService:
         """Process every complete file in the inbox; returns how many were new."""
         count = 0
         for path in sorted(self.inbox.glob("*.json")):
-            if path.name in self.logged:  # acknowledged before a crash, not yet moved
-                shutil.move(str(path), self.state.path / "processed" / path.name)
-                continue
             try:
                 measurement = read_measurement(path, self.calibrator.robot.n_joints)
                 unknown = [n for n, _ in measurement.pixels if n not in self.calibrator.points_F]
                 if unknown:
                     raise InputError(path, f"pixels.{unknown[0]}", "unknown calibration point")
+                if path.name in self.logged:
+                    if _digest(measurement.to_record()) == self.logged[path.name]:
+                        # Acknowledged just before a crash, not yet moved aside.
+                        shutil.move(str(path), self.state.path / "processed" / path.name)
+                        continue
+                    raise InputError(
+                        path, None, "an earlier, different measurement has this name: names must be unique"
+                    )
             except InputError as error:
+                if not path.exists():  # taken away by its writer meanwhile
+                    continue
                 self.say(f"rejected {path.name}: {error}")
                 shutil.move(str(path), self.state.path / "rejected" / path.name)
                 (self.state.path / "rejected" / f"{path.name}.error.txt").write_text(str(error) + "\n")
                 continue
-            self.state.append(measurement.to_record())
-            self.logged.add(measurement.name)
+            record = measurement.to_record()
+            self.state.append(record)
+            self.logged[measurement.name] = _digest(record)
             shutil.move(str(path), self.state.path / "processed" / path.name)
             self._fold(measurement)
             count += 1
