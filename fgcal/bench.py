@@ -187,7 +187,7 @@ def online_bench(data_dir: Path) -> dict:
     from .online.feed import dataset_measurements
 
     dataset = load_dataset(data_dir)
-    points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
+    points = dataset.points_F()
     measurements = dataset_measurements(data_dir)
     calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points, keep_graph=True)
     latency = np.array([calibrator.add(m.q, list(m.pixels), m.cycle).update_s for m in measurements]) * 1e3

@@ -94,6 +94,11 @@ class Dataset:
     boards: list = field(default_factory=list)  # fgcal.markers.SideBoard of each marked side
     header: dict = field(default_factory=dict)
 
+    def points_F(self) -> dict[str, np.ndarray]:
+        """Calibration points by name, in the fixture frame (m)."""
+        points = self.tables["points"]
+        return dict(zip(points.ids["point"], points.values, strict=True))
+
     def config_index(self, config_ids: np.ndarray) -> np.ndarray:
         lookup = {c: i for i, c in enumerate(self.configs)}
         return np.array([lookup[c] for c in config_ids], dtype=int)

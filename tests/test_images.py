@@ -41,7 +41,7 @@ def _round_trip(rendered) -> tuple[int, int, int, int]:
     dataset = load_dataset(rendered)
     truth = _truth(rendered)
     T_W_C = dataset.robot.fk_tool(dataset.q, truth["parameters"])
-    points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
+    points = dataset.points_F()
     detector = Detector(dataset.boards, dataset.camera)
     camera = dataset.camera
     visible_total = found_total = markers_visible = markers_found = 0

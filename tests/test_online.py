@@ -19,7 +19,7 @@ from fgcal.simulation.simulate import Drift, simulate
 def simulated_stream(out, seed: int, drift: Drift | None = None, cycle_size: int | None = None):
     simulate(SEED_CELL, out, seed=seed, design="space_filling", n_configurations=300, drift=drift)
     dataset = load_dataset(out)
-    points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
+    points = dataset.points_F()
     return dataset, points, dataset_measurements(out, cycle_size)
 
 
@@ -92,7 +92,7 @@ def drifted(tmp_path_factory):
 @pytest.mark.parametrize("cycle_size", [None, 5], ids=["change_points", "random_walk_cycles"])
 def test_a_link_length_change_is_flagged_and_tracked(drifted, cycle_size):
     dataset = load_dataset(drifted)
-    points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
+    points = dataset.points_F()
     calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points)
     alarmed = run(calibrator, dataset_measurements(drifted, cycle_size))
     assert alarmed and 150 <= alarmed[0] < 160, alarmed

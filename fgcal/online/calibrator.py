@@ -28,7 +28,7 @@ import numpy as np
 from ..camera import Camera, solve_pnp
 from ..errors import InputError
 from ..factors import CheckedFactor, KinematicFactor, ProjectionFactor, RandomWalkFactor, gaussian
-from ..parameters import split_name
+from ..parameters import unit_of
 from ..robot import Robot
 from ..se3 import inverse, transform_points
 from .drift import Alarm, DriftTest
@@ -70,11 +70,8 @@ class OnlineSettings:
     relinearize_pose: float = 1e-4
 
     def by_kind(self, name: str, what: str) -> float:
-        kind, _ = split_name(name)
-        if kind in ("kx", "ky", "kz"):
-            return getattr(self, f"{what}_sigma_compliance")
-        is_length = kind in ("d", "a", "tx", "ty", "tz")
-        return getattr(self, f"{what}_sigma_m" if is_length else f"{what}_sigma_rad")
+        suffix = {"m": "m", "rad": "rad", "rad/(N m)": "compliance"}[unit_of(name)]
+        return getattr(self, f"{what}_sigma_{suffix}")
 
 
 @dataclass

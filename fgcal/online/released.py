@@ -17,7 +17,7 @@ from .. import kinematics
 from ..calibration.identifiability import Identifiability, select
 from ..parameters import split_name
 from ..robot import Robot
-from ..se3 import inverse
+from ..se3 import inverse, skew
 
 # Pose sigma of one image of a few points at working distance (rad, m): the scale at which
 # min_information is judged, as the batch calibration judges it at its measurement sigmas.
@@ -59,11 +59,7 @@ def structural_identifiability(
     adjoint = np.zeros((n_configurations, 6, 6))
     adjoint[:, :3, :3] = rotation
     adjoint[:, 3:, 3:] = rotation
-    skew = np.zeros((n_configurations, 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2] = -translation[:, 2], translation[:, 1]
-    skew[:, 1, 0], skew[:, 1, 2] = translation[:, 2], -translation[:, 0]
-    skew[:, 2, 0], skew[:, 2, 1] = -translation[:, 1], translation[:, 0]
-    adjoint[:, 3:, :3] = skew @ rotation
+    adjoint[:, 3:, :3] = skew(translation) @ rotation
     whiten = 1.0 / np.repeat(IMAGE_POSE_SIGMA, 3)[None, :, None]
     J_p = (whiten * J_body).reshape(-1, len(names))
     J_aux = (whiten * adjoint).reshape(-1, 6)

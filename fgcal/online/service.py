@@ -121,7 +121,7 @@ class OnlineService:
         if dataset.camera is None or "points" not in dataset.tables:
             raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
         robot = load_robot(self.config["robot"]) if "robot" in self.config else dataset.robot
-        points = dict(zip(dataset.tables["points"].ids["point"], dataset.tables["points"].values, strict=True))
+        points = dataset.points_F()
         try:
             self.calibrator = OnlineCalibrator(
                 robot, dataset.camera, points, _settings(self.config, config_path), self.config.get("released")
@@ -138,6 +138,8 @@ class OnlineService:
         self.skipped: list[dict] = []
         self.latencies: deque[float] = deque(maxlen=10000)  # bounded: the last 10000 updates
         self.met_at: int | None = None
+        self.predicted: dict | None = None  # after the last image folded in
+        self._final_at = -1  # n_images when report.md was last written
         self.logged: dict[str, bytes] = {}  # name -> digest of the logged record
         self._history_handle = open(self.state.path / "history.csv", "w", encoding="utf-8")  # noqa: SIM115 (kept open for the run)
         self._history_handle.write(
@@ -196,7 +198,7 @@ class OnlineService:
             return None
         if not replaying:
             self.latencies.append(update.update_s)
-        predicted = self.predicted_accuracy()
+        predicted = self.predicted = self.predicted_accuracy()
         if self.met_at is None and predicted["rms_m"] <= self.target_m:
             self.met_at = update.n_images
         if update.alarms:
@@ -321,7 +323,7 @@ class OnlineService:
             "cycle": cal.cycle,
             "parameters": parameters,
             "prior_dominated": [n for n in cal.released if sigma[n] > 0.5 * prior[n]],
-            "predicted_accuracy": self.predicted_accuracy() if cal.n_images else None,
+            "predicted_accuracy": self.predicted,
             "stopping_rule": {
                 "rule": "predicted RMS flange position sigma over the window's configurations <= target",
                 "target_m": self.target_m,
@@ -362,7 +364,8 @@ class OnlineService:
         write_atomic(self.state.path / "report.json", json.dumps(self.report(), indent=1).encode("utf-8"))
 
     def write_final(self) -> None:
-        if self.calibrator.n_images:
+        if self.calibrator.n_images and self._final_at != self.calibrator.n_images:
+            self._final_at = self.calibrator.n_images
             self._write_outputs()
             write_final_report(self.state.path, self.report())
 
