@@ -160,16 +160,18 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) ->
     return problem
 
 
+def _require_pixels(dataset: Dataset, who: str) -> None:
+    if "pixels" not in dataset.tables or dataset.camera is None:
+        raise InputError(
+            dataset.path / "dataset.yaml", "measured", f"{who} the pixels table and the camera intrinsics (camera:)"
+        )
+
+
 def camera_points_from_pixels(dataset: Dataset) -> Table:
     """3D points in the camera frame from detections: OpenCV solvePnP (IPPE) on each image's
     points with their drawing coordinates, then ``c = T_C_F p_F``, as the seed does. Images
     with fewer than four points are skipped."""
-    if "pixels" not in dataset.tables or dataset.camera is None:
-        raise InputError(
-            dataset.path / "dataset.yaml",
-            "measured",
-            "pairs from pixels need the pixels table and the camera intrinsics (camera:)",
-        )
+    _require_pixels(dataset, "pairs from pixels need")
     points = dataset.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = dataset.tables["pixels"]
@@ -263,12 +265,7 @@ def _build_pairs(problem: Problem) -> None:
 
 def _build_projection(problem: Problem) -> None:
     data = problem.dataset
-    if "pixels" not in data.tables or data.camera is None:
-        raise InputError(
-            data.path / "dataset.yaml",
-            "measured",
-            "the projection formulation needs pixels and the camera's intrinsics (camera:)",
-        )
+    _require_pixels(data, "the projection formulation needs")
     points = data.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["pixels"]
