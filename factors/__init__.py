@@ -1,25 +1,41 @@
 """Custom GTSAM factors of fgcal (installed as ``fgcal.factors``). Every factor derives
-from :class:`CheckedFactor`; its docstring states the residual."""
+from :class:`CheckedFactor`. Measurement factors come from a :class:`MeasurementSet` of their
+kind, whose docstring states the residual; they depend directly on the parameter vector."""
 
-from .base import CheckedFactor, FactorError, gaussian, point_jacobian
-from .kinematic import KinematicFactor
-from .point_pair import PointPairFactor
+from .base import (
+    CheckedFactor,
+    Evaluation,
+    FactorError,
+    MeasurementFactor,
+    MeasurementSet,
+    RobustLoss,
+    gaussian,
+    point_jacobian,
+)
+from .kinematics import Kinematics
+from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
-from .projection import ProjectionFactor, project
-from .tracker import DistanceFactor, PoseFactor, TrackerPointFactor
+from .projection import BehindCameraError, Projections, project
+from .tracker import Distances, Poses, TrackerPoints
 
 __all__ = [
+    "BehindCameraError",
     "CheckedFactor",
-    "DistanceFactor",
+    "Distances",
+    "Evaluation",
     "FactorError",
-    "KinematicFactor",
+    "Kinematics",
+    "MeasurementFactor",
+    "MeasurementSet",
     "ParameterBoundFactor",
-    "PointPairFactor",
-    "PoseFactor",
-    "ProjectionFactor",
+    "PointPairs",
+    "Poses",
+    "Projections",
     "RandomWalkFactor",
-    "TrackerPointFactor",
+    "RobustLoss",
+    "TrackerPoints",
     "gaussian",
+    "helmert",
     "point_jacobian",
     "project",
 ]

@@ -1,15 +1,27 @@
-"""The one checked base of every fgcal factor.
+"""The one checked base of every fgcal factor, and the shared evaluation of measurement factors.
 
 GTSAM's Python ``CustomFactor`` crashes the interpreter when a Jacobian is left unset or has
 the wrong shape. Every factor here derives from :class:`CheckedFactor`, whose callback checks
 the residual and each Jacobian (shape, finiteness) before handing them to GTSAM, and raises
 :class:`FactorError` otherwise. GTSAM propagates that exception to the caller.
+
+Measurement factors depend directly on the parameter vector P and on auxiliary unknowns
+(fixture pose, tracker pose, tool points, intrinsics); the kinematics of every configuration
+comes from one shared, vectorised evaluation. A :class:`MeasurementSet` holds the
+measurements of one kind (all point-pair groups, all images, all tracker configurations),
+computes every residual and Jacobian in one vectorised call, caches it on the variables'
+values, and hands out one :class:`MeasurementFactor` per group, image or configuration, whose
+callback only slices the cached result. A trial step of the optimiser therefore costs one
+vectorised evaluation plus a slice per factor, however many factors there are.
 """
 
 from __future__ import annotations
 
 import copy
+import itertools
+from collections import OrderedDict
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -65,28 +77,8 @@ class CheckedFactor:
     def checked(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
         """:meth:`evaluate` with every output checked; used by the GTSAM callback and by
         analyses that need the Jacobians without GTSAM."""
-        name = type(self).__name__
         residual, blocks = self.evaluate(inputs, jacobians)
-        residual = np.asarray(residual, dtype=float).reshape(-1)
-        if residual.shape != (self.dim,):
-            raise FactorError(f"{name}: residual has shape {residual.shape}, expected ({self.dim},)")
-        if not np.isfinite(residual).all():
-            raise FactorError(f"{name} on keys {self.keys}: non-finite residual {residual}")
-        if not jacobians:
-            return residual, []
-        if len(blocks) != len(self.variables):
-            raise FactorError(f"{name}: {len(blocks)} Jacobians for {len(self.variables)} variables")
-        checked = []
-        for block, (key, kind, dim) in zip(blocks, self.variables, strict=True):
-            block = np.asarray(block, dtype=float)
-            if block.shape != (self.dim, dim):
-                raise FactorError(
-                    f"{name}: Jacobian for key {key} ({kind}) has shape {block.shape}, expected ({self.dim}, {dim})"
-                )
-            if not np.isfinite(block).all():
-                raise FactorError(f"{name} on keys {self.keys}: non-finite Jacobian")
-            checked.append(block)
-        return residual, checked
+        return check_outputs(self, residual, blocks, self.dim, jacobians)
 
     def _callback(self, _this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         residual, blocks = self.checked(self.read(values), H is not None)
@@ -96,26 +88,242 @@ class CheckedFactor:
         return residual
 
 
+def check_outputs(owner, residual, blocks: list, dim: int, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The residual as a (dim,) array and, with ``jacobians``, one (dim, tangent dim) block
+    per variable of ``owner`` (a factor or a measurement set), all finite; FactorError
+    otherwise, before anything reaches GTSAM."""
+    name = type(owner).__name__
+    residual = np.asarray(residual, dtype=float).reshape(-1)
+    if residual.shape != (dim,):
+        raise FactorError(f"{name}: residual has shape {residual.shape}, expected ({dim},)")
+    if not np.isfinite(residual).all():
+        raise FactorError(f"{name} on keys {[v[0] for v in owner.variables]}: non-finite residual {residual}")
+    if not jacobians:
+        return residual, []
+    if len(blocks) != len(owner.variables):
+        raise FactorError(f"{name}: {len(blocks)} Jacobians for {len(owner.variables)} variables")
+    checked = []
+    for block, (key, kind, width) in zip(blocks, owner.variables, strict=True):
+        block = np.asarray(block, dtype=float)
+        if block.shape != (dim, width):
+            raise FactorError(
+                f"{name}: Jacobian for key {key} ({kind}) has shape {block.shape}, expected ({dim}, {width})"
+            )
+        if not np.isfinite(block).all():
+            raise FactorError(f"{name} on keys {[v[0] for v in owner.variables]}: non-finite Jacobian")
+        checked.append(block)
+    return residual, checked
+
+
 def point_jacobian(rotation: np.ndarray, point_local: np.ndarray) -> np.ndarray:
-    """d (T p) / d xi for the body perturbation ``T Exp(xi)``, xi = [omega, v]: ``[-R [p]x, R]``."""
-    skew = np.array(
-        [
-            [0.0, -point_local[2], point_local[1]],
-            [point_local[2], 0.0, -point_local[0]],
-            [-point_local[1], point_local[0], 0.0],
-        ]
-    )
-    return np.hstack([-rotation @ skew, rotation])
+    """d (T p) / d xi for the body perturbation ``T Exp(xi)``, xi = [omega, v]: ``[-R [p]x, R]``.
+
+    Stacked: ``rotation`` (..., 3, 3) and ``point_local`` (..., 3) give (..., 3, 6).
+    """
+    rotation = np.asarray(rotation, dtype=float)
+    left = -rotation @ skew(point_local)
+    return np.concatenate([left, np.broadcast_to(rotation, left.shape)], axis=-1)
 
 
-def gaussian(sigmas: np.ndarray, robust: tuple[str, float] | None = None) -> gtsam.noiseModel.Base:
-    """Diagonal Gaussian noise, optionally wrapped in a Huber or Cauchy loss with threshold k
-    (in units of sigma)."""
-    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
-    if robust is None:
-        return base
-    kind, threshold = robust
-    estimators = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
-    if kind not in estimators:
-        raise ValueError(f"unknown robust loss {kind!r} (huber, cauchy)")
-    return gtsam.noiseModel.Robust.Create(estimators[kind].Create(threshold), base)
+def skew(w: np.ndarray) -> np.ndarray:
+    """``[w]x`` for ``w`` of shape (..., 3)."""
+    w = np.asarray(w, dtype=float)
+    out = np.zeros((*w.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
+    return out
+
+
+def gaussian(sigmas: np.ndarray) -> gtsam.noiseModel.Base:
+    """Diagonal Gaussian noise with these standard deviations."""
+    return gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+
+
+# -- robust losses inside a factor ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RobustLoss:
+    """A Huber or Cauchy loss rho(s) on the whitened norm s of each robust unit (one
+    observation: a pixel, a tracker point; or a whole point-pair group), threshold ``k`` in
+    sigmas.
+
+    It is applied inside the factor, per unit, as a reweighted least-squares residual
+    ``r' = phi(s) r / s`` with ``phi = sqrt(2 rho(s))``, so that ``|r'|^2 / 2 = rho(s)``, and
+    its exact Jacobian ``J' = (phi/s)(I - u u^T) J + phi' u u^T J`` (u = r/s). Gauss-Newton on
+    r' then has the gradient of sum rho, so it converges to the M-estimate, and GTSAM's
+    error is the robust cost. (GTSAM's own robust noise models act on a whole factor, and a
+    factor here carries many observations.)
+    """
+
+    kind: str
+    k: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("huber", "cauchy"):
+            raise ValueError(f"unknown robust loss {self.kind!r} (huber, cauchy)")
+        if not self.k > 0:
+            raise ValueError(f"robust threshold must be positive, got {self.k}")
+
+    def phi(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """sqrt(2 rho(s)) and its derivative, for norms s >= 0."""
+        k = self.k
+        if self.kind == "huber":
+            inside = s <= k
+            rho = np.where(inside, 0.5 * s * s, k * s - 0.5 * k * k)
+            d_rho = np.where(inside, s, k)
+        else:
+            rho = 0.5 * k * k * np.log1p((s / k) ** 2)
+            d_rho = s / (1.0 + (s / k) ** 2)
+        phi = np.sqrt(2.0 * rho)
+        d_phi = np.where(phi > 0, d_rho / np.where(phi > 0, phi, 1.0), 1.0)
+        return phi, d_phi
+
+    def apply(
+        self, residual: np.ndarray, jacobian: np.ndarray | None, starts: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Transform whitened rows (R,) and their Jacobian (R, C); units are the contiguous
+        row ranges beginning at ``starts``."""
+        lengths = np.diff(np.append(starts, len(residual)))
+        s = np.sqrt(np.add.reduceat(residual**2, starts))
+        phi, d_phi = self.phi(s)
+        tiny = s < 1e-12  # rho ~ s^2/2 there: r' = r
+        ratio = np.where(tiny, 1.0, phi / np.where(tiny, 1.0, s))
+        out = residual * np.repeat(ratio, lengths)
+        if jacobian is None:
+            return out, None
+        u = residual / np.repeat(np.where(tiny, 1.0, s), lengths)
+        u_J = np.add.reduceat(u[:, None] * jacobian, starts, axis=0)  # (U, C): u^T J per unit
+        extra = np.where(tiny, 0.0, d_phi - ratio)
+        return out, jacobian * np.repeat(ratio, lengths)[:, None] + (u * np.repeat(extra, lengths))[:, None] * (
+            np.repeat(u_J, lengths, axis=0)
+        )
+
+
+# -- measurement sets: many factors of one kind, evaluated at once ---------------------------
+
+
+@dataclass
+class Evaluation:
+    """Rows of every measurement of a set: residual (R,) and one Jacobian (R, dim) per
+    variable of the set."""
+
+    residual: np.ndarray
+    blocks: list[np.ndarray]
+
+
+class MeasurementSet:
+    """Measurements of one kind evaluated in one vectorised call (see the module docstring).
+
+    Subclasses set ``self.variables`` ([(key, kind, dim)], shared by all their factors),
+    ``self.sigma`` (R,) per row, ``self.factor_starts`` (first row of each factor) and
+    ``self.unit_starts`` (first row of each robust unit, i.e. each observation), then call
+    ``super().__init__``, and implement :meth:`compute`. A unit never spans two factors.
+    """
+
+    CACHED = 4  # an optimiser alternates between a few points (current, trial)
+
+    variables: list[tuple[int, str, int]]
+    sigma: np.ndarray
+    factor_starts: np.ndarray
+    unit_starts: np.ndarray
+
+    def __init__(self, robust: RobustLoss | None = None) -> None:
+        self.variables = [(key, kind, dim if dim is not None else _DIMS[kind]) for key, kind, dim in self.variables]
+        if not self.variables:
+            raise ValueError(f"{type(self).__name__}: no variable to estimate")
+        self.robust = robust
+        self.n_rows = len(self.sigma)
+        self.factor_ends = np.append(self.factor_starts[1:], self.n_rows)
+        if np.any(self.factor_ends <= self.factor_starts):
+            raise ValueError(f"{type(self).__name__}: a factor without rows")
+        self._cache: OrderedDict[bytes, dict] = OrderedDict()
+
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        """Residuals (and Jacobians) of every row at the variables' values ``inputs``."""
+        raise NotImplementedError
+
+    @property
+    def n_factors(self) -> int:
+        return len(self.factor_starts)
+
+    def factors(self) -> list[MeasurementFactor]:
+        """One GTSAM factor per group of rows (a point-pair group, an image, a configuration)."""
+        return [MeasurementFactor(self, i) for i in range(self.n_factors)]
+
+    def read(self, values: gtsam.Values) -> list:
+        return [_GETTERS[kind](values, key) for key, kind, _ in self.variables]
+
+    def whitened(self, inputs: list, jacobians: bool, robust: bool = True) -> Evaluation:
+        """Rows divided by their sigma, then (if ``robust`` and the set has a loss) passed
+        through the robust loss; cached on the inputs' values."""
+        key = b"".join(_bytes(value) for value in inputs)
+        entry = self._cache.get(key)
+        if entry is None:
+            if len(self._cache) >= self.CACHED:
+                self._cache.popitem(last=False)
+            entry = self._cache[key] = {}
+        kind = "robust" if robust and self.robust is not None else "plain"
+        for have in ((kind, True), (kind, jacobians)):  # one with Jacobians serves both
+            if have in entry:
+                return entry[have]
+        raw = entry.get(("raw", True)) or entry.get(("raw", jacobians))
+        if raw is None:
+            computed = self.compute(inputs, jacobians)
+            # Checked once for all the set's factors, which then only slice it.
+            residual, blocks = check_outputs(self, computed.residual, computed.blocks, self.n_rows, jacobians)
+            raw = entry[("raw", jacobians)] = Evaluation(residual, blocks)
+        scale = 1.0 / self.sigma
+        residual = raw.residual * scale
+        stacked = np.hstack([b * scale[:, None] for b in raw.blocks]) if jacobians else None
+        if kind == "robust":
+            residual, stacked = self.robust.apply(residual, stacked, self.unit_starts)
+        blocks = []
+        if jacobians:
+            edges = np.cumsum([0, *[dim for _, _, dim in self.variables]])
+            blocks = [stacked[:, a:b] for a, b in itertools.pairwise(edges)]
+        entry[(kind, jacobians)] = Evaluation(residual, blocks)
+        return entry[(kind, jacobians)]
+
+    def unit_norms(self, values: gtsam.Values) -> np.ndarray:
+        """Whitened norm of each robust unit (observation), without the robust loss."""
+        residual = self.whitened(self.read(values), False, robust=False).residual
+        return np.sqrt(np.add.reduceat(residual**2, self.unit_starts))
+
+    def raw_residual(self, values: gtsam.Values) -> np.ndarray:
+        return self.whitened(self.read(values), False, robust=False).residual * self.sigma
+
+    def slice(self, evaluation: Evaluation, i: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        rows = slice(int(self.factor_starts[i]), int(self.factor_ends[i]))
+        return evaluation.residual[rows], [block[rows] for block in evaluation.blocks]
+
+
+class MeasurementFactor(CheckedFactor):
+    """Factor ``i`` of a :class:`MeasurementSet`: its rows of the set's whitened (and robust)
+    residual ``r_i(P, aux) / sigma``; the set's docstring states r."""
+
+    def __init__(self, measurements: MeasurementSet, i: int) -> None:
+        self.measurements = measurements
+        self.i = i
+        rows = int(measurements.factor_ends[i] - measurements.factor_starts[i])
+        super().__init__(measurements.variables, gtsam.noiseModel.Unit.Create(rows), np.ones(rows))
+
+    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
+        return self.measurements.slice(self.measurements.whitened(inputs, jacobians), self.i)
+
+    def checked(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
+        # The set checked the whole evaluation (shapes, finiteness; the robust loss keeps
+        # both), and the slices have this factor's rows and the variables' widths.
+        return self.evaluate(inputs, jacobians)
+
+
+def _bytes(value) -> bytes:
+    if isinstance(value, np.ndarray):
+        return value.tobytes()
+    return np.asarray(value.matrix()).tobytes()
+
+
+def row_starts(counts: Sequence[int]) -> np.ndarray:
+    """First row of each of consecutive blocks of ``counts`` rows."""
+    return np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)

@@ -1,11 +1,14 @@
-"""Point-pair factor of the seed's relative formulation (SPEC section 4, eq. 3)."""
+"""Point-pair factors of the seed's relative formulation (SPEC section 4, eq. 3)."""
 
 from __future__ import annotations
 
-import gtsam
-import numpy as np
+from collections.abc import Sequence
 
-from .base import CheckedFactor
+import numpy as np
+import scipy.sparse
+
+from .base import Evaluation, MeasurementSet, RobustLoss, row_starts, skew
+from .kinematics import Kinematics, params_variable
 
 
 def helmert(count: int) -> np.ndarray:
@@ -23,69 +26,73 @@ def helmert(count: int) -> np.ndarray:
     return rows
 
 
-class PointPairFactor(CheckedFactor):
-    """``r = H (X_j(o) c_o - R_W_F p_o)`` over the observations o of a group  (m).
+class PointPairs(MeasurementSet):
+    """``r_g = H_g (X(P, q_j(o)) c_o - R_W_F p_o)`` over the observations o of group g  (m).
 
-    Observation o: point with drawing coordinates ``p_o`` (fixture frame F) measured at
-    ``c_o`` in the camera frame of configuration j(o). H holds the orthonormal contrasts
-    (:func:`helmert`): each row is a combination of the seed's point-pair residuals
-    ``X_j c_u - X_k c_v + R_W_F (p_V - p_U)`` (eq. 3; row 0 is the pair of the first two
-    observations over sqrt 2), and together they carry every point pair of the group. With
-    independent measurement noise sigma per coordinate the rows have covariance sigma^2 I
-    exactly, however many pairs share an observation. The unknown common position of the
-    points (the base) cancels. ``R_W_F`` is a constant or, with ``fixture_key``, a Rot3
-    variable.
+    Observation o: a point with drawing coordinates ``p_o`` (fixture frame F) measured at
+    ``c_o`` in the camera frame at configuration j(o); X(P, q) is the camera pose from the
+    kinematics. ``H_g`` holds orthonormal contrasts (:func:`helmert`): each row is a
+    combination of the seed's point-pair residuals ``X_j c_u - X_k c_v + R_W_F (p_V - p_U)``
+    (eq. 3; row 0 is the pair of the first two observations over sqrt 2), and together they
+    carry every point pair of the group. With independent noise sigma per coordinate the
+    rows have covariance sigma^2 I exactly, however many pairs share an observation. The
+    unknown common position of the points (the base) cancels. ``R_W_F`` is a constant or,
+    with ``fixture_key``, a Rot3 variable. One factor per group; the robust unit is the group.
+
+    ``groups``: per group, (configuration index of each observation (O,), c (O, 3), p_F (O, 3)).
     """
 
     def __init__(
         self,
-        pose_keys: list[int],
-        owner: np.ndarray,
-        c: np.ndarray,
-        p_F: np.ndarray,
-        noise: gtsam.noiseModel.Base,
-        sigmas: np.ndarray,
+        kinematics: Kinematics,
+        params_key: int | None,
+        groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+        sigma_m: float,
         fixture_key: int | None = None,
         fixture_rotation: np.ndarray | None = None,
+        robust: RobustLoss | None = None,
     ) -> None:
-        self.owner = np.asarray(owner, dtype=int)  # observation -> index into pose_keys
-        self.c = np.asarray(c, dtype=float).reshape(-1, 3)
-        self.p_F = np.asarray(p_F, dtype=float).reshape(-1, 3)
-        if len(self.c) < 2 or not len(self.c) == len(self.p_F) == len(self.owner):
-            raise ValueError("a point-pair factor needs at least two observations, each with a drawing point")
-        self.contrasts = helmert(len(self.c))
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.configs = np.concatenate([np.asarray(g[0], dtype=int) for g in groups])
+        self.c = np.concatenate([np.asarray(g[1], dtype=float).reshape(-1, 3) for g in groups])
+        self.p_F = np.concatenate([np.asarray(g[2], dtype=float).reshape(-1, 3) for g in groups])
+        sizes = [len(g[0]) for g in groups]
+        if min(sizes) < 2 or not len(self.configs) == len(self.c) == len(self.p_F):
+            raise ValueError("a point-pair group needs at least two observations, each with a drawing point")
+        self.contrasts = scipy.sparse.block_diag([helmert(n) for n in sizes], format="csr")
         self.fixture_rotation = np.eye(3) if fixture_rotation is None else np.asarray(fixture_rotation, float)
         self.estimate_fixture = fixture_key is not None
-        variables = [(key, "pose3", None) for key in pose_keys]
+        self.variables = params_variable(params_key, kinematics)
         if fixture_key is not None:
-            variables.append((fixture_key, "rot3", None))
-        super().__init__(variables, noise, sigmas)
+            self.variables.append((fixture_key, "rot3", None))
+        self.sigma = np.full(3 * sum(n - 1 for n in sizes), float(sigma_m))
+        self.factor_starts = row_starts([3 * (n - 1) for n in sizes])
+        self.unit_starts = self.factor_starts
+        super().__init__(robust)
 
-    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        n_poses = len(inputs) - (1 if self.estimate_fixture else 0)
-        poses = [inputs[i].matrix() for i in range(n_poses)]
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        released = self.params_key is not None
+        params = inputs[0] if released else None
         R_W_F = inputs[-1].matrix() if self.estimate_fixture else self.fixture_rotation
-        rotations = np.array([T[:3, :3] for T in poses])[self.owner]
-        translations = np.array([T[:3, 3] for T in poses])[self.owner]
-        world = np.einsum("oij,oj->oi", rotations, self.c) + translations - self.p_F @ R_W_F.T
-        residual = (self.contrasts @ world).reshape(-1)
+        T = self.kinematics.poses(params)[self.configs]
+        R = T[:, :3, :3]
+        world = np.einsum("oij,oj->oi", R, self.c) + T[:, :3, 3] - self.p_F @ R_W_F.T
+        residual = np.asarray(self.contrasts @ world).reshape(-1)
         if not jacobians:
-            return residual, []
-        # d world_o / d xi of its pose = [-R [c_o]x, R]; a pose's block sums its observations
-        # through the contrasts.
-        skew = np.zeros((len(self.c), 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -self.c[:, 2], self.c[:, 1], -self.c[:, 0]
-        skew -= np.swapaxes(skew, 1, 2)
-        per_obs = np.concatenate([-rotations @ skew, rotations], axis=2)  # (O, 3, 6)
-        rows = self.contrasts.shape[0]
+            return Evaluation(residual, [])
         blocks = []
-        for i in range(n_poses):
-            mine = self.owner == i
-            blocks.append(np.einsum("ro,oab->rab", self.contrasts[:, mine], per_obs[mine]).reshape(3 * rows, 6))
+        if released:
+            # d world_o / dP = [-R [c_o]x, R] J_j
+            J = self.kinematics.jacobians(params)[self.configs]  # (O, 6, m)
+            per_obs = np.matmul(-R @ skew(self.c), J[:, :3]) + np.matmul(R, J[:, 3:])
+            blocks.append(self._contrast(per_obs))
         if self.estimate_fixture:
             # d(-R Exp(w) p)/dw = R [p]x
-            skew_p = np.zeros((len(self.p_F), 3, 3))
-            skew_p[:, 0, 1], skew_p[:, 0, 2], skew_p[:, 1, 2] = -self.p_F[:, 2], self.p_F[:, 1], -self.p_F[:, 0]
-            skew_p -= np.swapaxes(skew_p, 1, 2)
-            blocks.append(np.einsum("ro,oab->rab", self.contrasts, R_W_F @ skew_p).reshape(3 * rows, 3))
-        return residual, blocks
+            blocks.append(self._contrast(R_W_F @ skew(self.p_F)))
+        return Evaluation(residual, blocks)
+
+    def _contrast(self, per_obs: np.ndarray) -> np.ndarray:
+        """(O, 3, c) per observation -> (rows, c) through the contrasts."""
+        n_obs, _, cols = per_obs.shape
+        return np.asarray(self.contrasts @ per_obs.reshape(n_obs, 3 * cols)).reshape(-1, cols)

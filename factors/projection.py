@@ -1,121 +1,166 @@
-"""Camera projection factor with OpenCV's full pinhole model (SPEC section 4)."""
+"""Camera projection factors with OpenCV's full pinhole model (SPEC section 4)."""
 
 from __future__ import annotations
 
-import gtsam
 import numpy as np
 
-from .base import CheckedFactor
+from .base import Evaluation, MeasurementSet, RobustLoss, row_starts, skew
+from .kinematics import Kinematics, params_variable
 
 
 def project(intrinsics: np.ndarray, p_C: np.ndarray, jacobians: bool = False):
-    """OpenCV projection of a camera-frame point (m) to pixels (px).
+    """OpenCV projection of camera-frame points (..., 3) (m) to pixels (..., 2) (px).
 
     ``intrinsics`` = (fx, fy, cx, cy, k1, k2, p1, p2, k3). With ``jacobians``, also returns
-    d pixel / d p_C (2x3) and d pixel / d intrinsics (2x9).
+    d pixel / d p_C (..., 2, 3) and d pixel / d intrinsics (..., 2, 9).
     """
-    fx, fy, cx, cy, k1, k2, p1, p2, k3 = intrinsics
-    x, y, z = p_C
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = np.asarray(intrinsics, dtype=float)
+    p_C = np.asarray(p_C, dtype=float)
+    x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
     xn, yn = x / z, y / z
     r2 = xn * xn + yn * yn
     radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
     xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
     yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-    pixel = np.array([fx * xd + cx, fy * yd + cy])
+    pixel = np.stack([fx * xd + cx, fy * yd + cy], axis=-1)
     if not jacobians:
         return pixel
     d_radial = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r2 * r2  # d radial / d r2
     # d(xd, yd) / d(xn, yn)
     dxd_dxn = radial + 2.0 * xn * xn * d_radial + 2.0 * p1 * yn + 6.0 * p2 * xn
     dxd_dyn = 2.0 * xn * yn * d_radial + 2.0 * p1 * xn + 2.0 * p2 * yn
-    dyd_dxn = 2.0 * xn * yn * d_radial + 2.0 * p1 * xn + 2.0 * p2 * yn
+    dyd_dxn = dxd_dyn
     dyd_dyn = radial + 2.0 * yn * yn * d_radial + 6.0 * p1 * yn + 2.0 * p2 * xn
-    d_pixel_d_normalised = np.array([[fx * dxd_dxn, fx * dxd_dyn], [fy * dyd_dxn, fy * dyd_dyn]])
-    d_normalised_d_point = np.array([[1.0 / z, 0.0, -x / (z * z)], [0.0, 1.0 / z, -y / (z * z)]])
-    d_point = d_pixel_d_normalised @ d_normalised_d_point
-    d_intrinsics = np.array(
+    zero, inv_z = np.zeros_like(z), 1.0 / z
+    # d pixel / d p_C = d pixel / d normalised  @  d normalised / d p_C
+    a, b, c, d = fx * dxd_dxn, fx * dxd_dyn, fy * dyd_dxn, fy * dyd_dyn
+    d_point = np.stack(
         [
-            [
-                xd,
-                0.0,
-                1.0,
-                0.0,
-                fx * xn * r2,
-                fx * xn * r2 * r2,
-                fx * 2.0 * xn * yn,
-                fx * (r2 + 2.0 * xn * xn),
-                fx * xn * r2**3,
-            ],
-            [
-                0.0,
-                yd,
-                0.0,
-                1.0,
-                fy * yn * r2,
-                fy * yn * r2 * r2,
-                fy * (r2 + 2.0 * yn * yn),
-                fy * 2.0 * xn * yn,
-                fy * yn * r2**3,
-            ],
-        ]
+            np.stack([a * inv_z, b * inv_z, -(a * xn + b * yn) * inv_z], axis=-1),
+            np.stack([c * inv_z, d * inv_z, -(c * xn + d * yn) * inv_z], axis=-1),
+        ],
+        axis=-2,
+    )
+    one = np.ones_like(z)
+    r4 = r2 * r2
+    d_intrinsics = np.stack(
+        [
+            np.stack(
+                [
+                    xd,
+                    zero,
+                    one,
+                    zero,
+                    fx * xn * r2,
+                    fx * xn * r4,
+                    fx * 2.0 * xn * yn,
+                    fx * (r2 + 2.0 * xn * xn),
+                    fx * xn * r4 * r2,
+                ],
+                axis=-1,
+            ),
+            np.stack(
+                [
+                    zero,
+                    yd,
+                    zero,
+                    one,
+                    fy * yn * r2,
+                    fy * yn * r4,
+                    fy * (r2 + 2.0 * yn * yn),
+                    fy * 2.0 * xn * yn,
+                    fy * yn * r4 * r2,
+                ],
+                axis=-1,
+            ),
+        ],
+        axis=-2,
     )
     return pixel, d_point, d_intrinsics
 
 
-class ProjectionFactor(CheckedFactor):
-    """``r = project(K, dist, X_j^-1 O p_O) - z``  (px).
+class BehindCameraError(ValueError):
+    """A point projects from behind the camera: the estimate is far off."""
 
-    A point ``p_O`` known in the object (or fixture) frame O, seen at pixel z by the camera
-    at configuration j. ``X_j`` is the camera pose variable (T_W_C), ``O`` the object pose
-    variable (T_W_O). The intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) are a constant or,
-    with ``intrinsics_key``, a 9-vector variable. Distortion follows OpenCV exactly,
-    k3 included (GTSAM's Cal3DS2 has no k3).
+
+class Projections(MeasurementSet):
+    """``r_o = project(K, dist, X(P, q_j)^-1 O p_o) - z_o``  (px), one factor per image j.
+
+    A point ``p_o`` known in the object (fixture) frame O is seen at pixel ``z_o`` by the
+    camera at configuration j, whose pose X (T_W_C) comes from the kinematics. ``O`` (T_W_O)
+    is a Pose3 variable; the intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) a constant or,
+    with ``intrinsics_key``, a 9-vector variable. Distortion follows OpenCV exactly, k3
+    included (GTSAM's Cal3DS2 has no k3). The robust unit is one pixel observation.
+
+    ``configs`` (O,): configuration index of each observation, grouped by image.
     """
 
     def __init__(
         self,
-        pose_key: int,
+        kinematics: Kinematics,
+        params_key: int | None,
         object_key: int,
-        point_O: np.ndarray,
-        measured: np.ndarray,
-        noise: gtsam.noiseModel.Base,
-        sigmas: np.ndarray,
+        configs: np.ndarray,
+        points_O: np.ndarray,
+        measured_px: np.ndarray,
+        sigma_px: float,
         intrinsics: np.ndarray | None = None,
         intrinsics_key: int | None = None,
+        robust: RobustLoss | None = None,
     ) -> None:
         if (intrinsics is None) == (intrinsics_key is None):
             raise ValueError("give either constant intrinsics or an intrinsics variable key")
-        self.point_O = np.asarray(point_O, dtype=float)
-        self.measured = np.asarray(measured, dtype=float)
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.configs = np.asarray(configs, dtype=int)
+        self.points_O = np.asarray(points_O, dtype=float).reshape(-1, 3)
+        self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
+        if not len(self.configs) == len(self.points_O) == len(self.measured) or not len(self.configs):
+            raise ValueError("one configuration, point and pixel per observation, at least one")
+        starts = np.flatnonzero(np.r_[True, self.configs[1:] != self.configs[:-1]])
+        if len(starts) != len(np.unique(self.configs)):
+            raise ValueError("the observations of an image must be consecutive")
         self.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
-        variables = [(pose_key, "pose3", None), (object_key, "pose3", None)]
+        self.variables = [*params_variable(params_key, kinematics), (object_key, "pose3", None)]
         if intrinsics_key is not None:
-            variables.append((intrinsics_key, "vector", 9))
-        super().__init__(variables, noise, sigmas)
+            self.variables.append((intrinsics_key, "vector", 9))
+        self.sigma = np.full(2 * len(self.configs), float(sigma_px))
+        self.factor_starts = 2 * starts
+        self.unit_starts = row_starts([2] * len(self.configs))
+        super().__init__(robust)
 
-    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        pose, obj = inputs[0].matrix(), inputs[1].matrix()
-        intrinsics = np.asarray(inputs[2], dtype=float) if self.intrinsics is None else self.intrinsics
-        R_X, R_O = pose[:3, :3], obj[:3, :3]
-        p_W = R_O @ self.point_O + obj[:3, 3]
-        p_C = R_X.T @ (p_W - pose[:3, 3])
-        if p_C[2] <= 1e-6:
-            raise ValueError(f"point behind the camera (depth {p_C[2]:.3g} m): the pose estimate is far off")
+    def camera_points(self, inputs: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Camera poses (O, 4, 4), the object pose, its points in W and in the camera (O, 3)."""
+        params = inputs[0] if self.params_key is not None else None
+        T_W_O = inputs[1 if self.params_key is not None else 0].matrix()
+        T_W_C = self.kinematics.poses(params)[self.configs]
+        p_W = self.points_O @ T_W_O[:3, :3].T + T_W_O[:3, 3]
+        p_C = np.einsum("oji,oj->oi", T_W_C[:, :3, :3], p_W - T_W_C[:, :3, 3])
+        return T_W_C, T_W_O, p_W, p_C
+
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        intrinsics = np.asarray(inputs[-1], dtype=float) if self.intrinsics is None else self.intrinsics
+        T_W_C, T_W_O, _, p_C = self.camera_points(inputs)
+        if np.any(p_C[:, 2] <= 1e-6):
+            worst = int(np.argmin(p_C[:, 2]))
+            raise BehindCameraError(
+                f"point behind the camera (depth {p_C[worst, 2]:.3g} m at configuration {self.configs[worst]}): "
+                "the pose estimate is far off"
+            )
         if not jacobians:
-            return project(intrinsics, p_C) - self.measured, []
+            return Evaluation((project(intrinsics, p_C) - self.measured).reshape(-1), [])
         pixel, d_point, d_intrinsics = project(intrinsics, p_C, True)
-        skew_c = np.array([[0.0, -p_C[2], p_C[1]], [p_C[2], 0.0, -p_C[0]], [-p_C[1], p_C[0], 0.0]])
-        skew_o = np.array(
-            [
-                [0.0, -self.point_O[2], self.point_O[1]],
-                [self.point_O[2], 0.0, -self.point_O[0]],
-                [-self.point_O[1], self.point_O[0], 0.0],
-            ]
-        )
-        # X Exp(xi): p_C -> p_C - omega x p_C - v;  O Exp(eta): p_W -> p_W + R_O (omega x p_O + v)
-        d_pose = d_point @ np.hstack([skew_c, -np.eye(3)])
-        d_object = d_point @ R_X.T @ np.hstack([-R_O @ skew_o, R_O])
-        blocks = [d_pose, d_object]
+        blocks = []
+        R_C = T_W_C[:, :3, :3]
+        if self.params_key is not None:
+            # X Exp(xi): p_C -> p_C - omega x p_C - v, then xi = J_j dP.
+            J = self.kinematics.jacobians(inputs[0])[self.configs]
+            d_xi = np.concatenate([d_point @ skew(p_C), -d_point], axis=2)  # (O, 2, 6)
+            blocks.append(np.matmul(d_xi, J).reshape(-1, J.shape[2]))
+        # O Exp(eta): p_W -> p_W + R_O (omega x p_O + v)
+        R_O = T_W_O[:3, :3]
+        d_object = np.concatenate([-R_O @ skew(self.points_O), np.broadcast_to(R_O, (len(p_C), 3, 3))], axis=2)
+        blocks.append(np.matmul(d_point @ np.swapaxes(R_C, 1, 2), d_object).reshape(-1, 6))
         if self.intrinsics is None:
-            blocks.append(d_intrinsics)
-        return pixel - self.measured, blocks
+            blocks.append(d_intrinsics.reshape(-1, 9))
+        return Evaluation((pixel - self.measured).reshape(-1), blocks)

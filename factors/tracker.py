@@ -1,101 +1,196 @@
 """Factors of the classical formulation (SPEC section 4, eq. 1): an external tracker
-measures a point (3D), a distance (1D) or a pose (6D) of the tool."""
+measures points (3D), distances (1D) or poses (6D) of the tool."""
 
 from __future__ import annotations
 
 import gtsam
 import numpy as np
 
-from .base import CheckedFactor, point_jacobian
+from .base import Evaluation, MeasurementSet, RobustLoss, point_jacobian, row_starts
+from .kinematics import Kinematics, params_variable
 
 
-class TrackerPointFactor(CheckedFactor):
-    """``r = L (X_j s) - m``  (m): tool point s (flange frame, Point3 variable) seen at
-    configuration j (flange pose X_j in W) by a tracker at pose ``L = T_T_W`` (Pose3 variable)."""
+def _grouped(configs: np.ndarray) -> np.ndarray:
+    """First observation of each configuration; the observations of one must be consecutive."""
+    starts = np.flatnonzero(np.r_[True, configs[1:] != configs[:-1]])
+    if len(starts) != len(np.unique(configs)):
+        raise ValueError("the observations of a configuration must be consecutive")
+    return starts
+
+
+class TrackerPoints(MeasurementSet):
+    """``r_o = L (X(P, q_j) s_t) - m_o``  (m), one factor per configuration j.
+
+    Tool point s_t (flange frame; all tool points are one vector variable S = (s_0, s_1, ...))
+    measured at m_o in the tracker frame at configuration j, whose flange pose X comes from
+    the kinematics; ``L = T_T_W`` is a Pose3 variable. The robust unit is one point.
+    """
 
     def __init__(
         self,
+        kinematics: Kinematics,
+        params_key: int | None,
         tracker_key: int,
-        pose_key: int,
-        point_key: int,
-        measured: np.ndarray,
-        noise: gtsam.noiseModel.Base,
-        sigmas: np.ndarray,
+        points_key: int,
+        n_points: int,
+        configs: np.ndarray,
+        targets: np.ndarray,
+        measured_m: np.ndarray,
+        sigma_m: float,
+        robust: RobustLoss | None = None,
     ) -> None:
-        self.measured = np.asarray(measured, dtype=float)
-        super().__init__(
-            [(tracker_key, "pose3", None), (pose_key, "pose3", None), (point_key, "point3", None)], noise, sigmas
-        )
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.configs = np.asarray(configs, dtype=int)
+        self.targets = np.asarray(targets, dtype=int)
+        self.measured = np.asarray(measured_m, dtype=float).reshape(-1, 3)
+        if not len(self.configs) == len(self.targets) == len(self.measured) or not len(self.configs):
+            raise ValueError("one configuration, target and point per observation, at least one")
+        self.n_points = int(n_points)
+        self.variables = [
+            *params_variable(params_key, kinematics),
+            (tracker_key, "pose3", None),
+            (points_key, "vector", 3 * self.n_points),
+        ]
+        self.sigma = np.full(3 * len(self.configs), float(sigma_m))
+        self.factor_starts = 3 * _grouped(self.configs)
+        self.unit_starts = row_starts([3] * len(self.configs))
+        super().__init__(robust)
 
-    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        tracker, pose, point = inputs
-        T_L, T_X = tracker.matrix(), pose.matrix()
-        s = np.asarray(point, dtype=float)
-        p_W = T_X[:3, :3] @ s + T_X[:3, 3]
-        residual = T_L[:3, :3] @ p_W + T_L[:3, 3] - self.measured
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        params = inputs[0] if self.params_key is not None else None
+        T_L = inputs[-2].matrix()
+        s = np.asarray(inputs[-1], dtype=float).reshape(-1, 3)[self.targets]
+        T_X = self.kinematics.poses(params)[self.configs]
+        R_X, R_L = T_X[:, :3, :3], T_L[:3, :3]
+        p_W = np.einsum("oij,oj->oi", R_X, s) + T_X[:, :3, 3]
+        residual = (p_W @ R_L.T + T_L[:3, 3] - self.measured).reshape(-1)
         if not jacobians:
-            return residual, []
-        R_L = T_L[:3, :3]
-        return residual, [point_jacobian(R_L, p_W), R_L @ point_jacobian(T_X[:3, :3], s), R_L @ T_X[:3, :3]]
+            return Evaluation(residual, [])
+        blocks = []
+        if params is not None:
+            J = self.kinematics.jacobians(params)[self.configs]
+            blocks.append(np.matmul(R_L @ point_jacobian(R_X, s), J).reshape(-1, J.shape[2]))
+        blocks.append(point_jacobian(R_L, p_W).reshape(-1, 6))
+        d_points = np.zeros((len(s), 3, 3 * self.n_points))
+        rows = np.arange(len(s))
+        for axis in range(3):
+            d_points[rows, :, 3 * self.targets + axis] = (R_L @ R_X)[:, :, axis]
+        blocks.append(d_points.reshape(-1, 3 * self.n_points))
+        return Evaluation(residual, blocks)
 
 
-class DistanceFactor(CheckedFactor):
-    """``r = |X_j s - a| - d``  (m): measured distance d from an anchor point a (Point3
-    variable, in W) to the tool point s (Point3 variable, flange frame)."""
+class Distances(MeasurementSet):
+    """``r_o = |X(P, q_j) s - a| - d_o``  (m), one factor per measurement.
+
+    Measured distance d_o from an anchor point a (Point3 variable, in W) to the tool point s
+    (Point3 variable, flange frame) at configuration j.
+    """
 
     def __init__(
         self,
+        kinematics: Kinematics,
+        params_key: int | None,
         anchor_key: int,
-        pose_key: int,
         point_key: int,
-        distance: float,
-        noise: gtsam.noiseModel.Base,
-        sigmas: np.ndarray,
+        configs: np.ndarray,
+        distances_m: np.ndarray,
+        sigma_m: float,
+        robust: RobustLoss | None = None,
     ) -> None:
-        self.distance = float(distance)
-        super().__init__(
-            [(anchor_key, "point3", None), (pose_key, "pose3", None), (point_key, "point3", None)], noise, sigmas
-        )
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.configs = np.asarray(configs, dtype=int)
+        self.distances = np.asarray(distances_m, dtype=float).reshape(-1)
+        if len(self.configs) != len(self.distances) or not len(self.configs):
+            raise ValueError("one configuration per distance, at least one")
+        self.variables = [
+            *params_variable(params_key, kinematics),
+            (anchor_key, "point3", None),
+            (point_key, "point3", None),
+        ]
+        self.sigma = np.full(len(self.configs), float(sigma_m))
+        self.factor_starts = np.arange(len(self.configs))
+        self.unit_starts = self.factor_starts
+        super().__init__(robust)
 
-    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        anchor, pose, point = inputs
-        T_X = pose.matrix()
-        s = np.asarray(point, dtype=float)
-        delta = T_X[:3, :3] @ s + T_X[:3, 3] - np.asarray(anchor, dtype=float)
-        length = float(np.linalg.norm(delta))
-        residual = np.array([length - self.distance])
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        params = inputs[0] if self.params_key is not None else None
+        anchor, s = (np.asarray(v, dtype=float) for v in inputs[-2:])
+        T_X = self.kinematics.poses(params)[self.configs]
+        delta = T_X[:, :3, :3] @ s + T_X[:, :3, 3] - anchor
+        length = np.linalg.norm(delta, axis=1)
+        residual = length - self.distances
         if not jacobians:
-            return residual, []
-        unit = (delta / length)[None, :]
-        return residual, [-unit, unit @ point_jacobian(T_X[:3, :3], s), unit @ T_X[:3, :3]]
+            return Evaluation(residual, [])
+        unit = delta / length[:, None]
+        blocks = []
+        if params is not None:
+            J = self.kinematics.jacobians(params)[self.configs]
+            d_xi = np.einsum("oi,oij->oj", unit, point_jacobian(T_X[:, :3, :3], s))
+            blocks.append(np.einsum("oj,ojm->om", d_xi, J))
+        blocks += [-unit, np.einsum("oi,oij->oj", unit, T_X[:, :3, :3])]
+        return Evaluation(residual, blocks)
 
 
-class PoseFactor(CheckedFactor):
-    """``r = Log(Z^-1 L X_j E)``  (rad, m): measured pose Z of a tool frame in the tracker
-    frame; L = T_T_W (Pose3 variable), X_j the flange pose, E = T_n_tool (Pose3 variable)."""
+class Poses(MeasurementSet):
+    """``r_o = Log(Z_o^-1 L X(P, q_j) E)``  (rad, m), one factor per configuration j.
+
+    Measured pose Z_o of a tool frame in the tracker frame (a 6D probe, or a camera's pose of
+    a target); L = T_T_W and E = T_n_tool are Pose3 variables. Rotation and translation rows
+    have their own sigmas; the robust unit is the pose.
+    """
 
     def __init__(
         self,
+        kinematics: Kinematics,
+        params_key: int | None,
         tracker_key: int,
-        pose_key: int,
         tool_key: int,
-        measured: gtsam.Pose3,
-        noise: gtsam.noiseModel.Base,
-        sigmas: np.ndarray,
+        configs: np.ndarray,
+        measured: list[np.ndarray],
+        sigma_rad: float,
+        sigma_m: float,
+        robust: RobustLoss | None = None,
     ) -> None:
-        self.measured_inverse = measured.inverse()
-        super().__init__(
-            [(tracker_key, "pose3", None), (pose_key, "pose3", None), (tool_key, "pose3", None)], noise, sigmas
-        )
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.configs = np.asarray(configs, dtype=int)
+        if len(self.configs) != len(measured) or not len(self.configs):
+            raise ValueError("one configuration per measured pose, at least one")
+        self.measured_inverse = [gtsam.Pose3(np.asarray(Z, dtype=float)).inverse() for Z in measured]
+        self.variables = [
+            *params_variable(params_key, kinematics),
+            (tracker_key, "pose3", None),
+            (tool_key, "pose3", None),
+        ]
+        self.sigma = np.tile([sigma_rad] * 3 + [sigma_m] * 3, len(self.configs)).astype(float)
+        self.factor_starts = row_starts([6] * len(self.configs))
+        self.unit_starts = self.factor_starts
+        super().__init__(robust)
 
-    def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        tracker, pose, tool = inputs
-        error_pose = self.measured_inverse.compose(tracker).compose(pose).compose(tool)
-        if not jacobians:
-            return gtsam.Pose3.Logmap(error_pose), []
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        params = inputs[0] if self.params_key is not None else None
+        tracker, tool = inputs[-2], inputs[-1]
+        T_X = self.kinematics.poses(params)[self.configs]
+        J = self.kinematics.jacobians(params)[self.configs] if jacobians and params is not None else None
+        residual, d_params, d_tracker, d_tool = [], [], [], []
         log_jacobian = np.zeros((6, 6), order="F")
-        residual = gtsam.Pose3.Logmap(error_pose, log_jacobian)
-        # A right perturbation of L, X or E moves L X E by the adjoint of what follows it.
-        after_tracker = pose.compose(tool).inverse().AdjointMap()
-        after_pose = tool.inverse().AdjointMap()
-        return residual, [log_jacobian @ after_tracker, log_jacobian @ after_pose, log_jacobian]
+        for o, (Z_inv, T) in enumerate(zip(self.measured_inverse, T_X, strict=True)):
+            pose = gtsam.Pose3(T)
+            error_pose = Z_inv.compose(tracker).compose(pose).compose(tool)
+            if not jacobians:
+                residual.append(gtsam.Pose3.Logmap(error_pose))
+                continue
+            residual.append(gtsam.Pose3.Logmap(error_pose, log_jacobian))
+            # A right perturbation of L, X or E moves L X E by the adjoint of what follows it.
+            d_tracker.append(log_jacobian @ pose.compose(tool).inverse().AdjointMap())
+            d_pose = log_jacobian @ tool.inverse().AdjointMap()
+            if J is not None:
+                d_params.append(d_pose @ J[o])
+            d_tool.append(log_jacobian.copy())
+        if not jacobians:
+            return Evaluation(np.concatenate(residual), [])
+        blocks = [np.vstack(d_params)] if J is not None else []
+        blocks += [np.vstack(d_tracker), np.vstack(d_tool)]
+        return Evaluation(np.concatenate(residual), blocks)

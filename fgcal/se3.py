@@ -133,3 +133,13 @@ def inverse(T: np.ndarray) -> np.ndarray:
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply poses (..., 4, 4) to points (..., 3)."""
     return (T[..., :3, :3] @ points[..., None])[..., 0] + T[..., :3, 3]
+
+
+def kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t minimising |R source + t - target| over points (N, 3)."""
+    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
+    H = (source - mu_s).T @ (target - mu_t)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, mu_t - R @ mu_s

@@ -11,118 +11,111 @@ import fgcal
 from fgcal.calibration.batch import BatchKinematics
 from fgcal.factors import (
     CheckedFactor,
-    DistanceFactor,
+    Distances,
     FactorError,
-    KinematicFactor,
+    MeasurementFactor,
+    MeasurementSet,
     ParameterBoundFactor,
-    PointPairFactor,
-    PoseFactor,
-    ProjectionFactor,
+    PointPairs,
+    Poses,
+    Projections,
     RandomWalkFactor,
-    TrackerPointFactor,
+    RobustLoss,
+    TrackerPoints,
     gaussian,
 )
 
 RNG = np.random.default_rng(7)
+P_KEY = 100
 
 
 def _pose() -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.8, 3)), RNG.normal(0, 1.0, 3))
 
 
-def _kinematic_case(values: gtsam.Values):
+def _kinematics(values: gtsam.Values, n_configs: int = 3) -> BatchKinematics:
+    """Camera poses of a KR 125/2 with compliances and distortions, P near (not at) nominal."""
     robot = fgcal.load_robot("kuka_kr125_2").with_tool(np.eye(4), payload_mass=10.0, payload_com=[0, 0, 0.1])
     released = ["theta2", "d3", "alpha1", "sx2", "sy3", "kz2", "ky3", "tool.tx", "tool.rz"]
     model = BatchKinematics(
-        robot, robot.parameter_vector({"kz2": 6e-7, "ky3": 4e-7}), released, RNG.uniform(-1, 1, (3, 6)), "tool"
+        robot,
+        robot.parameter_vector({"kz2": 6e-7, "ky3": 4e-7}),
+        released,
+        RNG.uniform(-1, 1, (n_configs, 6)),
+        "tool",
     )
-    params = model.base[model.index] + RNG.normal(0, 1e-3, len(released))
-    values.insert(100, params)
-    # The pose variable near, not at, FK: the residual is non-zero, as during optimisation.
-    values.insert(1, gtsam.Pose3(model.poses(params)[1]).compose(gtsam.Pose3.Expmap(RNG.normal(0, 0.05, 6))))
-    return KinematicFactor(100, 1, 1, model, np.full(6, 1e-3))
+    scale = np.array([1e-8 if name[0] == "k" else 1e-3 for name in released])  # rad/(N m), else m or rad
+    values.insert(P_KEY, model.base[model.index] + RNG.normal(0, 1.0, len(released)) * scale)
+    return model
+
+
+def _in_front(model: BatchKinematics, values: gtsam.Values, j: int) -> gtsam.Pose3:
+    """An object 0.5 m in front of configuration j's camera, so that its points project."""
+    camera = gtsam.Pose3(model.poses(values.atVector(P_KEY))[j])
+    return camera.compose(gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), np.array([0.02, -0.03, 0.5])))
+
+
+def _measurement_sets():
+    """(measurement set, values) for every measurement kind, with and without P and the
+    optional variables, with and without a robust loss (at residuals beyond its threshold)."""
+    sets = []
+    for released, robust in ((True, None), (False, None), (True, RobustLoss("huber", 1.0))):
+        values = gtsam.Values()
+        model = _kinematics(values)
+        key = P_KEY if released else None
+        values.insert(3, gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)))
+        groups = [
+            (np.array([0, 0, 0, 1, 1, 1]), RNG.normal(0, 0.3, (6, 3)), RNG.normal(0, 0.5, (6, 3))),
+            (np.array([2, 2, 1]), RNG.normal(0, 0.3, (3, 3)), RNG.normal(0, 0.5, (3, 3))),
+        ]
+        sets.append((PointPairs(model, key, groups, 1e-3, fixture_key=3, robust=robust), values))
+        if released:  # with nothing released and the fixture known, there is nothing to estimate
+            sets.append((PointPairs(model, key, groups, 1e-3, fixture_rotation=gtsam.Rot3.Rz(0.3).matrix()), values))
+
+        values = gtsam.Values()
+        model = _kinematics(values)
+        values.insert(2, _in_front(model, values, 1))
+        intrinsics = np.array([1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05])
+        values.insert(3, intrinsics)
+        configs = np.array([1, 1, 1, 1])
+        points = RNG.normal(0, 0.05, (4, 3))
+        pixels = RNG.uniform(300, 900, (4, 2))
+        sets.append((Projections(model, key, 2, configs, points, pixels, 0.5, intrinsics_key=3, robust=robust), values))
+        sets.append((Projections(model, key, 2, configs, points, pixels, 0.5, intrinsics=intrinsics), values))
+
+        values = gtsam.Values()
+        model = _kinematics(values)
+        values.insert(1, _pose())
+        values.insert(4, _pose())
+        values.insert(5, RNG.normal(0, 1.0, 3))
+        values.insert(6, RNG.normal(0, 0.2, 3))
+        values.insert(7, RNG.normal(0, 0.2, 6))
+        sets.append(
+            (
+                TrackerPoints(
+                    model,
+                    key,
+                    1,
+                    7,
+                    2,
+                    np.array([0, 0, 2]),
+                    np.array([0, 1, 1]),
+                    RNG.normal(0, 1, (3, 3)),
+                    1e-3,
+                    robust=robust,
+                ),
+                values,
+            )
+        )
+        sets.append((Distances(model, key, 5, 6, np.array([0, 2]), np.array([1.7, 2.1]), 1e-3, robust=robust), values))
+        measured = [_pose().matrix(), _pose().matrix()]
+        sets.append((Poses(model, key, 1, 4, np.array([2, 0]), measured, 1e-3, 1e-2, robust=robust), values))
+    return sets
 
 
 def _cases():
-    """(factor, values) for every factor type."""
-    cases = []
-    values = gtsam.Values()
-    cases.append((_kinematic_case(values), values))
-
-    values = gtsam.Values()
-    values.insert(1, _pose())
-    values.insert(2, _pose())
-    values.insert(3, gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)))
-    pts = RNG.normal(0, 0.3, (6, 3))
-    drawings = RNG.normal(0, 0.5, (6, 3))
-    cases.append(
-        (
-            PointPairFactor(
-                [1, 2],
-                np.array([0, 0, 0, 1, 1, 1]),
-                pts,
-                drawings,
-                gaussian(np.full(15, 1e-4)),
-                np.full(15, 1e-4),
-                fixture_key=3,
-            ),
-            values,
-        )
-    )
-    cases.append(
-        (
-            PointPairFactor(
-                [1],
-                np.zeros(3, dtype=int),
-                pts[:3],
-                drawings[:3],
-                gaussian(np.full(6, 1e-4)),
-                np.full(6, 1e-4),
-                fixture_rotation=gtsam.Rot3.Rz(0.3).matrix(),
-            ),
-            values,
-        )
-    )
-
-    values = gtsam.Values()
-    values.insert(1, _pose())
-    values.insert(2, _pose())
-    values.insert(3, RNG.normal(0, 0.2, 3))
-    values.insert(4, _pose())
-    values.insert(5, RNG.normal(0, 1.0, 3))
-    cases.append(
-        (TrackerPointFactor(1, 2, 3, RNG.normal(0, 1, 3), gaussian(np.full(3, 1e-5)), np.full(3, 1e-5)), values)
-    )
-    cases.append((DistanceFactor(5, 2, 3, 1.7, gaussian(np.array([1e-5])), np.array([1e-5])), values))
-    cases.append((PoseFactor(1, 2, 4, _pose(), gaussian(np.full(6, 1e-4)), np.full(6, 1e-4)), values))
-
-    values = gtsam.Values()
-    camera = gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), RNG.normal(0, 0.3, 3))
-    values.insert(1, camera)
-    # An object 0.5 m in front of the camera, so that its points project.
-    values.insert(
-        2, camera.compose(gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), np.array([0.02, -0.03, 0.5])))
-    )
-    intrinsics = np.array([1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05])
-    values.insert(3, intrinsics)
-    point = np.array([0.05, -0.04, 0.02])
-    cases.append(
-        (
-            ProjectionFactor(
-                1, 2, point, np.array([700.0, 400.0]), gaussian(np.full(2, 0.5)), np.full(2, 0.5), intrinsics_key=3
-            ),
-            values,
-        )
-    )
-    cases.append(
-        (
-            ProjectionFactor(
-                1, 2, point, np.array([700.0, 400.0]), gaussian(np.full(2, 0.5)), np.full(2, 0.5), intrinsics=intrinsics
-            ),
-            values,
-        )
-    )
-
+    """(factor, values) for every factor type: each factor of every measurement set, and the priors."""
+    cases = [(factor, values) for measurements, values in SETS for factor in measurements.factors()]
     values = gtsam.Values()
     values.insert(7, RNG.normal(0, 1, 5))
     cases.append((ParameterBoundFactor(7, 5, np.array([1, 3]), np.array([0.2, -0.1]), np.array([0.01, 0.02])), values))
@@ -146,18 +139,29 @@ def _retract(values: gtsam.Values, key: int, kind: str, delta: np.ndarray) -> gt
     return out
 
 
+SETS = _measurement_sets()
 CASES = _cases()
 
 
+def _subclasses(cls):
+    return {c for s in cls.__subclasses__() for c in (s, *_subclasses(s))}
+
+
 def test_every_factor_type_is_covered():
-    def subclasses(cls):
-        return {c for s in cls.__subclasses__() for c in (s, *subclasses(s))}
-
-    shipped = {c for c in subclasses(CheckedFactor) if c.__module__.startswith("fgcal.factors")}
+    shipped = {c for c in _subclasses(CheckedFactor) if c.__module__.startswith("fgcal.factors")}
     assert {type(f) for f, _ in CASES} == shipped
+    kinds = {c for c in _subclasses(MeasurementSet) if c.__module__.startswith("fgcal.factors")}
+    assert {type(m) for m, _ in SETS} == kinds
 
 
-@pytest.mark.parametrize(("factor", "values"), CASES, ids=[type(f).__name__ for f, _ in CASES])
+def _label(factor) -> str:
+    if isinstance(factor, MeasurementFactor):
+        m = factor.measurements
+        return f"{type(m).__name__}[{factor.i}]-{len(m.variables)}vars-{'robust' if m.robust else 'plain'}"
+    return type(factor).__name__
+
+
+@pytest.mark.parametrize(("factor", "values"), CASES, ids=[_label(f) for f, _ in CASES])
 def test_linearize_matches_central_differences(factor, values):
     linear = factor.factor.linearize(values)  # through GTSAM: a wrong Jacobian would crash here
     A, b = linear.jacobian()
@@ -166,15 +170,18 @@ def test_linearize_matches_central_differences(factor, values):
     column = 0
     for key, kind, dim in factor.variables:
         numeric = np.zeros((factor.dim, dim))
+        analytic = A[:, column : column + dim] / whiten[:, None]
         for i in range(dim):
+            # A step that moves the residual by about 1e-3 at most: a compliance (1e-7 rad/(N m))
+            # moves it by 1e6 per unit, and a 1e-6 step there would measure curvature.
+            h = 1e-6 * min(1.0, 1e3 / max(np.abs(analytic[:, i]).max(), 1e-300))
             step = np.zeros(dim)
-            step[i] = 1e-6
+            step[i] = h
             plus = factor.factor.unwhitenedError(_retract(values, key, kind, step))
             minus = factor.factor.unwhitenedError(_retract(values, key, kind, -step))
-            numeric[:, i] = (plus - minus) / 2e-6
-        analytic = A[:, column : column + dim] / whiten[:, None]
+            numeric[:, i] = (plus - minus) / (2 * h)
         scale = max(np.linalg.norm(numeric), 1e-9)
-        assert np.linalg.norm(analytic - numeric) / scale < 1e-6, f"{type(factor).__name__} key {key} ({kind})"
+        assert np.linalg.norm(analytic - numeric) / scale < 1e-6, f"{_label(factor)} key {key} ({kind})"
         column += dim
 
 
@@ -195,14 +202,38 @@ def test_helmert_contrasts_are_orthonormal_and_carry_the_pair():
     np.testing.assert_allclose(H.sum(axis=1), 0.0, atol=1e-15)
     # Two observations: the seed's pair residual x_u - x_v + (p_V - p_U), over sqrt(2).
     values = gtsam.Values()
-    pose_j, pose_k = _pose(), _pose()
-    values.insert(1, pose_j)
-    values.insert(2, pose_k)
+    model = _kinematics(values)
+    poses = model.poses(values.atVector(P_KEY))
     c = RNG.normal(0, 0.3, (2, 3))
     p_F = RNG.normal(0, 0.5, (2, 3))
-    factor = PointPairFactor([1, 2], np.array([0, 1]), c, p_F, gaussian(np.full(3, 1.0)), np.full(3, 1.0))
-    seed_pair = pose_j.transformFrom(c[0]) - pose_k.transformFrom(c[1]) + (p_F[1] - p_F[0])
+    (factor,) = PointPairs(model, P_KEY, [(np.array([0, 2]), c, p_F)], 1.0).factors()
+    seed_pair = transform(poses[0], c[0]) - transform(poses[2], c[1]) + (p_F[1] - p_F[0])
     np.testing.assert_allclose(factor.factor.unwhitenedError(values), seed_pair / np.sqrt(2), atol=1e-12)
+
+
+def transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return T[:3, :3] @ p + T[:3, 3]
+
+
+def test_robust_loss_is_the_robust_cost_and_its_gradient():
+    """|r'|^2/2 = rho(|r|) per unit, and J'^T r' = w J^T r (the M-estimator's gradient)."""
+    rng = np.random.default_rng(3)
+    residual = rng.normal(0, 3, 12)
+    jacobian = rng.normal(0, 1, (12, 5))
+    starts = np.array([0, 3, 6, 9])
+    for loss in (RobustLoss("huber", 1.5), RobustLoss("cauchy", 2.0)):
+        out, J = loss.apply(residual, jacobian, starts)
+        for a in starts:
+            r, Jr = residual[a : a + 3], jacobian[a : a + 3]
+            s = np.linalg.norm(r)
+            if loss.kind == "huber":
+                rho = 0.5 * s * s if s <= loss.k else loss.k * s - 0.5 * loss.k**2
+                weight = 1.0 if s <= loss.k else loss.k / s
+            else:
+                rho = 0.5 * loss.k**2 * np.log1p((s / loss.k) ** 2)
+                weight = 1.0 / (1.0 + (s / loss.k) ** 2)
+            assert 0.5 * np.sum(out[a : a + 3] ** 2) == pytest.approx(rho, rel=1e-12)
+            np.testing.assert_allclose(J[a : a + 3].T @ out[a : a + 3], weight * Jr.T @ r, rtol=1e-10, atol=1e-12)
 
 
 def test_projection_matches_opencv():
@@ -214,8 +245,8 @@ def test_projection_matches_opencv():
     points = RNG.normal(0, 0.1, (20, 3)) + np.array([0.0, 0.0, 0.6])
     K = np.array([[1500.0, 0, 640.0], [0, 1450.0, 480.0], [0, 0, 1]])
     expected, _ = cv2.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, intrinsics[4:])
-    ours = np.array([project(intrinsics, p) for p in points])
-    np.testing.assert_allclose(ours, expected.reshape(-1, 2), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(project(intrinsics, points), expected.reshape(-1, 2), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(project(intrinsics, points[0]), expected.reshape(-1, 2)[0], rtol=0, atol=1e-9)
 
 
 def test_malformed_jacobian_raises_instead_of_crashing():

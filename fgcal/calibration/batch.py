@@ -1,4 +1,4 @@
-"""Kinematics of every configuration at once, for the kinematic factors of one graph."""
+"""Kinematics of every configuration at once, shared by the measurement factors of one graph."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ class BatchKinematics:
     as functions of the m released parameters; the others stay at ``full_params``.
 
     Results are cached on the released values: when GTSAM evaluates or linearises the
-    graph, the first kinematic factor triggers one vectorised evaluation and the others
-    reuse it.
+    graph, the first measurement set to ask triggers one vectorised evaluation and the
+    others reuse it (fgcal.factors.Kinematics).
     """
 
     def __init__(
@@ -39,8 +39,8 @@ class BatchKinematics:
         params[self.index] = released_values
         return params
 
-    def _entry(self, released_values: np.ndarray) -> dict:
-        values = np.asarray(released_values, dtype=float)
+    def _entry(self, released_values: np.ndarray | None) -> dict:
+        values = self.base[self.index] if released_values is None else np.asarray(released_values, dtype=float)
         key = values.tobytes()
         entry = self._cache.get(key)
         if entry is None:
@@ -51,11 +51,11 @@ class BatchKinematics:
             self._cache[key] = entry
         return entry
 
-    def data(self, released_values: np.ndarray) -> kinematics.KinematicsData:
+    def data(self, released_values: np.ndarray | None) -> kinematics.KinematicsData:
         """The full kinematics evaluation (frames, gravity moments) at these values."""
         return self._entry(released_values)["data"]
 
-    def poses(self, released_values: np.ndarray) -> np.ndarray:
+    def poses(self, released_values: np.ndarray | None) -> np.ndarray:
         return self._entry(released_values)["poses"]
 
     def jacobians(self, released_values: np.ndarray) -> np.ndarray:

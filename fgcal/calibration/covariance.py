@@ -15,15 +15,15 @@ from .graph import P_KEY, StageGraph
 def parameter_covariance(stage: StageGraph, values: gtsam.Values) -> np.ndarray:
     """Marginal covariance (m x m) of the released parameters, SI units squared.
 
-    The linearised graph is eliminated multifrontally with QR in the order poses, auxiliary
-    unknowns, P: each pose connects only to P and the auxiliaries, so nothing densifies, and
-    P ends in the root clique, from which the Bayes tree gives its marginal. (gtsam.Marginals
-    uses Cholesky, which the stiff pose ties defeat.)
+    The linearised graph is eliminated with QR in the order auxiliary unknowns, P, so that P
+    ends in the root clique, from which the Bayes tree gives its marginal. QR rather than
+    gtsam.Marginals' Cholesky: the columns span lengths, angles and compliances (about 1e-7
+    rad/(N m)), whose spread the normal equations would square.
     """
     if not stage.released:
         return np.zeros((0, 0))
     ordering = gtsam.Ordering()
-    for key in [*stage.pose_index, *stage.aux, P_KEY]:
+    for key in [*stage.aux, P_KEY]:
         ordering.push_back(key)
     bayes_tree = stage.graph.linearize(values).eliminateMultifrontal(ordering, gtsam.EliminateQR)
     return bayes_tree.marginalCovariance(P_KEY)

@@ -1,8 +1,7 @@
 """Which parameters the data determine, found numerically before solving.
 
-From the whitened measurement Jacobian at the initial estimate (pose variables
-eliminated through the kinematics, auxiliary unknowns such as the tracker pose projected
-out), columns scaled by each parameter's plausible deviation are selected greedily
+From the whitened measurement Jacobian at the initial estimate (auxiliary unknowns such as
+the tracker pose projected out), columns scaled by each parameter's plausible deviation are selected greedily
 (Gram-Schmidt with pivoting) in priority order: DH (theta, d, a, alpha), then axis
 distortions, compliances, tool, base. A column whose information, after projecting out the
 columns already selected, is below ``min_information`` (1 = its standard deviation would
@@ -52,27 +51,24 @@ def group_of(name: str) -> int:
 
 
 def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened Jacobians of the measurement residuals w.r.t. the released parameters and
-    the auxiliary unknowns: (rows x m), (rows x n_aux)."""
-    p_values = stage.model.base[stage.model.index]
-    fk_jacobians = stage.model.jacobians(p_values)
+    """Whitened Jacobians of the measurement residuals (no robust loss) w.r.t. the released
+    parameters and the auxiliary unknowns, at the stage's values: (rows x m), (rows x n_aux)."""
     aux_offsets, offset = {}, 0
     for key, (_, dim) in stage.aux.items():
         aux_offsets[key] = offset
         offset += dim
     rows_p, rows_aux = [], []
-    for factor in stage.measurements:
-        _, blocks = factor.checked(factor.read(stage.values), True)
-        whiten = 1.0 / factor.sigmas[:, None]
-        J_p = np.zeros((factor.dim, stage.model.n_released))
-        J_aux = np.zeros((factor.dim, offset))
-        for block, (key, _, dim) in zip(blocks, factor.variables, strict=True):
-            if key in stage.pose_index:
-                J_p += block @ fk_jacobians[stage.pose_index[key]]
+    for measurements in stage.measurements:
+        evaluation = measurements.whitened(measurements.read(stage.values), True, robust=False)
+        J_p = np.zeros((measurements.n_rows, stage.model.n_released))
+        J_aux = np.zeros((measurements.n_rows, offset))
+        for block, (key, _, dim) in zip(evaluation.blocks, measurements.variables, strict=True):
+            if key == stage.params_key:
+                J_p += block
             else:
                 J_aux[:, aux_offsets[key] : aux_offsets[key] + dim] += block
-        rows_p.append(whiten * J_p)
-        rows_aux.append(whiten * J_aux)
+        rows_p.append(J_p)
+        rows_aux.append(J_aux)
     return np.vstack(rows_p), np.vstack(rows_aux)
 
 

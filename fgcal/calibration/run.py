@@ -12,11 +12,13 @@ from ..dataset import Dataset, load_dataset
 from ..errors import InputError
 from .config import CalibrationConfig
 from .covariance import parameter_covariance
-from .graph import State, build_graph, initial_state, robust_scale
+from .graph import build_graph, robust_scale
 from .identifiability import Identifiability, analyse
+from .initialise import initial_state
 from .problem import Problem, build_problem
 from .scoring import load_truth
 from .solve import StageReport, solve_stage, stage_parameters
+from .state import State
 from .validation import ErrorStats, default_tool_point, held_out_errors, stats
 
 
@@ -79,11 +81,12 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
     # In units of the residuals' robust scale, like the robust loss: when the model cannot fit
     # the data to the declared noise, everything is many sigmas and nothing is an outlier.
     threshold = REJECT_SIGMA * robust_scale(stage.measurements, values)
-    outlier = []
-    for factor in stage.measurements:
-        residual, _ = factor.checked(factor.read(values), False)
-        outlier.append(np.sqrt(np.mean((residual / factor.sigmas) ** 2)) > threshold)
-    if not any(outlier) or sum(outlier) > MAX_REJECTED_FRACTION * len(outlier):
+    measurements, order = stage.measurements[0], stage.observations[0]
+    dims = np.diff(np.append(measurements.unit_starts, measurements.n_rows))
+    rms = measurements.unit_norms(values) / np.sqrt(dims)
+    outlier = np.zeros(len(observations), dtype=bool)
+    outlier[order] = rms > threshold
+    if not outlier.any() or outlier.sum() > MAX_REJECTED_FRACTION * len(outlier):
         return False  # more than a few "outliers" means a model problem, not bad measurements
     problem.rejected += [(int(problem.fit[o[0]]), kind) for o, bad in zip(observations, outlier, strict=True) if bad]
     observations[:] = [o for o, bad in zip(observations, outlier, strict=True) if not bad]

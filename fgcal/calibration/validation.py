@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..se3 import transform_points
-from .graph import State, kabsch
+from ..se3 import kabsch, transform_points
 from .problem import Problem
 from .scoring import true_positions
+from .state import State
 
 
 @dataclass

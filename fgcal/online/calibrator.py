@@ -2,14 +2,16 @@
 
 Graph, per work cycle c, a parameter vector ``p_c`` (the released parameters), tied to the
 previous cycle's by a random walk ``p_c - p_{c-1} ~ N(0, k Q)`` (k cycles elapsed); the
-fixture pose O (unknown, constant); per image a camera pose ``x_j`` tied to ``p_c`` by a
-KinematicFactor, and its ProjectionFactors. A prior on ``p_0`` around the starting model
-makes every early state well posed: the first images give an estimate dominated by the
-prior, never an exception.
+fixture pose O (unknown, constant); per image one projection factor on ``(p_c, O)``
+(fgcal.factors.Projections: the camera pose comes from the kinematics, no pose variable).
+A prior on ``p_0`` around the starting model makes every early state well posed: the first
+images give an estimate dominated by the prior, never an exception.
 
-The solver is GTSAM's IncrementalFixedLagSmoother (iSAM2, QR): images older than the
-window are marginalised into a Gaussian on the variables that remain, so memory and the
-cost of relinearising ``p_c`` stay bounded however long the run. Outliers are gated when an
+The solver is GTSAM's IncrementalFixedLagSmoother (iSAM2, QR). Images older than the window
+are frozen: their factors, linearised at the current linearisation point, are replaced by
+one QR-compressed linear factor on ``(p_c, O)`` (what marginalising a per-image pose would
+leave), so memory and the cost of relinearising ``p_c`` stay bounded however long the run;
+the smoother marginalises the parameter vectors of past cycles. Outliers are gated when an
 image arrives (its points against the image's common offset from the prediction), so that
 the graph is purely Gaussian: a robust loss would freeze down-weighted information into the
 marginals. After each image a drift test (:mod:`.drift`) compares the estimate with the one a
@@ -27,12 +29,11 @@ import numpy as np
 
 from ..camera import Camera, solve_pnp
 from ..errors import InputError
-from ..factors import CheckedFactor, KinematicFactor, ProjectionFactor, RandomWalkFactor, gaussian
+from ..factors import BehindCameraError, Projections, RandomWalkFactor, gaussian
 from ..parameters import unit_of
 from ..robot import Robot
-from ..se3 import inverse, transform_points
 from .drift import Alarm, DriftTest
-from .growing import GrowingKinematics
+from .growing import GrowingKinematics, RowKinematics
 from .released import candidates, structural_identifiability
 
 OBJECT_KEY = gtsam.symbol("o", 0)
@@ -42,10 +43,6 @@ MERGE_MARGINALS_ABOVE = 4
 
 def params_key(cycle: int) -> int:
     return gtsam.symbol("p", cycle)
-
-
-def pose_key(j: int) -> int:
-    return gtsam.symbol("x", j)
 
 
 @dataclass(frozen=True)
@@ -148,6 +145,7 @@ class OnlineCalibrator:
         self._pending: list[tuple[np.ndarray, list, int | None]] = []
         self._scanned = 0  # factor slots of the smoother already looked at
         self._marginals: list[int] = []  # slots holding marginal factors
+        self._image_slots: dict[int, int] = {}  # row -> smoother slot of its live image factor
         self.keep_graph = keep_graph
         self.graph = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
@@ -158,7 +156,6 @@ class OnlineCalibrator:
         params.setFactorization("QR")
         thresholds = gtsam.ISAM2ThresholdMap()
         thresholds.insert(("p", s.relinearize_fraction * self.prior_sigmas))
-        thresholds.insert(("x", np.full(6, s.relinearize_pose)))
         thresholds.insert(("o", np.full(6, s.relinearize_pose)))
         params.setRelinearizeThreshold(thresholds)
         params.relinearizeSkip = 1
@@ -210,11 +207,6 @@ class OnlineCalibrator:
     def _fold(self, q: np.ndarray, known: list, cycle: int | None, started: float) -> OnlineUpdate:
         new_cycle = self._starts_cycle(cycle)
         row = self.model.add(q, self.cycle + (1 if new_cycle else 0))
-        # At the parameters' linearisation point, where the kinematic factor will be
-        # linearised: one kinematics evaluation serves both.
-        p_lin = self._p if self.n_images == 0 or new_cycle else self._linearization_point()
-        T_W_C = self.model.poses(p_lin)[row]
-        kept, rejected = self._gate(T_W_C, known)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         P = params_key(self.cycle)
         if self.n_images == 0:
@@ -235,16 +227,28 @@ class OnlineCalibrator:
             self._jump = set()
             if cycle is not None:
                 self._cycle_label = cycle
-        X = pose_key(row)
-        values.insert(X, gtsam.Pose3(T_W_C))
-        for factor in self.image_factors(P, row, kept):
+        linearization_point = self.smoother.getLinearizationPoint() if self.n_images else values
+        p_lin = values.atVector(P) if values.exists(P) else linearization_point.atVector(P)
+        fixture_lin = linearization_point.atPose3(OBJECT_KEY)
+        measurements = self.image_measurements(P, row, known)
+        kept, rejected = self._gate(measurements, known, p_lin, fixture_lin)
+        if rejected and kept:
+            measurements = self.image_measurements(P, row, kept)
+        if kept:
+            (factor,) = measurements.factors()
             graph.add(factor.factor)
+        frozen, removed = self._freeze(row)
+        update = gtsam.NonlinearFactorGraph(graph)
+        update.push_back(frozen)
         stamp = float(row // self.settings.marginalise_every)
-        self.smoother.update(graph, values, {P: stamp, OBJECT_KEY: stamp, X: stamp})
+        # New factors take the next slots, in order (ISAM2 does not reuse freed slots by default).
+        first_slot = self.smoother.getFactors().size()
+        self.smoother.update(update, values, {P: stamp, OBJECT_KEY: stamp}, removed)
+        if kept:
+            self._image_slots[row] = first_slot + graph.size() - 1
         self._merge_marginals()
         if not self.keep_graph:
-            every = self.settings.marginalise_every
-            self.model.forget_before((row // every - self.settings.window_images // every) * every)
+            self.model.forget_before(min(self._image_slots, default=row))
         else:
             self.graph.push_back(graph)
             self.initial.insert(values)
@@ -269,9 +273,6 @@ class OnlineCalibrator:
             time.perf_counter() - started,
         )
 
-    def _linearization_point(self) -> np.ndarray:
-        return self.smoother.getLinearizationPoint().atVector(params_key(self.cycle))
-
     def _starts_cycle(self, cycle: int | None) -> bool:
         if self.n_images == 0:
             return False
@@ -280,8 +281,9 @@ class OnlineCalibrator:
     def _merge_marginals(self) -> None:
         """Merge the marginal factors of the images that left the window.
 
-        Each marginalisation leaves a LinearContainerFactor on the separator (p_c, O); left
-        alone they pile up, and every update would eliminate them all again. Re-expressed at
+        Each marginalisation, and each freezing of images that left the window, leaves a
+        LinearContainerFactor on (p_c, O); left alone they pile up, and every update would
+        eliminate them all again. Re-expressed at
         the current linearisation point (which leaves each quadratic as it was), the ones on
         the same variables are stacked and compressed by QR into one Jacobian factor (a
         Hessian would do too, but QR elimination needs a Jacobian and a merged marginal may
@@ -339,18 +341,42 @@ class OnlineCalibrator:
         unit = gtsam.noiseModel.Unit.Create(R.shape[0])
         return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), point)
 
-    def image_factors(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> list[CheckedFactor]:
-        sigmas = np.full(2, self.settings.pixel_sigma_px)
-        noise = gaussian(sigmas)
-        # The tie is 1% of a pixel's worth of pose (rad, and m at 1 m): stiff next to the
-        # measurements, yet well conditioned.
-        tie = np.full(6, 1e-2 * self.settings.pixel_sigma_px / self.camera.fx)
-        factors: list[CheckedFactor] = [KinematicFactor(P, pose_key(row), row, self.model, tie)]
-        for name, uv in observations:
-            factors.append(
-                ProjectionFactor(pose_key(row), OBJECT_KEY, self.points_F[name], uv, noise, sigmas, self.intrinsics)
-            )
-        return factors
+    def image_measurements(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> Projections:
+        """The image's projections on (p_c, O): one factor for all its points."""
+        return Projections(
+            RowKinematics(self.model, row),
+            P,
+            OBJECT_KEY,
+            np.zeros(len(observations), dtype=int),
+            np.array([self.points_F[name] for name, _ in observations]),
+            np.array([uv for _, uv in observations]),
+            self.settings.pixel_sigma_px,
+            intrinsics=self.intrinsics,
+        )
+
+    def _freeze(self, row: int) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
+        """Linear factors replacing the image factors that leave the window with this image
+        (in blocks of ``marginalise_every``), and the slots to remove."""
+        every = self.settings.marginalise_every
+        cutoff = (row // every - self.settings.window_images // every) * every
+        leaving = [r for r in self._image_slots if r < cutoff]
+        out = gtsam.NonlinearFactorGraph()
+        if not leaving:
+            return out, []
+        factors = self.smoother.getFactors()
+        by_keys: dict[tuple[int, ...], list] = {}
+        removed = []
+        for r in leaving:
+            slot = self._image_slots.pop(r)
+            factor = factors.at(slot)
+            if factor is None:  # marginalised with its cycle's parameter vector
+                continue
+            by_keys.setdefault(tuple(factor.keys()), []).append(factor)
+            removed.append(slot)
+        linearization_point = self.smoother.getLinearizationPoint()
+        for keys, group in by_keys.items():
+            out.add(self._merged_factor(keys, group, linearization_point))
+        return out, removed
 
     def _check_observations(self, observations: list[tuple[str, np.ndarray]]) -> list[tuple[str, np.ndarray]]:
         known = []
@@ -365,17 +391,26 @@ class OnlineCalibrator:
             raise InputError(None, "observations", "an image needs at least one observed point")
         return known
 
-    def _gate(self, T_W_C: np.ndarray, known: list) -> tuple[list, list[str]]:
+    def _gate(
+        self, measurements: Projections, known: list, p_lin: np.ndarray, fixture_lin: gtsam.Pose3
+    ) -> tuple[list, list[str]]:
         """Reject points whose residual against the prediction differs from the image's
         median residual by more than the gate: a model error or drift moves all the points
-        of an image together, a wrong detection moves one."""
+        of an image together, a wrong detection moves one.
+
+        The prediction is at the current estimate, to first order from the linearisation
+        point (where iSAM2 linearises the new factor, so that evaluation is shared): early on
+        the linearisation point lags the estimate by pixels that differ from point to point,
+        which the gate would take for outliers."""
         if len(known) < 3:
             return known, []
-        points_W = transform_points(self._fixture, np.array([self.points_F[n] for n, _ in known]))
-        points_C = transform_points(inverse(T_W_C), points_W)
-        if np.any(points_C[:, 2] <= 0.0):
-            raise InputError(None, "observations", "the points are behind the camera at the current estimate")
-        residuals = np.array([uv for _, uv in known]) - self.camera.project(points_C)
+        try:
+            evaluation = measurements.whitened([p_lin, fixture_lin], True, robust=False)
+        except BehindCameraError:
+            raise InputError(None, "observations", "the points are behind the camera at the current estimate") from None
+        J_P, J_O = evaluation.blocks
+        step = J_P @ (self._p - p_lin) + J_O @ fixture_lin.localCoordinates(gtsam.Pose3(self._fixture))
+        residuals = ((evaluation.residual + step) * measurements.sigma).reshape(-1, 2)
         offset = np.linalg.norm(residuals - np.median(residuals, axis=0), axis=1)
         kept = [obs for obs, d in zip(known, offset, strict=True) if d <= self.settings.outlier_gate_px]
         rejected = [name for (name, _), d in zip(known, offset, strict=True) if d > self.settings.outlier_gate_px]
@@ -398,8 +433,8 @@ class OnlineCalibrator:
 
     def batch_initial(self) -> gtsam.Values:
         """Where a batch solve of ``graph`` (``keep_graph``) starts, as a batch calibration
-        would: every parameter vector at the starting model, the camera poses from it, the
-        fixture pose as the first image placed it."""
+        would: every parameter vector at the starting model, the fixture pose as the first
+        image placed it."""
         if not self.keep_graph:
             raise RuntimeError("batch_initial needs keep_graph=True")
         start = self.start[self.model.index]
@@ -407,9 +442,6 @@ class OnlineCalibrator:
         for cycle in range(self.cycle + 1):
             initial.insert(params_key(cycle), start)
         initial.insert(OBJECT_KEY, self.initial.atPose3(OBJECT_KEY))
-        poses = self.model.poses(start)
-        for row in sorted(self.model.q):
-            initial.insert(pose_key(row), gtsam.Pose3(poses[row]))
         return initial
 
     def current_params(self) -> np.ndarray:

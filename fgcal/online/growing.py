@@ -1,4 +1,4 @@
-"""Kinematics of a growing set of configurations, for the online kinematic factors."""
+"""Kinematics of a growing set of configurations, for the online measurement factors."""
 
 from __future__ import annotations
 
@@ -20,12 +20,28 @@ class _Row:
         return self.model.row(self.values, j, self.what)
 
 
+class RowKinematics:
+    """One configuration of a :class:`GrowingKinematics`, as the measurement factors ask for
+    kinematics (fgcal.factors.Kinematics): index 0 is that row."""
+
+    def __init__(self, model: GrowingKinematics, row: int) -> None:
+        self.model, self.row = model, row
+        self.n_released = model.n_released
+
+    def poses(self, released_values: np.ndarray | None) -> np.ndarray:
+        values = self.model.base[self.model.index] if released_values is None else released_values
+        return self.model.row(np.asarray(values, dtype=float), self.row, "pose")[None]
+
+    def jacobians(self, released_values: np.ndarray) -> np.ndarray:
+        return self.model.row(np.asarray(released_values, dtype=float), self.row, "jacobian")[None]
+
+
 class GrowingKinematics:
     """FK and body Jacobians of ``frame`` for configurations added one at a time.
 
     Each configuration belongs to a group (the parameter variable of its work cycle). The
     first request at new parameter values evaluates every live row of the group at once,
-    vectorised: iSAM2 relinearises all the kinematic factors of a parameter variable together.
+    vectorised: iSAM2 relinearises all the image factors of a parameter variable together.
     A configuration added later is evaluated alone. Rows whose factors have been marginalised
     are forgotten, so memory stays bounded.
     """
@@ -67,6 +83,11 @@ class GrowingKinematics:
         params = self.base.copy()
         params[self.index] = released_values
         return params
+
+    def pose_at(self, released_values: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The frame's pose (4, 4) at one configuration, no Jacobian, not cached."""
+        data = kinematics.forward(self.robot, self.full(released_values), np.atleast_2d(q))
+        return kinematics.frame_pose(self.robot, data, self.frame)[0]
 
     def poses(self, released_values: np.ndarray) -> _Row:
         return _Row(self, np.asarray(released_values, dtype=float), "pose")
