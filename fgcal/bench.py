@@ -1,20 +1,27 @@
-"""``fgcal bench``: times measured in one run, printed with their ratios.
+"""``fgcal bench``: fgcal's batch solve against two baselines, and online latency, measured in
+one run.
 
-1. fgcal's full four-stage calibration of the seed cell's 300-configuration space-filling
-   case (pair formulation, DH,s,e), on the GTSAM factor graph.
-2. The same calibration with ``scipy.optimize.least_squares`` (trust-region reflective,
-   finite-difference Jacobian): the same residuals (the point-pair contrasts of the same
-   groups, vectorised in NumPy, poses computed directly from the parameters), the same
-   released parameters per stage, the same starting point.
-3. The ceiling of that ratio: the baseline's residual evaluations against one FK + analytic
-   Jacobian and one residual per Jacobian, at the baseline's number of Jacobians.
-4. Online recalibration: ``OnlineCalibrator.add`` latency over the case's 300 images, and a
-   batch re-solve of the same graph beside it.
+For each size (default 300 and 1000 configurations of the seed cell's space-filling design,
+pair formulation, DH,s,e, the four stages), from the same start and with the same released
+parameters per stage, on the same residuals (the point-pair contrasts of the same groups and
+the length bounds):
+
+1. fgcal: the stages on the factor graph (graph building included);
+2. a bare NumPy Gauss-Newton with the analytic Jacobian (the shared kinematics, the contrasts
+   as one sparse matrix), with backtracking and the same stopping rule;
+3. ``scipy.optimize.least_squares`` with finite differences (trust-region reflective).
+
+The methods run interleaved, ``repeats`` times each, and the best CPU time (and wall time) of
+each is kept: the machine is shared, and the minimum is the least disturbed figure. Each
+method's result is scored on the held-out configurations against the simulation's truth.
+Online: ``OnlineCalibrator.add`` CPU time per image over the dataset's images, the best of
+the repeats per image, then its median and 99th percentile.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -23,23 +30,30 @@ import scipy.sparse
 
 from . import kinematics
 from .calibration.config import CalibrationConfig
-from .calibration.graph import build_graph, initial_state
+from .calibration.graph import build_graph
 from .calibration.identifiability import analyse
+from .calibration.initialise import initial_state, initial_tracker
 from .calibration.problem import Problem, build_problem
-from .calibration.run import calibrate_dataset
+from .calibration.scoring import load_truth, truth_errors
 from .calibration.solve import solve_stage, stage_parameters
+from .calibration.state import State
+from .calibration.validation import default_tool_point, held_out_errors
 from .dataset import load_dataset
 from .factors.point_pair import helmert
+from .parameters import split_name
 from .robot_io import robots_dir
+from .se3 import skew, so3_exp, so3_log
 from .simulation.simulate import simulate
 
 
 class PairResiduals:
-    """Whitened point-pair contrasts of all groups as a function of the released parameters."""
+    """Whitened point-pair contrasts of all groups and the length bounds, as a function of
+    the released parameters, with their analytic Jacobian: the baselines' residuals."""
 
     def __init__(self, problem: Problem, full_params: np.ndarray, released: list[str]) -> None:
         self.problem = problem
         self.base = full_params.copy()
+        self.released = list(released)
         self.index = np.array([problem.robot.parameter_names.index(n) for n in released], dtype=int)
         images, c, p_F, blocks = [], [], [], []
         for group in problem.pairs:
@@ -52,70 +66,114 @@ class PairResiduals:
         self.p_W = np.concatenate(p_F) @ problem.fixture_rotation.T
         self.H = scipy.sparse.block_diag(blocks, format="csr")
         self.sigma = problem.config.camera_point_sigma_m
+        nominal = problem.robot.nominal_parameters()
+        self.bounded = np.array([i for i, n in enumerate(released) if split_name(n)[0] in ("d", "a")], dtype=int)
+        self.bound_nominal = np.array([nominal[released[i]] for i in self.bounded])
+        self.bound_sigma = problem.config.length_bound_m
 
-    def __call__(self, released_values: np.ndarray) -> np.ndarray:
+    def _poses(self, x: np.ndarray) -> tuple[kinematics.KinematicsData, np.ndarray]:
         params = self.base.copy()
-        params[self.index] = released_values
+        params[self.index] = x
         data = kinematics.forward(self.problem.robot, params, self.problem.q_fit)
-        T = kinematics.frame_pose(self.problem.robot, data, "tool")[self.images]
+        return data, kinematics.frame_pose(self.problem.robot, data, "tool")[self.images]
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        _, T = self._poses(x)
         world = np.einsum("oij,oj->oi", T[:, :3, :3], self.c) + T[:, :3, 3] - self.p_W
-        return (self.H @ world).reshape(-1) / self.sigma
+        pairs = np.asarray(self.H @ world).reshape(-1) / self.sigma
+        return np.concatenate([pairs, (x[self.bounded] - self.bound_nominal) / self.bound_sigma])
+
+    def with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        data, T = self._poses(x)
+        R = T[:, :3, :3]
+        world = np.einsum("oij,oj->oi", R, self.c) + T[:, :3, 3] - self.p_W
+        J = kinematics.jacobian(self.problem.robot, data, self.released, frame="tool")[self.images]
+        per_obs = np.matmul(-R @ skew(self.c), J[:, :3]) + np.matmul(R, J[:, 3:])  # (O, 3, m)
+        m = len(x)
+        J_pairs = np.asarray(self.H @ per_obs.reshape(len(R), 3 * m)).reshape(-1, m) / self.sigma
+        J_bounds = np.zeros((len(self.bounded), m))
+        J_bounds[np.arange(len(self.bounded)), self.bounded] = 1.0 / self.bound_sigma
+        residual = np.concatenate(
+            [
+                np.asarray(self.H @ world).reshape(-1) / self.sigma,
+                (x[self.bounded] - self.bound_nominal) / self.bound_sigma,
+            ]
+        )
+        return residual, np.vstack([J_pairs, J_bounds])
 
 
-def scipy_calibration(problem: Problem, identifiable: list[str]) -> tuple[np.ndarray, float, list[dict]]:
-    """The baseline; per stage the released count m, scipy's nfev and njev (each 2-point
-    finite-difference Jacobian costs m residual evaluations on top of nfev)."""
+def gauss_newton(residuals: PairResiduals, x0: np.ndarray, max_iterations: int = 100) -> np.ndarray:
+    """Gauss-Newton with column scaling, backtracking while the cost grows, and the same
+    stopping rule as fgcal's solver (relative cost change below 1e-8)."""
+    x = x0.copy()
+    r, J = residuals.with_jacobian(x)
+    cost = float(r @ r)
+    for _ in range(max_iterations):
+        scale = np.linalg.norm(J, axis=0)
+        scale[scale == 0] = 1.0
+        step = np.linalg.lstsq(J / scale, -r, rcond=None)[0] / scale
+        t = 1.0
+        while t >= 1e-4:
+            candidate = residuals(x + t * step)
+            new_cost = float(candidate @ candidate)
+            if new_cost <= cost:
+                break
+            t /= 2.0
+        else:
+            break
+        x = x + t * step
+        converged = cost - new_cost <= 1e-8 * cost + 1e-14
+        cost = new_cost
+        if converged:
+            break
+        r, J = residuals.with_jacobian(x)
+    return x
+
+
+def _staged(problem: Problem, identifiable: list[str], fit_stage: Callable) -> np.ndarray:
     params = problem.robot.parameter_vector()
-    stages = []
-    started = time.perf_counter()
     for kinds in problem.config.stages:
         released = stage_parameters(kinds, identifiable)
-        residuals = PairResiduals(problem, params, released)
-        solution = scipy.optimize.least_squares(residuals, params[residuals.index], jac="2-point", method="trf")
-        params[residuals.index] = solution.x
-        stages.append({"released": len(released), "nfev": int(solution.nfev), "njev": int(solution.njev)})
-    return params, time.perf_counter() - started, stages
+        if released:
+            residuals = PairResiduals(problem, params, released)
+            params[residuals.index] = fit_stage(residuals, params[residuals.index])
+    return params
 
 
-def ratio_ceiling(problem: Problem, params: np.ndarray, identifiable: list[str], stages: list[dict]) -> dict:
-    """How much faster than the baseline any analytic-Jacobian solver can be at the same
-    number of Jacobians: the baseline's residual evaluations against one FK+Jacobian plus
-    one residual per Jacobian, with no other overhead."""
-    residuals = PairResiduals(problem, params, identifiable)
-    x = params[residuals.index]
-    repeats = 5
-    started = time.perf_counter()
-    for _ in range(repeats):
-        residuals(x)
-    residual_s = (time.perf_counter() - started) / repeats
-    started = time.perf_counter()
-    for _ in range(repeats):
-        data = kinematics.forward(problem.robot, params, problem.q_fit)
-        kinematics.jacobian(problem.robot, data, identifiable, frame="tool")
-    jacobian_s = (time.perf_counter() - started) / repeats
-    evaluations = sum(s["nfev"] + s["released"] * s["njev"] for s in stages)
-    jacobians = sum(s["njev"] for s in stages)
-    return {
-        "scipy_residual_evaluations": evaluations,
-        "scipy_jacobians": jacobians,
-        "residual_evaluation_s": residual_s,
-        "fk_and_jacobian_s": jacobian_s,
-        "ratio_ceiling": evaluations * residual_s / (jacobians * (jacobian_s + residual_s)),
-    }
+def numpy_gauss_newton(problem: Problem, identifiable: list[str]) -> np.ndarray:
+    return _staged(problem, identifiable, gauss_newton)
 
 
-def fgcal_stages(problem: Problem, identifiable: list[str]) -> tuple[np.ndarray, float]:
+def scipy_finite_differences(problem: Problem, identifiable: list[str]) -> np.ndarray:
+    return _staged(
+        problem,
+        identifiable,
+        lambda residuals, x0: scipy.optimize.least_squares(residuals, x0, jac="2-point", method="trf").x,
+    )
+
+
+def fgcal_solve(problem: Problem, identifiable: list[str]) -> np.ndarray:
     state = initial_state(problem)
-    started = time.perf_counter()
     for i, kinds in enumerate(problem.config.stages, start=1):
-        state, _, _, _ = solve_stage(problem, str(i), stage_parameters(kinds, identifiable), state)
-    return state.params, time.perf_counter() - started
+        released = stage_parameters(kinds, identifiable)
+        if released:
+            state, _, _, _ = solve_stage(problem, str(i), released, state)
+    return state.params
 
 
-def run_bench(out: Path, seed: int = 1, n: int = 300, repeats: int = 3) -> dict:
+METHODS = {"fgcal": fgcal_solve, "numpy_gauss_newton": numpy_gauss_newton, "scipy_fd": scipy_finite_differences}
+
+
+def _timed(function: Callable, *args) -> tuple[object, float, float]:
+    cpu, wall = time.process_time(), time.perf_counter()
+    out = function(*args)
+    return out, time.process_time() - cpu, time.perf_counter() - wall
+
+
+def simulated_case(out: Path, seed: int, n: int, say: Callable[[str], None]) -> Path:
     data_dir = out / f"seed{seed}_n{n}"
     if not (data_dir / "dataset.yaml").exists():
-        print(f"simulating the seed cell, space-filling design of {n} configurations (seed {seed}) -> {data_dir}")
+        say(f"simulating the seed cell, space-filling design of {n} configurations (seed {seed}) -> {data_dir}")
         simulate(
             robots_dir().parent / "cells" / "kr125_seed.yaml",
             data_dir,
@@ -123,63 +181,52 @@ def run_bench(out: Path, seed: int = 1, n: int = 300, repeats: int = 3) -> dict:
             design="space_filling",
             n_configurations=n,
         )
+    return data_dir
+
+
+def batch_bench(data_dir: Path, repeats: int, say: Callable[[str], None]) -> dict:
     dataset = load_dataset(data_dir)
     config = CalibrationConfig.defaults(data_dir)
     problem = build_problem(dataset, config)
     identifiable = analyse(
         build_graph(problem, problem.candidates, initial_state(problem)), config.min_information
     ).identifiable
-    sizes = [len(stage_parameters(k, identifiable)) for k in config.stages]
-    print(
-        f"{len(problem.fit)} configurations for fitting, {problem.n_residuals} residuals, "
-        f"{len(identifiable)} identifiable parameters, parameters per stage {sizes}"
+    say(
+        f"  {len(dataset.configs)} configurations, {len(problem.fit)} for fitting, {problem.n_residuals} residuals, "
+        f"{len(identifiable)} identifiable parameters, per stage "
+        f"{[len(stage_parameters(k, identifiable)) for k in config.stages]}"
     )
-
-    stage_times, total_times = [], []
-    for _ in range(repeats):
-        fg_params, stage_time = fgcal_stages(problem, identifiable)
-        stage_times.append(stage_time)
-        started = time.perf_counter()
-        calibrate_dataset(dataset, config)
-        total_times.append(time.perf_counter() - started)
-    sp_params, sp_time, sp_stages = scipy_calibration(problem, identifiable)
-    ceiling = ratio_ceiling(problem, fg_params, identifiable, sp_stages)
-    final = PairResiduals(problem, fg_params, identifiable)
-    cost_fgcal = float(np.sum(final(fg_params[final.index]) ** 2))
-    cost_scipy = float(np.sum(final(sp_params[final.index]) ** 2))
-    result = {
-        "fgcal_four_stages_s": min(stage_times),
-        "fgcal_calibrate_total_s": min(total_times),
-        "scipy_four_stages_s": sp_time,
-        "scipy_stages": sp_stages,
-        **ceiling,
-        "ratio_scipy_over_fgcal": sp_time / min(stage_times),
-        "chi2_fgcal": cost_fgcal,
-        "chi2_scipy": cost_scipy,
+    cpu = {name: [] for name in METHODS}
+    wall = {name: [] for name in METHODS}
+    params = {}
+    for r in range(repeats):
+        for name, method in METHODS.items():  # interleaved: each round runs every method once
+            params[name], c, w = _timed(method, problem, identifiable)
+            cpu[name].append(c)
+            wall[name].append(w)
+        say(f"  round {r + 1}/{repeats}: " + ", ".join(f"{n} {cpu[n][-1]:.3f} s" for n in METHODS))
+    truth = load_truth(data_dir)
+    point = default_tool_point(problem)
+    held_out = {
+        name: float(np.sqrt(np.mean(truth_errors(problem, State(p), truth, point)["tool_point"] ** 2)))
+        for name, p in params.items()
     }
-    print(f"fgcal, four stages (best of {repeats}):          {result['fgcal_four_stages_s']:.3f} s")
-    print(
-        f"fgcal, whole calibrate() incl. identifiability, covariance, validation: "
-        f"{result['fgcal_calibrate_total_s']:.3f} s"
-    )
-    print(
-        f"scipy least_squares, finite differences:   {sp_time:.3f} s ({ceiling['scipy_residual_evaluations']} "
-        f"residual evaluations, {ceiling['scipy_jacobians']} finite-difference Jacobians)"
-    )
-    print(f"ratio scipy / fgcal (four stages):         {result['ratio_scipy_over_fgcal']:.1f}")
-    print(f"final chi2: fgcal {cost_fgcal:.6g}, scipy {cost_scipy:.6g} (same residuals)")
-    print(
-        f"ceiling of the ratio at the same number of Jacobians: one residual evaluation "
-        f"{ceiling['residual_evaluation_s'] * 1e3:.2f} ms, FK + analytic Jacobian "
-        f"{ceiling['fk_and_jacobian_s'] * 1e3:.2f} ms -> at most {ceiling['ratio_ceiling']:.1f}x"
-    )
-    result.update(online_bench(data_dir))
-    return result
+    final = PairResiduals(problem, problem.robot.parameter_vector(), identifiable)
+    chi2 = {name: float(np.sum(final(p[final.index]) ** 2)) for name, p in params.items()}
+    return {
+        "n_configurations": len(dataset.configs),
+        "n_fit": len(problem.fit),
+        "cpu_s": {n: min(v) for n, v in cpu.items()},
+        "wall_s": {n: min(v) for n, v in wall.items()},
+        "held_out_rms_m": held_out,
+        "chi2": chi2,
+    }
 
 
-def online_bench(data_dir: Path) -> dict:
-    """Latency of OnlineCalibrator.add over the dataset's images, and a batch re-solve (LM on
-    the same graph, from the nominal model) beside it."""
+def online_bench(data_dir: Path, repeats: int, compare_batch: bool) -> dict:
+    """CPU time of OnlineCalibrator.add per image (best of the repeats per image); with
+    ``compare_batch``, also a batch LM re-solve of the same graph and the online estimate's
+    distance to it in sigma."""
     import gtsam
 
     from .online import OnlineCalibrator
@@ -189,31 +236,200 @@ def online_bench(data_dir: Path) -> dict:
     dataset = load_dataset(data_dir)
     points = dataset.points_F()
     measurements = dataset_measurements(data_dir)
-    calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points, keep_graph=True)
-    latency = np.array([calibrator.add(m.q, list(m.pixels), m.cycle).update_s for m in measurements]) * 1e3
-    initial = calibrator.batch_initial()
-    params = gtsam.LevenbergMarquardtParams()
-    params.setLinearSolverType("MULTIFRONTAL_QR")
-    params.setDiagonalDamping(True)
-    started = time.perf_counter()
-    batch = gtsam.LevenbergMarquardtOptimizer(calibrator.graph, initial, params).optimize()
-    batch_s = time.perf_counter() - started
-    online = calibrator.current_params()[calibrator.model.index]
-    difference = np.abs(online - batch.atVector(params_key(calibrator.cycle))) / calibrator.sigmas
+    per_image = np.full(len(measurements), np.inf)
+    for r in range(repeats):
+        calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points, keep_graph=compare_batch and r == 0)
+        for i, m in enumerate(measurements):
+            _, cpu, _ = _timed(calibrator.add, m.q, list(m.pixels), m.cycle)
+            per_image[i] = min(per_image[i], cpu)
+        if compare_batch and r == 0:
+            kept = calibrator
+    per_image *= 1e3
+    quarter = max(1, len(per_image) // 4)
     result = {
         "online_images": len(measurements),
-        "online_update_median_ms": float(np.median(latency)),
-        "online_update_p99_ms": float(np.percentile(latency, 99)),
-        "online_update_max_ms": float(latency.max()),
-        "online_batch_resolve_s": batch_s,
-        "online_minus_batch_max_sigma": float(difference.max()),
+        "online_median_ms": float(np.median(per_image)),
+        "online_p99_ms": float(np.percentile(per_image, 99)),
+        "online_max_ms": float(per_image.max()),
+        "online_median_last_quarter_ms": float(np.median(per_image[-quarter:])),
     }
-    print(
-        f"online update latency over {len(measurements)} images: median {result['online_update_median_ms']:.1f} ms, "
-        f"p99 {result['online_update_p99_ms']:.1f} ms, max {result['online_update_max_ms']:.1f} ms"
-    )
-    print(
-        f"batch re-solve of the same graph (LM from the nominal model): {batch_s:.2f} s; online estimate "
-        f"within {difference.max():.3f} sigma of it ({calibrator.released[int(np.argmax(difference))]})"
+    if compare_batch:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setLinearSolverType("MULTIFRONTAL_QR")
+        params.setDiagonalDamping(True)
+        batch, cpu, _ = _timed(gtsam.LevenbergMarquardtOptimizer(kept.graph, kept.batch_initial(), params).optimize)
+        online = kept.current_params()[kept.model.index]
+        difference = np.abs(online - batch.atVector(params_key(kept.cycle))) / kept.sigmas
+        result["online_batch_resolve_s"] = cpu
+        result["online_minus_batch_max_sigma"] = float(difference.max())
+        result["online_minus_batch_worst"] = kept.released[int(np.argmax(difference))]
+    return result
+
+
+# The FARO acceptance case: tracker formulation, DH,s,e, half the configurations held out.
+FARO_CONFIG = {
+    "formulation": "tracker",
+    "units": {"length": "mm"},
+    "noise": {"tracker_sigma": 0.05},
+    "validation": {"holdout": 0.5, "seed": 0},
+}
+
+
+class TrackerDHResiduals:
+    """Whitened tracker residuals ``(L (FK_DH(q_j) s_t) - m) / sigma`` of the fitting half as a
+    function of x = (DH parameters, tracker rotation vector and translation, tool points): the
+    plain DH fit a user would write with scipy."""
+
+    def __init__(self, problem: Problem, released: list[str]) -> None:
+        self.problem = problem
+        self.base = problem.robot.parameter_vector()
+        self.index = np.array([problem.robot.parameter_names.index(n) for n in released], dtype=int)
+        self.j = np.array([o[0] for o in problem.tracker_obs])
+        self.t = np.array([o[1] for o in problem.tracker_obs])
+        self.measured = np.array([o[2] for o in problem.tracker_obs])
+        self.sigma = problem.config.tracker_sigma_m
+
+    def unpack(self, x: np.ndarray) -> State:
+        m = len(self.index)
+        params = self.base.copy()
+        params[self.index] = x[:m]
+        T_L = np.eye(4)
+        T_L[:3, :3], T_L[:3, 3] = so3_exp(x[m : m + 3]), x[m + 3 : m + 6]
+        return State(params, tracker_pose=T_L, tool_points=x[m + 6 :].reshape(-1, 3))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        state = self.unpack(x)
+        data = kinematics.forward(self.problem.robot, state.params, self.problem.q_fit)
+        flange = kinematics.frame_pose(self.problem.robot, data, "flange")[self.j]
+        p_W = np.einsum("oij,oj->oi", flange[:, :3, :3], state.tool_points[self.t]) + flange[:, :3, 3]
+        T_L = state.tracker_pose
+        return ((p_W @ T_L[:3, :3].T + T_L[:3, 3] - self.measured) / self.sigma).reshape(-1)
+
+
+def scipy_dh_fit(dataset_dir: Path, released: list[str]) -> tuple[Problem, State]:
+    """The yardstick: load, start the tracker pose and tool points as fgcal does, and fit the
+    DH parameters ``released`` with scipy least_squares and finite differences."""
+    dataset = load_dataset(dataset_dir)
+    config = CalibrationConfig.defaults(dataset_dir, **FARO_CONFIG, model="DH")
+    problem = build_problem(dataset, config)
+    T_L, points = initial_tracker(problem, problem.robot.parameter_vector())
+    residuals = TrackerDHResiduals(problem, released)
+    x0 = np.concatenate([residuals.base[residuals.index], so3_log(T_L[:3, :3]), T_L[:3, 3], points.reshape(-1)])
+    solution = scipy.optimize.least_squares(residuals, x0, jac="2-point", method="trf")
+    return problem, residuals.unpack(solution.x)
+
+
+def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], None]) -> dict:
+    """``fgcal calibrate`` on the FARO set as a whole command (a subprocess: start-up,
+    loading, calibration, report with plots) against the plain scipy DH fit of the same
+    fitting half (in this process), interleaved, best wall time of each."""
+    import json
+    import subprocess
+    import sys
+
+    import yaml
+
+    config_path = out / "faro_calibrate.yaml"
+    out.mkdir(parents=True, exist_ok=True)
+    config_path.write_text(yaml.safe_dump({"dataset": str(dataset_dir.resolve()), **FARO_CONFIG}), encoding="utf-8")
+    dataset = load_dataset(dataset_dir)
+    dh_config = CalibrationConfig.defaults(dataset_dir, **FARO_CONFIG, model="DH")
+    problem = build_problem(dataset, dh_config)
+    stage = build_graph(problem, problem.candidates, initial_state(problem))
+    released = [n for n in analyse(stage, dh_config.min_information).identifiable if "." not in n]
+    command = [sys.executable, "-m", "fgcal.cli", "calibrate", str(config_path), "--out", str(out / "faro_report")]
+    wall = {"fgcal_calibrate_command": [], "scipy_dh_fit": []}
+    for r in range(repeats):
+        started = time.perf_counter()
+        subprocess.run(command, check=True, capture_output=True)
+        wall["fgcal_calibrate_command"].append(time.perf_counter() - started)
+        (dh_problem, dh_state), _, w = _timed(scipy_dh_fit, dataset_dir, released)
+        wall["scipy_dh_fit"].append(w)
+        say(f"  round {r + 1}/{repeats}: " + ", ".join(f"{n} {v[-1]:.2f} s" for n, v in wall.items()))
+    report = json.loads((out / "faro_report" / "report.json").read_text(encoding="utf-8"))
+    dh_errors = held_out_errors(dh_problem, dh_state)["tool_point"]
+    result = {
+        "faro_wall_s": {n: min(v) for n, v in wall.items()},
+        "faro_dh_released": len(released),
+        "faro_held_out_mean_m": {
+            "fgcal": report["validation"]["after"]["tool_point"]["mean"],
+            "scipy_dh_fit": float(dh_errors.mean()),
+        },
+    }
+    say(
+        f"  whole fgcal calibrate command {result['faro_wall_s']['fgcal_calibrate_command']:.2f} s wall, "
+        f"plain scipy DH fit ({len(released)} DH parameters, finite differences) "
+        f"{result['faro_wall_s']['scipy_dh_fit']:.2f} s; held-out mean: fgcal "
+        f"{result['faro_held_out_mean_m']['fgcal'] * 1e3:.3f} mm, DH fit "
+        f"{result['faro_held_out_mean_m']['scipy_dh_fit'] * 1e3:.3f} mm"
     )
     return result
+
+
+def run_bench(
+    out: Path,
+    seed: int = 1,
+    sizes: tuple[int, ...] = (300, 1000),
+    repeats: int = 3,
+    say=print,
+    faro: Path | None = None,
+) -> dict:
+    """Every figure of ``fgcal bench``; ``say`` gets the human-readable lines. ``faro``: a
+    dataset converted from the IRB 120 / FARO set (``fgcal convert-faro``), timed too."""
+    from threadpoolctl import threadpool_info
+
+    say(
+        f"fgcal bench: CPU and wall seconds, best of {repeats} interleaved rounds; "
+        f"seed {seed}; BLAS threads {[i.get('num_threads') for i in threadpool_info()]}"
+    )
+    result: dict = {"seed": seed, "repeats": repeats, "sizes": {}}
+    for n in sizes:
+        data_dir = simulated_case(out, seed, n, say)
+        say(f"batch calibration, {n} configurations:")
+        batch = batch_bench(data_dir, repeats, say)
+        _print_batch(batch, say)
+        say(f"online recalibration, {n} images:")
+        online = online_bench(data_dir, repeats, compare_batch=n == sizes[0])
+        _print_online(online, say)
+        result["sizes"][str(n)] = {**batch, **online}
+    if faro is not None:
+        say(f"FARO set ({faro}): whole calibrate command against a plain scipy DH fit")
+        result.update(faro_bench(Path(faro), out / "faro", repeats, say))
+    first = result["sizes"][str(sizes[0])]
+    result.update(
+        {
+            "n_configurations": first["n_configurations"],
+            "fgcal_s": first["cpu_s"]["fgcal"],
+            "numpy_gauss_newton_s": first["cpu_s"]["numpy_gauss_newton"],
+            "scipy_fd_s": first["cpu_s"]["scipy_fd"],
+            "online_median_ms": first["online_median_ms"],
+            "online_p99_ms": first["online_p99_ms"],
+            "held_out_rms_m": first["held_out_rms_m"],
+        }
+    )
+    return result
+
+
+def _print_batch(r: dict, say: Callable[[str], None]) -> None:
+    gn = r["cpu_s"]["numpy_gauss_newton"]
+    say(f"  {'method':<20} {'CPU s':>8} {'wall s':>8} {'/ numpy GN':>10} {'held-out RMS':>14} {'chi2':>12}")
+    for name in METHODS:
+        say(
+            f"  {name:<20} {r['cpu_s'][name]:8.3f} {r['wall_s'][name]:8.3f} {r['cpu_s'][name] / gn:10.2f} "
+            f"{r['held_out_rms_m'][name] * 1e3:11.5f} mm {r['chi2'][name]:12.6g}"
+        )
+    spread = max(r["held_out_rms_m"].values()) / min(r["held_out_rms_m"].values()) - 1.0
+    say(f"  held-out RMS spread over the methods: {100 * spread:.3f} %")
+
+
+def _print_online(r: dict, say: Callable[[str], None]) -> None:
+    say(
+        f"  online, {r['online_images']} images: median {r['online_median_ms']:.2f} ms, "
+        f"p99 {r['online_p99_ms']:.2f} ms, max {r['online_max_ms']:.2f} ms CPU per image; median of the last quarter "
+        f"{r['online_median_last_quarter_ms']:.2f} ms"
+    )
+    if "online_batch_resolve_s" in r:
+        say(
+            f"  batch LM re-solve of the online graph {r['online_batch_resolve_s']:.2f} s CPU; online estimate within "
+            f"{r['online_minus_batch_max_sigma']:.3f} sigma of it ({r['online_minus_batch_worst']})"
+        )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -82,14 +83,30 @@ def cmd_online_feed(args: argparse.Namespace) -> int:
     return 0
 
 
+def _score(result) -> None:
+    """After the calibration: a simulated dataset is scored against its truth (truth/)."""
+    from .calibration.run import held_out_summary
+    from .calibration.scoring import score_with_truth
+
+    score_with_truth(result)
+    line = held_out_summary(result)
+    if line:
+        print(line, flush=True)
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibration.config import load_config
     from .calibration.report import write_report
     from .calibration.run import calibrate
 
     result = calibrate(load_config(args.config), progress=lambda msg: print(msg, flush=True))
-    write_report(result, args.out)
-    print(f"wrote {args.out}/report.md, report.json, calibrated_robot.yaml ({result.timing['total_s']:.1f} s)")
+    _score(result)
+    started = time.perf_counter()
+    write_report(result, args.out, plots=not args.no_plots)
+    print(
+        f"wrote {args.out}/report.md, report.json, calibrated_robot.yaml "
+        f"(calibration {result.timing['total_s']:.1f} s, report {time.perf_counter() - started:.1f} s)"
+    )
     return 0
 
 
@@ -119,6 +136,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     print(f"2/3 calibrating ({config_path})")
     result = calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True))
+    _score(result)
     print("3/3 writing the report")
     write_report(result, out / "report")
     print(f"report: {out / 'report' / 'report.md'}")
@@ -126,9 +144,25 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    import json
+
     from .bench import run_bench
 
-    run_bench(Path(args.out), seed=args.seed, n=args.n, repeats=args.repeats)
+    sizes = tuple(args.sizes)
+    if any(n < 20 for n in sizes) or args.repeats < 1:
+        print("fgcal: error: --sizes are at least 20 configurations and --repeats at least 1", file=sys.stderr)
+        return 2
+    # With --json, stdout carries the JSON object alone; the progress goes to stderr.
+    say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if args.json else (lambda msg: print(msg, flush=True))
+    faro = Path(args.faro) if args.faro else None
+    if faro is not None and not (faro / "dataset.yaml").exists():
+        print(
+            f"fgcal: error: {faro}: no dataset.yaml (convert the FARO files with fgcal convert-faro)", file=sys.stderr
+        )
+        return 2
+    result = run_bench(Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro)
+    if args.json:
+        print(json.dumps(result, allow_nan=False))
     return 0
 
 
@@ -181,6 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="calibrate from a dataset as a calibration config describes")
     p.add_argument("config", help="calibration config YAML (docs/calibration.md)")
     p.add_argument("--out", required=True, help="output directory for the report and calibrated robot")
+    p.add_argument("--no-plots", action="store_true", help="write report.md without the PNG plots")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("demo", help="simulate the seed cell, calibrate it and write the report")
@@ -190,11 +225,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--formulation", choices=("pairs", "tracker"), default="pairs")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("bench", help="time the seed-scale calibration against a scipy least-squares baseline")
-    p.add_argument("--out", default="out/bench", help="where the simulated case is kept between runs")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--n", type=int, default=300, help="configurations (default 300)")
-    p.add_argument("--repeats", type=int, default=3, help="fgcal runs; the best time is reported")
+    p = sub.add_parser(
+        "bench", help="time fgcal's solve against a NumPy Gauss-Newton and scipy, and online latency (docs/cli.md)"
+    )
+    p.add_argument("--out", default="out/bench", help="where the simulated cases are kept between runs")
+    p.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
+    p.add_argument(
+        "--sizes", type=int, nargs="+", default=[300, 1000], help="configurations per case (default 300 1000)"
+    )
+    p.add_argument("--repeats", type=int, default=3, help="interleaved rounds; the best of each is kept (default 3)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (SI units) on stdout")
+    p.add_argument("--faro", help="a dataset from fgcal convert-faro: time the whole calibrate command on it too")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("online", help="online recalibration: fold measurement files from an inbox into the estimate")
@@ -235,8 +276,13 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "n", None) is not None and args.n < 1:
         print("fgcal: error: --n must be >= 1", file=sys.stderr)
         return 2
+    from threadpoolctl import threadpool_limits
+
     try:
-        return args.func(args)
+        # fgcal's dense algebra is small (tens of columns): one BLAS thread is fastest, and
+        # threads would stall each other on a busy machine.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return args.func(args)
     except FgcalError as exc:
         print(f"fgcal: error: {exc}", file=sys.stderr)
         return 2

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .boards import DICTIONARY, SideBoard
 from .camera import Camera, parse_camera
 from .errors import InputError
 from .fields import Fields, read_yaml
@@ -256,8 +257,6 @@ def load_dataset(path: str | Path) -> Dataset:
 
 
 def _boards(markers: Fields, units: Units) -> list:
-    from .markers import DICTIONARY, SideBoard
-
     markers.check_keys(("dictionary", "marker_ratio", "boards"))
     if markers.string("dictionary", DICTIONARY) != DICTIONARY:
         raise markers.error("dictionary", f"only {DICTIONARY} is supported")

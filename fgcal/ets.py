@@ -194,3 +194,26 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
         v0 = -cross(omega, origin[k][:, None, :])
         out[k] = np.concatenate([omega, v0], axis=-1)
     return out
+
+
+@dataclass(frozen=True)
+class Chain:
+    """An elementary transform chain with the frame indices the model needs.
+
+    ``frames[link_end[i]]`` is frame i+1 (after joint i+1, 0-based i), ``frames[bend[i]]``
+    the bending frame B_{i+1} right after the joint rotation, ``frames[base_end]`` the
+    robot base frame 0 and ``frames[len(elements)]`` the tool frame.
+    """
+
+    elements: tuple[ET, ...]
+    base_end: int
+    bend: tuple[int, ...]
+    link_end: tuple[int, ...]
+
+    @property
+    def flange(self) -> int:
+        return self.link_end[-1]
+
+    @property
+    def tool(self) -> int:
+        return len(self.elements)

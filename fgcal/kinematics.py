@@ -17,16 +17,35 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from .errors import InputError
-from .ets import element_twists, evaluate
+from .ets import Chain, element_twists, evaluate
 from .se3 import cross
 
-if TYPE_CHECKING:
-    from .robot import Robot
+
+class Robot(Protocol):
+    """What kinematics needs of a robot description (fgcal.robot.Robot provides it; this
+    module does not import it, so that the description can call kinematics)."""
+
+    name: str
+    model: str
+    masses: np.ndarray
+    coms: np.ndarray
+    payload_mass: float
+    payload_com: np.ndarray
+    gravity: np.ndarray
+
+    @property
+    def chain(self) -> Chain: ...
+
+    @property
+    def n_joints(self) -> int: ...
+
+    @property
+    def parameter_names(self) -> list[str]: ...
 
 
 @dataclass

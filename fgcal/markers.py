@@ -14,49 +14,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .boards import DICTIONARY, SideBoard
 from .camera import Camera
+from .dataset import Table
+from .errors import InputError
 from .se3 import inverse, pose
 from .simulation.cell import Side
-
-DICTIONARY = "DICT_5X5_1000"
-MARKER_RATIO = 0.75  # marker side / square side
-
-
-@dataclass(frozen=True)
-class SideBoard:
-    """A side's ChArUco board: T_F_B (board frame in the fixture frame, m), squares (x, y),
-    first marker id, and the grid point name of each ChArUco corner id."""
-
-    name: str
-    squares: tuple[int, int]
-    square_m: float
-    first_id: int
-    T_F_B: np.ndarray
-    corner_names: tuple[str, ...]
-
-    @property
-    def n_markers(self) -> int:
-        return self.squares[0] * self.squares[1] // 2
-
-    def opencv(self) -> cv2.aruco.CharucoBoard:
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, DICTIONARY))
-        ids = np.arange(self.first_id, self.first_id + self.n_markers, dtype=np.int32)
-        return cv2.aruco.CharucoBoard(self.squares, self.square_m, MARKER_RATIO * self.square_m, dictionary, ids)
-
-    def to_document(self) -> dict:
-        from .se3 import rpy_from_rotation
-
-        return {
-            "name": self.name,
-            "squares": list(self.squares),
-            "square": self.square_m,
-            "first_id": self.first_id,
-            "pose": {
-                "xyz": [float(v) + 0.0 for v in self.T_F_B[:3, 3]],
-                "rpy": [float(v) + 0.0 for v in rpy_from_rotation(self.T_F_B[:3, :3])],
-            },
-            "corners": list(self.corner_names),
-        }
 
 
 def side_boards(sides: list[Side], fixture_pose: np.ndarray | None = None) -> list[SideBoard]:
@@ -239,11 +202,7 @@ class ImageDetections:
 def detect_images(dataset, gate_px: float = 2.0, progress=None) -> ImageDetections:
     """Detect every configuration's image ``<config>.png``. An unreadable image or one without
     markers is skipped and reported; nothing else is lost."""
-    from .dataset import Table
-
     if dataset.images_dir is None or not dataset.boards or dataset.camera is None:
-        from .errors import InputError
-
         raise InputError(
             dataset.path / "dataset.yaml",
             "images",

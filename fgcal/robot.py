@@ -15,34 +15,11 @@ import numpy as np
 
 from . import kinematics
 from .errors import InputError
-from .ets import ET
+from .ets import ET, Chain
 from .parameters import JOINT_KINDS, parameter_names
 from .se3 import rpy_from_rotation
 
 MODELS = ("DH", "DH,s", "DH,s,e")
-
-
-@dataclass(frozen=True)
-class Chain:
-    """An elementary transform chain with the frame indices the model needs.
-
-    ``frames[link_end[i]]`` is frame i+1 (after joint i+1, 0-based i), ``frames[bend[i]]``
-    the bending frame B_{i+1} right after the joint rotation, ``frames[base_end]`` the
-    robot base frame 0 and ``frames[len(elements)]`` the tool frame.
-    """
-
-    elements: tuple[ET, ...]
-    base_end: int
-    bend: tuple[int, ...]
-    link_end: tuple[int, ...]
-
-    @property
-    def flange(self) -> int:
-        return self.link_end[-1]
-
-    @property
-    def tool(self) -> int:
-        return len(self.elements)
 
 
 @dataclass(frozen=True)

@@ -34,3 +34,22 @@ def seed_sim(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("seed_sim")
     simulate(SEED_CELL, out, seed=1)
     return out
+
+
+def calibrate(config, progress=None):
+    """fgcal.calibration.run.calibrate, then scored against the simulation's truth as the
+    CLI does (when the dataset has one)."""
+    from fgcal.calibration import run, scoring
+
+    result = run.calibrate(config, progress)
+    scoring.score_with_truth(result)
+    return result
+
+
+def calibrate_dataset(dataset, config, progress=None):
+    """fgcal.calibration.run.calibrate_dataset, then scored against the truth (if any)."""
+    from fgcal.calibration import run, scoring
+
+    result = run.calibrate_dataset(dataset, config, progress)
+    scoring.score_with_truth(result)
+    return result

@@ -7,12 +7,11 @@ import json
 
 import numpy as np
 import pytest
-from conftest import SEED_CELL, SHARED
+from conftest import SEED_CELL, SHARED, calibrate, calibrate_dataset
 
 import fgcal
 from fgcal.calibration.config import CalibrationConfig, parse_config
 from fgcal.calibration.report import write_report
-from fgcal.calibration.run import calibrate, calibrate_dataset
 from fgcal.dataset import load_dataset
 from fgcal.simulation.simulate import simulate
 

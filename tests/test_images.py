@@ -9,10 +9,9 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from conftest import SEED_CELL
+from conftest import SEED_CELL, calibrate, calibrate_dataset
 
 from fgcal.calibration.config import CalibrationConfig
-from fgcal.calibration.run import calibrate, calibrate_dataset
 from fgcal.dataset import load_dataset
 from fgcal.markers import Detector, detect_images
 from fgcal.se3 import inverse, transform_points

@@ -16,7 +16,6 @@ from .graph import build_graph, robust_scale
 from .identifiability import Identifiability, analyse
 from .initialise import initial_state
 from .problem import Problem, build_problem
-from .scoring import load_truth
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
 from .validation import ErrorStats, default_tool_point, held_out_errors, stats
@@ -101,7 +100,9 @@ def calibrate(config: CalibrationConfig, progress: Callable[[str], None] | None 
 def calibrate_dataset(
     dataset: Dataset, config: CalibrationConfig, progress: Callable[[str], None] | None = None
 ) -> CalibrationResult:
-    """Identifiability analysis, staged solving, covariances and held-out validation."""
+    """Identifiability analysis, staged solving, covariances and validation on the held-out
+    measurements. A simulation's truth is not read here: score the result afterwards with
+    fgcal.calibration.scoring.score_with_truth."""
     say = progress or (lambda _m: None)
     started = time.perf_counter()
     problem = build_problem(dataset, config, say)
@@ -153,18 +154,22 @@ def calibrate_dataset(
     solve_time = time.perf_counter() - solve_started
     covariance = parameter_covariance(last_stage, last_values) if last_stage is not None else np.zeros((0, 0))
     released = list(last_stage.released) if last_stage is not None else []
-    truth = load_truth(dataset.path)
     point = default_tool_point(problem)
     result = CalibrationResult(
-        config, problem, identifiability, final_ident, stages, before, state, released, covariance, point, truth=truth
+        config, problem, identifiability, final_ident, stages, before, state, released, covariance, point
     )
     for label, st in (("before", before), ("after", state)):
-        result.validation[label] = {k: stats(v) for k, v in held_out_errors(problem, st, truth, point).items()}
+        result.validation[label] = {k: stats(v) for k, v in held_out_errors(problem, st).items()}
     result.timing = {"solve_s": solve_time, "total_s": time.perf_counter() - started}
-    after = result.validation["after"].get("tool_point")
-    if after is not None and after.errors.size:
-        say(
-            f"  held-out positioning error: before {result.validation['before']['tool_point'].rms:.3e} m RMS, "
-            f"after {after.rms:.3e} m RMS"
-        )
     return result
+
+
+def held_out_summary(result: CalibrationResult) -> str | None:
+    """One line on the held-out error before and after, or None when nothing was scored."""
+    before, after = (result.validation.get(label, {}).get("tool_point") for label in ("before", "after"))
+    if after is None or not after.errors.size:
+        return None
+    reference = "the simulation's truth" if result.truth else "the held-out measurements"
+    return (
+        f"  held-out positioning error against {reference}: before {before.rms:.3e} m RMS, after {after.rms:.3e} m RMS"
+    )

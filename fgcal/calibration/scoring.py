@@ -1,8 +1,9 @@
 """Scoring against a simulation's ground truth.
 
 This is the only module of the calibration that reads ``truth/ground_truth.yaml``; it is
-called after the estimate is final, to score it, and nothing it returns feeds back into
-the estimation.
+called after the calibration (``score_with_truth(result)``), and nothing it returns feeds
+back into the estimation. The truth is evaluated with the simulator's own full model, not the
+model that was fitted: a DH fit of a compliant robot is scored against the compliant robot.
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ import numpy as np
 
 from ..fields import read_yaml
 from ..se3 import inverse, pose_from_xyz_rpy, transform_points
+from .run import CalibrationResult
+from .state import State
+from .validation import gauge_of, predicted_positions, remove_gauge, stats
 
 
 def load_truth(dataset_path: Path) -> dict | None:
@@ -27,7 +31,7 @@ def _pose(doc: dict) -> np.ndarray:
 def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None, target: str | None) -> np.ndarray:
     """True positions (N, 3) of what is scored: for pairs, ``point`` fixed in the true
     camera frame, in W; for the tracker, the reflector ``target`` in the tracker frame."""
-    robot = problem.robot
+    robot = problem.dataset.robot.with_model(truth.get("model", "DH,s,e"))
     params = truth["parameters"]
     if problem.config.formulation != "tracker":
         # The true tool.* perturbs the simulation's nominal mounting, which a dataset's (or a
@@ -36,3 +40,43 @@ def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None
         return transform_points(true_robot.fk_tool(q, params), point)
     T_T_W = inverse(_pose(truth["tracker_pose"]))
     return transform_points(T_T_W @ robot.fk(q, params), np.array(truth["tracker_targets"][target], float))
+
+
+def truth_errors(problem, state: State, truth: dict, point: np.ndarray) -> dict[str, np.ndarray]:
+    """Error norms (m) on the held-out configurations against the truth, per scored point.
+
+    Pairs and projection: ``point`` (in the camera frame) and the camera origin, in W, after
+    removing the gauge (fgcal.calibration.validation.gauge_of); tracker: the reflectors in the
+    tracker frame, no gauge."""
+    q = problem.dataset.q[problem.test]
+    if problem.config.formulation != "tracker":
+        out = {}
+        for label, p in (("tool_point", point), ("camera_origin", np.zeros(3))):
+            residual = remove_gauge(
+                predicted_positions(problem, state, q, p, None),
+                true_positions(problem, truth, q, p, None),
+                gauge_of(problem),
+            )
+            out[label] = np.linalg.norm(residual, axis=1)
+        return out
+    errors = [
+        np.linalg.norm(
+            predicted_positions(problem, state, q, None, t) - true_positions(problem, truth, q, None, target), axis=1
+        )
+        for t, target in enumerate(problem.targets)
+    ]
+    return {"tool_point": np.concatenate(errors)}
+
+
+def score_with_truth(result: CalibrationResult) -> bool:
+    """Score a finished calibration against its simulation's truth, if the dataset has one:
+    the before/after held-out errors are then those against the truth, and the report shows
+    the true parameters. Returns whether there was a truth."""
+    truth = load_truth(result.problem.dataset.path)
+    if truth is None:
+        return False
+    result.truth = truth
+    for label, state in (("before", result.before), ("after", result.state)):
+        errors = truth_errors(result.problem, state, truth, result.tool_point)
+        result.validation[label] = {k: stats(v) for k, v in errors.items()}
+    return True

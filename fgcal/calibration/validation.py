@@ -7,7 +7,8 @@
   configurations is removed before scoring. The camera origin's error is reported too.
 - Tracker formulation: the predicted reflector positions in the tracker frame; no gauge.
 
-References: the ground truth in simulation; held-out measurements with real tracker data.
+Here against held-out measurements (the tracker's); against a simulation's ground truth in
+fgcal.calibration.scoring, called after the calibration.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ import numpy as np
 
 from ..se3 import kabsch, transform_points
 from .problem import Problem
-from .scoring import true_positions
 from .state import State
 
 
@@ -76,44 +76,25 @@ def predicted_positions(
     return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
 
 
-def held_out_errors(problem: Problem, state: State, truth: dict | None, point: np.ndarray) -> dict[str, np.ndarray]:
-    """Error norms (m) on the held-out configurations, per scored point."""
+def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
+    """Error norms (m) on the held-out configurations against their measurements, per scored
+    point: the tracker's reflectors. (Scores against a simulation's truth: fgcal.calibration.scoring.)"""
     data = problem.dataset
-    q = data.q[problem.test]
-    out = {}
     if problem.config.formulation != "tracker":
-        if truth is None:
-            return out
-        for label, p in (("tool_point", point), ("camera_origin", np.zeros(3))):
-            residual = remove_gauge(
-                predicted_positions(problem, state, q, p, None),
-                true_positions(problem, truth, q, p, None),
-                gauge_of(problem),
-            )
-            out[label] = np.linalg.norm(residual, axis=1)
-        return out
+        return {}
+    q = data.q[problem.test]
     errors = []
-    if truth is not None:
-        for t, target in enumerate(problem.targets):
-            errors.append(
-                np.linalg.norm(
-                    predicted_positions(problem, state, q, None, t) - true_positions(problem, truth, q, None, target),
-                    axis=1,
-                )
-            )
-    else:
-        # Held-out measurements: predict each reflector at every held-out configuration once.
-        table = data.tables["tracker_points"]
-        config_pos = {c: i for i, c in enumerate(data.configs)}
-        test_pos = {int(c): i for i, c in enumerate(problem.test)}
-        for t, target in enumerate(problem.targets):
-            rows = [
-                (test_pos[config_pos[cid]], xyz)
-                for cid, name, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
-                if name == target and config_pos[cid] in test_pos
-            ]
-            if rows:
-                predicted = predicted_positions(problem, state, q, None, t)[[i for i, _ in rows]]
-                errors.append(np.linalg.norm(predicted - np.array([xyz for _, xyz in rows]), axis=1))
-    out["tool_point"] = np.concatenate(errors) if errors else np.zeros(0)
-    return out
+    # Held-out measurements: predict each reflector at every held-out configuration once.
+    table = data.tables["tracker_points"]
+    config_pos = {c: i for i, c in enumerate(data.configs)}
+    test_pos = {int(c): i for i, c in enumerate(problem.test)}
+    for t, target in enumerate(problem.targets):
+        rows = [
+            (test_pos[config_pos[cid]], xyz)
+            for cid, name, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
+            if name == target and config_pos[cid] in test_pos
+        ]
+        if rows:
+            predicted = predicted_positions(problem, state, q, None, t)[[i for i, _ in rows]]
+            errors.append(np.linalg.norm(predicted - np.array([xyz for _, xyz in rows]), axis=1))
+    return {"tool_point": np.concatenate(errors) if errors else np.zeros(0)}

@@ -21,6 +21,10 @@ from ..se3 import inverse, pose, transform_points
 from .cell import Cell, GridPoint, Side
 from .ik import solve_ik
 
+# IK problems solved at once: each holds a few tens of kB of kinematics, so memory stays
+# flat in the number of configurations, and the batches are still large enough to vectorise.
+IK_CHUNK = 2048
+
 
 @dataclass(frozen=True)
 class View:
@@ -77,7 +81,10 @@ def _solve_views(
     low, high = robot.limits[:, 0], robot.limits[:, 1]
     span_low, span_high = np.maximum(low, -np.pi), np.minimum(high, np.pi)
     q0 = rng.uniform(span_low, span_high, size=(len(T_rep), robot.n_joints))
-    q, ok = solve_ik(robot, nominal, T_rep, q0)
+    q, ok = np.empty_like(q0), np.empty(len(q0), dtype=bool)
+    for first in range(0, len(q0), IK_CHUNK):
+        chunk = slice(first, first + IK_CHUNK)
+        q[chunk], ok[chunk] = solve_ik(robot, nominal, T_rep[chunk], q0[chunk])
     views = []
     for i, (side, block) in enumerate(requests):
         candidates = [j for j in range(i * starts, (i + 1) * starts) if ok[j]]

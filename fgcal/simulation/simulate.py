@@ -127,6 +127,7 @@ def simulate(
         "cell": Path(cell.source).name,
         "design": cell.design.kind,
         "units": {"length": "m", "angle": "rad", "compliance": "rad/(N m)"},
+        "model": robot.model,  # the truth is scored with this model, whatever model is fitted
         "parameters": true_params,
         "camera_mounting_nominal": _pose_doc(robot.tool_pose),
         "base_pose_nominal": _pose_doc(robot.base_pose),
