@@ -67,6 +67,7 @@ class CalibrationConfig:
     min_information: float
     max_iterations: int
     pixels_from: str = "table"
+    solver_method: str = "lm"  # lm (fgcal's loop on GTSAM QR) | gtsam_lm (GTSAM's optimiser)
     # Camera intrinsics (projection): None = fixed at the dataset's values; otherwise the prior
     # sigmas (fx, fy, cx, cy in px; k1, k2, p1, p2, k3) around them, from an earlier calibration.
     intrinsics_prior_sigmas: tuple[float, ...] | None = None
@@ -163,7 +164,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     ident = doc.sub("identifiability", {})
     ident.check_keys(("min_information",))
     solver = doc.sub("solver", {})
-    solver.check_keys(("max_iterations",))
+    solver.check_keys(("max_iterations", "method"))
     to_m = units.to_m
     return CalibrationConfig(
         path=source,
@@ -193,6 +194,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         split_seed=validation.integer("seed", 0),
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
+        solver_method=solver.string("method", "lm", ("lm", "gtsam_lm")),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),
         intrinsics_prior_sigmas=_intrinsics(doc),
     )

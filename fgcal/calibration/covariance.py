@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import kinematics
 from ..robot import Robot
-from .graph import P_KEY, StageGraph
+from .graph import P_KEY, StageGraph, linearize
 
 
 def parameter_covariance(stage: StageGraph, values: gtsam.Values) -> np.ndarray:
@@ -25,7 +25,7 @@ def parameter_covariance(stage: StageGraph, values: gtsam.Values) -> np.ndarray:
     ordering = gtsam.Ordering()
     for key in [*stage.aux, P_KEY]:
         ordering.push_back(key)
-    bayes_tree = stage.graph.linearize(values).eliminateMultifrontal(ordering, gtsam.EliminateQR)
+    bayes_tree = linearize(stage, values).eliminateMultifrontal(ordering, gtsam.EliminateQR)
     return bayes_tree.marginalCovariance(P_KEY)
 
 

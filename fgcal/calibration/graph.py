@@ -50,6 +50,8 @@ class StageGraph:
     observations: list[np.ndarray | None] = field(default_factory=list)
     aux: dict[int, tuple[str, int]] = field(default_factory=dict)  # key -> (name, dim)
     robust_scale: float | None = None  # scale of the robust loss's threshold, when there is one
+    priors: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)  # non-measurement factors
+    measurement_graphs: list[gtsam.NonlinearFactorGraph] = field(default_factory=list)  # each set's factors
 
     @property
     def params_key(self) -> int | None:
@@ -65,14 +67,15 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
     nominal = problem.robot.nominal_parameters()
     bounded = [i for i, name in enumerate(released) if split_name(name)[0] in ("d", "a")]
     if bounded:
-        stage.graph.add(
+        _add_prior(
+            stage,
             ParameterBoundFactor(
                 P_KEY,
                 len(released),
                 np.array(bounded),
                 np.array([nominal[released[i]] for i in bounded]),
                 np.full(len(bounded), config.length_bound_m),
-            ).factor
+            ).factor,
         )
     if config.formulation == "pairs":
         make, robust = _pairs(problem, state, stage), config.robust["camera_points"]
@@ -88,9 +91,45 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
         measurements, order = make(RobustLoss(kind, threshold * stage.robust_scale))
     stage.measurements.append(measurements)
     stage.observations.append(order)
+    factors = gtsam.NonlinearFactorGraph()
     for factor in measurements.factors():
-        stage.graph.add(factor.factor)
+        factors.add(factor.factor)
+    stage.measurement_graphs.append(factors)
+    stage.graph.push_back(factors)
     return stage
+
+
+def _add_prior(stage: StageGraph, factor) -> None:
+    stage.graph.add(factor)
+    stage.priors.add(factor)
+
+
+def linearize(stage: StageGraph, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+    """The stage graph linearised at ``values``, each measurement set as one Jacobian factor
+    (its rows are exactly those of its per-group factors, evaluated at once, without a
+    callback per factor), the priors as GTSAM linearises them."""
+    linear = stage.priors.linearize(values)
+    for measurements, factors in zip(stage.measurements, stage.measurement_graphs, strict=True):
+        if len(measurements.variables) > 3:  # GTSAM's Python JacobianFactor takes up to three keys
+            linear.push_back(factors.linearize(values))
+            continue
+        evaluation = measurements.whitened(measurements.read(values), True)
+        arguments = []
+        for (key, _, _), block in zip(measurements.variables, evaluation.blocks, strict=True):
+            arguments += [key, block]
+        unit = gtsam.noiseModel.Unit.Create(measurements.n_rows)
+        linear.push_back(gtsam.JacobianFactor(*arguments, -evaluation.residual, unit))
+    return linear
+
+
+def stage_error(stage: StageGraph, values: gtsam.Values) -> float:
+    """The graph's error (half the sum of squared whitened residuals, robust losses applied)
+    from the measurement sets' vectorised residuals and the priors."""
+    error = stage.priors.error(values)
+    for measurements in stage.measurements:
+        residual = measurements.whitened(measurements.read(values), False).residual
+        error += 0.5 * float(residual @ residual)
+    return error
 
 
 def robust_scale(measurements: list[MeasurementSet], values: gtsam.Values) -> float:
@@ -146,10 +185,11 @@ def _projection(problem: Problem, state: State, stage: StageGraph):
         # Estimated, with a prior from the earlier intrinsic calibration (the dataset's values).
         stage.values.insert(INTRINSICS_KEY, state.intrinsics)
         stage.aux[INTRINSICS_KEY] = ("intrinsics", 9)
-        stage.graph.add(
+        _add_prior(
+            stage,
             gtsam.PriorFactorVector(
                 INTRINSICS_KEY, dataset_intrinsics(problem), gaussian(np.array(config.intrinsics_prior_sigmas))
-            )
+            ),
         )
         constant, key = None, INTRINSICS_KEY
     else:
