@@ -259,3 +259,12 @@ def test_malformed_jacobian_raises_instead_of_crashing():
     graph.add(bad.factor)
     with pytest.raises(FactorError):
         gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+
+
+def test_chi_median_matches_scipy():
+    from scipy.special import gammaincinv
+
+    from fgcal.calibration.graph import chi_median
+
+    k = np.arange(1, 60)
+    np.testing.assert_allclose(chi_median(k), np.sqrt(2.0 * gammaincinv(k / 2.0, 0.5)), rtol=2e-4)

@@ -170,7 +170,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
             ax.hist(stat.errors * 1e3, bins=30, color="tab:red" if label == "before" else "tab:green")
             ax.set_xlabel("position error (mm)")
             ax.set_ylabel("held-out configurations")
-            ax.set_title(f"{label} calibration: RMS {stat.rms * 1e3:.4f} mm")
+            ax.set_title(f"{label} calibration: RMS {stat.rms * 1e3:.4f} mm", y=1.0)
         fig.savefig(out / "errors.png", dpi=100)
         plots["errors"] = "errors.png"
     if result.released:
@@ -182,22 +182,9 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         ax.set_xticks(range(len(result.released)), result.released, rotation=90, fontsize=7)
         ax.set_yticks(range(len(result.released)), result.released, fontsize=7)
         fig.colorbar(image, ax=ax, label="correlation")
-        ax.set_title("Correlation of the estimated parameters")
+        ax.set_title("Correlation of the estimated parameters", y=1.0)
         fig.savefig(out / "correlation.png", dpi=100)
         plots["correlation"] = "correlation.png"
-    singular = result.final_identifiability.singular_values
-    if singular.size:
-        fig = Figure(figsize=(7, 3.5))
-        ax = fig.subplots()
-        fig.subplots_adjust(left=0.12, right=0.97, bottom=0.15, top=0.9)
-        ax.semilogy(range(1, singular.size + 1), singular, "o-")
-        ax.axhline(result.config.min_information, color="tab:red", ls="--", label="min_information")
-        ax.set_xlabel("index")
-        ax.set_ylabel("singular value (scaled, whitened)")
-        ax.set_title(f"Identifiable parameters: condition number {result.final_identifiability.condition_number:.3g}")
-        ax.legend()
-        fig.savefig(out / "singular_values.png", dpi=100)
-        plots["singular_values"] = "singular_values.png"
     return plots
 
 
@@ -274,9 +261,9 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
     lines += [
         "",
         f"Condition number of the identifiable set (scaled, whitened Jacobian): "
-        f"{ident['condition_number']:.4g}; threshold min_information = {ident['min_information']}.",
+        f"{ident['condition_number']:.4g}; threshold min_information = {ident['min_information']}. "
+        "Singular values, largest first: " + ", ".join(f"{v:.3g}" for v in ident["singular_values"]) + ".",
     ]
-    for key, title in (("singular_values", "Singular values"), ("correlation", "Correlations")):
-        if key in plots:
-            lines += ["", f"## {title}", "", f"![{key}]({plots[key]})"]
+    if "correlation" in plots:
+        lines += ["", "## Correlations", "", f"![correlation]({plots['correlation']})"]
     return "\n".join(lines) + "\n"
