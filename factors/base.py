@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..se3 import skew
+
 # Variable kinds: how to read them from gtsam.Values and their tangent dimension.
 _GETTERS = {
     "pose3": lambda values, key: values.atPose3(key),
@@ -123,16 +125,6 @@ def point_jacobian(rotation: np.ndarray, point_local: np.ndarray) -> np.ndarray:
     rotation = np.asarray(rotation, dtype=float)
     left = -rotation @ skew(point_local)
     return np.concatenate([left, np.broadcast_to(rotation, left.shape)], axis=-1)
-
-
-def skew(w: np.ndarray) -> np.ndarray:
-    """``[w]x`` for ``w`` of shape (..., 3)."""
-    w = np.asarray(w, dtype=float)
-    out = np.zeros((*w.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
-    return out
 
 
 def gaussian(sigmas: np.ndarray) -> gtsam.noiseModel.Base:

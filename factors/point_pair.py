@@ -7,7 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse
 
-from .base import Evaluation, MeasurementSet, RobustLoss, row_starts, skew
+from ..se3 import skew
+from .base import Evaluation, MeasurementSet, RobustLoss, row_starts
 from .kinematics import Kinematics, params_variable
 
 

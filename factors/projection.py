@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Evaluation, MeasurementSet, RobustLoss, row_starts, skew
+from ..se3 import skew
+from .base import Evaluation, MeasurementSet, RobustLoss, row_starts
 from .kinematics import Kinematics, params_variable
 
 

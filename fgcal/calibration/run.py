@@ -46,15 +46,7 @@ def _check_enough(problem: Problem, parameters: list[str], state: State) -> None
     """At least two residuals per unknown: the candidate parameters (before any is found
     unidentifiable, so thin data are refused rather than quietly reduced) and the auxiliary
     unknowns."""
-    unknowns = len(parameters)
-    if state.tracker_pose is not None:
-        unknowns += 6 + 3 * len(state.tool_points)
-    if state.fixture_rotation is not None:
-        unknowns += 3
-    if state.fixture_pose is not None:
-        unknowns += 6
-    if state.intrinsics is not None:
-        unknowns += 9
+    unknowns = len(parameters) + state.n_auxiliary
     if problem.n_residuals < 2 * unknowns:
         raise InputError(
             problem.dataset.path,
