@@ -144,8 +144,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    import json
-
+    from . import strict_json
     from .bench import run_bench
 
     sizes = tuple(args.sizes)
@@ -162,7 +161,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 2
     result = run_bench(Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro)
     if args.json:
-        print(json.dumps(result, allow_nan=False))
+        print(strict_json.dumps(result))
     return 0
 
 

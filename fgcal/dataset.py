@@ -26,7 +26,6 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 from __future__ import annotations
 
 import csv
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +36,7 @@ import yaml
 from .boards import DICTIONARY, SideBoard
 from .camera import Camera, parse_camera
 from .errors import InputError
-from .fields import Fields, read_yaml
+from .fields import Fields, is_plain_number, read_yaml
 from .robot import Robot
 from .robot_io import load_robot
 from .se3 import pose_from_xyz_rpy
@@ -68,6 +67,9 @@ TABLES = {
     "tracker_references": (("config", "target"), ("x", "y", "z"), "length"),
 }
 MEASUREMENTS = ("camera_points", "pixels", "tracker_points", "tracker_references")
+# Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
+# what overflows the algebra (a 1e300 reading once hung the tracker initialisation).
+LIMITS = {"length": 1e4, "pixel": 1e6, "angle": 1e3}
 
 
 @dataclass
@@ -120,7 +122,8 @@ def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]
 
 def _read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except FileNotFoundError:
         raise InputError(path, None, "file not found (listed in dataset.yaml files)") from None
@@ -139,17 +142,26 @@ def _read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list
     return header, body
 
 
-def _numbers(path: Path, header: list[str], body: list[list[str]], columns: Sequence[str]) -> np.ndarray:
+def _numbers(
+    path: Path, header: list[str], body: list[list[str]], columns: Sequence[str], kind: str, to_si: float
+) -> np.ndarray:
+    """The columns as floats in SI: plain decimal numbers only (``float`` would also take
+    ``1_000``, full-width digits and ``nan``), finite and within LIMITS[kind]."""
     out = np.empty((len(body), len(columns)))
     for j, col in enumerate(columns):
         c = header.index(col)
         for i, row in enumerate(body):
-            try:
-                value = float(row[c])
-            except ValueError:
-                raise InputError(path, f"line {i + 2}, column {col}", f"not a number: {row[c]!r}") from None
-            if not math.isfinite(value):
-                raise InputError(path, f"line {i + 2}, column {col}", f"must be finite, got {row[c]!r}")
+            text = row[c].strip()
+            if not is_plain_number(text):
+                problem = (
+                    "must be finite" if text.lower().lstrip("+-") in ("nan", "inf", "infinity") else "not a number"
+                )
+                raise InputError(path, f"line {i + 2}, column {col}", f"{problem}: {row[c]!r}")
+            value = float(text) * to_si
+            if not abs(value) <= LIMITS[kind]:
+                raise InputError(
+                    path, f"line {i + 2}, column {col}", f"implausible value {row[c]!r} (beyond {LIMITS[kind]:g} SI)"
+                )
             out[i, j] = value
     return out
 
@@ -157,11 +169,18 @@ def _numbers(path: Path, header: list[str], body: list[list[str]], columns: Sequ
 def _table(path: Path, name: str, units: Units) -> Table:
     id_cols, value_cols, kind = TABLES[name]
     header, body = _read_csv(path, [*id_cols, *value_cols])
-    values = _numbers(path, header, body, value_cols)
-    if kind == "length":
-        values *= units.to_m
+    values = _numbers(path, header, body, value_cols, kind, units.to_m if kind == "length" else 1.0)
     ids = {c: np.array([row[header.index(c)].strip() for row in body], dtype=object) for c in id_cols}
     return Table(ids, values)
+
+
+def _inside(root: Path, files: Fields, name: str) -> Path:
+    """A table's path, which must stay inside the dataset directory."""
+    relative = files.string(name)
+    path = (root / relative).resolve()
+    if not path.is_relative_to(root.resolve()):
+        raise files.error(name, f"{relative!r} is outside the dataset directory {root}")
+    return path
 
 
 def load_dataset(path: str | Path) -> Dataset:
@@ -191,7 +210,7 @@ def load_dataset(path: str | Path) -> Dataset:
         if not files.has(kind):
             raise files.error(kind, f"'{kind}' is listed in measured but has no file")
 
-    config_path = root / files.string("configurations")
+    config_path = _inside(root, files, "configurations")
     joint_cols = [f"q{i}" for i in range(1, robot.n_joints + 1)]
     cfg_header, cfg_body = _read_csv(config_path, ["config"])
     present = [c for c in cfg_header if c.startswith("q") and c[1:].isdigit()]
@@ -204,7 +223,7 @@ def load_dataset(path: str | Path) -> Dataset:
         )
     if not cfg_body:
         raise InputError(config_path, None, "no configurations")
-    q = _numbers(config_path, cfg_header, cfg_body, joint_cols) * units.to_rad
+    q = _numbers(config_path, cfg_header, cfg_body, joint_cols, "angle", units.to_rad)
     configs = np.array([row[cfg_header.index("config")].strip() for row in cfg_body], dtype=object)
     if len(set(configs)) != len(configs):
         raise InputError(config_path, "config", "duplicate configuration ids")
@@ -214,7 +233,7 @@ def load_dataset(path: str | Path) -> Dataset:
     for name in TABLES:
         if not files.has(name):
             continue
-        table_path = root / files.string(name)
+        table_path = _inside(root, files, name)
         table = _table(table_path, name, units)
         if "config" in table.ids:
             unknown = [c for c in table.ids["config"] if c not in known]
@@ -229,7 +248,18 @@ def load_dataset(path: str | Path) -> Dataset:
             if name in dataset.tables:
                 bad = [p for p in dataset.tables[name].ids["point"] if p not in point_names]
                 if bad:
-                    raise InputError(root / files.string(name), "point", f"unknown point {bad[0]!r}")
+                    raise InputError(_inside(root, files, name), "point", f"unknown point {bad[0]!r}")
+    if doc.has("tracker") and "tracker_points" in dataset.tables:
+        tracker = doc.sub("tracker")
+        tracker.check_keys(("targets",))
+        declared = {str(t) for t in tracker.items("targets")}
+        bad = [t for t in dataset.tables["tracker_points"].ids["target"] if t not in declared]
+        if bad:
+            raise InputError(
+                _inside(root, files, "tracker_points"),
+                "target",
+                f"target {bad[0]!r} is not in dataset.yaml tracker.targets ({', '.join(sorted(declared))})",
+            )
     if doc.has("camera"):
         cam = doc.sub("camera")
         cam.check_keys(("image_size", "intrinsics", "distortion", "mounting"))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -115,8 +116,20 @@ class Fields:
         return np.array([to_float(v, self.source, f"{self.path(key)}[{i}]") for i, v in enumerate(value)]) * scale
 
 
+_PLAIN_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+
+
+def is_plain_number(text: str) -> bool:
+    """ASCII decimal notation only (``float`` also takes ``1_000``, full-width digits, nan)."""
+    return _PLAIN_NUMBER.fullmatch(text) is not None
+
+
 def to_float(value: Any, source: str | Path, field: str) -> float:
-    """A finite float, or an :class:`InputError` naming ``field``."""
+    """A finite float, or an :class:`InputError` naming ``field``.
+
+    YAML 1.1 (PyYAML) reads ``1e-4`` (no dot) as text: such a plain number is accepted."""
+    if isinstance(value, str) and is_plain_number(value.strip()):
+        value = float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(source, field, f"expected a number, got {value!r}")
     number = float(value)

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from .. import strict_json
 from ..parameters import unit_of
 from ..robot_io import save_robot
 from .covariance import correlation, position_covariance
@@ -135,7 +135,7 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     doc = report_dict(result)
-    (out / "report.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
+    (out / "report.json").write_text(strict_json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     save_robot(
         out / "calibrated_robot.yaml",
         result.problem.robot,
@@ -145,12 +145,6 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
     figures = _plots(result, out) if plots else {}
     (out / "report.md").write_text(_markdown(doc, figures), encoding="utf-8")
     return doc
-
-
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not serialisable: {type(value)}")
 
 
 def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:

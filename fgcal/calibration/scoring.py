@@ -49,6 +49,8 @@ def truth_errors(problem, state: State, truth: dict, point: np.ndarray) -> dict[
     removing the gauge (fgcal.calibration.validation.gauge_of); tracker: the reflectors in the
     tracker frame, no gauge."""
     q = problem.dataset.q[problem.test]
+    if not len(q):  # nothing held out: nothing to score
+        return {}
     if problem.config.formulation != "tracker":
         out = {}
         for label, p in (("tool_point", point), ("camera_origin", np.zeros(3))):

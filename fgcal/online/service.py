@@ -11,7 +11,6 @@ a restart after a crash continues with every acknowledged measurement.
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 import time
 from collections import deque
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import strict_json
 from ..calibration.covariance import position_covariance
 from ..dataset import load_dataset
 from ..errors import InputError
@@ -361,7 +361,7 @@ class OnlineService:
             notes=f"fgcal online: {cal.n_images} images",
         )
         temporary.replace(robot_path)
-        write_atomic(self.state.path / "report.json", json.dumps(self.report(), indent=1).encode("utf-8"))
+        write_atomic(self.state.path / "report.json", strict_json.dumps(self.report(), indent=1).encode("utf-8"))
 
     def write_final(self) -> None:
         if self.calibrator.n_images and self._final_at != self.calibrator.n_images:
