@@ -160,3 +160,20 @@ def test_memory_stays_bounded_over_a_long_run(seed1):
     # What the window holds does not grow with the images seen: factors in the graph, their
     # Python evaluators (a cycle through C++ once kept every one alive) and cached kinematics.
     assert all(late <= early + 40 for early, late in zip(after_300, after_600, strict=True)), (after_300, after_600)
+
+
+def test_an_image_that_cannot_be_folded_in_is_skipped_and_leaves_the_estimate(seed1):
+    # Issue 13, defect 9: two points (too few for the gate) behind the camera reached iSAM2,
+    # whose failure the service logged first, so every replay failed again.
+    dataset, points, measurements = seed1
+    calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points)
+    run(calibrator, measurements[:10])
+    before = calibrator.current_params().copy()
+    away = measurements[10].q.copy()
+    away[0] += np.pi  # the robot turned round: the objects are behind the camera
+    with pytest.raises(fgcal.InputError, match="cannot be folded in"):
+        calibrator.add(away, list(measurements[10].pixels)[:2])
+    np.testing.assert_array_equal(calibrator.current_params(), before)
+    assert calibrator.n_images == 10
+    update = calibrator.add(measurements[10].q, list(measurements[10].pixels))
+    assert update.n_images == 11

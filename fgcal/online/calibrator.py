@@ -29,7 +29,7 @@ import numpy as np
 
 from ..camera import Camera, solve_pnp
 from ..errors import InputError
-from ..factors import BehindCameraError, Projections, RandomWalkFactor, gaussian
+from ..factors import BehindCameraError, FactorError, Projections, RandomWalkFactor, gaussian
 from ..parameters import unit_of
 from ..robot import Robot
 from .drift import Alarm, DriftTest
@@ -207,6 +207,25 @@ class OnlineCalibrator:
     def _fold(self, q: np.ndarray, known: list, cycle: int | None, started: float) -> OnlineUpdate:
         new_cycle = self._starts_cycle(cycle)
         row = self.model.add(q, self.cycle + (1 if new_cycle else 0))
+        # Checked and gated before anything changes: an image that cannot be folded in is an
+        # input error that leaves the estimate as it was (and a replay skips it the same way).
+        # Where iSAM2 will linearise the new factor, so that it reuses this evaluation: a new
+        # parameter vector enters at the current estimate.
+        if self.n_images == 0:
+            p_lin, fixture_lin = self._p, gtsam.Pose3(self._fixture)
+        else:
+            linearization_point = self.smoother.getLinearizationPoint()
+            p_lin = self._p if new_cycle else linearization_point.atVector(params_key(self.cycle))
+            fixture_lin = linearization_point.atPose3(OBJECT_KEY)
+        P = params_key(self.cycle + (1 if new_cycle else 0))
+        try:
+            measurements = self.image_measurements(P, row, known)
+            kept, rejected = self._gate(measurements, known, p_lin, fixture_lin)
+        except InputError:
+            self.model.forget_row(row)
+            raise
+        if rejected and kept:
+            measurements = self.image_measurements(P, row, kept)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         P = params_key(self.cycle)
         if self.n_images == 0:
@@ -227,13 +246,6 @@ class OnlineCalibrator:
             self._jump = set()
             if cycle is not None:
                 self._cycle_label = cycle
-        linearization_point = self.smoother.getLinearizationPoint() if self.n_images else values
-        p_lin = values.atVector(P) if values.exists(P) else linearization_point.atVector(P)
-        fixture_lin = linearization_point.atPose3(OBJECT_KEY)
-        measurements = self.image_measurements(P, row, known)
-        kept, rejected = self._gate(measurements, known, p_lin, fixture_lin)
-        if rejected and kept:
-            measurements = self.image_measurements(P, row, kept)
         if kept:
             (factor,) = measurements.factors()
             graph.add(factor.factor)
@@ -401,13 +413,15 @@ class OnlineCalibrator:
         The prediction is at the current estimate, to first order from the linearisation
         point (where iSAM2 linearises the new factor, so that evaluation is shared): early on
         the linearisation point lags the estimate by pixels that differ from point to point,
-        which the gate would take for outliers."""
-        if len(known) < 3:
-            return known, []
+        which the gate would take for outliers. Every image is evaluated here, however few
+        its points: one whose points fall behind the camera is an InputError, not a failure
+        inside iSAM2."""
         try:
             evaluation = measurements.whitened([p_lin, fixture_lin], True, robust=False)
-        except BehindCameraError:
-            raise InputError(None, "observations", "the points are behind the camera at the current estimate") from None
+        except (BehindCameraError, FactorError) as error:
+            raise InputError(None, "observations", f"cannot be folded in at the current estimate: {error}") from None
+        if len(known) < 3:
+            return known, []
         J_P, J_O = evaluation.blocks
         step = J_P @ (self._p - p_lin) + J_O @ fixture_lin.localCoordinates(gtsam.Pose3(self._fixture))
         residuals = ((evaluation.residual + step) * measurements.sigma).reshape(-1, 2)

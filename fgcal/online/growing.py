@@ -71,6 +71,14 @@ class GrowingKinematics:
         self._next += 1
         return row
 
+    def forget_row(self, row: int) -> None:
+        """Drop one configuration (an image that was not folded in)."""
+        self.q.pop(row, None)
+        self.group.pop(row, None)
+        for entry in self._cache.values():
+            for key in [k for k in entry["rows"] if k[0] == row]:
+                del entry["rows"][key]
+
     def forget_before(self, row: int) -> None:
         """Drop the configurations before ``row`` (their factors are gone)."""
         for old in [r for r in self.q if r < row]:
