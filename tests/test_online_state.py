@@ -162,3 +162,115 @@ def test_a_reused_name_is_rejected_not_lost(small_case, tmp_path):
     assert service.calibrator.n_images == 5 and not list(inbox.glob("*.json"))
     reasons = [p.read_text() for p in (tmp_path / "state" / "rejected").glob("*.error.txt")]
     assert len(reasons) == 1 and "names must be unique" in reasons[0]
+
+
+def _service(small_case, state, inbox):
+    return OnlineService(state, inbox, small_case / "setup.yaml")
+
+
+def _fed(small_case, tmp_path, count: int):
+    inbox = tmp_path / "inbox"
+    feed_dataset(small_case / "data", inbox, n=count)
+    return inbox
+
+
+def test_a_damaged_record_is_recovered_from_its_file_or_quarantined(small_case, tmp_path):
+    # Issue 13, defect 8: a damaged complete record vanished from the state, its file in
+    # processed/ never read again.
+    inbox, state = _fed(small_case, tmp_path, 8), tmp_path / "state"
+    service = _service(small_case, state, inbox)
+    service.run(once=True)
+    service.close()
+    expected = _estimate(state)
+    lines = (state / LOG).read_bytes().splitlines(keepends=True)
+    names = [json.loads(line[9:])["name"] for line in lines]
+    lines[3] = lines[3].replace(b'"joints":[', b'"joints":[9,')  # checksum no longer matches
+    (state / LOG).write_bytes(b"".join(lines))
+    service = _service(small_case, state, inbox)
+    assert any("recovered from processed/" + names[3] in p for p in service.problems), service.problems
+    service.close()
+    with StateDir(state) as locked:
+        assert [r["name"] for r in locked.read_log().records] == names  # repaired in place
+    estimate, sigma = _estimate(state)
+    assert np.all(np.abs(estimate - expected[0]) <= 1e-6 * sigma)
+    # Without its file the record cannot be recovered: quarantined, with a message.
+    lines = (state / LOG).read_bytes().splitlines(keepends=True)
+    lines[5] = lines[5].replace(b'"joints":[', b'"joints":[9,')
+    (state / LOG).write_bytes(b"".join(lines))
+    (state / "processed" / names[5]).unlink()
+    service = _service(small_case, state, inbox)
+    assert any("quarantined" in p for p in service.problems), service.problems
+    assert service.calibrator.n_images == 7
+    service.close()
+    assert len(list((state / "quarantine").iterdir())) == 1
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda doc: doc.pop("estimate"),
+        lambda doc: doc.update(n_records="many"),
+        lambda doc: doc["sigma"].update({next(iter(doc["sigma"])): None}),
+        None,  # not JSON at all
+    ],
+    ids=["missing_key", "wrong_type", "null_sigma", "garbage"],
+)
+def test_a_damaged_checkpoint_is_reported_and_rebuilt(small_case, tmp_path, damage):
+    # Issue 13, defect 7: a checkpoint with missing keys or wrong types gave a traceback on
+    # every restart; a garbage one was ignored without a word.
+    from fgcal.online.state import CHECKPOINT
+
+    inbox, state = _fed(small_case, tmp_path, 30), tmp_path / "state"  # a checkpoint every 25
+    service = _service(small_case, state, inbox)
+    service.run(once=True)
+    service.close()
+    path = state / CHECKPOINT
+    if damage is None:
+        path.write_bytes(b"\x00garbage{")
+    else:
+        doc = json.loads(path.read_text())
+        damage(doc)
+        path.write_text(json.dumps(doc))
+    service = _service(small_case, state, inbox)
+    assert any("checkpoint.json" in p for p in service.problems), service.problems
+    service.close()
+    rebuilt = json.loads(path.read_text())
+    assert rebuilt["n_records"] == 30 and set(rebuilt["estimate"]) == set(service.calibrator.released)
+
+
+def test_a_damaged_state_config_is_a_clear_error(small_case, tmp_path):
+    inbox, state = _fed(small_case, tmp_path, 2), tmp_path / "state"
+    _service(small_case, state, inbox).close()
+    for text in ("dataset: [unclosed\n", "dataset: 3\nsettings: {window_images: many}\n", "- a list\n"):
+        (state / "config.yaml").write_text(text)
+        with pytest.raises(fgcal.InputError, match=r"config\.yaml"):
+            OnlineService(state, inbox)
+
+
+def test_a_full_disk_loses_no_acknowledged_measurement(small_case, tmp_path, monkeypatch):
+    inbox, state = _fed(small_case, tmp_path, 10), tmp_path / "state"
+    names = sorted(p.name for p in inbox.glob("*.json"))
+    original = StateDir.append
+    calls = {"n": 0}
+
+    def failing_append(self, record):
+        calls["n"] += 1
+        if calls["n"] == 6:  # half a record reaches the disk, then it is full
+            with open(self.path / LOG, "ab") as handle:
+                handle.write(encode_record(record)[:20])
+            raise OSError(28, "No space left on device")
+        original(self, record)
+
+    monkeypatch.setattr(StateDir, "append", failing_append)
+    service = _service(small_case, state, inbox)
+    with pytest.raises(fgcal.InputError, match="No space left"):
+        service.run(once=True)
+    service.close()
+    monkeypatch.setattr(StateDir, "append", original)
+    assert names[5] in [p.name for p in inbox.iterdir()]  # not acknowledged: still in the inbox
+    service = _service(small_case, state, inbox)
+    service.run(once=True)
+    service.close()
+    with StateDir(state) as locked:
+        assert [r["name"] for r in locked.read_log().records] == names
+    assert not list(inbox.glob("*.json"))

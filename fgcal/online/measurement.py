@@ -63,13 +63,20 @@ def parse_measurement(data: object, name: str, source: str | Path, n_joints: int
     return Measurement(name, q, pixels, cycle)
 
 
+MAX_BYTES = 1 << 20  # an image's joints and pixels take a few kB
+
+
 def read_measurement(path: Path, n_joints: int) -> Measurement:
     try:
+        if path.stat().st_size > MAX_BYTES:
+            raise InputError(path, None, f"larger than {MAX_BYTES} bytes: not a measurement file")
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as error:
-        raise InputError(path, None, f"cannot read: {error}") from error
+        raise InputError(path, None, f"cannot read: {error}") from None
     except json.JSONDecodeError as error:
-        raise InputError(path, None, f"not valid JSON: {error}") from error
+        raise InputError(path, None, f"not valid JSON: {error}") from None
+    except RecursionError:
+        raise InputError(path, None, "JSON nested too deeply") from None
     return parse_measurement(data, path.name, path, n_joints)
 
 

@@ -111,10 +111,11 @@ class OnlineService:
         config_path = self.state.path / CONFIG
         if setup is not None:
             self.config = load_config(Path(setup))
-            if config_path.exists() and yaml.safe_load(config_path.read_text(encoding="utf-8")) != self.config:
+            if config_path.exists() and load_config(config_path) != self.config:
                 raise InputError(setup, None, f"{self.state.path} was set up differently; use a new state directory")
         elif config_path.exists():
-            self.config = yaml.safe_load(config_path.read_text(encoding="utf-8"))
+            # Validated like a setup file (its paths are absolute): a damaged one is a clear error.
+            self.config = load_config(config_path)
         else:
             raise InputError(self.state.path, None, "no config.yaml: set the state directory up with --setup FILE")
         dataset = load_dataset(self.config["dataset"])
@@ -156,10 +157,14 @@ class OnlineService:
         self.problems = contents.problems
         for problem in contents.problems:
             self.say(f"warning: {problem}")
-        checkpoint = self.state.read_checkpoint()
-        if contents.records:
-            self.say(f"replaying {len(contents.records)} logged measurements")
-        for number, record in enumerate(contents.records, start=1):
+        records = self._repair(contents)
+        checkpoint, problem = self.state.read_checkpoint(self.calibrator.released)
+        if problem:
+            self.say(f"warning: {problem}: ignored, rebuilt from the log")
+            self.problems.append(problem)
+        if records:
+            self.say(f"replaying {len(records)} logged measurements")
+        for number, record in enumerate(records, start=1):
             measurement = parse_measurement(
                 record, record.get("name", "?"), self.state.path / "measurements.log", self.calibrator.robot.n_joints
             )
@@ -167,14 +172,46 @@ class OnlineService:
             self._fold(measurement, replaying=True)
             if checkpoint and checkpoint.get("n_records") == number:
                 self._check_checkpoint(checkpoint)
-        if checkpoint and checkpoint.get("n_records", 0) > len(contents.records):
+        if checkpoint and checkpoint["n_records"] > len(records):
             self.say(
                 f"warning: the checkpoint counts {checkpoint['n_records']} records, the log holds "
-                f"{len(contents.records)}: records were lost"
+                f"{len(records)}: records were lost"
             )
             self.problems.append("log shorter than the checkpoint")
-        if contents.records:
+        if records:
+            if problem or contents.damaged:
+                self._checkpoint()
             self._write_outputs()
+
+    def _repair(self, contents) -> list[dict]:
+        """The log's records with each damaged one recovered from its measurement file in
+        processed/ (the files moved there whose names the log lacks, in name order, which is
+        the order they were logged in) or, failing that, quarantined; the log is rewritten."""
+        if not contents.damaged:
+            return contents.records
+        names = {r.get("name") for r in contents.records}
+        recovered = []
+        for path in sorted((self.state.path / "processed").glob("*.json")):
+            if path.name not in names:
+                try:
+                    recovered.append(read_measurement(path, self.calibrator.robot.n_joints).to_record())
+                except InputError as error:
+                    self.say(f"warning: cannot recover from {path}: {error}")
+        records = list(contents.records)
+        quarantine = self.state.path / "quarantine"
+        for i, (position, raw) in reversed(list(enumerate(contents.damaged))):
+            if i < len(recovered):
+                records.insert(position, recovered[i])
+                message = f"damaged log record recovered from processed/{recovered[i]['name']}"
+            else:
+                quarantine.mkdir(exist_ok=True)
+                kept = quarantine / f"log-record-{position + i + 1}.bin"
+                kept.write_bytes(raw)
+                message = f"damaged log record with no measurement file to recover it from: quarantined in {kept}"
+            self.say(f"warning: {message}")
+            self.problems.append(message)
+        self.state.rewrite_log(records)
+        return records
 
     def _check_checkpoint(self, checkpoint: dict) -> None:
         cal = self.calibrator
@@ -262,7 +299,14 @@ class OnlineService:
                 (self.state.path / "rejected" / f"{path.name}.error.txt").write_text(str(error) + "\n")
                 continue
             record = measurement.to_record()
-            self.state.append(record)
+            try:
+                self.state.append(record)
+            except OSError as error:  # e.g. a full disk: not acknowledged, so left in the inbox
+                raise InputError(
+                    self.state.path / "measurements.log",
+                    None,
+                    f"cannot append {path.name}: {error}; it stays in the inbox",
+                ) from None
             self.logged[measurement.name] = _digest(record)
             shutil.move(str(path), self.state.path / "processed" / path.name)
             self._fold(measurement)

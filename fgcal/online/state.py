@@ -10,13 +10,17 @@
 - ``checkpoint.json``: every few images, written atomically (temporary file, fsync, rename):
   the number of records and the estimate at that point. A restart replays the log (the
   estimate is a deterministic function of it) and checks that the replay reproduces the
-  checkpoint.
+  checkpoint; a checkpoint that is not valid is reported and rebuilt from the log.
+- A complete record that fails its check (damaged on disk) is recovered from its
+  measurement file in ``processed/``, or else quarantined (``quarantine/``) with a message;
+  the log is then rewritten without the damage.
 """
 
 from __future__ import annotations
 
 import fcntl
 import json
+import math
 import os
 import zlib
 from dataclasses import dataclass, field
@@ -32,6 +36,8 @@ CHECKPOINT = "checkpoint.json"
 class LogContents:
     records: list[dict]
     problems: list[str] = field(default_factory=list)
+    # Complete records that failed their check: (valid records before it, the raw line).
+    damaged: list[tuple[int, bytes]] = field(default_factory=list)
 
 
 def encode_record(record: dict) -> bytes:
@@ -51,6 +57,24 @@ def decode_line(line: bytes) -> dict | None:
     except (ValueError, UnicodeDecodeError):
         return None
     return record if isinstance(record, dict) else None
+
+
+def checkpoint_problem(data: object, released: list[str]) -> str | None:
+    """What is wrong with a checkpoint's content, or None."""
+    if not isinstance(data, dict):
+        return "not a JSON object"
+    for key in ("n_records", "n_images"):
+        if isinstance(data.get(key), bool) or not isinstance(data.get(key), int) or data[key] < 0:
+            return f"{key} is not a count ({data.get(key)!r})"
+    for key in ("estimate", "sigma"):
+        values = data.get(key)
+        if not isinstance(values, dict):
+            return f"{key} is not a mapping of the released parameters"
+        for name in released:
+            value = values.get(name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                return f"{key}.{name} is missing or not a finite number ({value!r})"
+    return None
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -136,7 +160,8 @@ class StateDir:
                 break
             record = decode_line(data[position:newline])
             if record is None:
-                contents.problems.append(f"{path}: record {number} is corrupted (checksum or JSON): skipped")
+                contents.problems.append(f"{path}: record {number} is corrupted (checksum or JSON)")
+                contents.damaged.append((len(contents.records), data[position:newline]))
             else:
                 contents.records.append(record)
             position = newline + 1
@@ -147,6 +172,15 @@ class StateDir:
                 handle.flush()
                 os.fsync(handle.fileno())
         return contents
+
+    def rewrite_log(self, records: list[dict]) -> None:
+        """Replace the log by these records, atomically (a repaired log)."""
+        if self._lock_handle is None:
+            raise RuntimeError("rewrite_log needs the state directory's lock")
+        if self._log_handle is not None:
+            self._log_handle.close()
+            self._log_handle = None
+        write_atomic(self.path / LOG, b"".join(encode_record(r) for r in records))
 
     def append(self, record: dict) -> None:
         """Append one record and make it durable: after this returns, it is acknowledged."""
@@ -160,15 +194,18 @@ class StateDir:
 
     # -- checkpoint -------------------------------------------------------------------------
 
-    def read_checkpoint(self) -> dict | None:
+    def read_checkpoint(self, released: list[str]) -> tuple[dict | None, str | None]:
+        """The checkpoint, checked against the released parameters, or (None, why it is not
+        usable); no file is (None, None)."""
         path = self.path / CHECKPOINT
         if not path.exists():
-            return None
+            return None, None
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return None
-        return data if isinstance(data, dict) else None
+        except (OSError, ValueError, UnicodeDecodeError) as error:
+            return None, f"{path} is not readable JSON ({error})"
+        problem = checkpoint_problem(data, released)
+        return (None, f"{path}: {problem}") if problem else (data, None)
 
     def write_checkpoint(self, checkpoint: dict) -> None:
         write_atomic(self.path / CHECKPOINT, json.dumps(checkpoint, indent=1).encode("utf-8"))
