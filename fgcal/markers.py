@@ -212,9 +212,17 @@ def detect_images(dataset, gate_px: float = 2.0, progress=None) -> ImageDetectio
     configs, names, pixels, skipped, rejected = [], [], [], [], 0
     for i, cid in enumerate(dataset.configs):
         path = dataset.images_dir / f"{cid}.png"
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if path.exists() else None
+        if not path.exists():
+            skipped.append((str(cid), f"missing {path.name}"))
+            continue
+        try:
+            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        except cv2.error as error:  # e.g. a header claiming more pixels than OpenCV decodes
+            image, reason = None, f"cannot read {path.name}: {str(error).strip().splitlines()[-1]}"
+        else:
+            reason = f"cannot read {path.name} (empty, truncated or not an image)"
         if image is None:
-            skipped.append((str(cid), f"cannot read {path.name}" if path.exists() else f"missing {path.name}"))
+            skipped.append((str(cid), reason))
             continue
         detection = detector.detect(image)
         rejected += detection.rejected

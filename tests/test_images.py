@@ -118,6 +118,35 @@ def test_bad_images_are_skipped_and_reported(rendered, tmp_path):
     assert result.validation["after"]["tool_point"].rms < 1e-4
 
 
+def _png_bomb(width: int, height: int) -> bytes:
+    """A PNG whose header claims width x height pixels, with a few kB of compressed rows."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    rows = zlib.compress(b"\x00" * (width + 1) * 100, 9)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+
+
+def test_damaged_images_are_skipped_not_fatal(rendered, tmp_path):
+    # Issue 13, item 12: a zero-byte, a truncated PNG and a decompression bomb (a header
+    # claiming 60000 x 60000 pixels: OpenCV raised).
+    copied = tmp_path / "ds"
+    shutil.copytree(rendered, copied)
+    dataset = load_dataset(copied)
+    images = copied / "images"
+    (images / f"{dataset.configs[0]}.png").write_bytes(b"")
+    whole = (images / f"{dataset.configs[1]}.png").read_bytes()
+    (images / f"{dataset.configs[1]}.png").write_bytes(whole[: len(whole) // 2])
+    (images / f"{dataset.configs[2]}.png").write_bytes(_png_bomb(60000, 60000))
+    reasons = dict(detect_images(load_dataset(copied)).skipped)
+    assert set(reasons) == set(dataset.configs[:3]), reasons
+    assert all("cannot read" in r for r in reasons.values()), reasons
+
+
 def test_images_at_least_as_good_as_exact_pixels(rendered):
     from_images = calibrate(CalibrationConfig.defaults(rendered, formulation="projection", pixels_from="images"))
     from_table = calibrate(CalibrationConfig.defaults(rendered, formulation="projection"))
