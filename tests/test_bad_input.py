@@ -197,3 +197,21 @@ def test_report_json_is_strict_without_a_held_out_set(small_dataset, tmp_path, c
     assert status == 0, capsys.readouterr().err
     text = (tmp_path / "out" / "report.json").read_text(encoding="utf-8")
     json.loads(text, parse_constant=_reject_constant)
+
+
+def test_an_unreachable_cell_fails_fast_naming_the_cell(tmp_path, capsys, alarm):
+    # Issue 13, defect 11: an unreachable design searched for 84 s, then failed without naming
+    # the file or the field.
+    import time
+
+    from conftest import SEED_CELL
+
+    cell = tmp_path / "far.yaml"
+    text = SEED_CELL.read_text(encoding="utf-8").replace("fixture: {xyz: [0, 0, 0]", "fixture: {xyz: [20000, 0, 0]")
+    cell.write_text(text, encoding="utf-8")
+    started = time.monotonic()
+    status = main(["simulate", str(cell), "--out", str(tmp_path / "out"), "--seed", "1"])
+    error = capsys.readouterr().err.strip()
+    assert status == 2 and error.startswith("fgcal: error: ") and "\n" not in error, error
+    assert "far.yaml" in error and "objects" in error, error
+    assert time.monotonic() - started < 20

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..robot import Robot
 from ..se3 import inverse, pose, transform_points
 from .cell import Cell, GridPoint, Side
@@ -120,11 +121,13 @@ def seed_design(cell: Cell, true_camera: Callable, rng: np.random.Generator, max
         for _ in range(design.views_per_block)
     ]
     views: list[View | None] = [None] * len(wanted)
-    for _ in range(max_rounds):
+    for round_ in range(max_rounds):
         missing = [i for i, v in enumerate(views) if v is None]
         if not missing:
             break
         solved = _solve_views(cell, [wanted[i] for i in missing], true_camera, rng)
+        if round_ + 1 >= NOTHING_REACHABLE_ROUNDS and not solved and len(missing) == len(wanted):
+            raise _unreachable(cell, round_ + 1, len(wanted))
         solved_by_key: dict[str, list[View]] = {}
         for v in solved:
             solved_by_key.setdefault(v.block[0].name, []).append(v)
@@ -135,9 +138,11 @@ def seed_design(cell: Cell, true_camera: Callable, rng: np.random.Generator, max
     missing = [i for i, v in enumerate(views) if v is None]
     if missing:
         side, block = wanted[missing[0]]
-        raise RuntimeError(
+        raise InputError(
+            cell.source,
+            "objects",
             f"no reachable, visible viewpoint found for block {block[0].name} on {side.obj}{side.side} "
-            f"after {max_rounds} rounds: move the object or widen standoff/max_view_angle"
+            f"after {max_rounds} rounds: move the object or widen standoff/max_view_angle",
         )
     return [v for v in views if v is not None]
 
@@ -162,11 +167,30 @@ def space_filling_design(
                 (side, side.block(int(rng.integers(side.n_block_rows)), int(rng.integers(side.n_block_cols))))
             )
         pool += _solve_views(cell, requests, true_camera, rng)
+        if not pool and rounds >= NOTHING_REACHABLE_ROUNDS:
+            raise _unreachable(cell, rounds, len(requests))
         if progress:
             progress(f"  space-filling design: {len(pool)} candidate configurations")
     if len(pool) < n_wanted:
-        raise RuntimeError(f"only {len(pool)} reachable, visible configurations found for {n_wanted} wanted")
+        raise InputError(
+            cell.source, "design.n", f"only {len(pool)} reachable, visible configurations found for {n_wanted} wanted"
+        )
     return [pool[i] for i in max_min_selection(np.array([v.q for v in pool]), cell.robot.limits, n_wanted, rng)]
+
+
+# Rounds of random viewpoints without a single reachable, visible one after which the cell is
+# declared unreachable (each round tries every wanted view from six IK starts).
+NOTHING_REACHABLE_ROUNDS = 2
+
+
+def _unreachable(cell: Cell, rounds: int, per_round: int) -> InputError:
+    return InputError(
+        cell.source,
+        "objects",
+        f"no reachable, visible viewpoint on any object in {rounds} rounds of {per_round} random views: the "
+        "objects are out of the robot's reach where the fixture and objects put them, or the camera cannot see "
+        "a block from the design's standoff and max_view_angle",
+    )
 
 
 def max_min_selection(q: np.ndarray, limits: np.ndarray, count: int, rng: np.random.Generator) -> list[int]:
