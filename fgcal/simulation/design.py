@@ -173,7 +173,9 @@ def space_filling_design(
             progress(f"  space-filling design: {len(pool)} candidate configurations")
     if len(pool) < n_wanted:
         raise InputError(
-            cell.source, "design.n", f"only {len(pool)} reachable, visible configurations found for {n_wanted} wanted"
+            cell.source,
+            "design.n_configurations",
+            f"only {len(pool)} reachable, visible configurations found for {n_wanted} wanted",
         )
     return [pool[i] for i in max_min_selection(np.array([v.q for v in pool]), cell.robot.limits, n_wanted, rng)]
 
