@@ -116,6 +116,10 @@ class Fields:
         return np.array([to_float(v, self.source, f"{self.path(key)}[{i}]") for i, v in enumerate(value)]) * scale
 
 
+# No field of a robot, cell, dataset header or config is this large in any unit it may use; a
+# value such as 1e300 would overflow the algebra downstream instead of being refused here.
+MAX_MAGNITUDE = 1e9
+
 _PLAIN_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 
@@ -135,4 +139,6 @@ def to_float(value: Any, source: str | Path, field: str) -> float:
     number = float(value)
     if not math.isfinite(number):
         raise InputError(source, field, f"must be finite, got {value!r}")
+    if abs(number) > MAX_MAGNITUDE:
+        raise InputError(source, field, f"implausible value {value!r} (beyond {MAX_MAGNITUDE:g})")
     return number

@@ -1,0 +1,478 @@
+"""The bad-input corpus: one row per damaged input, every file kind fgcal reads (robot YAML,
+cell YAML, dataset.yaml and each CSV table, calibration config, online setup, measurement
+files). Each row runs an ``fgcal`` command in-process and expects exit status 2 with one line
+naming the file and the field, no traceback, within a bounded time. Measurement files are
+different: ``fgcal online`` goes on, and moves a bad file to ``rejected/`` with the reason.
+(Checkpoints and log records: tests/test_online_state.py; images: tests/test_images.py;
+the numbered defects of issue 13: tests/test_bad_input.py.)"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import REPO, SEED_CELL
+from test_bad_input import alarm, set_cell, set_header  # noqa: F401 (alarm is a fixture)
+
+from fgcal.cli import main
+
+ROBOT = REPO / "datasets" / "robots" / "abb_irb120.yaml"
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory) -> Path:
+    from fgcal.simulation.simulate import simulate
+
+    out = tmp_path_factory.mktemp("corpus_source")
+    simulate(SEED_CELL, out / "data", seed=5)
+    return out
+
+
+def _edit_yaml(path: Path, change: Callable[[dict], None]) -> None:
+    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    change(doc)
+    path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+
+def _text(path_name: str, text: str):
+    def apply(root: Path) -> None:
+        (root / path_name).write_text(text, encoding="utf-8")
+
+    return apply
+
+
+def _header(change: Callable[[dict], None]):
+    return lambda root: _edit_yaml(root / "data" / "dataset.yaml", change)
+
+
+def _table(name: str, change: Callable[[list[str]], list[str]]):
+    def apply(root: Path) -> None:
+        path = root / "data" / name
+        lines = path.read_text(encoding="utf-8").splitlines()
+        path.write_text("\n".join(change(lines)) + "\n", encoding="utf-8")
+
+    return apply
+
+
+def _cell(table: str, row: int, column: str, text: str):
+    return lambda root: set_cell(table, row, column, text)(root / "data")
+
+
+def _config(change: Callable[[dict], None]):
+    return lambda root: _edit_yaml(root / "calibration.yaml", change)
+
+
+def _robot(change: Callable[[dict], None]):
+    return lambda root: _edit_yaml(root / "robot.yaml", change)
+
+
+def _joint(i: int, key: str, value):
+    def change(doc: dict) -> None:
+        doc["joints"][i][key] = value
+
+    return _robot(change)
+
+
+def _set(path: str, value):
+    """A change setting dotted ``path`` of a YAML document (creating mappings on the way)."""
+
+    def change(doc: dict) -> None:
+        *parents, last = path.split(".")
+        node = doc
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = value
+
+    return change
+
+
+def _drop(path: str):
+    def change(doc: dict) -> None:
+        *parents, last = path.split(".")
+        node = doc
+        for part in parents:
+            node = node[part]
+        del node[last]
+
+    return change
+
+
+def _cell_file(change: Callable[[dict], None]):
+    return lambda root: _edit_yaml(root / "cell.yaml", change)
+
+
+CALIBRATE = ["calibrate", "calibration.yaml", "--out", "out", "--no-plots"]
+FK = ["fk", "robot.yaml", "0", "0", "0", "0", "0", "0"]
+SIMULATE = ["simulate", "cell.yaml", "--out", "sim", "--seed", "1"]
+
+# (case id, damage, command, file named, field named)
+CASES = [
+    # robot YAML (fgcal fk)
+    ("robot_malformed", _text("robot.yaml", "name: [unclosed\n"), FK, "robot.yaml", "malformed YAML"),
+    ("robot_not_a_mapping", _text("robot.yaml", "- 1\n- 2\n"), FK, "robot.yaml", ""),
+    ("robot_no_joints", _robot(_drop("joints")), FK, "robot.yaml", "joints"),
+    ("robot_joint_nan", _joint(2, "alpha", float("nan")), FK, "robot.yaml", "joints[2].alpha"),
+    ("robot_joint_text", _joint(1, "d", "long"), FK, "robot.yaml", "joints[1].d"),
+    ("robot_limits_short", _joint(0, "limits", [-1]), FK, "robot.yaml", "joints[0].limits"),
+    ("robot_mass_negative", _joint(3, "mass", -2.0), FK, "robot.yaml", "joints[3].mass"),
+    ("robot_com_wrong_length", _joint(4, "com", [0, 1]), FK, "robot.yaml", "joints[4].com"),
+    ("robot_unknown_key", _robot(_set("colour", "orange")), FK, "robot.yaml", "colour"),
+    ("robot_unknown_units", _robot(_set("units.length", "furlong")), FK, "robot.yaml", "units"),
+    ("robot_gravity_short", _robot(_set("gravity", [0, -9.81])), FK, "robot.yaml", "gravity"),
+    ("robot_huge_length", _joint(0, "d", 1e300), FK, "robot.yaml", "joints[0].d"),
+    # cell YAML (fgcal simulate)
+    ("cell_malformed", _text("cell.yaml", "objects: {a: [1, 2\n"), SIMULATE, "cell.yaml", "malformed YAML"),
+    ("cell_unknown_robot", _cell_file(_set("robot", "no_such_robot")), SIMULATE, "cell.yaml", "robot"),
+    ("cell_unknown_key", _cell_file(_set("lighting", "dim")), SIMULATE, "cell.yaml", "lighting"),
+    ("cell_design_zero", _cell_file(_set("design.n_configurations", 0)), SIMULATE, "cell.yaml", "n_configurations"),
+    ("cell_standoff_text", _cell_file(_set("design.standoff", "far")), SIMULATE, "cell.yaml", "standoff"),
+    ("cell_fixture_nan", _cell_file(_set("fixture.xyz", [0, float("nan"), 0])), SIMULATE, "cell.yaml", "fixture"),
+    # dataset.yaml (fgcal calibrate)
+    ("header_malformed", _text("data/dataset.yaml", "format: [\n"), CALIBRATE, "dataset.yaml", "malformed YAML"),
+    ("header_wrong_format", _header(_set("format", "other/2")), CALIBRATE, "dataset.yaml", "format"),
+    ("header_unknown_key", _header(_set("operator", "me")), CALIBRATE, "dataset.yaml", "operator"),
+    ("header_unknown_robot", _header(_set("robot", "robot9000")), CALIBRATE, "dataset.yaml", "robot"),
+    ("header_unknown_units", _header(_set("units.length", "inch-ish")), CALIBRATE, "dataset.yaml", "units"),
+    ("header_unknown_measured", _header(_set("measured", ["x_rays"])), CALIBRATE, "dataset.yaml", "measured[0]"),
+    ("header_no_files", _header(_drop("files")), CALIBRATE, "dataset.yaml", "files"),
+    ("header_missing_table", _header(_set("files.camera_points", "nope.csv")), CALIBRATE, "nope.csv", ""),
+    (
+        "header_camera_fx_nan",
+        _header(_set("camera.intrinsics.fx", float("nan"))),
+        CALIBRATE,
+        "dataset.yaml",
+        "camera.intrinsics.fx",
+    ),
+    (
+        "header_camera_size_short",
+        _header(_set("camera.image_size", [640])),
+        CALIBRATE,
+        "dataset.yaml",
+        "camera.image_size",
+    ),
+    ("header_payload_negative", _header(_set("payload.mass", -5)), CALIBRATE, "dataset.yaml", "payload.mass"),
+    ("header_fixture_short", _header(_set("fixture.xyz", [0, 0])), CALIBRATE, "dataset.yaml", "fixture.xyz"),
+    ("header_targets_not_list", _header(_set("tracker.targets", 3)), CALIBRATE, "dataset.yaml", "tracker.targets"),
+    # configurations.csv
+    (
+        "configs_missing_joint",
+        _table("configurations.csv", lambda ls: [",".join(r.split(",")[:-1]) for r in ls]),
+        CALIBRATE,
+        "configurations.csv",
+        "header",
+    ),
+    (
+        "configs_extra_joint",
+        _table("configurations.csv", lambda ls: [ls[0] + ",q7"] + [r + ",0" for r in ls[1:]]),
+        CALIBRATE,
+        "configurations.csv",
+        "header",
+    ),
+    ("configs_empty_file", _table("configurations.csv", lambda ls: []), CALIBRATE, "configurations.csv", ""),
+    ("configs_no_rows", _table("configurations.csv", lambda ls: ls[:1]), CALIBRATE, "configurations.csv", ""),
+    (
+        "configs_duplicate_id",
+        _table("configurations.csv", lambda ls: [*ls, ls[1]]),
+        CALIBRATE,
+        "configurations.csv",
+        "config",
+    ),
+    (
+        "configs_ragged_row",
+        _table("configurations.csv", lambda ls: [*ls[:2], ls[2] + ",7", *ls[3:]]),
+        CALIBRATE,
+        "configurations.csv",
+        "line 3",
+    ),
+    ("configs_empty_value", _cell("configurations.csv", 2, "q4", ""), CALIBRATE, "configurations.csv", "column q4"),
+    (
+        "configs_text_value",
+        _cell("configurations.csv", 1, "q1", "ninety"),
+        CALIBRATE,
+        "configurations.csv",
+        "column q1",
+    ),
+    (
+        "configs_comma_decimal",
+        _cell("configurations.csv", 1, "q5", '"0,5"'),
+        CALIBRATE,
+        "configurations.csv",
+        "column q5",
+    ),
+    (
+        "configs_no_config_column",
+        _table("configurations.csv", lambda ls: [ls[0].replace("config", "id", 1), *ls[1:]]),
+        CALIBRATE,
+        "configurations.csv",
+        "config",
+    ),
+    # points.csv
+    (
+        "points_missing_column",
+        _table("points.csv", lambda ls: [ls[0].replace(",z", ",zz"), *ls[1:]]),
+        CALIBRATE,
+        "points.csv",
+        "z",
+    ),
+    ("points_text_value", _cell("points.csv", 3, "y", "north"), CALIBRATE, "points.csv", "column y"),
+    ("points_huge_value", _cell("points.csv", 3, "y", "-1e40"), CALIBRATE, "points.csv", "column y"),
+    # camera_points.csv
+    (
+        "camera_points_unknown_config",
+        _cell("camera_points.csv", 4, "config", "c9999"),
+        CALIBRATE,
+        "camera_points.csv",
+        "config",
+    ),
+    (
+        "camera_points_unknown_point",
+        _cell("camera_points.csv", 4, "point", "Q+q_r99c99"),
+        CALIBRATE,
+        "camera_points.csv",
+        "point",
+    ),
+    (
+        "camera_points_ragged",
+        _table("camera_points.csv", lambda ls: [*ls[:3], ls[3] + ",1", *ls[4:]]),
+        CALIBRATE,
+        "camera_points.csv",
+        "line 4",
+    ),
+    (
+        "camera_points_missing_column",
+        _table("camera_points.csv", lambda ls: [ls[0].replace(",y,", ",why,"), *ls[1:]]),
+        CALIBRATE,
+        "camera_points.csv",
+        "y",
+    ),
+    (
+        "camera_points_binary",
+        lambda root: (root / "data" / "camera_points.csv").write_bytes(b"\xff\xfe\x00\x01"),
+        CALIBRATE,
+        "camera_points.csv",
+        "",
+    ),
+    # pixels.csv (projection)
+    ("pixels_unknown_point", _cell("pixels.csv", 2, "point", "Z+z_nowhere"), CALIBRATE, "pixels.csv", "point"),
+    ("pixels_nan", _cell("pixels.csv", 2, "v", "NaN"), CALIBRATE, "pixels.csv", "column v"),
+    # tracker_points.csv
+    (
+        "tracker_unknown_config",
+        _cell("tracker_points.csv", 2, "config", "c-1"),
+        CALIBRATE,
+        "tracker_points.csv",
+        "config",
+    ),
+    ("tracker_text_value", _cell("tracker_points.csv", 2, "x", "1.2.3"), CALIBRATE, "tracker_points.csv", "column x"),
+    # calibration config
+    (
+        "config_malformed",
+        _text("calibration.yaml", "dataset: data\nnoise: {\n"),
+        CALIBRATE,
+        "calibration.yaml",
+        "malformed YAML",
+    ),
+    ("config_not_a_mapping", _text("calibration.yaml", "just text\n"), CALIBRATE, "calibration.yaml", ""),
+    ("config_unknown_key", _config(_set("speed", "fast")), CALIBRATE, "calibration.yaml", "speed"),
+    ("config_missing_dataset_dir", _config(_set("dataset", "gone")), CALIBRATE, "gone", ""),
+    ("config_formulation", _config(_set("formulation", "sonar")), CALIBRATE, "calibration.yaml", "formulation"),
+    ("config_model", _config(_set("model", "DH,q")), CALIBRATE, "calibration.yaml", "model"),
+    (
+        "config_compliant_joint_9",
+        _config(_set("compliant_joints", [9])),
+        CALIBRATE,
+        "calibration.yaml",
+        "compliant_joints",
+    ),
+    (
+        "config_compliant_joint_text",
+        _config(_set("compliant_joints", ["two"])),
+        CALIBRATE,
+        "calibration.yaml",
+        "compliant_joints",
+    ),
+    ("config_stage_kind", _config(_set("stages", [["theta", "warp"]])), CALIBRATE, "calibration.yaml", "stages[0]"),
+    ("config_stage_empty", _config(_set("stages", [[]])), CALIBRATE, "calibration.yaml", "stages[0]"),
+    (
+        "config_noise_negative",
+        _config(_set("noise.camera_point_sigma", -1e-4)),
+        CALIBRATE,
+        "calibration.yaml",
+        "noise.camera_point_sigma",
+    ),
+    (
+        "config_noise_zero",
+        _config(_set("noise.pixel_sigma_px", 0)),
+        CALIBRATE,
+        "calibration.yaml",
+        "noise.pixel_sigma_px",
+    ),
+    (
+        "config_robust_kind",
+        _config(_set("robust.pixels", ["tukey", 2])),
+        CALIBRATE,
+        "calibration.yaml",
+        "robust.pixels",
+    ),
+    (
+        "config_robust_threshold",
+        _config(_set("robust.tracker_points", ["huber", -3])),
+        CALIBRATE,
+        "calibration.yaml",
+        "robust.tracker_points",
+    ),
+    (
+        "config_holdout_high",
+        _config(_set("validation.holdout", 0.95)),
+        CALIBRATE,
+        "calibration.yaml",
+        "validation.holdout",
+    ),
+    (
+        "config_holdout_text",
+        _config(_set("validation.holdout", "a quarter")),
+        CALIBRATE,
+        "calibration.yaml",
+        "validation.holdout",
+    ),
+    (
+        "config_group_images_zero",
+        _config(_set("pairs.group_images", 0)),
+        CALIBRATE,
+        "calibration.yaml",
+        "pairs.group_images",
+    ),
+    ("config_partner", _config(_set("pairs.partner", "neighbour")), CALIBRATE, "calibration.yaml", "pairs.partner"),
+    ("config_solver_method", _config(_set("solver.method", "newton")), CALIBRATE, "calibration.yaml", "solver.method"),
+    (
+        "config_max_iterations_zero",
+        _config(_set("solver.max_iterations", 0)),
+        CALIBRATE,
+        "calibration.yaml",
+        "solver.max_iterations",
+    ),
+    ("config_units", _config(_set("units.length", "parsec-ish")), CALIBRATE, "calibration.yaml", "units"),
+    (
+        "config_intrinsics_estimate_text",
+        _config(_set("intrinsics.estimate", "yes please")),
+        CALIBRATE,
+        "calibration.yaml",
+        "intrinsics.estimate",
+    ),
+    (
+        "config_min_information",
+        _config(_set("identifiability.min_information", -1)),
+        CALIBRATE,
+        "calibration.yaml",
+        "identifiability.min_information",
+    ),
+    ("config_pixels_from", _config(_set("pixels_from", "dreams")), CALIBRATE, "calibration.yaml", "pixels_from"),
+    (
+        "config_projection_without_camera",
+        lambda root: (_header(_drop("camera"))(root), _config(_set("formulation", "projection"))(root)),
+        CALIBRATE,
+        "dataset.yaml",
+        "measured",
+    ),
+]
+
+
+def _prepare(source: Path, tmp_path: Path) -> Path:
+    root = tmp_path / "case"
+    shutil.copytree(source, root)
+    shutil.copy(ROBOT, root / "robot.yaml")
+    shutil.copy(SEED_CELL, root / "cell.yaml")
+    (root / "calibration.yaml").write_text("dataset: data\n", encoding="utf-8")
+    return root
+
+
+@pytest.mark.parametrize(("damage", "command", "file", "field"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_corpus(source, tmp_path, capsys, monkeypatch, alarm, damage, command, file, field):  # noqa: F811
+    root = _prepare(source, tmp_path)
+    damage(root)
+    monkeypatch.chdir(root)
+    status = main(command)
+    error = capsys.readouterr().err.strip()
+    assert status == 2, error
+    assert error.startswith("fgcal: error: ") and "\n" not in error and "Traceback" not in error, error
+    assert file in error and field in error, error
+
+
+def test_the_corpus_is_large():
+    from test_bad_input import BAD, ODD
+
+    assert len(CASES) + len(BAD) + len(ODD) + len(MEASUREMENT_FILES) + len(SETUPS) >= 80
+
+
+# Online: bad setup files stop `fgcal online` with exit 2; bad measurement files are rejected.
+SETUPS = [
+    ("setup_unknown_key", "dataset: data\nmood: calm\n", "mood"),
+    ("setup_released_unknown", "dataset: data\nreleased: [theta2, zz9]\n", "released"),
+    ("setup_released_text", "dataset: data\nreleased: theta2\n", "released"),
+    ("setup_settings_unknown", "dataset: data\nsettings: {window: 3}\n", "settings"),
+    ("setup_window_small", "dataset: data\nsettings: {window_images: 3}\n", "window_images"),
+    ("setup_target_negative", "dataset: data\ntarget_accuracy_m: -1\n", "target_accuracy_m"),
+    ("setup_malformed", "dataset: [\n", "malformed YAML"),
+]
+
+
+@pytest.mark.parametrize(("text", "field"), [c[1:] for c in SETUPS], ids=[c[0] for c in SETUPS])
+def test_online_setup_corpus(source, tmp_path, capsys, alarm, text, field):  # noqa: F811
+    root = _prepare(source, tmp_path)
+    (root / "setup.yaml").write_text(text, encoding="utf-8")
+    (root / "inbox").mkdir()
+    status = main(
+        [
+            "online",
+            "--state",
+            str(root / "state"),
+            "--inbox",
+            str(root / "inbox"),
+            "--setup",
+            str(root / "setup.yaml"),
+            "--once",
+        ]
+    )
+    error = capsys.readouterr().err.strip()
+    assert status == 2, error
+    assert error.startswith("fgcal: error: ") and "\n" not in error, error
+    assert "setup.yaml" in error and field in error, error
+    assert not (root / "state" / "config.yaml").exists()
+
+
+GOOD = {"format": "fgcal-measurement/1", "joints": [0.1, -0.2, 0.3, 0.0, 0.5, 0.0]}
+MEASUREMENT_FILES = [
+    ("measurement_not_json", b"{joints: [1, 2", "not valid JSON"),
+    ("measurement_nan_joint", json.dumps({**GOOD, "joints": [0, "NaN", 0, 0, 0, 0]}).encode(), "joints[1]"),
+    ("measurement_wrong_joint_count", json.dumps({**GOOD, "joints": [0, 0, 0]}).encode(), "joints"),
+    ("measurement_unknown_point", json.dumps({**GOOD, "pixels": {"nowhere": [1, 2]}}).encode(), "pixels.nowhere"),
+    ("measurement_pixel_short", json.dumps({**GOOD, "pixels": {"P": [1]}}).encode(), "pixels"),
+    ("measurement_unknown_unit", json.dumps({**GOOD, "units": {"angle": "gradian"}, "pixels": {}}).encode(), "units"),
+    ("measurement_deeply_nested", b"[" * 100000 + b"]" * 100000, "nested too deeply"),
+    ("measurement_too_large", b" " * (2 << 20) + b"{}", "larger than"),
+    ("measurement_cycle_negative", json.dumps({**GOOD, "cycle": -1, "pixels": {"P": [1, 2]}}).encode(), "cycle"),
+    ("measurement_unknown_key", json.dumps({**GOOD, "exposure": 3, "pixels": {"P": [1, 2]}}).encode(), "exposure"),
+]
+
+
+@pytest.mark.parametrize(
+    ("content", "reason"), [c[1:] for c in MEASUREMENT_FILES], ids=[c[0] for c in MEASUREMENT_FILES]
+)
+def test_bad_measurement_files_are_rejected(source, tmp_path, alarm, content, reason):  # noqa: F811
+    root = _prepare(source, tmp_path)
+    (root / "setup.yaml").write_text("dataset: data\n", encoding="utf-8")
+    inbox = root / "inbox"
+    inbox.mkdir()
+    point = (root / "data" / "points.csv").read_text(encoding="utf-8").splitlines()[1].split(",")[0]
+    (inbox / "bad.json").write_bytes(content.replace(b'"P"', json.dumps(point).encode()))
+    status = main(
+        ["online", "--state", str(root / "state"), "--inbox", str(inbox), "--setup", str(root / "setup.yaml"), "--once"]
+    )
+    assert status == 0
+    assert (root / "state" / "rejected" / "bad.json").exists()
+    why = (root / "state" / "rejected" / "bad.json.error.txt").read_text(encoding="utf-8")
+    assert reason in why, why
