@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -274,3 +275,67 @@ def test_a_full_disk_loses_no_acknowledged_measurement(small_case, tmp_path, mon
     with StateDir(state) as locked:
         assert [r["name"] for r in locked.read_log().records] == names
     assert not list(inbox.glob("*.json"))
+
+
+def _damage_a_record(log, rng) -> str | None:
+    """Flip one byte inside a complete record's JSON (not the last line, which a crash may
+    be writing); returns the damaged record's name."""
+    lines = log.read_bytes().splitlines(keepends=True) if log.exists() else []
+    if len(lines) < 3:
+        return None
+    i = int(rng.integers(0, len(lines) - 1))
+    name = json.loads(lines[i][9:])["name"]
+    position = 9 + int(rng.integers(1, len(lines[i]) - 11))
+    line = bytearray(lines[i])
+    line[position] = ord("#") if line[position] != ord("#") else ord("%")
+    lines[i] = bytes(line)
+    log.write_bytes(b"".join(lines))
+    return name
+
+
+def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_path):
+    """Issue 13's scripted crash test: 20 SIGKILLs at random moments; between them, at random,
+    a complete log record or the checkpoint is damaged. After each, the next process starts
+    cleanly (the state is usable), and at the end every acknowledged measurement is logged
+    exactly once."""
+    inbox, state = tmp_path / "inbox", tmp_path / "state"
+    feed_dataset(small_case / "data", inbox)
+    names = sorted(p.name for p in inbox.glob("*.json"))
+    command = [sys.executable, "-m", "fgcal.cli", "online", "--state", str(state), "--inbox", str(inbox)]
+    command += ["--setup", str(small_case / "setup.yaml"), "--once"]
+    rng = np.random.default_rng(13)
+    log = state / LOG
+    kills, damaged_records, damaged_checkpoints, refed = 0, 0, 0, 0
+    expected = list(names)
+    for _ in range(80):
+        if kills == 20:
+            break
+        if rng.uniform() < 0.3 and _damage_a_record(log, rng):
+            damaged_records += 1
+        if rng.uniform() < 0.2 and (state / "checkpoint.json").exists():
+            (state / "checkpoint.json").write_bytes(b'{"n_records": "x"')
+            damaged_checkpoints += 1
+        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
+        time.sleep(rng.uniform(0.3, 2.0))  # start-up (imports, replay) takes about a second
+        if process.poll() is None:
+            process.send_signal(signal.SIGKILL)
+            process.wait()
+            kills += 1
+        else:
+            assert process.returncode == 0, process.stderr.read().decode()  # usable: a clean run
+        if not list(inbox.glob("*.json")):  # all processed: the same images again, as new files
+            refed += 1
+            for name in names[:10]:
+                copy = f"r{refed:02d}_{name}"
+                shutil.copy(state / "processed" / name, inbox / copy)
+                expected.append(copy)
+    finished = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert finished.returncode == 0, finished.stderr
+    print(f"{kills} SIGKILLs, {damaged_records} damaged records, {damaged_checkpoints} damaged checkpoints")
+    assert kills == 20, kills
+    assert damaged_records >= 3 and damaged_checkpoints >= 1, (damaged_records, damaged_checkpoints)
+    with StateDir(state) as locked:
+        logged = [r["name"] for r in locked.read_log().records]
+    assert sorted(logged) == sorted(expected)  # every acknowledged measurement, once
+    assert not list(inbox.glob("*.json"))
+    assert json.loads((state / "report.json").read_text())["n_images"] == len(expected)
