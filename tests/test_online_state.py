@@ -339,3 +339,41 @@ def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_pa
     assert sorted(logged) == sorted(expected)  # every acknowledged measurement, once
     assert not list(inbox.glob("*.json"))
     assert json.loads((state / "report.json").read_text())["n_images"] == len(expected)
+
+
+def test_a_measurement_whose_fold_fails_is_quarantined_and_never_blocks_a_replay(small_case, tmp_path, monkeypatch):
+    # Issue 13: a measurement that passes validation but makes the solver fail was logged
+    # before it was folded in, so every replay failed again.
+    from fgcal.online.calibrator import OnlineCalibrator
+
+    inbox, state = _fed(small_case, tmp_path, 12), tmp_path / "state"
+    names = sorted(p.name for p in inbox.glob("*.json"))
+    poisoned = json.loads((inbox / names[6]).read_text())["joints"]
+    original = OnlineCalibrator.add
+
+    def add(self, q, observations, cycle=None):
+        if np.allclose(q, poisoned):
+            raise RuntimeError("Indeterminant linear system detected while working near variable p0")
+        return original(self, q, observations, cycle)
+
+    monkeypatch.setattr(OnlineCalibrator, "add", add)
+    service = _service(small_case, state, inbox)
+    service.run(once=True)
+    assert service.calibrator.n_images == 11 and list(service.quarantined) == [names[6]]
+    service.close()
+    report = json.loads((state / "report.json").read_text())
+    assert [q["name"] for q in report["quarantined"]] == [names[6]]
+    expected = _estimate(state)
+    for _ in range(2):  # restarts replay past it, without calling the solver on it
+        service = _service(small_case, state, inbox)
+        assert service.calibrator.n_images == 11
+        service.close()
+    estimate, sigma = _estimate(state)
+    assert np.all(np.abs(estimate - expected[0]) <= 1e-6 * sigma)
+    # A failure during a replay (the first time it is seen there) is quarantined the same way.
+    with StateDir(state) as locked:
+        records = [r for r in locked.read_log().records if "quarantined" not in r]
+        locked.rewrite_log(records)
+    service = _service(small_case, state, inbox)
+    assert service.calibrator.n_images == 11 and list(service.quarantined) == [names[6]]
+    service.close()

@@ -34,6 +34,13 @@ from .report import write_final_report
 from .state import StateDir, encode_record, write_atomic
 
 CONFIG = "config.yaml"
+QUARANTINE = "quarantined"  # key of a log record that marks a measurement as not to be folded in
+
+
+class _Replayed(Exception):  # noqa: N818 (a signal, not an error)
+    """Raised out of a replay that a quarantine has just redone from the start."""
+
+
 CHECKPOINT_EVERY = 25
 
 
@@ -123,10 +130,14 @@ class OnlineService:
             raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
         robot = load_robot(self.config["robot"]) if "robot" in self.config else dataset.robot
         points = dataset.points_F()
+        settings = _settings(self.config, config_path)
+
+        def new_calibrator() -> OnlineCalibrator:
+            return OnlineCalibrator(robot, dataset.camera, points, settings, self.config.get("released"))
+
+        self._new_calibrator = new_calibrator
         try:
-            self.calibrator = OnlineCalibrator(
-                robot, dataset.camera, points, _settings(self.config, config_path), self.config.get("released")
-            )
+            self.calibrator = new_calibrator()
         except InputError as error:
             if error.source is not None:
                 raise
@@ -135,29 +146,41 @@ class OnlineService:
         if not config_path.exists():  # written once the setup has proved usable
             write_atomic(config_path, yaml.safe_dump(self.config, sort_keys=False).encode("utf-8"))
         self.target_m = float(self.config["target_accuracy_m"])
+        self.latencies: deque[float] = deque(maxlen=10000)  # bounded: the last 10000 updates
+        self._history_handle = None
+        (self.state.path / "processed").mkdir(exist_ok=True)
+        (self.state.path / "rejected").mkdir(exist_ok=True)
+        self._replay()
+
+    def _begin(self) -> None:
+        """Everything a replay rebuilds: the estimate's companions and history.csv."""
         self.alarms: list[dict] = []
         self.skipped: list[dict] = []
-        self.latencies: deque[float] = deque(maxlen=10000)  # bounded: the last 10000 updates
         self.met_at: int | None = None
         self.predicted: dict | None = None  # after the last image folded in
         self._final_at = -1  # n_images when report.md was last written
         self.logged: dict[str, bytes] = {}  # name -> digest of the logged record
+        self.quarantined: dict[str, str] = {}  # name -> why folding it in failed
+        if self._history_handle is not None:
+            self._history_handle.close()
         self._history_handle = open(self.state.path / "history.csv", "w", encoding="utf-8")  # noqa: SIM115 (kept open for the run)
         self._history_handle.write(
             "image,name,cycle,update_ms,predicted_rms_m,alarms,"
             + ",".join(f"sigma_{n}" for n in self.calibrator.released)
             + "\n"
         )
-        (self.state.path / "processed").mkdir(exist_ok=True)
-        (self.state.path / "rejected").mkdir(exist_ok=True)
-        self._replay()
 
     def _replay(self) -> None:
+        self._begin()
         contents = self.state.read_log()
         self.problems = contents.problems
         for problem in contents.problems:
             self.say(f"warning: {problem}")
         records = self._repair(contents)
+        markers = [r for r in records if QUARANTINE in r]
+        self.quarantined = {str(r[QUARANTINE]): str(r.get("reason", "")) for r in markers}
+        self.problems += [f"{name} quarantined: {why}" for name, why in self.quarantined.items()]
+        records = [r for r in records if QUARANTINE not in r]
         checkpoint, problem = self.state.read_checkpoint(self.calibrator.released)
         if problem:
             self.say(f"warning: {problem}: ignored, rebuilt from the log")
@@ -169,7 +192,13 @@ class OnlineService:
                 record, record.get("name", "?"), self.state.path / "measurements.log", self.calibrator.robot.n_joints
             )
             self.logged[measurement.name] = _digest(measurement.to_record())
-            self._fold(measurement, replaying=True)
+            if measurement.name in self.quarantined:
+                self.say(f"skipped {measurement.name}: quarantined ({self.quarantined[measurement.name]})")
+                continue
+            try:
+                self._fold(measurement, replaying=True)
+            except _Replayed:
+                return
             if checkpoint and checkpoint.get("n_records") == number:
                 self._check_checkpoint(checkpoint)
         if checkpoint and checkpoint["n_records"] > len(records):
@@ -233,6 +262,11 @@ class OnlineService:
             self.skipped.append({"name": measurement.name, "reason": error.message})
             self.say(f"skipped {measurement.name}: {error.message}")
             return None
+        except Exception as error:  # a failure inside the solver: quarantined, never blocking a replay
+            self._quarantine(measurement, error)
+            if replaying:
+                raise _Replayed from None  # the replay of the log was redone without it
+            return None
         if not replaying:
             self.latencies.append(update.update_s)
         predicted = self.predicted = self.predicted_accuracy()
@@ -260,6 +294,16 @@ class OnlineService:
         )
         self._history_handle.flush()
         return update
+
+    def _quarantine(self, measurement: Measurement, error: Exception) -> None:
+        """Mark a logged measurement whose folding-in failed, durably (a marker record in the
+        log, which replays honour), and rebuild the estimate from the log without it: the
+        failed update may have left the smoother half changed."""
+        reason = f"{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
+        self.say(f"quarantined {measurement.name}: folding it in failed ({reason}); rebuilding from the log")
+        self.state.append({QUARANTINE: measurement.name, "reason": reason})
+        self.calibrator = self._new_calibrator()
+        self._replay()
 
     def predicted_accuracy(self) -> dict:
         """Predicted flange position sigma (m) at the configurations in the window."""
@@ -381,6 +425,7 @@ class OnlineService:
                 "lag_images": cal.settings.alarm_lag_images,
             },
             "skipped": self.skipped,
+            "quarantined": [{"name": n, "reason": why} for n, why in self.quarantined.items()],
             "problems": self.problems,
             "identifiability": "structural: 300 configurations uniform in the joint limits, seed 0"
             if "released" not in self.config
