@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -12,21 +13,52 @@ from ..robot import Robot
 from .graph import P_KEY, StageGraph, linearize
 
 
-def parameter_covariance(stage: StageGraph, values: gtsam.Values) -> np.ndarray:
-    """Marginal covariance (m x m) of the released parameters, SI units squared.
+@dataclass
+class JointCovariance:
+    """Covariance of the released parameters and the auxiliary unknowns together (SI, tangent
+    spaces for poses), scaled by the fit's variance factor where the caller says so."""
 
-    The linearised graph is eliminated with QR in the order auxiliary unknowns, P, so that P
-    ends in the root clique, from which the Bayes tree gives its marginal. QR rather than
-    gtsam.Marginals' Cholesky: the columns span lengths, angles and compliances (about 1e-7
-    rad/(N m)), whose spread the normal equations would square.
-    """
-    if not stage.released:
-        return np.zeros((0, 0))
-    ordering = gtsam.Ordering()
-    for key in [*stage.aux, P_KEY]:
-        ordering.push_back(key)
-    bayes_tree = linearize(stage, values).eliminateMultifrontal(ordering, gtsam.EliminateQR)
-    return bayes_tree.marginalCovariance(P_KEY)
+    offsets: dict[int, tuple[int, int]]  # key -> (first column, dimension)
+    matrix: np.ndarray
+
+    def block(self, keys: Sequence[int]) -> np.ndarray:
+        index = np.concatenate([np.arange(a, a + d) for a, d in (self.offsets[k] for k in keys)])
+        return self.matrix[np.ix_(index, index)]
+
+    def scaled(self, factor: float) -> JointCovariance:
+        return JointCovariance(self.offsets, self.matrix * factor)
+
+
+def joint_covariance(stage: StageGraph, values: gtsam.Values) -> JointCovariance:
+    """Covariance of (P, auxiliary unknowns) at ``values``: the inverse information of the
+    stage's linearisation (measurement sets as one Jacobian each, priors), by QR of the
+    column-scaled whitened Jacobian. QR rather than the normal equations (or gtsam.Marginals'
+    Cholesky): the columns span lengths, angles and compliances (about 1e-7 rad/(N m)), whose
+    spread the normal equations would square."""
+    dims = {key: dim for key, (_, dim) in stage.aux.items()}
+    if stage.released:
+        dims = {P_KEY: stage.model.n_released, **dims}
+    offsets, column = {}, 0
+    for key, dim in dims.items():
+        offsets[key] = (column, dim)
+        column += dim
+    linear = linearize(stage, values)
+    rows = []
+    for i in range(linear.size()):
+        factor = linear.at(i)
+        A, _ = factor.jacobian()
+        dense, at = np.zeros((A.shape[0], column)), 0
+        for key in factor.keys():  # noqa: SIM118 (a GaussianFactor, not a dict)
+            start, dim = offsets[key]
+            dense[:, start : start + dim] = A[:, at : at + dim]
+            at += dim
+        rows.append(dense)
+    A = np.vstack(rows)
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    R = np.linalg.qr(A / scale, mode="r")
+    R_inverse = np.linalg.pinv(R)  # the identifiability analysis keeps R well conditioned
+    return JointCovariance(offsets, (R_inverse @ R_inverse.T) / np.outer(scale, scale))
 
 
 def correlation(covariance: np.ndarray) -> np.ndarray:

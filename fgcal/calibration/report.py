@@ -9,9 +9,10 @@ import numpy as np
 from .. import strict_json
 from ..parameters import unit_of
 from ..robot_io import save_robot
-from .covariance import correlation, position_covariance
+from .covariance import correlation
+from .goodness import Fit
 from .run import CalibrationResult
-from .validation import gauge_of
+from .validation import gauge_of, predicted_held_out
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -20,6 +21,11 @@ def report_dict(result: CalibrationResult) -> dict:
     nominal = robot.nominal_parameters()
     estimate = robot.parameter_dict(result.state.params)
     sigmas = result.sigmas
+    declared = {}
+    if result.covariance_declared is not None:
+        declared = {
+            n: float(np.sqrt(max(result.covariance_declared[i, i], 0.0))) for i, n in enumerate(result.released)
+        }
     truth = result.truth["parameters"] if result.truth else None
     parameters = {}
     for name in problem.candidates:
@@ -28,6 +34,7 @@ def report_dict(result: CalibrationResult) -> dict:
             "nominal": nominal[name],
             "estimate": estimate[name],
             "sigma": sigmas.get(name),
+            "sigma_declared_noise": declared.get(name),
             "status": "estimated" if name in sigmas else "fixed",
         }
         if truth is not None:
@@ -71,9 +78,11 @@ def report_dict(result: CalibrationResult) -> dict:
                 f"residual_rms_{s.unit}": s.residual_rms,
                 "iterations": s.iterations,
                 "time_s": s.time_s,
+                **s.fit.as_dict(),
             }
             for s in result.stages
         ],
+        "goodness_of_fit": result.fit.as_dict() if result.fit is not None else None,
         "parameters": parameters,
         "unidentifiable": sorted(result.final_identifiability.unidentifiable),
         "unidentifiable_reasons": result.final_identifiability.unidentifiable,
@@ -97,32 +106,22 @@ def report_dict(result: CalibrationResult) -> dict:
 
 
 def predicted_sigma(result: CalibrationResult) -> dict:
-    """Predicted position uncertainty (m, 3D RMS) of the scored quantity at the held-out
-    configurations, from the parameter covariance; the common offset that scoring removes
-    as the gauge (pair formulation) is removed here too, and reported separately."""
-    problem, config = result.problem, result.config
-    q_test = problem.dataset.q[problem.test]
-    if not len(q_test) or not result.released:
-        return {}
-    frame = "tool" if config.formulation != "tracker" else "flange"
-    point = result.tool_point if config.formulation != "tracker" else result.state.tool_points[0]
+    """The predicted RMS of what the held-out score measures (validation.predicted_held_out),
+    and a warning when the measured score exceeds it by more than PREDICTION_TOLERANCE."""
+    predicted = predicted_held_out(result, against_truth=result.truth is not None)
+    after = result.validation.get("after", {}).get("tool_point")
+    if predicted and after is not None and after.errors.size:
+        predicted["measured_over_predicted"] = after.rms / predicted["rms"]
+        if after.rms > PREDICTION_TOLERANCE * predicted["rms"]:
+            predicted["warning"] = (
+                f"the measured held-out error ({after.rms * 1e3:.4g} mm RMS) exceeds the predicted "
+                f"({predicted['rms'] * 1e3:.4g} mm) by {after.rms / predicted['rms']:.2g}x: the model or the noise "
+                "model does not describe the held-out data"
+            )
+    return predicted
 
-    def rms(remove_common_offset: bool) -> float:
-        cov = position_covariance(
-            problem.robot,
-            result.state.params,
-            result.released,
-            result.covariance,
-            q_test,
-            frame,
-            point,
-            remove_common_offset,
-        )
-        return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))
 
-    if config.formulation != "tracker":
-        return {"rms": rms(True), "rms_with_common_offset": rms(False)}
-    return {"rms": rms(False)}
+PREDICTION_TOLERANCE = 1.5
 
 
 def _seed(result: CalibrationResult) -> int | None:
@@ -182,6 +181,10 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
     return plots
 
 
+def fit_sentence(fit: dict) -> str:
+    return Fit(fit["chi2"], fit["dof"], fit["chi2_p_value"]).sentence()
+
+
 def _fmt(value, unit: str = "") -> str:
     if value is None:
         return "-"
@@ -214,24 +217,37 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 lines.append(f"| {label}: {key} | {stat['mean']:.3e} | {stat['rms']:.3e} | {stat['max']:.3e} |")
         if val.get("predicted_position_sigma_m"):
             p = val["predicted_position_sigma_m"]
+            noise = f" and the measurement noise ({p['noise_rms'] * 1e3:.4g} mm)" if p["noise_rms"] else ""
             lines += [
                 "",
-                "Predicted position uncertainty of the scored point (from the parameter covariance, "
-                f"same gauge removed): {p['rms']:.3e} m RMS.",
+                f"Predicted held-out error: {p['rms'] * 1e3:.4g} mm RMS, from the estimate's uncertainty "
+                f"({p['parameters_rms'] * 1e3:.4g} mm){noise}, with the score's gauge removed"
+                + (
+                    f"; measured / predicted = {p['measured_over_predicted']:.3g}."
+                    if "measured_over_predicted" in p
+                    else "."
+                ),
             ]
+            if "warning" in p:
+                lines += ["", f"**Warning:** {p['warning']}."]
         if "errors" in plots:
             lines += ["", f"![errors]({plots['errors']})"]
+    fit = doc["goodness_of_fit"]
+    if fit is not None:
+        lines += ["", "## Goodness of fit", "", fit_sentence(fit)]
     lines += [
         "",
         "## Stages",
         "",
-        "| stage | released | residual norm | residual RMS | iterations | time (s) |",
-        "|---|---|---|---|---|---|",
+        "| stage | released | residual RMS | chi2 / dof | p | iterations | time (s) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for s in doc["stages"]:
+        rms = s.get("residual_rms_m", s.get("residual_rms_px"))
+        rms_text = f"{rms * 1e3:.4g} mm" if "residual_rms_m" in s else f"{rms:.4g} px"
         lines.append(
-            f"| {s['stage']} | {len(s['released'])}: {', '.join(s['released'])} | {s['residual_norm']:.4g} | "
-            f"{s.get('residual_rms_m', s.get('residual_rms_px')):.3e} {'m' if 'residual_rms_m' in s else 'px'} | "
+            f"| {s['stage']} | {len(s['released'])}: {', '.join(s['released'])} | {rms_text} | "
+            f"{s['chi2']:.4g} / {s['dof']} = {s['chi2_per_dof']:.3g} | {s['chi2_p_value']:.2g} | "
             f"{s['iterations']} | {s['time_s']:.2f} |"
         )
     has_truth = any("truth" in p for p in doc["parameters"].values())

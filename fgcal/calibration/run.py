@@ -11,14 +11,15 @@ import numpy as np
 from ..dataset import Dataset, load_dataset
 from ..errors import InputError
 from .config import CalibrationConfig
-from .covariance import parameter_covariance
-from .graph import build_graph, robust_scale
+from .covariance import JointCovariance, joint_covariance
+from .goodness import Fit
+from .graph import P_KEY, build_graph, robust_scale
 from .identifiability import Identifiability, analyse
 from .initialise import initial_state
 from .problem import Problem, build_problem
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
-from .validation import ErrorStats, default_tool_point, held_out_errors, stats
+from .validation import ErrorStats, default_tool_point, held_out_errors, predicted_held_out, stats
 
 
 @dataclass
@@ -31,8 +32,11 @@ class CalibrationResult:
     before: State
     state: State
     released: list[str]
-    covariance: np.ndarray
+    covariance: np.ndarray  # of the released parameters, scaled by the fit's variance factor
     tool_point: np.ndarray
+    fit: Fit | None = None  # goodness of fit of the last stage
+    joint_covariance: JointCovariance | None = None  # (P, auxiliary unknowns), scaled like covariance
+    covariance_declared: np.ndarray | None = None  # under the declared noise, unscaled
     validation: dict[str, dict[str, ErrorStats]] = field(default_factory=dict)
     truth: dict | None = None
     timing: dict[str, float] = field(default_factory=dict)
@@ -144,12 +148,29 @@ def calibrate_dataset(
         )
         stages.append(report)
     solve_time = time.perf_counter() - solve_started
-    covariance = parameter_covariance(last_stage, last_values) if last_stage is not None else np.zeros((0, 0))
+    joint = joint_covariance(last_stage, last_values) if last_stage is not None else None
+    covariance = joint.block([P_KEY]) if joint is not None else np.zeros((0, 0))
     released = list(last_stage.released) if last_stage is not None else []
     point = default_tool_point(problem)
+    fit = stages[-1].fit if stages else None
+    factor = fit.variance_factor if fit is not None else 1.0
     result = CalibrationResult(
-        config, problem, identifiability, final_ident, stages, before, state, released, covariance, point
+        config,
+        problem,
+        identifiability,
+        final_ident,
+        stages,
+        before,
+        state,
+        released,
+        covariance * factor,
+        point,
+        fit=fit,
+        covariance_declared=covariance,
+        joint_covariance=joint.scaled(factor) if joint is not None else None,
     )
+    if fit is not None and not fit.consistent:
+        say(f"  {fit.sentence()}")
     for label, st in (("before", before), ("after", state)):
         result.validation[label] = {k: stats(v) for k, v in held_out_errors(problem, st).items()}
     result.timing = {"solve_s": solve_time, "total_s": time.perf_counter() - started}
@@ -162,6 +183,10 @@ def held_out_summary(result: CalibrationResult) -> str | None:
     if after is None or not after.errors.size:
         return None
     reference = "the simulation's truth" if result.truth else "the held-out measurements"
-    return (
+    line = (
         f"  held-out positioning error against {reference}: before {before.rms:.3e} m RMS, after {after.rms:.3e} m RMS"
     )
+    predicted = predicted_held_out(result, against_truth=result.truth is not None)
+    if predicted:
+        line += f" (predicted {predicted['rms']:.3e} m)"
+    return line

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..factors import BehindCameraError, FactorError
 from ..parameters import split_name
+from .goodness import Fit, goodness_of_fit
 from .graph import StageGraph, build_graph, linearize, read_state, robust_scale, stage_error
 from .problem import Problem
 from .state import State
@@ -25,6 +26,12 @@ class StageReport:
     unit: str  # m, or px for the projection formulation
     iterations: int
     time_s: float
+    n_unknowns: int = 0  # released parameters and auxiliary unknowns (tangent dimensions)
+    n_residuals: int = 0  # measurement residuals the stage fitted
+
+    @property
+    def fit(self) -> Fit:
+        return goodness_of_fit(self.residual_norm**2, self.n_residuals, self.n_unknowns)
 
 
 def kind_label(name: str) -> str:
@@ -150,7 +157,17 @@ def solve_stage(
         new_state = read_state(stage, result, new_state)
     norm, rms = measurement_residuals(stage, result)
     unit = "px" if problem.config.formulation == "projection" else "m"
-    report = StageReport(name, released, norm, rms, unit, iterations, time.perf_counter() - started)
+    report = StageReport(
+        name,
+        released,
+        norm,
+        rms,
+        unit,
+        iterations,
+        time.perf_counter() - started,
+        len(released) + state.n_auxiliary,
+        problem.n_residuals,
+    )
     say(
         f"  stage {name}: {len(released)} parameters, {report.iterations} iterations, "
         f"residual RMS {rms:.3e} {unit}, {report.time_s:.2f} s"

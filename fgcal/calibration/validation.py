@@ -15,9 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
-from ..se3 import kabsch, transform_points
+from .. import kinematics
+from ..factors import TrackerPoints
+from ..se3 import kabsch, skew, transform_points
+from .batch import BatchKinematics
+from .graph import P_KEY, TOOL_POINTS_KEY, TRACKER_KEY
 from .problem import Problem
 from .state import State
 
@@ -98,3 +103,89 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
             predicted = predicted_positions(problem, state, q, None, t)[[i for i, _ in rows]]
             errors.append(np.linalg.norm(predicted - np.array([xyz for _, xyz in rows]), axis=1))
     return {"tool_point": np.concatenate(errors) if errors else np.zeros(0)}
+
+
+def predicted_held_out(result, against_truth: bool) -> dict:
+    """Predicted RMS (m) of exactly what the held-out score measures, for the held-out
+    configurations: the parameter (and auxiliary unknown) uncertainty carried to the scored
+    positions, with the score's gauge removed, plus, against held-out measurements, their
+    noise (the declared sigma times the fit's sigma0). Returns the parts too.
+
+    - tracker: reflector positions in the tracker frame, uncertain through P, the tracker pose
+      and the tool points; against measurements, plus 3 sigma^2 per point;
+    - pairs and projection against the truth: the scored point in W, the gauge (common offset
+      or best rigid motion, as gauge_of says) removed; no noise (the truth is exact).
+    """
+    problem, config = result.problem, result.config
+    q = problem.dataset.q[problem.test]
+    if not len(q) or result.joint_covariance is None or not result.released:
+        return {}
+    factor = result.fit.variance_factor if result.fit is not None else 1.0
+    model = BatchKinematics(problem.robot, result.state.params, result.released, q, problem.frame)
+    p_values = model.base[model.index]
+    if config.formulation == "tracker":
+        rows = _held_out_tracker_rows(problem) if not against_truth else _all_targets(problem, len(q))
+        if not rows:
+            return {}
+        points = TrackerPoints(
+            model,
+            P_KEY,
+            TRACKER_KEY,
+            TOOL_POINTS_KEY,
+            len(result.state.tool_points),
+            np.array([r[0] for r in rows]),
+            np.array([r[1] for r in rows]),
+            np.zeros((len(rows), 3)),
+            config.tracker_sigma_m,
+        )
+        inputs = [p_values, gtsam.Pose3(result.state.tracker_pose), result.state.tool_points.reshape(-1)]
+        J = np.hstack(points.compute(inputs, True).blocks).reshape(len(rows), 3, -1)
+        covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
+        parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
+        noise = 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2
+    else:
+        if not against_truth:
+            return {}
+        data = kinematics.forward(problem.robot, result.state.params, q)
+        J = kinematics.jacobian(problem.robot, data, result.released, frame="tool", point=result.tool_point)
+        positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
+        flat = _without_gauge(J.reshape(-1, J.shape[2]), positions, gauge_of(problem))
+        per_row = np.einsum("ij,jk,ik->i", flat, result.covariance, flat)
+        parameters, noise = per_row.reshape(len(q), 3).sum(axis=1), 0.0
+    return {
+        "rms": float(np.sqrt(np.mean(parameters) + noise)),
+        "parameters_rms": float(np.sqrt(np.mean(parameters))),
+        "noise_rms": float(np.sqrt(noise)),
+        "variance_factor": factor,
+    }
+
+
+def _without_gauge(J: np.ndarray, positions: np.ndarray, gauge: str) -> np.ndarray:
+    """Rows (3N, m) of position Jacobians with the gauge's directions projected out: the
+    common translation, or the infinitesimal rigid motions omega x (p - mean) + t."""
+    if gauge == "none":
+        return J
+    n = len(positions)
+    G = np.tile(np.eye(3), (n, 1))
+    if gauge == "rigid":
+        G = np.hstack([-skew(positions - positions.mean(axis=0)).reshape(-1, 3), G])
+    Q, _ = np.linalg.qr(G)
+    return J - Q @ (Q.T @ J)
+
+
+def _held_out_tracker_rows(problem) -> list[tuple[int, int]]:
+    """(held-out configuration index, target index) of each held-out tracker measurement."""
+    table = problem.dataset.tables["tracker_points"]
+    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
+    test_pos = {int(c): i for i, c in enumerate(problem.test)}
+    target_index = {t: i for i, t in enumerate(problem.targets)}
+    rows = [
+        (test_pos[config_pos[cid]], target_index[name])
+        for cid, name in zip(table.ids["config"], table.ids["target"], strict=True)
+        if config_pos[cid] in test_pos and name in target_index
+    ]
+    return sorted(rows)
+
+
+def _all_targets(problem, n_configs: int) -> list[tuple[int, int]]:
+    return [(j, t) for j in range(n_configs) for t in range(len(problem.targets))]
