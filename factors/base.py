@@ -223,8 +223,6 @@ class MeasurementSet:
 
     def __init__(self, robust: RobustLoss | None = None) -> None:
         self.variables = [(key, kind, dim if dim is not None else _DIMS[kind]) for key, kind, dim in self.variables]
-        if not self.variables:
-            raise ValueError(f"{type(self).__name__}: no variable to estimate")
         self.robust = robust
         self.n_rows = len(self.sigma)
         self.factor_ends = np.append(self.factor_starts[1:], self.n_rows)
@@ -242,6 +240,8 @@ class MeasurementSet:
 
     def factors(self) -> list[MeasurementFactor]:
         """One GTSAM factor per group of rows (a point-pair group, an image, a configuration)."""
+        if not self.variables:
+            raise ValueError(f"{type(self).__name__}: no variable to estimate (it can still be evaluated)")
         return [MeasurementFactor(self, i) for i in range(self.n_factors)]
 
     def read(self, values: gtsam.Values) -> list:

@@ -288,3 +288,22 @@ def test_a_misfit_model_is_scored_against_the_full_true_robot(small_cell):
     assert independent > 1e-4
     # ... and the fit says so: the residuals are not what the declared noise explains.
     assert not result.fit.consistent and result.fit.chi2_per_dof > 2
+
+
+def test_a_pairs_dataset_without_truth_gets_a_held_out_score(small_cell, tmp_path):
+    """Issue 11: without truth/, the held-out images' point pairs are the score, and the
+    predicted error (noise and parameter uncertainty) predicts it."""
+    import shutil
+
+    from fgcal.calibration.validation import predicted_held_out
+
+    bare = tmp_path / "bare"
+    shutil.copytree(small_cell, bare, ignore=shutil.ignore_patterns("truth"))
+    result = calibrate(CalibrationConfig.defaults(bare))
+    assert result.truth is None
+    before, after = (result.validation[label]["point_pair"] for label in ("before", "after"))
+    assert after.errors.size > 100 and after.rms < before.rms / 10
+    ratio = after.rms / predicted_held_out(result, against_truth=False)["rms"]
+    assert 0.67 <= ratio <= 1.5, ratio
+    doc = write_report(result, tmp_path / "report", plots=False)
+    assert doc["validation"]["after"]["point_pair_error_m"]["rms"] == pytest.approx(after.rms)

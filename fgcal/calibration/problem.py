@@ -92,11 +92,11 @@ def category(a: tuple[str, str], b: tuple[str, str]) -> str:
     return "same_side" if a[1] == b[1] else "same_object"
 
 
-def fitting_rows(problem: Problem, table: Table, key: str):
-    """(fitting-set index, id in column ``key``, values) of each row of ``table`` that belongs to
-    a fitting configuration; rows of held-out configurations are left out."""
+def fitting_rows(problem: Problem, table: Table, key: str, subset: np.ndarray | None = None):
+    """(index in the subset, id in column ``key``, values) of each row of ``table`` that belongs
+    to a configuration of ``subset`` (default the fitting set); other rows are left out."""
     config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
-    fit_pos = {int(c): i for i, c in enumerate(problem.fit)}
+    fit_pos = {int(c): i for i, c in enumerate(problem.fit if subset is None else subset)}
     for cid, name, values in zip(table.ids["config"], table.ids[key], table.values, strict=True):
         index = fit_pos.get(config_pos[cid])
         if index is not None:
@@ -209,18 +209,26 @@ def _build_pairs(problem: Problem) -> None:
         )
     if data.fixture_pose is not None:
         problem.fixture_rotation = data.fixture_pose[:3, :3]
+    problem.pairs = pair_groups(problem, problem.fit)
+    if len({j for g in problem.pairs for j in g.images}) < 2:
+        raise InputError(
+            data.path / "camera_points.csv",
+            None,
+            "fewer than 2 fitting images with points: the pair formulation needs several",
+        )
+
+
+def pair_groups(problem: Problem, subset: np.ndarray) -> list[PairGroup]:
+    """The point-pair groups of the images of ``subset`` (configuration indices), as the
+    module docstring describes; image indices are positions in ``subset``."""
+    data, config = problem.dataset, problem.config
     points = data.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["camera_points"]
     images: dict[int, list[tuple[int, np.ndarray]]] = {}
-    for index, point, xyz in fitting_rows(problem, table, "point"):
+    for index, point, xyz in fitting_rows(problem, table, "point", subset):
         images.setdefault(index, []).append((where[point], xyz))
-    if len(images) < 2:
-        raise InputError(
-            data.path / "camera_points.csv",
-            None,
-            f"only {len(images)} fitting images with points: the pair formulation needs several",
-        )
+    groups: list[PairGroup] = []
 
     def label(j: int) -> tuple[str, str]:
         first = images[j][0][0]
@@ -252,7 +260,7 @@ def _build_pairs(problem: Problem) -> None:
         observations = [(i, point, xyz) for i, j in enumerate(group) for point, xyz in images[j]]
         if len(observations) < 2:
             continue
-        problem.pairs.append(
+        groups.append(
             PairGroup(
                 images=group,
                 owner=np.array([o[0] for o in observations]),
@@ -261,6 +269,7 @@ def _build_pairs(problem: Problem) -> None:
                 labels=[label(j) for j in group],
             )
         )
+    return groups
 
 
 def _build_projection(problem: Problem) -> None:

@@ -12,7 +12,7 @@ from ..robot_io import save_robot
 from .covariance import correlation
 from .goodness import Fit
 from .run import CalibrationResult
-from .validation import gauge_of, predicted_held_out
+from .validation import SCORES, gauge_of, predicted_held_out, primary_score
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -109,8 +109,9 @@ def predicted_sigma(result: CalibrationResult) -> dict:
     """The predicted RMS of what the held-out score measures (validation.predicted_held_out),
     and a warning when the measured score exceeds it by more than PREDICTION_TOLERANCE."""
     predicted = predicted_held_out(result, against_truth=result.truth is not None)
-    after = result.validation.get("after", {}).get("tool_point")
-    if predicted and after is not None and after.errors.size:
+    scored = primary_score(result.validation, "after")
+    after = scored[1] if scored is not None else None
+    if predicted and after is not None:
         predicted["measured_over_predicted"] = after.rms / predicted["rms"]
         if after.rms > PREDICTION_TOLERANCE * predicted["rms"]:
             predicted["warning"] = (
@@ -153,16 +154,17 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
     from matplotlib.figure import Figure
 
     plots = {}
-    before = result.validation.get("before", {}).get("tool_point")
-    after = result.validation.get("after", {}).get("tool_point")
-    if before is not None and after is not None and after.errors.size:
+    before, after = (primary_score(result.validation, label) for label in ("before", "after"))
+    if before is not None and after is not None:
+        what = SCORES[after[0]]
+        before, after = before[1], after[1]
         fig = Figure(figsize=(10, 3.8))
         axes = fig.subplots(1, 2)
         fig.subplots_adjust(left=0.07, right=0.98, bottom=0.14, top=0.9, wspace=0.25)
         for ax, stat, label in ((axes[0], before, "before"), (axes[1], after, "after")):
             ax.hist(stat.errors * 1e3, bins=30, color="tab:red" if label == "before" else "tab:green")
-            ax.set_xlabel("position error (mm)")
-            ax.set_ylabel("held-out configurations")
+            ax.set_xlabel(f"{what} (mm)")
+            ax.set_ylabel("held-out configurations" if what == "position error" else "held-out point pairs")
             ax.set_title(f"{label} calibration: RMS {stat.rms * 1e3:.4f} mm", y=1.0)
         fig.savefig(out / "errors.png", dpi=100)
         plots["errors"] = "errors.png"
@@ -202,12 +204,17 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         "",
     ]
     val = doc["validation"]
-    if "after" in val and "position_error_m" in val["after"]:
+    if val.get("after"):
         lines += [
-            "## Held-out positioning error",
+            "## Held-out error",
             "",
-            f"Reference: {val['reference']}; gauge removed: {val['gauge_removed']}."
-            + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else ""),
+            (
+                "Reference: the point pairs of the held-out images, grouped as the fitting ones (a pair "
+                "does not depend on where the robot stands: no gauge)."
+                if "point_pair_error_m" in val["after"]
+                else f"Reference: {val['reference']}; gauge removed: {val['gauge_removed']}."
+                + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else "")
+            ),
             "",
             "| | mean (m) | RMS (m) | max (m) |",
             "|---|---|---|---|",

@@ -19,7 +19,7 @@ from .initialise import initial_state
 from .problem import Problem, build_problem
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
-from .validation import ErrorStats, default_tool_point, held_out_errors, predicted_held_out, stats
+from .validation import ErrorStats, default_tool_point, held_out_errors, predicted_held_out, primary_score, stats
 
 
 @dataclass
@@ -179,9 +179,16 @@ def calibrate_dataset(
 
 def held_out_summary(result: CalibrationResult) -> str | None:
     """One line on the held-out error before and after, or None when nothing was scored."""
-    before, after = (result.validation.get(label, {}).get("tool_point") for label in ("before", "after"))
-    if after is None or not after.errors.size:
+    scores = [primary_score(result.validation, label) for label in ("before", "after")]
+    if scores[1] is None:
         return None
+    (key, before), (_, after) = scores
+    if key == "point_pair":
+        return (
+            f"  held-out point-pair error (no truth: the held-out images' point pairs): before {before.rms:.3e} m "
+            f"RMS, after {after.rms:.3e} m"
+            + (f" (predicted {p['rms']:.3e} m)" if (p := predicted_held_out(result, against_truth=False)) else "")
+        )
     reference = "the simulation's truth" if result.truth else "the held-out measurements"
     line = (
         f"  held-out positioning error against {reference}: before {before.rms:.3e} m RMS, after {after.rms:.3e} m RMS"

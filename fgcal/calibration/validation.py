@@ -19,11 +19,11 @@ import gtsam
 import numpy as np
 
 from .. import kinematics
-from ..factors import TrackerPoints
+from ..factors import PointPairs, TrackerPoints
 from ..se3 import kabsch, skew, transform_points
 from .batch import BatchKinematics
 from .graph import P_KEY, TOOL_POINTS_KEY, TRACKER_KEY
-from .problem import Problem
+from .problem import Problem, pair_groups
 from .state import State
 
 
@@ -43,6 +43,19 @@ def stats(errors: np.ndarray) -> ErrorStats:
     if errors.size == 0:
         return ErrorStats(float("nan"), float("nan"), float("nan"), errors)
     return ErrorStats(float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors)
+
+
+SCORES = {"tool_point": "position error", "point_pair": "point-pair error"}  # in order of preference
+
+
+def primary_score(validation: dict, label: str) -> tuple[str, ErrorStats] | None:
+    """The main held-out score of ``label`` ('before' or 'after'): the positioning error where
+    there is one (truth, tracker), else the held-out point pairs."""
+    scores = validation.get(label, {})
+    for key in SCORES:
+        if key in scores and scores[key].errors.size:
+            return key, scores[key]
+    return None
 
 
 def remove_gauge(predicted: np.ndarray, reference: np.ndarray, gauge: str) -> np.ndarray:
@@ -81,10 +94,35 @@ def predicted_positions(
     return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
 
 
+def held_out_pairs(problem: Problem, state: State, released: list[str]) -> PointPairs | None:
+    """The point-pair contrasts of the held-out images, grouped as the fitting images are, at
+    the state's parameters (P variable over ``released``, for the Jacobian)."""
+    groups = pair_groups(problem, problem.test)
+    if not groups:
+        return None
+    model = BatchKinematics(problem.robot, state.params, released, problem.dataset.q[problem.test], "tool")
+    rotation = state.fixture_rotation if state.fixture_rotation is not None else problem.fixture_rotation
+    return PointPairs(
+        model,
+        P_KEY if released else None,
+        [(np.array(g.images)[g.owner], g.c, g.p_F) for g in groups],
+        problem.config.camera_point_sigma_m,
+        fixture_rotation=rotation,
+    )
+
+
 def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
-    """Error norms (m) on the held-out configurations against their measurements, per scored
-    point: the tracker's reflectors. (Scores against a simulation's truth: fgcal.calibration.scoring.)"""
+    """Error norms (m) on the held-out configurations against their measurements: the
+    tracker's reflectors (``tool_point``); for pairs, the norm of each point-pair contrast of
+    the held-out images (``point_pair``: a pair's residual over sqrt 2, the seed's eq. 3).
+    (Scores against a simulation's truth: fgcal.calibration.scoring.)"""
     data = problem.dataset
+    if problem.config.formulation == "pairs":
+        pairs = held_out_pairs(problem, state, [])
+        if pairs is None:
+            return {}
+        residual = pairs.compute([], False).residual.reshape(-1, 3)
+        return {"point_pair": np.linalg.norm(residual, axis=1)}
     if problem.config.formulation != "tracker":
         return {}
     q = data.q[problem.test]
@@ -143,9 +181,16 @@ def predicted_held_out(result, against_truth: bool) -> dict:
         covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
         parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
         noise = 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2
-    else:
-        if not against_truth:
+    elif not against_truth:
+        if config.formulation != "pairs":
             return {}
+        pairs = held_out_pairs(problem, result.state, result.released)
+        if pairs is None:
+            return {}
+        J = pairs.compute([p_values], True).blocks[0].reshape(-1, 3, len(result.released))
+        parameters = np.einsum("oij,jk,oik->o", J, result.covariance, J)
+        noise = 3.0 * factor * config.camera_point_sigma_m**2
+    else:
         data = kinematics.forward(problem.robot, result.state.params, q)
         J = kinematics.jacobian(problem.robot, data, result.released, frame="tool", point=result.tool_point)
         positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
