@@ -39,7 +39,7 @@ def pnp_per_image(problem: Problem) -> dict[int, np.ndarray]:
     """T_C_F of every fitting image with at least four points, from OpenCV's solvePnP (IPPE)."""
     camera = problem.dataset.camera
     images: dict[int, list] = {}
-    for j, p_F, uv in problem.pixel_obs:
+    for j, p_F, uv, _ in problem.pixel_obs:
         images.setdefault(j, []).append((p_F, uv))
     poses = {}
     for j, obs in images.items():

@@ -40,6 +40,7 @@ class PairGroup:
     c: np.ndarray
     p_F: np.ndarray
     labels: list[tuple[str, str]]  # (object, side) of each image
+    names: list[str] = field(default_factory=list)  # point name of each observation
 
 
 @dataclass
@@ -54,10 +55,12 @@ class Problem:
     pairs: list[PairGroup] = field(default_factory=list)
     fixture_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     tracker_obs: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (fit index, target, m)
-    pixel_obs: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)  # (fit index, p_F, px)
+    pixel_obs: list[tuple[int, np.ndarray, np.ndarray, str]] = field(
+        default_factory=list
+    )  # (fit index, p_F, px, point)
     targets: list[str] = field(default_factory=list)
     skipped_images: list[tuple[str, str]] = field(default_factory=list)
-    rejected: list[tuple[int, str]] = field(default_factory=list)  # (configuration index, kind) of outliers
+    rejected: list[dict] = field(default_factory=list)  # outliers removed: config, kind, point or target, size
     detection: dict = field(default_factory=dict)
 
     @property
@@ -218,16 +221,19 @@ def _build_pairs(problem: Problem) -> None:
         )
 
 
-def pair_groups(problem: Problem, subset: np.ndarray) -> list[PairGroup]:
+def pair_groups(problem: Problem, subset: np.ndarray, exclude: set[tuple[str, str]] = frozenset()) -> list[PairGroup]:
     """The point-pair groups of the images of ``subset`` (configuration indices), as the
-    module docstring describes; image indices are positions in ``subset``."""
+    module docstring describes; image indices are positions in ``subset``. Observations
+    (config id, point) in ``exclude`` (rejected gross errors) are left out."""
     data, config = problem.dataset, problem.config
     points = data.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["camera_points"]
     images: dict[int, list[tuple[int, np.ndarray]]] = {}
+    chosen = problem.fit if subset is None else subset
     for index, point, xyz in fitting_rows(problem, table, "point", subset):
-        images.setdefault(index, []).append((where[point], xyz))
+        if (str(data.configs[chosen[index]]), str(point)) not in exclude:
+            images.setdefault(index, []).append((where[point], xyz))
     groups: list[PairGroup] = []
 
     def label(j: int) -> tuple[str, str]:
@@ -267,6 +273,7 @@ def pair_groups(problem: Problem, subset: np.ndarray) -> list[PairGroup]:
                 c=np.array([o[2] for o in observations]),
                 p_F=points.values[[o[1] for o in observations]],
                 labels=[label(j) for j in group],
+                names=[str(points.ids["point"][o[1]]) for o in observations],
             )
         )
     return groups
@@ -279,7 +286,7 @@ def _build_projection(problem: Problem) -> None:
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["pixels"]
     for index, point, uv in fitting_rows(problem, table, "point"):
-        problem.pixel_obs.append((index, points.values[where[point]], uv))
+        problem.pixel_obs.append((index, points.values[where[point]], uv, str(point)))
     if len({o[0] for o in problem.pixel_obs}) < 3:
         raise InputError(data.path / "pixels.csv", None, "too few fitting images with pixels")
 

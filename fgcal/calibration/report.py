@@ -69,7 +69,7 @@ def report_dict(result: CalibrationResult) -> dict:
         ),
         "detection": problem.detection or None,
         "skipped_images": [{"config": c, "reason": r} for c, r in problem.skipped_images],
-        "rejected_measurements": [{"config": str(problem.dataset.configs[i]), "kind": k} for i, k in problem.rejected],
+        "rejected_measurements": problem.rejected,
         "stages": [
             {
                 "stage": s.name,
@@ -239,6 +239,14 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 lines += ["", f"**Warning:** {p['warning']}."]
         if "errors" in plots:
             lines += ["", f"![errors]({plots['errors']})"]
+    if doc["rejected_measurements"]:
+        lines += ["", f"## Rejected measurements ({len(doc['rejected_measurements'])})", ""]
+        lines += ["| config | kind | point or target | size (sigmas) | size |", "|---|---|---|---|---|"]
+        for r in doc["rejected_measurements"]:
+            size = f"{r['size_m'] * 1e3:.4g} mm" if "size_m" in r else f"{r['size_px']:.4g} px"
+            lines.append(
+                f"| {r['config']} | {r['kind']} | {r.get('point', r.get('target'))} | {r['size_sigma']:.3g} | {size} |"
+            )
     fit = doc["goodness_of_fit"]
     if fit is not None:
         lines += ["", "## Goodness of fit", "", fit_sentence(fit)]

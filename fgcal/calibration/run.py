@@ -8,15 +8,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import kinematics
 from ..dataset import Dataset, load_dataset
 from ..errors import InputError
 from .config import CalibrationConfig
 from .covariance import JointCovariance, joint_covariance
 from .goodness import Fit
-from .graph import P_KEY, build_graph, robust_scale
+from .graph import FIXTURE_KEY, P_KEY, build_graph, chi_median, robust_scale
 from .identifiability import Identifiability, analyse
 from .initialise import initial_state
-from .problem import Problem, build_problem
+from .problem import PairGroup, Problem, build_problem, pair_groups
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
 from .validation import ErrorStats, default_tool_point, held_out_errors, predicted_held_out, primary_score, stats
@@ -62,29 +63,138 @@ def _check_enough(problem: Problem, parameters: list[str], state: State) -> None
 
 REJECT_SIGMA = 5.0
 MAX_REJECTED_FRACTION = 0.1
+REJECTION_ROUNDS = 3
 
 
 def reject_outliers(problem: Problem, stage, values) -> bool:
-    """Remove per-observation measurements (pixels, tracker points) whose whitened residual
-    exceeds REJECT_SIGMA at the solution of the last stage, when the config asks for a robust
-    loss on them; they are listed in the report. Pair groups mix many observations and keep
-    only the robust loss."""
-    kind = {"projection": "pixels", "tracker": "tracker_points"}.get(problem.config.formulation)
-    if kind is None or problem.config.robust.get(kind) is None:
+    """Remove gross outliers after the last stage and name them in problem.rejected; True when
+    some were removed (the last stage is then solved again).
+
+    - pixels and tracker points, when the config asks for a robust loss on them: an
+      observation whose whitened residual RMS exceeds REJECT_SIGMA times the residuals'
+      robust scale;
+    - camera points of the pair formulation (always): in a group every observation's
+      ``X c - R_W_F p`` is the same point (the unknown base offset) plus noise, so an
+      observation farther than REJECT_SIGMA robust sigmas from its group's median is a gross
+      error. (The pair contrasts mix a group's observations and cannot name one.)
+
+    Thresholds are in units of the residuals' robust scale: when the model cannot fit the data
+    to the declared noise, everything is many sigmas and nothing is an outlier; and nothing is
+    removed when more than MAX_REJECTED_FRACTION would go (a model problem, not bad data)."""
+    if problem.config.formulation == "pairs":
+        return _reject_pairs(problem, stage, values)
+    kind = {"projection": "pixels", "tracker": "tracker_points"}[problem.config.formulation]
+    if problem.config.robust.get(kind) is None:
         return False
     observations = problem.pixel_obs if kind == "pixels" else problem.tracker_obs
-    # In units of the residuals' robust scale, like the robust loss: when the model cannot fit
-    # the data to the declared noise, everything is many sigmas and nothing is an outlier.
-    threshold = REJECT_SIGMA * robust_scale(stage.measurements, values)
     measurements, order = stage.measurements[0], stage.observations[0]
+    scale = robust_scale(stage.measurements, values)
     dims = np.diff(np.append(measurements.unit_starts, measurements.n_rows))
-    rms = measurements.unit_norms(values) / np.sqrt(dims)
-    outlier = np.zeros(len(observations), dtype=bool)
-    outlier[order] = rms > threshold
+    rms = np.zeros(len(observations))
+    rms[order] = measurements.unit_norms(values) / np.sqrt(dims)
+    outlier = rms > REJECT_SIGMA * scale
     if not outlier.any() or outlier.sum() > MAX_REJECTED_FRACTION * len(outlier):
-        return False  # more than a few "outliers" means a model problem, not bad measurements
-    problem.rejected += [(int(problem.fit[o[0]]), kind) for o, bad in zip(observations, outlier, strict=True) if bad]
+        return False
+    unit = "px" if kind == "pixels" else "m"
+    sigma = problem.config.pixel_sigma_px if kind == "pixels" else problem.config.tracker_sigma_m
+    for o, size in zip(observations, rms, strict=True):
+        if size > REJECT_SIGMA * scale:
+            name = o[3] if kind == "pixels" else problem.targets[o[1]]
+            problem.rejected.append(_rejection(problem, o[0], kind, name, size, size * sigma, unit))
     observations[:] = [o for o, bad in zip(observations, outlier, strict=True) if not bad]
+    return True
+
+
+def _flag_held_out_pairs(problem: Problem, state: State) -> None:
+    """The same gross-error test on the held-out images' camera points, with the final model:
+    named like the rejected ones (``held_out``), and left out of the held-out pair score."""
+    groups = pair_groups(problem, problem.test)
+    if not groups:
+        return
+    q = problem.dataset.q[problem.test]
+    poses = kinematics.frame_pose(problem.robot, kinematics.forward(problem.robot, state.params, q), "tool")
+    rotation = state.fixture_rotation if state.fixture_rotation is not None else problem.fixture_rotation
+    sigma = problem.config.camera_point_sigma_m
+    deviations, threshold = _pair_deviations(groups, poses, rotation, sigma)
+    every = np.concatenate(deviations)
+    if (every > threshold).sum() > MAX_REJECTED_FRACTION * len(every):
+        return
+    for group, deviation in zip(groups, deviations, strict=True):
+        for o in np.flatnonzero(deviation > threshold):
+            entry = _rejection(
+                problem, group.images[group.owner[o]], "camera_points", group.names[o], deviation[o],
+                deviation[o] * sigma, "m", problem.test,
+            )  # fmt: skip
+            problem.rejected.append({**entry, "held_out": True})
+
+
+def _rejection(
+    problem: Problem,
+    index: int,
+    kind: str,
+    name: str,
+    sigmas: float,
+    size: float,
+    unit: str,
+    subset: np.ndarray | None = None,
+) -> dict:
+    key = "target" if kind == "tracker_points" else "point"
+    return {
+        "config": str(problem.dataset.configs[(problem.fit if subset is None else subset)[index]]),
+        "kind": kind,
+        key: name,
+        "size_sigma": float(sigmas),
+        f"size_{unit}": float(size),
+    }
+
+
+def _pair_deviations(
+    groups: list[PairGroup], poses: np.ndarray, rotation: np.ndarray, sigma: float
+) -> tuple[list[np.ndarray], float]:
+    """Per group, each observation's distance (in sigmas) from its group's median of
+    ``X c - R_W_F p``, and the rejection threshold (REJECT_SIGMA robust sigmas of a 3-D point)."""
+    deviations = []
+    for group in groups:
+        T = poses[np.array(group.images)[group.owner]]
+        world = np.einsum("oij,oj->oi", T[:, :3, :3], group.c) + T[:, :3, 3] - group.p_F @ rotation.T
+        deviations.append(np.linalg.norm(world - np.median(world, axis=0), axis=1) / sigma)
+    every = np.concatenate(deviations) if deviations else np.zeros(0)
+    median_3d = float(chi_median(np.array([3]))[0])
+    scale = max(1.0, float(np.median(every)) / median_3d) if every.size else 1.0
+    return deviations, REJECT_SIGMA * median_3d * scale
+
+
+def _reject_pairs(problem: Problem, stage, values) -> bool:
+    params = values.atVector(P_KEY) if stage.released else None
+    rotation = values.atRot3(FIXTURE_KEY).matrix() if stage.aux.get(FIXTURE_KEY) else problem.fixture_rotation
+    sigma = problem.config.camera_point_sigma_m
+    deviations, threshold = _pair_deviations(problem.pairs, stage.model.poses(params), rotation, sigma)
+    every = np.concatenate(deviations)
+    if not (every > threshold).any() or (every > threshold).sum() > MAX_REJECTED_FRACTION * len(every):
+        return False
+    kept_groups = []
+    for group, deviation in zip(problem.pairs, deviations, strict=True):
+        bad = deviation > threshold
+        for o in np.flatnonzero(bad):
+            index = group.images[group.owner[o]]
+            problem.rejected.append(
+                _rejection(problem, index, "camera_points", group.names[o], deviation[o], deviation[o] * sigma, "m")
+            )
+        keep = ~bad
+        if keep.sum() >= 2:
+            used = sorted(set(group.owner[keep].tolist()))
+            renumber = {old: new for new, old in enumerate(used)}
+            kept_groups.append(
+                PairGroup(
+                    images=[group.images[i] for i in used],
+                    owner=np.array([renumber[i] for i in group.owner[keep]]),
+                    c=group.c[keep],
+                    p_F=group.p_F[keep],
+                    labels=[group.labels[i] for i in used],
+                    names=[n for n, k in zip(group.names, keep, strict=True) if k],
+                )
+            )
+    problem.pairs = kept_groups
     return True
 
 
@@ -138,15 +248,19 @@ def calibrate_dataset(
             continue
         state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
         stages.append(report)
-    if last_stage is not None and reject_outliers(problem, last_stage, last_values):
+    for _ in range(REJECTION_ROUNDS):  # again while the refit shows more: a biased fit hides some
+        if last_stage is None or not reject_outliers(problem, last_stage, last_values):
+            break
         say(
-            f"  rejected {len(problem.rejected)} measurements beyond {REJECT_SIGMA:g} sigma; "
+            f"  rejected {len(problem.rejected)} measurements beyond {REJECT_SIGMA:g} sigma in all; "
             "solving the last stage again"
         )
         state, report, last_stage, last_values = solve_stage(
             problem, f"{len(config.stages)} (after rejection)", last_stage.released, state, say
         )
         stages.append(report)
+    if config.formulation == "pairs":
+        _flag_held_out_pairs(problem, state)
     solve_time = time.perf_counter() - solve_started
     joint = joint_covariance(last_stage, last_values) if last_stage is not None else None
     covariance = joint.block([P_KEY]) if joint is not None else np.zeros((0, 0))

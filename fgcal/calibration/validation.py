@@ -97,7 +97,8 @@ def predicted_positions(
 def held_out_pairs(problem: Problem, state: State, released: list[str]) -> PointPairs | None:
     """The point-pair contrasts of the held-out images, grouped as the fitting images are, at
     the state's parameters (P variable over ``released``, for the Jacobian)."""
-    groups = pair_groups(problem, problem.test)
+    rejected = {(r["config"], r["point"]) for r in problem.rejected if r["kind"] == "camera_points"}
+    groups = pair_groups(problem, problem.test, rejected)
     if not groups:
         return None
     model = BatchKinematics(problem.robot, state.params, released, problem.dataset.q[problem.test], "tool")
