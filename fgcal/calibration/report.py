@@ -212,6 +212,9 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 "Reference: the point pairs of the held-out images, grouped as the fitting ones (a pair "
                 "does not depend on where the robot stands: no gauge)."
                 if "point_pair_error_m" in val["after"]
+                else "Reference: the held-out images' pixels, reprojected with the estimated robot, fixture pose "
+                "and intrinsics; each pixel error times the point's depth over the focal length (m)."
+                if "reprojection_error_m" in val["after"]
                 else f"Reference: {val['reference']}; gauge removed: {val['gauge_removed']}."
                 + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else "")
             ),

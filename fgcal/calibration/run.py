@@ -20,7 +20,15 @@ from .initialise import initial_state
 from .problem import PairGroup, Problem, build_problem, pair_groups
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
-from .validation import ErrorStats, default_tool_point, held_out_errors, predicted_held_out, primary_score, stats
+from .validation import (
+    SCORES,
+    ErrorStats,
+    default_tool_point,
+    held_out_errors,
+    predicted_held_out,
+    primary_score,
+    stats,
+)
 
 
 @dataclass
@@ -297,9 +305,9 @@ def held_out_summary(result: CalibrationResult) -> str | None:
     if scores[1] is None:
         return None
     (key, before), (_, after) = scores
-    if key == "point_pair":
+    if key != "tool_point":
         return (
-            f"  held-out point-pair error (no truth: the held-out images' point pairs): before {before.rms:.3e} m "
+            f"  held-out {SCORES[key]} (no truth: the held-out images' measurements): before {before.rms:.3e} m "
             f"RMS, after {after.rms:.3e} m"
             + (f" (predicted {p['rms']:.3e} m)" if (p := predicted_held_out(result, against_truth=False)) else "")
         )

@@ -16,7 +16,7 @@ from ..fields import read_yaml
 from ..se3 import inverse, pose_from_xyz_rpy, transform_points
 from .run import CalibrationResult
 from .state import State
-from .validation import gauge_of, predicted_positions, remove_gauge, stats
+from .validation import gauge_of, position_covariances, predicted_positions, remove_gauge, stats
 
 
 def load_truth(dataset_path: Path) -> dict | None:
@@ -82,3 +82,23 @@ def score_with_truth(result: CalibrationResult) -> bool:
         errors = truth_errors(result.problem, state, truth, result.tool_point)
         result.validation[label] = {k: stats(v) for k, v in errors.items()}
     return True
+
+
+CHI2_3_95 = 7.814727903251178  # 95 % quantile of chi-square with 3 degrees of freedom
+
+
+def position_coverage(result: CalibrationResult) -> float:
+    """Fraction of the held-out configurations whose true error (the scored point, gauge
+    removed) lies inside the 95 % ellipsoid of its predicted covariance; needs the truth."""
+    problem = result.problem
+    truth = result.truth if result.truth is not None else load_truth(problem.dataset.path)
+    q = problem.dataset.q[problem.test]
+    error = remove_gauge(
+        predicted_positions(problem, result.state, q, result.tool_point, None),
+        true_positions(problem, truth, q, result.tool_point, None),
+        gauge_of(problem),
+    )
+    covariances = position_covariances(result)
+    # Pseudo-inverse: removing the gauge leaves each 3x3 block full rank here, but not by design.
+    d2 = np.einsum("ni,nij,nj->n", error, np.linalg.pinv(covariances), error)
+    return float(np.mean(d2 <= CHI2_3_95))

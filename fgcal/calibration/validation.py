@@ -19,11 +19,12 @@ import gtsam
 import numpy as np
 
 from .. import kinematics
-from ..factors import PointPairs, TrackerPoints
+from ..factors import PointPairs, Projections, TrackerPoints
 from ..se3 import kabsch, skew, transform_points
 from .batch import BatchKinematics
-from .graph import P_KEY, TOOL_POINTS_KEY, TRACKER_KEY
-from .problem import Problem, pair_groups
+from .graph import INTRINSICS_KEY, OBJECT_KEY, P_KEY, TOOL_POINTS_KEY, TRACKER_KEY
+from .initialise import dataset_intrinsics
+from .problem import Problem, fitting_rows, pair_groups
 from .state import State
 
 
@@ -45,7 +46,8 @@ def stats(errors: np.ndarray) -> ErrorStats:
     return ErrorStats(float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors)
 
 
-SCORES = {"tool_point": "position error", "point_pair": "point-pair error"}  # in order of preference
+# Held-out scores, in order of preference, with their label (all in m).
+SCORES = {"tool_point": "position error", "point_pair": "point-pair error", "reprojection": "reprojection error"}
 
 
 def primary_score(validation: dict, label: str) -> tuple[str, ErrorStats] | None:
@@ -112,10 +114,54 @@ def held_out_pairs(problem: Problem, state: State, released: list[str]) -> Point
     )
 
 
+def held_out_projections(problem: Problem, state: State, released: list[str]) -> Projections | None:
+    """The held-out images' pixels as projections of the fixture's points, at the state's
+    parameters (P variable over ``released``), fixture pose and intrinsics (a variable when
+    the calibration estimated them)."""
+    points = problem.dataset.tables["points"]
+    where = {name: i for i, name in enumerate(points.ids["point"])}
+    rows = sorted(
+        ((i, points.values[where[name]], uv) for i, name, uv in fitting_rows(problem, problem.dataset.tables["pixels"],
+         "point", problem.test)),
+        key=lambda row: row[0],
+    )  # fmt: skip
+    if not rows:
+        return None
+    model = BatchKinematics(problem.robot, state.params, released, problem.dataset.q[problem.test], "tool")
+    estimated = state.intrinsics is not None
+    return Projections(
+        model,
+        P_KEY if released else None,
+        OBJECT_KEY,
+        np.array([r[0] for r in rows]),
+        np.array([r[1] for r in rows]),
+        np.array([r[2] for r in rows]),
+        problem.config.pixel_sigma_px,
+        intrinsics=None if estimated else dataset_intrinsics(problem),
+        intrinsics_key=INTRINSICS_KEY if estimated else None,
+    )
+
+
+def _projection_inputs(problem: Problem, state: State, params: np.ndarray | None) -> list:
+    inputs = [] if params is None else [params]
+    inputs.append(gtsam.Pose3(state.fixture_pose))
+    if state.intrinsics is not None:
+        inputs.append(np.asarray(state.intrinsics, dtype=float))
+    return inputs
+
+
+def _focal(problem: Problem, state: State) -> float:
+    """Mean focal length (px): turns a pixel error at a point's depth into metres."""
+    intrinsics = state.intrinsics if state.intrinsics is not None else dataset_intrinsics(problem)
+    return 0.5 * float(intrinsics[0] + intrinsics[1])
+
+
 def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
     """Error norms (m) on the held-out configurations against their measurements: the
     tracker's reflectors (``tool_point``); for pairs, the norm of each point-pair contrast of
-    the held-out images (``point_pair``: a pair's residual over sqrt 2, the seed's eq. 3).
+    the held-out images (``point_pair``: a pair's residual over sqrt 2, the seed's eq. 3); for
+    projection, each held-out pixel's reprojection error times its depth over the focal
+    length (``reprojection``: the error in the object's plane, m).
     (Scores against a simulation's truth: fgcal.calibration.scoring.)"""
     data = problem.dataset
     if problem.config.formulation == "pairs":
@@ -124,8 +170,13 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
             return {}
         residual = pairs.compute([], False).residual.reshape(-1, 3)
         return {"point_pair": np.linalg.norm(residual, axis=1)}
-    if problem.config.formulation != "tracker":
-        return {}
+    if problem.config.formulation == "projection":
+        projections = held_out_projections(problem, state, [])
+        if projections is None:
+            return {}
+        inputs = _projection_inputs(problem, state, None)
+        pixels = np.linalg.norm(projections.compute(inputs, False).residual.reshape(-1, 2), axis=1)
+        return {"reprojection": pixels * projections.camera_points(inputs)[3][:, 2] / _focal(problem, state)}
     q = data.q[problem.test]
     errors = []
     # Held-out measurements: predict each reflector at every held-out configuration once.
@@ -182,6 +233,17 @@ def predicted_held_out(result, against_truth: bool) -> dict:
         covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
         parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
         noise = 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2
+    elif not against_truth and config.formulation == "projection":
+        projections = held_out_projections(problem, result.state, result.released)
+        if projections is None:
+            return {}
+        inputs = _projection_inputs(problem, result.state, p_values)
+        evaluation = projections.compute(inputs, True)
+        J = np.hstack(evaluation.blocks).reshape(-1, 2, sum(d for _, _, d in projections.variables))
+        keys = [key for key, _, _ in projections.variables]
+        to_m = projections.camera_points(inputs)[3][:, 2] / _focal(problem, result.state)
+        parameters = np.einsum("oij,jk,oik->o", J, result.joint_covariance.block(keys), J) * to_m**2
+        noise = 2.0 * factor * config.pixel_sigma_px**2 * float(np.mean(to_m**2))
     elif not against_truth:
         if config.formulation != "pairs":
             return {}
@@ -204,6 +266,19 @@ def predicted_held_out(result, against_truth: bool) -> dict:
         "noise_rms": float(np.sqrt(noise)),
         "variance_factor": factor,
     }
+
+
+def position_covariances(result) -> np.ndarray:
+    """Covariance (N, 3, 3) of the scored point's error at each held-out configuration, with
+    the score's gauge removed (camera formulations, scored against the truth), from the
+    parameter covariance: what a 95 % position interval is drawn from."""
+    problem = result.problem
+    q = problem.dataset.q[problem.test]
+    data = kinematics.forward(problem.robot, result.state.params, q)
+    J = kinematics.jacobian(problem.robot, data, result.released, frame="tool", point=result.tool_point)
+    positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
+    flat = _without_gauge(J.reshape(-1, J.shape[2]), positions, gauge_of(problem)).reshape(len(q), 3, -1)
+    return np.einsum("nij,jk,nlk->nil", flat, result.covariance, flat)
 
 
 def _without_gauge(J: np.ndarray, positions: np.ndarray, gauge: str) -> np.ndarray:
