@@ -170,14 +170,19 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         plots["errors"] = "errors.png"
     if result.released:
         corr = correlation(result.covariance)
-        fig = Figure(figsize=(9, 8))
+        n = len(result.released)
+        fig = Figure(figsize=(8.5, 8))
         ax = fig.subplots()
-        fig.subplots_adjust(left=0.14, right=0.98, bottom=0.14, top=0.95)
-        image = ax.imshow(corr, cmap="coolwarm", vmin=-1, vmax=1)
-        ax.set_xticks(range(len(result.released)), result.released, rotation=90, fontsize=7)
-        ax.set_yticks(range(len(result.released)), result.released, fontsize=7)
-        fig.colorbar(image, ax=ax, label="correlation")
-        ax.set_title("Correlation of the estimated parameters", y=1.0)
+        fig.subplots_adjust(left=0.12, right=0.98, bottom=0.12, top=0.94)
+        ax.imshow(corr, cmap="coolwarm", vmin=-1, vmax=1)
+        # Names as plain text rather than tick labels: a matplotlib tick costs a millisecond
+        # or so to build, and these were a tenth of the report's time.
+        ax.set_xticks([])
+        ax.set_yticks([])
+        for i, name in enumerate(result.released):
+            ax.text(i, n - 0.4, name, rotation=90, fontsize=7, ha="center", va="top")
+            ax.text(-0.7, i, name, fontsize=7, ha="right", va="center")
+        ax.set_title("Correlation of the estimated parameters (blue -1, grey 0, red +1)", y=1.0)
         fig.savefig(out / "correlation.png", dpi=100)
         plots["correlation"] = "correlation.png"
     return plots
