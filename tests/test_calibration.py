@@ -359,3 +359,16 @@ def test_position_intervals_cover_the_truth(small_cell):
         score_with_truth(result)
         coverage.append(position_coverage(result))
     assert 0.93 <= np.mean(coverage) <= 0.97, coverage
+
+
+def test_model_auto_picks_the_simulated_model(small_cell, tmp_path):
+    """Issue 11: DH, DH,s and DH,s,e fitted to the same data and compared (held-out error,
+    chi2/dof, AIC, BIC); the data support the model they were simulated with."""
+    result = calibrate(CalibrationConfig.defaults(small_cell, model="auto"))
+    table = {row["model"]: row for row in result.model_comparison}
+    assert set(table) == {"DH", "DH,s", "DH,s,e"}
+    assert result.config.model == "DH,s,e" and table["DH,s,e"]["supported"]
+    assert table["DH,s,e"]["bic"] < table["DH,s"]["bic"] < table["DH"]["bic"]
+    assert table["DH"]["chi2_per_dof"] > 2 > table["DH,s,e"]["chi2_per_dof"]
+    doc = write_report(result, tmp_path / "report", plots=False)
+    assert "## Model choice" in (tmp_path / "report" / "report.md").read_text() and doc["model_comparison"]

@@ -38,6 +38,7 @@ CONFIG_KEYS = (
     "solver",
     "pixels_from",
     "intrinsics",
+    "compare_models",
     "notes",
 )
 
@@ -67,6 +68,8 @@ class CalibrationConfig:
     min_information: float
     max_iterations: int
     pixels_from: str = "table"
+    # DH, DH,s and DH,s,e are all fitted and compared (always with model: auto).
+    compare_models: bool = False
     solver_method: str = "lm"  # lm (fgcal's loop on GTSAM QR) | gtsam_lm (GTSAM's optimiser)
     # Camera intrinsics (projection): None = fixed at the dataset's values; otherwise the prior
     # sigmas (fx, fy, cx, cy in px; k1, k2, p1, p2, k3) around them, from an earlier calibration.
@@ -103,6 +106,13 @@ def _robust(fields: Fields, key: str, default):
         raise fields.error(key, f"expected [huber|cauchy, threshold in sigmas] or none, got {raw!r}")
     threshold = Fields({"k": raw[1]}, fields.source, fields.path(key)).number("k", positive=True)
     return (str(raw[0]), threshold)
+
+
+def _boolean(fields: Fields, key: str, default: bool) -> bool:
+    value = fields.raw(key, default)
+    if not isinstance(value, bool):
+        raise fields.error(key, f"expected true or false, got {value!r}")
+    return value
 
 
 def _intrinsics(doc: Fields) -> tuple[float, ...] | None:
@@ -170,7 +180,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         path=source,
         dataset=(base / doc.string("dataset")),
         formulation=formulation,
-        model=doc.string("model", "DH,s,e", MODELS),
+        model=doc.string("model", "DH,s,e", (*MODELS, "auto")),
+        compare_models=_boolean(doc, "compare_models", False),
         compliant_joints=joints,
         fixture_orientation=doc.string("fixture_orientation", "known", ("known", "estimate")),
         schedule=schedule,

@@ -11,7 +11,7 @@ reported with the selected parameters it is (nearly) a combination of.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,6 +29,9 @@ class Identifiability:
     singular_values: np.ndarray  # of the scaled, whitened Jacobian of the identifiable set
     condition_number: float
     n_rows: int
+    # Fixed parameter -> the identifiable ones it is (mostly) a combination of: their estimates
+    # absorb its deviation, so they are effective values.
+    absorbed_by: dict[str, list[str]] = field(default_factory=dict)
 
 
 def parameter_scale(name: str, moments_rms: np.ndarray) -> float:
@@ -105,7 +108,8 @@ def select(
                 break
             basis = np.hstack([basis, (residual[:, best] / norms[best])[:, None]])
             selected.append(members.pop(best))
-    unidentifiable = {}
+    unidentifiable: dict[str, str] = {}
+    absorbed_by: dict[str, list[str]] = {}
     kept = scaled[:, selected]
     for i in rejected:
         column = scaled[:, i]
@@ -116,6 +120,7 @@ def select(
         coefficients = np.linalg.lstsq(kept, column, rcond=None)[0] if selected else np.zeros(0)
         partners = sorted(zip(coefficients, [names[s] for s in selected], strict=True), key=lambda c: -abs(c[0]))
         described = ", ".join(f"{c:+.3g} {n}" for c, n in partners[:3] if abs(c) > 0.05)
+        absorbed_by[names[i]] = [n for c, n in partners[:3] if abs(c) > 0.05]
         rest = float(np.linalg.norm(column - kept @ coefficients)) if selected else information
         unidentifiable[names[i]] = (
             f"a combination of other parameters ({described or 'several'}); information left {rest:.2g}"
@@ -126,4 +131,4 @@ def select(
     else:
         singular, condition = np.zeros(0), float("inf")
     order = [names[i] for i in sorted(selected)]
-    return Identifiability(order, unidentifiable, singular, condition, scaled.shape[0])
+    return Identifiability(order, unidentifiable, singular, condition, scaled.shape[0], absorbed_by)

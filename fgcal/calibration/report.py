@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import strict_json
+from .. import kinematics, strict_json
 from ..parameters import unit_of
 from ..robot_io import save_robot
 from .covariance import correlation
@@ -27,16 +27,28 @@ def report_dict(result: CalibrationResult) -> dict:
             n: float(np.sqrt(max(result.covariance_declared[i, i], 0.0))) for i, n in enumerate(result.released)
         }
     truth = result.truth["parameters"] if result.truth else None
+    absorbs: dict[str, list[str]] = {}
+    for fixed, partners in result.final_identifiability.absorbed_by.items():
+        for partner in partners:
+            absorbs.setdefault(partner, []).append(fixed)
+    deflections = compliance_deflections(result)
     parameters = {}
     for name in problem.candidates:
         entry = {
             "unit": unit_of(name),
             "nominal": nominal[name],
             "estimate": estimate[name],
+            "difference_from_nominal": estimate[name] - nominal[name],
             "sigma": sigmas.get(name),
             "sigma_declared_noise": declared.get(name),
             "status": "estimated" if name in sigmas else "fixed",
         }
+        if name in absorbs:
+            entry["effective_value_absorbs"] = sorted(absorbs[name])
+        if name in deflections:
+            entry["deflection_at_tool_max_m"] = deflections[name]
+            if estimate[name] < 0:
+                entry["flag"] = "negative compliance: an effective correction, not a stiffness"
         if truth is not None:
             entry["truth"] = float(truth[name])
         parameters[name] = entry
@@ -83,6 +95,7 @@ def report_dict(result: CalibrationResult) -> dict:
             for s in result.stages
         ],
         "goodness_of_fit": result.fit.as_dict() if result.fit is not None else None,
+        "model_comparison": result.model_comparison,
         "parameters": parameters,
         "unidentifiable": sorted(result.final_identifiability.unidentifiable),
         "unidentifiable_reasons": result.final_identifiability.unidentifiable,
@@ -93,6 +106,7 @@ def report_dict(result: CalibrationResult) -> dict:
             "singular_values": [float(v) for v in result.final_identifiability.singular_values],
         },
         "correlation": {"names": result.released, "matrix": correlation(result.covariance).tolist()},
+        "strong_correlations": strong_correlations(result),
         "validation": {
             **validation,
             "scored_point_m": [float(v) for v in result.tool_point] if config.formulation != "tracker" else None,
@@ -103,6 +117,37 @@ def report_dict(result: CalibrationResult) -> dict:
         "seed": _seed(result),
         "timing": {"total_s": result.timing["total_s"], "solve_s": result.timing["solve_s"]},
     }
+
+
+STRONG_CORRELATION = 0.95
+_STATS = ("mean", "rms", "p50", "p95", "max")
+
+
+def strong_correlations(result: CalibrationResult) -> list[dict]:
+    """Pairs of estimated parameters with |r| above STRONG_CORRELATION, strongest first."""
+    r = correlation(result.covariance)
+    pairs = [
+        {"a": result.released[i], "b": result.released[j], "r": float(r[i, j])}
+        for i in range(len(r))
+        for j in range(i + 1, len(r))
+        if abs(r[i, j]) > STRONG_CORRELATION
+    ]
+    return sorted(pairs, key=lambda p: -abs(p["r"]))
+
+
+def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
+    """For each estimated compliance, the largest displacement (m) it causes at the scored
+    point over the fitting configurations: what the value means at the tool."""
+    problem = result.problem
+    names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
+    if not names:
+        return {}
+    frame = "tool" if result.config.formulation != "tracker" else "flange"
+    point = result.tool_point if result.config.formulation != "tracker" else result.state.tool_points[0]
+    data = kinematics.forward(problem.robot, result.state.params, problem.q_fit)
+    J = kinematics.jacobian(problem.robot, data, names, frame=frame, point=point)  # (N, 3, k)
+    values = np.array([result.state.params[problem.robot.parameter_names.index(n)] for n in names])
+    return {n: float(np.linalg.norm(J[:, :, i] * values[i], axis=1).max()) for i, n in enumerate(names)}
 
 
 def predicted_sigma(result: CalibrationResult) -> dict:
@@ -152,20 +197,43 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
     # costs a quarter of a second to import, and --no-plots skips it. Fixed margins instead of
     # tight_layout, which draws every text once more to measure it.
     from matplotlib.figure import Figure
+    from matplotlib.ticker import FormatStrFormatter
 
     plots = {}
     before, after = (primary_score(result.validation, label) for label in ("before", "after"))
     if before is not None and after is not None:
         what = SCORES[after[0]]
         before, after = before[1], after[1]
-        fig = Figure(figsize=(10, 3.8))
-        axes = fig.subplots(1, 2)
-        fig.subplots_adjust(left=0.07, right=0.98, bottom=0.14, top=0.9, wspace=0.25)
-        for ax, stat, label in ((axes[0], before, "before"), (axes[1], after, "after")):
-            ax.hist(stat.errors * 1e3, bins=30, color="tab:red" if label == "before" else "tab:green")
-            ax.set_xlabel(f"{what} (mm)")
-            ax.set_ylabel("held-out configurations" if what == "position error" else "held-out point pairs")
-            ax.set_title(f"{label} calibration: RMS {stat.rms * 1e3:.4f} mm", y=1.0)
+        # One axis for both: calibration shrinks the errors by orders of magnitude, so the
+        # axis is logarithmic, and the cumulative curves read off any percentile.
+        fig = Figure(figsize=(9, 4.2))
+        ax = fig.subplots()
+        fig.subplots_adjust(left=0.08, right=0.91, bottom=0.13, top=0.9)
+        every = np.concatenate([before.errors, after.errors]) * 1e3
+        low, high = np.log10(max(every.min(), 1e-9)), np.log10(every.max())
+        bins = np.logspace(low - 0.05, high + 0.05, 60)
+        cumulative = ax.twinx()
+        for stat, label, colour in ((before, "before", "tab:red"), (after, "after", "tab:green")):
+            errors = np.sort(stat.errors * 1e3)
+            ax.hist(
+                errors,
+                bins=bins,
+                histtype="stepfilled",
+                color=colour,
+                alpha=0.5,
+                label=f"{label}: RMS {stat.rms * 1e3:.4g} mm",
+            )  # one patch per histogram: sixty bars cost a tenth of the report
+            cumulative.plot(errors, np.arange(1, len(errors) + 1) / len(errors), color=colour, lw=1.5)
+        ax.set_xscale("log")
+        ax.minorticks_off()  # dozens of minor ticks on a log axis cost a tenth of the report
+        # Plain numbers (0.01, 0.1, 1): matplotlib's default 10^k labels start its mathtext parser.
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.set_xlabel(f"held-out {what} (mm)")
+        ax.set_ylabel("count (held out)")
+        cumulative.set_ylabel("fraction at most this error")
+        cumulative.set_ylim(0, 1.02)
+        ax.legend(loc="upper left")
+        ax.set_title("Before and after calibration (bars: histogram; lines: cumulative)", y=1.0)
         fig.savefig(out / "errors.png", dpi=100)
         plots["errors"] = "errors.png"
     if result.released:
@@ -192,10 +260,18 @@ def fit_sentence(fit: dict) -> str:
     return Fit(fit["chi2"], fit["dof"], fit["chi2_p_value"]).sentence()
 
 
-def _fmt(value, unit: str = "") -> str:
-    if value is None:
-        return "-"
-    return f"{value:.6g}{(' ' + unit) if unit else ''}"
+def _units(unit: str):
+    """(format of a value, format of a difference or sigma) for an SI unit, in the units an
+    engineer reads: mm; deg and mdeg; urad/(N m)."""
+
+    def fmt(scale: float, spec: str):
+        return lambda v: "-" if v is None else format(v * scale, spec)
+
+    if unit == "m":
+        return fmt(1e3, ".4f"), fmt(1e3, ".4g")
+    if unit == "rad":
+        return fmt(180.0 / np.pi, ".5f"), fmt(180e3 / np.pi, ".4g")
+    return fmt(1e6, ".4g"), fmt(1e6, ".4g")
 
 
 def _markdown(doc: dict, plots: dict[str, str]) -> str:
@@ -224,12 +300,13 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else "")
             ),
             "",
-            "| | mean (m) | RMS (m) | max (m) |",
-            "|---|---|---|---|",
+            "| mm | mean | RMS | P50 | P95 | max |",
+            "|---|---|---|---|---|---|",
         ]
         for label in ("before", "after"):
             for key, stat in val[label].items():
-                lines.append(f"| {label}: {key} | {stat['mean']:.3e} | {stat['rms']:.3e} | {stat['max']:.3e} |")
+                cells = " | ".join("-" if stat[k] is None else f"{stat[k] * 1e3:.4g}" for k in _STATS)
+                lines.append(f"| {label}: {key.removesuffix('_m').replace('_', ' ')} | {cells} |")
         if val.get("predicted_position_sigma_m"):
             p = val["predicted_position_sigma_m"]
             noise = f" and the measurement noise ({p['noise_rms'] * 1e3:.4g} mm)" if p["noise_rms"] else ""
@@ -258,6 +335,24 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
     fit = doc["goodness_of_fit"]
     if fit is not None:
         lines += ["", "## Goodness of fit", "", fit_sentence(fit)]
+    if doc["model_comparison"]:
+        supported = next(row["model"] for row in doc["model_comparison"] if row["supported"])
+        lines += [
+            "",
+            "## Model choice",
+            "",
+            f"The same data fitted with each model (information criteria with the noise level estimated from the "
+            f"data). The data support **{supported}** (lowest BIC); this report is of that fit.",
+            "",
+            "| model | unknowns | chi2/dof | held-out RMS (mm) | AIC | BIC |",
+            "|---|---|---|---|---|---|",
+        ]
+        for row in doc["model_comparison"]:
+            held = "-" if row["held_out_rms_m"] is None else f"{row['held_out_rms_m'] * 1e3:.4g}"
+            lines.append(
+                f"| {row['model']}{' (supported)' if row['supported'] else ''} | {row['n_unknowns']} | "
+                f"{row['chi2_per_dof']:.3g} | {held} | {row['aic']:.1f} | {row['bic']:.1f} |"
+            )
     lines += [
         "",
         "## Stages",
@@ -278,15 +373,30 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         "",
         "## Parameters",
         "",
-        "| name | unit | nominal | estimate | sigma | " + ("truth | " if has_truth else "") + "status |",
+        "Lengths in mm, angles in deg (differences and sigmas in mdeg), compliances in urad/(N m); "
+        "report.json has every value in SI.",
+        "",
+        "| name | nominal | estimate | estimate - nominal | sigma | "
+        + ("truth - estimate | " if has_truth else "")
+        + "status |",
         "|---|---|---|---|---|" + ("---|" if has_truth else "") + "---|",
     ]
     for name, p in doc["parameters"].items():
+        big, small = _units(p["unit"])
+        status = p["status"]
+        if "effective_value_absorbs" in p:
+            status += f"; effective value (absorbs {', '.join(p['effective_value_absorbs'])})"
+        if "deflection_at_tool_max_m" in p:
+            status += f"; moves the tool up to {p['deflection_at_tool_max_m'] * 1e3:.3g} mm"
+        if "flag" in p:
+            status += f"; **{p['flag']}**"
         lines.append(
-            f"| {name} | {p['unit']} | {_fmt(p['nominal'])} | {_fmt(p['estimate'])} | {_fmt(p['sigma'])} | "
-            + (f"{_fmt(p.get('truth'))} | " if has_truth else "")
-            + f"{p['status']} |"
+            f"| {name} | {big(p['nominal'])} | {big(p['estimate'])} | {small(p['difference_from_nominal'])} | "
+            f"{small(p['sigma'])} | " + (f"{small(p['truth'] - p['estimate'])} | " if has_truth else "") + f"{status} |"
         )
+    if doc["strong_correlations"]:
+        lines += ["", f"Strongly correlated estimates (|r| > {STRONG_CORRELATION}):", ""]
+        lines += [f"- {c['a']} and {c['b']}: r = {c['r']:+.3f}" for c in doc["strong_correlations"]]
     lines += ["", "## Unidentifiable parameters (fixed at their current values)", ""]
     for name, reason in doc["unidentifiable_reasons"].items():
         lines.append(f"- `{name}`: {reason}")

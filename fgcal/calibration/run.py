@@ -17,6 +17,7 @@ from .goodness import Fit
 from .graph import FIXTURE_KEY, P_KEY, build_graph, chi_median, robust_scale
 from .identifiability import Identifiability, analyse
 from .initialise import initial_state
+from .models import compare_models
 from .problem import PairGroup, Problem, build_problem, pair_groups
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
@@ -45,6 +46,7 @@ class CalibrationResult:
     tool_point: np.ndarray
     fit: Fit | None = None  # goodness of fit of the last stage
     joint_covariance: JointCovariance | None = None  # (P, auxiliary unknowns), scaled like covariance
+    model_comparison: list[dict] | None = None  # with model: auto or compare_models (calibration.models)
     covariance_declared: np.ndarray | None = None  # under the declared noise, unscaled
     validation: dict[str, dict[str, ErrorStats]] = field(default_factory=dict)
     truth: dict | None = None
@@ -218,6 +220,10 @@ def calibrate_dataset(
     measurements. A simulation's truth is not read here: score the result afterwards with
     fgcal.calibration.scoring.score_with_truth."""
     say = progress or (lambda _m: None)
+    if config.model == "auto" or config.compare_models:
+        result, table = compare_models(lambda c: calibrate_dataset(dataset, c, progress), config, say)
+        result.model_comparison = table
+        return result
     started = time.perf_counter()
     problem = build_problem(dataset, config, say)
     say(

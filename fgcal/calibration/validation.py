@@ -36,7 +36,10 @@ class ErrorStats:
     errors: np.ndarray
 
     def as_dict(self) -> dict:
-        return {"mean": self.mean, "rms": self.rms, "max": self.max}
+        if not self.errors.size:
+            return {"mean": None, "rms": None, "p50": None, "p95": None, "max": None}
+        p50, p95 = np.percentile(self.errors, [50, 95])
+        return {"mean": self.mean, "rms": self.rms, "p50": float(p50), "p95": float(p95), "max": self.max}
 
 
 def stats(errors: np.ndarray) -> ErrorStats:
