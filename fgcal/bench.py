@@ -41,7 +41,7 @@ from .calibration.run import calibrate_dataset
 from .calibration.scoring import load_truth, truth_errors
 from .calibration.solve import solve_stage, stage_parameters
 from .calibration.state import State
-from .calibration.validation import default_tool_point, held_out_errors
+from .calibration.validation import default_tool_point, held_out_errors, stats
 from .dataset import load_dataset
 from .factors.point_pair import helmert
 from .parameters import split_name
@@ -224,8 +224,7 @@ def batch_bench(data_dir: Path, repeats: int, say: Callable[[str], None]) -> dic
     truth = load_truth(data_dir)
     point = default_tool_point(problem)
     held_out = {
-        name: float(np.sqrt(np.mean(truth_errors(problem, State(p), truth, point)["tool_point"] ** 2)))
-        for name, p in params.items()
+        name: stats(truth_errors(problem, State(p), truth, point)["tool_point"]).rms for name, p in params.items()
     }
     final = PairResiduals(problem, problem.robot.parameter_vector(), identifiable)
     chi2 = {name: float(np.sum(final(p[final.index]) ** 2)) for name, p in params.items()}
@@ -371,7 +370,7 @@ def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], 
             wall[f"calibrate_{method}"].append(_timed(calibrate_dataset, dataset, config)[2])
         say(f"  round {r + 1}/{repeats}: " + ", ".join(f"{n} {v[-1]:.2f} s" for n, v in wall.items()))
     report = json.loads((out / "faro_report" / "report.json").read_text(encoding="utf-8"))
-    dh_errors = held_out_errors(dh_problem, dh_state)["tool_point"]
+    dh_errors = stats(held_out_errors(dh_problem, dh_state)["tool_point"]).errors
     result = {
         "faro_wall_s": {n: min(v) for n, v in wall.items()},
         "faro_dh_released": len(released),

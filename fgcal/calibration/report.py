@@ -54,10 +54,7 @@ def report_dict(result: CalibrationResult) -> dict:
         parameters[name] = entry
     validation = {}
     for label, entries in result.validation.items():
-        validation[label] = {
-            f"{key}_error_m" if key != "tool_point" else "position_error_m": value.as_dict()
-            for key, value in entries.items()
-        }
+        validation[label] = {_score_name(key): value.as_dict() for key, value in entries.items()}
     predicted = predicted_sigma(result)
     return {
         "model": config.model,
@@ -117,6 +114,15 @@ def report_dict(result: CalibrationResult) -> dict:
         "seed": _seed(result),
         "timing": {"total_s": result.timing["total_s"], "solve_s": result.timing["solve_s"]},
     }
+
+
+def _score_name(key: str) -> str:
+    """report.json's name of a held-out score, with its unit."""
+    if key == "tool_point":
+        return "position_error_m"
+    if key.endswith("_px"):
+        return f"{key.removesuffix('_px')}_error_px"
+    return f"{key}_error_m"
 
 
 STRONG_CORRELATION = 0.95
@@ -300,13 +306,17 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else "")
             ),
             "",
-            "| mm | mean | RMS | P50 | P95 | max |",
-            "|---|---|---|---|---|---|",
+            "| | mean | RMS | P50 | P95 | max | RMS x, y, z |",
+            "|---|---|---|---|---|---|---|",
         ]
         for label in ("before", "after"):
             for key, stat in val[label].items():
-                cells = " | ".join("-" if stat[k] is None else f"{stat[k] * 1e3:.4g}" for k in _STATS)
-                lines.append(f"| {label}: {key.removesuffix('_m').replace('_', ' ')} | {cells} |")
+                pixels = key.endswith("_px")
+                scale, unit = (1.0, "px") if pixels else (1e3, "mm")
+                cells = " | ".join("-" if stat[k] is None else f"{stat[k] * scale:.4g}" for k in _STATS)
+                axes = ", ".join(f"{stat['rms_' + a] * scale:.3g}" for a in "xyz") if "rms_x" in stat else "-"
+                name = key.removesuffix("_m").removesuffix("_px").replace("_", " ")
+                lines.append(f"| {label}: {name} ({unit}) | {cells} | {axes} |")
         if val.get("predicted_position_sigma_m"):
             p = val["predicted_position_sigma_m"]
             noise = f" and the measurement noise ({p['noise_rms'] * 1e3:.4g} mm)" if p["noise_rms"] else ""

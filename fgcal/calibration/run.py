@@ -247,6 +247,12 @@ def calibrate_dataset(
         f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
         f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"
     )
+    # The mounting components the data cannot determine stay at the nominal mounting, not at
+    # the hand-eye guess: the guess is noisy, and a fixed value is no estimate.
+    nominal = problem.robot.parameter_vector()
+    for name in identifiability.unidentifiable:
+        if name.startswith("tool."):
+            state.params[problem.robot.parameter_names.index(name)] = nominal[problem.robot.parameter_names.index(name)]
     stages: list[StageReport] = []
     solve_started = time.perf_counter()
     if state.tracker_pose is not None or state.fixture_rotation is not None or state.fixture_pose is not None:

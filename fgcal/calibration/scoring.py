@@ -43,7 +43,7 @@ def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None
 
 
 def truth_errors(problem, state: State, truth: dict, point: np.ndarray) -> dict[str, np.ndarray]:
-    """Error norms (m) on the held-out configurations against the truth, per scored point.
+    """Error vectors (N, 3) (m) on the held-out configurations against the truth, per scored point.
 
     Pairs and projection: ``point`` (in the camera frame) and the camera origin, in W, after
     removing the gauge (fgcal.calibration.validation.gauge_of); tracker: the reflectors in the
@@ -59,12 +59,10 @@ def truth_errors(problem, state: State, truth: dict, point: np.ndarray) -> dict[
                 true_positions(problem, truth, q, p, None),
                 gauge_of(problem),
             )
-            out[label] = np.linalg.norm(residual, axis=1)
+            out[label] = residual
         return out
     errors = [
-        np.linalg.norm(
-            predicted_positions(problem, state, q, None, t) - true_positions(problem, truth, q, None, target), axis=1
-        )
+        predicted_positions(problem, state, q, None, t) - true_positions(problem, truth, q, None, target)
         for t, target in enumerate(problem.targets)
     ]
     return {"tool_point": np.concatenate(errors)}

@@ -33,20 +33,30 @@ class ErrorStats:
     mean: float
     rms: float
     max: float
-    errors: np.ndarray
+    errors: np.ndarray  # norms
+    axis_rms: np.ndarray | None = None  # (3,) RMS per axis of the error vectors, where there are vectors
 
     def as_dict(self) -> dict:
         if not self.errors.size:
             return {"mean": None, "rms": None, "p50": None, "p95": None, "max": None}
         p50, p95 = np.percentile(self.errors, [50, 95])
-        return {"mean": self.mean, "rms": self.rms, "p50": float(p50), "p95": float(p95), "max": self.max}
+        out = {"mean": self.mean, "rms": self.rms, "p50": float(p50), "p95": float(p95), "max": self.max}
+        if self.axis_rms is not None:
+            out.update({f"rms_{axis}": float(v) for axis, v in zip("xyz", self.axis_rms, strict=True)})
+        return out
 
 
 def stats(errors: np.ndarray) -> ErrorStats:
+    """Statistics of error norms (N,) or of error vectors (N, 3), whose norms they then use
+    and whose RMS per axis they add."""
     errors = np.asarray(errors, dtype=float)
     if errors.size == 0:
-        return ErrorStats(float("nan"), float("nan"), float("nan"), errors)
-    return ErrorStats(float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors)
+        return ErrorStats(float("nan"), float("nan"), float("nan"), np.zeros(0))
+    axis_rms = None
+    if errors.ndim == 2:
+        axis_rms = np.sqrt(np.mean(errors**2, axis=0))
+        errors = np.linalg.norm(errors, axis=1)
+    return ErrorStats(float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors, axis_rms)
 
 
 # Held-out scores, in order of preference, with their label (all in m).
@@ -179,7 +189,8 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
             return {}
         inputs = _projection_inputs(problem, state, None)
         pixels = np.linalg.norm(projections.compute(inputs, False).residual.reshape(-1, 2), axis=1)
-        return {"reprojection": pixels * projections.camera_points(inputs)[3][:, 2] / _focal(problem, state)}
+        metric = pixels * projections.camera_points(inputs)[3][:, 2] / _focal(problem, state)
+        return {"reprojection": metric, "reprojection_px": pixels}
     q = data.q[problem.test]
     errors = []
     # Held-out measurements: predict each reflector at every held-out configuration once.
@@ -194,7 +205,7 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
         ]
         if rows:
             predicted = predicted_positions(problem, state, q, None, t)[[i for i, _ in rows]]
-            errors.append(np.linalg.norm(predicted - np.array([xyz for _, xyz in rows]), axis=1))
+            errors.append(predicted - np.array([xyz for _, xyz in rows]))
     return {"tool_point": np.concatenate(errors) if errors else np.zeros(0)}
 
 
