@@ -12,7 +12,7 @@ from ..robot_io import save_robot
 from .covariance import correlation
 from .goodness import Fit
 from .run import CalibrationResult
-from .validation import SCORES, gauge_of, predicted_held_out, primary_score
+from .validation import SCORES, gauge_of, predicted_held_out, primary_score, workspace_map
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -141,6 +141,30 @@ def strong_correlations(result: CalibrationResult) -> list[dict]:
     return sorted(pairs, key=lambda p: -abs(p["r"]))
 
 
+def _workspace_panel(ax, region: dict | None) -> None:
+    """Top view of the held-out scored points: colour the predicted sigma, size the measured
+    error (when there is one per point)."""
+    if region is None:
+        ax.set_visible(False)
+        return
+    xy = region["positions_m"][:, :2]
+    sigma_mm = region["predicted_sigma_m"] * 1e3
+    measured = region["measured_m"]
+    sizes = 12.0 if measured is None else 8.0 + 120.0 * measured / max(float(measured.max()), 1e-12)
+    ax.scatter(xy[:, 0], xy[:, 1], c=sigma_mm, s=sizes, cmap="viridis", edgecolors="none")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x in W (m)")
+    ax.set_ylabel("y in W (m)")
+    # The colour scale in words rather than a colour bar (an axis of its own, ticks and all).
+    largest = "" if measured is None else f"\nsize: measured error, largest {measured.max() * 1e3:.3g} mm"
+    ax.set_title(
+        f"Held-out points from above; colour: predicted sigma, {sigma_mm.min():.3g} mm (dark) to "
+        f"{sigma_mm.max():.3g} mm (yellow){largest}",
+        y=1.0,
+        fontsize=9,
+    )
+
+
 def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
     """For each estimated compliance, the largest displacement (m) it causes at the scored
     point over the fitting configurations: what the value means at the tool."""
@@ -211,10 +235,12 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         what = SCORES[after[0]]
         before, after = before[1], after[1]
         # One axis for both: calibration shrinks the errors by orders of magnitude, so the
-        # axis is logarithmic, and the cumulative curves read off any percentile.
-        fig = Figure(figsize=(9, 4.2))
-        ax = fig.subplots()
-        fig.subplots_adjust(left=0.08, right=0.91, bottom=0.13, top=0.9)
+        # axis is logarithmic, and the cumulative curves read off any percentile. Beside it the
+        # workspace map, in the same figure (a figure of its own costs more than its artists).
+        fig = Figure(figsize=(14, 4.6))
+        ax, region = fig.subplots(1, 2, width_ratios=[1.7, 1])
+        fig.subplots_adjust(left=0.05, right=0.98, bottom=0.12, top=0.88, wspace=0.22)
+        _workspace_panel(region, workspace_map(result))
         every = np.concatenate([before.errors, after.errors]) * 1e3
         low, high = np.log10(max(every.min(), 1e-9)), np.log10(every.max())
         bins = np.logspace(low - 0.05, high + 0.05, 60)
@@ -240,7 +266,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         cumulative.set_ylim(0, 1.02)
         ax.legend(loc="upper left")
         ax.set_title("Before and after calibration (bars: histogram; lines: cumulative)", y=1.0)
-        fig.savefig(out / "errors.png", dpi=100)
+        fig.savefig(out / "errors.png", dpi=100, pil_kwargs={"compress_level": 1})
         plots["errors"] = "errors.png"
     if result.released:
         corr = correlation(result.covariance)
@@ -257,7 +283,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
             ax.text(i, n - 0.4, name, rotation=90, fontsize=7, ha="center", va="top")
             ax.text(-0.7, i, name, fontsize=7, ha="right", va="center")
         ax.set_title("Correlation of the estimated parameters (blue -1, grey 0, red +1)", y=1.0)
-        fig.savefig(out / "correlation.png", dpi=100)
+        fig.savefig(out / "correlation.png", dpi=100, pil_kwargs={"compress_level": 1})
         plots["correlation"] = "correlation.png"
     return plots
 

@@ -324,3 +324,52 @@ def _held_out_tracker_rows(problem) -> list[tuple[int, int]]:
 
 def _all_targets(problem, n_configs: int) -> list[tuple[int, int]]:
     return [(j, t) for j in range(n_configs) for t in range(len(problem.targets))]
+
+
+def workspace_map(result) -> dict | None:
+    """Where the robot was checked and how well it is known there: at each held-out
+    configuration the scored point in W (m; for the tracker, the first reflector), its
+    predicted sigma from the estimate's uncertainty (m, the score's gauge removed; no noise)
+    and, where the score has one per point, the measured held-out error (m)."""
+    problem, config = result.problem, result.config
+    q = problem.dataset.q[problem.test]
+    if not len(q) or not result.released or result.joint_covariance is None:
+        return None
+    if config.formulation != "tracker":
+        data = kinematics.forward(problem.robot, result.state.params, q)
+        positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
+        sigma = np.sqrt(np.trace(position_covariances(result), axis1=1, axis2=2))
+        after = result.validation.get("after", {}).get("tool_point")
+        measured = after.errors if after is not None and len(after.errors) == len(q) else None
+        return {"positions_m": positions, "predicted_sigma_m": sigma, "measured_m": measured}
+    rows = [row for row in _held_out_tracker_rows(problem) if row[1] == 0]  # one reflector says where
+    if not rows:
+        return None
+    model = BatchKinematics(problem.robot, result.state.params, result.released, q, "flange")
+    table = problem.dataset.tables["tracker_points"]
+    measured_points = {
+        (str(c), str(n)): xyz for c, n, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
+    }  # fmt: skip
+    points = TrackerPoints(
+        model, P_KEY, TRACKER_KEY, TOOL_POINTS_KEY, len(result.state.tool_points),
+        np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.zeros((len(rows), 3)),
+        config.tracker_sigma_m,
+    )  # fmt: skip
+    inputs = [model.base[model.index], gtsam.Pose3(result.state.tracker_pose), result.state.tool_points.reshape(-1)]
+    evaluation = points.compute(inputs, True)
+    J = np.hstack(evaluation.blocks).reshape(len(rows), 3, -1)
+    covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
+    predicted = evaluation.residual.reshape(-1, 3)  # the reflectors in the tracker frame
+    ids = [str(problem.dataset.configs[problem.test[j]]) for j, _ in rows]
+    measured = np.array(
+        [
+            np.linalg.norm(p - measured_points[(c, str(problem.targets[t]))])
+            for p, c, (_, t) in zip(predicted, ids, rows, strict=True)
+        ]
+    )  # fmt: skip
+    T_W_T = np.linalg.inv(result.state.tracker_pose)
+    return {
+        "positions_m": predicted @ T_W_T[:3, :3].T + T_W_T[:3, 3],
+        "predicted_sigma_m": np.sqrt(np.einsum("oij,jk,oik->o", J, covariance, J)),
+        "measured_m": measured,
+    }
