@@ -221,7 +221,7 @@ def test_real_tracker_data(tmp_path):
     # is scaled by chi2/dof, and the predicted held-out error predicts the measured one.
     fit = result.fit
     assert not fit.consistent and 10 < fit.chi2_per_dof < 100, fit
-    from fgcal.calibration.validation import predicted_held_out
+    from fgcal.calibration.prediction import predicted_held_out
 
     predicted = predicted_held_out(result, against_truth=False)["rms"]
     ratio = result.validation["after"]["tool_point"].rms / predicted
@@ -295,7 +295,7 @@ def test_a_pairs_dataset_without_truth_gets_a_held_out_score(small_cell, tmp_pat
     predicted error (noise and parameter uncertainty) predicts it."""
     import shutil
 
-    from fgcal.calibration.validation import predicted_held_out
+    from fgcal.calibration.prediction import predicted_held_out
 
     bare = tmp_path / "bare"
     shutil.copytree(small_cell, bare, ignore=shutil.ignore_patterns("truth"))

@@ -11,8 +11,9 @@ from ..parameters import unit_of
 from ..robot_io import save_robot
 from .covariance import correlation
 from .goodness import Fit
+from .prediction import predicted_held_out, workspace_map
 from .run import CalibrationResult
-from .validation import SCORES, gauge_of, predicted_held_out, primary_score, workspace_map
+from .validation import SCORES, gauge_of, primary_score
 
 
 def report_dict(result: CalibrationResult) -> dict:

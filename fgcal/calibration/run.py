@@ -18,18 +18,11 @@ from .graph import FIXTURE_KEY, P_KEY, build_graph, chi_median, robust_scale
 from .identifiability import Identifiability, analyse
 from .initialise import initial_state
 from .models import compare_models
+from .prediction import predicted_held_out
 from .problem import PairGroup, Problem, build_problem, pair_groups
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
-from .validation import (
-    SCORES,
-    ErrorStats,
-    default_tool_point,
-    held_out_errors,
-    predicted_held_out,
-    primary_score,
-    stats,
-)
+from .validation import SCORES, ErrorStats, default_tool_point, held_out_errors, primary_score, stats
 
 
 @dataclass

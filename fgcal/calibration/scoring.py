@@ -14,9 +14,10 @@ import numpy as np
 
 from ..fields import read_yaml
 from ..se3 import inverse, pose_from_xyz_rpy, transform_points
+from .prediction import position_covariances
 from .run import CalibrationResult
 from .state import State
-from .validation import gauge_of, position_covariances, predicted_positions, remove_gauge, stats
+from .validation import gauge_of, predicted_positions, remove_gauge, stats
 
 
 def load_truth(dataset_path: Path) -> dict | None:
