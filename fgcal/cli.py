@@ -104,7 +104,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     write_report(result, args.out, plots=not args.no_plots)
     print(
-        f"wrote {args.out}/report.md, report.json, calibrated_robot.yaml "
+        f"wrote {args.out}/report.md, report.json, calibrated_robot.yaml, estimates.yaml "
         f"(calibration {result.timing['total_s']:.2f} s, report {time.perf_counter() - started:.2f} s)"
     )
     return 0

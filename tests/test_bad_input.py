@@ -215,3 +215,24 @@ def test_an_unreachable_cell_fails_fast_naming_the_cell(tmp_path, capsys, alarm)
     assert status == 2 and error.startswith("fgcal: error: ") and "\n" not in error, error
     assert "far.yaml" in error and "objects" in error, error
     assert time.monotonic() - started < 20
+
+
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [
+        ("format: fgcal-estimates/9\ncamera_mounting: {pose: {xyz: [0, 0, 0], rpy: [0, 0, 0]}}\n", "format"),
+        ("format: fgcal-estimates/1\ncamera_mounting: {pose: {xyz: [0, 0], rpy: [0, 0, 0]}}\n", "xyz"),
+        ("format: fgcal-estimates/1\n", "camera_mounting"),
+        ("format: fgcal-estimates/1\ncamera_mounting: {pose: {xyz: [0, 0, 0], rpy: [0, 0, 0]}}\nbonus: 1\n", "bonus"),
+        ("format: [\n", "malformed YAML"),
+    ],
+    ids=["format", "short_xyz", "no_mounting", "unknown_key", "malformed"],
+)
+def test_a_damaged_estimates_file_names_the_field(tmp_path, text, field):
+    from fgcal.calibration.estimates import load_estimates
+    from fgcal.errors import InputError
+
+    path = tmp_path / "estimates.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError, match=field):
+        load_estimates(path)

@@ -394,3 +394,32 @@ def test_projection_position_intervals_cover_the_truth(small_cell):
         score_with_truth(result)
         coverage.append(position_coverage(result))
     assert 0.93 <= np.mean(coverage) <= 0.97, coverage
+
+
+def test_every_estimate_is_saved_and_reads_back(small_cell, tmp_path):
+    """Issue 10, item 6: the tracker pose, tool points, fixture pose, intrinsics and camera
+    mounting a calibration estimates are written to estimates.yaml, with sigmas, and read back."""
+    from fgcal.calibration.estimates import load_estimates
+    from fgcal.se3 import inverse
+
+    tracker = calibrate(CalibrationConfig.defaults(small_cell, formulation="tracker"))
+    doc = write_report(tracker, tmp_path / "tracker", plots=False)
+    assert doc["estimates_file"] == "estimates.yaml"
+    back = load_estimates(tmp_path / "tracker" / "estimates.yaml")
+    np.testing.assert_allclose(back["tracker_pose"], tracker.state.tracker_pose, atol=1e-12)
+    for name, point in zip(tracker.problem.targets, tracker.state.tool_points, strict=True):
+        np.testing.assert_allclose(back["tool_points"][name], point, atol=1e-15)
+    raw = __import__("yaml").safe_load((tmp_path / "tracker" / "estimates.yaml").read_text())
+    assert all(s > 0 for s in raw["tracker"]["sigma"]["translation"] + raw["tool_points"]["t1"]["sigma"])
+    projection = calibrate(
+        CalibrationConfig.defaults(small_cell, formulation="projection", intrinsics={"estimate": True})
+    )
+    write_report(projection, tmp_path / "projection", plots=False)
+    back = load_estimates(tmp_path / "projection" / "estimates.yaml")
+    np.testing.assert_allclose(back["fixture_pose"], projection.state.fixture_pose, atol=1e-12)
+    np.testing.assert_allclose(back["intrinsics"], projection.state.intrinsics, rtol=1e-12)
+    robot = projection.problem.robot
+    params = robot.parameter_dict(projection.state.params)
+    q = np.zeros((1, robot.n_joints))
+    expected = inverse(robot.fk(q, params)[0]) @ robot.fk_tool(q, params)[0]
+    np.testing.assert_allclose(back["camera_mounting"], expected, atol=1e-12)

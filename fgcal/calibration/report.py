@@ -10,6 +10,7 @@ from .. import kinematics, strict_json
 from ..parameters import unit_of
 from ..robot_io import save_robot
 from .covariance import correlation
+from .estimates import write_estimates
 from .goodness import Fit
 from .prediction import predicted_held_out, workspace_map
 from .run import CalibrationResult
@@ -112,6 +113,7 @@ def report_dict(result: CalibrationResult) -> dict:
             "gauge_removed": gauge_of(problem),
             "predicted_position_sigma_m": predicted,
         },
+        "estimates_file": "estimates.yaml",  # every estimate besides the robot, with sigmas (estimates.py)
         "seed": _seed(result),
         "timing": {"total_s": result.timing["total_s"], "solve_s": result.timing["solve_s"]},
     }
@@ -218,6 +220,7 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
         result.problem.robot.parameter_dict(result.state.params),
         notes=f"calibrated by fgcal ({doc['model']}, {doc['formulation']} formulation)",
     )
+    write_estimates(result, out / "estimates.yaml")
     figures = _plots(result, out) if plots else {}
     (out / "report.md").write_text(_markdown(doc, figures), encoding="utf-8")
     return doc
