@@ -229,6 +229,10 @@ def test_real_tracker_data(tmp_path):
     doc = write_report(result, tmp_path / "report", plots=False)
     assert doc["goodness_of_fit"]["chi2_per_dof"] == pytest.approx(fit.chi2_per_dof)
     assert all("chi2" in stage and "chi2_p_value" in stage for stage in doc["stages"])
+    # Negative compliances are effective corrections, said so; each is also a displacement.
+    kx1 = doc["parameters"]["kx1"]
+    assert kx1["estimate"] < 0 and kx1["flag"].startswith("negative compliance beyond 2 sigma")
+    assert 1e-4 < kx1["deflection_at_tool_max_m"] < 0.05
 
 
 @pytest.mark.parametrize(

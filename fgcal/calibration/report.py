@@ -49,8 +49,11 @@ def report_dict(result: CalibrationResult) -> dict:
             entry["effective_value_absorbs"] = sorted(absorbs[name])
         if name in deflections:
             entry["deflection_at_tool_max_m"] = deflections[name]
-            if estimate[name] < 0:
-                entry["flag"] = "negative compliance: an effective correction, not a stiffness"
+            sigma = sigmas.get(name, 0.0)
+            if estimate[name] + 2.0 * sigma < 0:
+                entry["flag"] = "negative compliance beyond 2 sigma: an effective correction, not a stiffness"
+            elif estimate[name] < 0:
+                entry["flag"] = "negative, but within 2 sigma of zero"
         if truth is not None:
             entry["truth"] = float(truth[name])
         parameters[name] = entry
