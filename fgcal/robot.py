@@ -16,6 +16,7 @@ import numpy as np
 from . import kinematics
 from .errors import InputError
 from .ets import ET, Chain
+from .ik import IKResult, inverse_kinematics
 from .parameters import JOINT_KINDS, parameter_names
 from .se3 import rpy_from_rotation
 
@@ -158,6 +159,28 @@ class Robot:
         q2 = self.check_q(q)
         data = kinematics.forward(self, self.parameter_vector(params), q2)
         return kinematics.jacobian(self, data, wrt, frame=frame, point=point)
+
+    def ik(
+        self,
+        targets: np.ndarray,
+        q_hint: np.ndarray,
+        params: Mapping[str, float] | None = None,
+        frame: str = "tool",
+        tcp: np.ndarray | None = None,
+        **options,
+    ) -> IKResult:
+        """Joint angles putting the TCP (``tcp``, m, in ``frame``) on ``targets``: positions
+        (N, 3) or poses (N, 4, 4) in W, from the hints ``q_hint`` (N, n), on the full model at
+        this robot's payload (fgcal.ik: status, residuals, smallest change for positions)."""
+        targets = np.asarray(targets, dtype=float)
+        single = targets.ndim == (2 if targets.shape[-2:] == (4, 4) else 1)
+        hints = self.check_q(q_hint)
+        batch = targets[None] if single else targets
+        if batch.shape[1:] not in ((3,), (4, 4)) or not np.all(np.isfinite(batch)):
+            raise InputError(None, "targets", f"finite positions (N, 3) or poses (N, 4, 4), got shape {targets.shape}")
+        if len(hints) != len(batch):
+            raise InputError(None, "q_hint", f"one hint per target: {len(hints)} hints for {len(batch)} targets")
+        return inverse_kinematics(self, self.parameter_vector(params), batch, hints, frame, tcp, **options)
 
     def _frame(self, q: np.ndarray, params: Mapping[str, float] | None, frame: str) -> np.ndarray:
         q2 = self.check_q(q)

@@ -1,0 +1,130 @@
+"""Inverse kinematics on the full model (distortions, gravity compliances at the robot's
+payload), with the analytic joint Jacobian: what compensation runs on.
+
+``inverse_kinematics(robot, params, targets, q_hint)`` solves N targets at once by damped
+Gauss-Newton from the hints. A target is a position (3,) of the TCP or a pose (4, 4) of the TCP
+frame (the frame ``frame`` moved by ``tcp`` in it). For a position the arm is redundant, and
+each step also pulls the joints toward the hint in the Jacobian's null space, so that the
+answer is the smallest joint change from the hint that reaches the target, on the hint's
+branch. Each answer has a status:
+
+- ``ok``: reached within tolerance, within the joint limits (after shifts of 2 pi);
+- ``unreachable``: the iterations ended farther than the tolerance (out of reach, or a
+  hint on the wrong side of a singularity);
+- ``outside joint limits``: reached, but only outside the limits;
+- ``near singularity``: reached, but the Jacobian's smallest singular value is below
+  ``singular_tol`` (m/rad for positions): small target changes need large joint changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kinematics
+from .se3 import skew, so3_log
+
+SINGULAR_TOL = 1e-3  # smallest singular value of the TCP Jacobian, m/rad
+DAMPING = 1e-9  # Levenberg damping of the steps (squared singular values)
+MAX_STEP_RAD = 0.5  # joint change per iteration, so that far hints do not jump across the workspace
+
+
+@dataclass
+class IKResult:
+    q: np.ndarray  # (N, n) joint angles, rad
+    status: np.ndarray  # (N,) see the module docstring
+    residual_m: np.ndarray  # (N,) TCP position error left
+    residual_rad: np.ndarray | None  # (N,) orientation error left, for pose targets
+
+
+def _tcp_state(robot: kinematics.Robot, params: np.ndarray, q: np.ndarray, frame: str, tcp: np.ndarray):
+    """TCP poses (N, 4, 4) and body Jacobians (N, 6, n) w.r.t. the joints: a point's body
+    twist is [omega, v + omega x tcp]."""
+    data = kinematics.forward(robot, params, q)
+    T = kinematics.frame_pose(robot, data, frame).copy()
+    J = kinematics.jacobian(robot, data, [f"q{i + 1}" for i in range(robot.n_joints)], frame=frame)
+    T[:, :3, 3] += T[:, :3, :3] @ tcp
+    J = J.copy()
+    J[:, 3:] -= skew(tcp) @ J[:, :3]
+    return T, J
+
+
+def _errors(T: np.ndarray, targets: np.ndarray, pose: bool) -> np.ndarray:
+    """Body-frame errors (N, 6) [rotation, translation] for poses, (N, 3) in the body frame
+    for positions (so that the same body Jacobian's translation rows apply)."""
+    R_t = np.swapaxes(T[:, :3, :3], 1, 2)
+    if not pose:
+        return np.einsum("nij,nj->ni", R_t, targets - T[:, :3, 3])
+    rotation = so3_log(R_t @ targets[:, :3, :3])
+    translation = np.einsum("nij,nj->ni", R_t, targets[:, :3, 3] - T[:, :3, 3])
+    return np.concatenate([rotation, translation], axis=1)
+
+
+def wrap_into_limits(limits: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Shift angles by multiples of 2 pi toward the joint range (joints may exceed +-pi)."""
+    out = q.copy()
+    for shift in (2 * np.pi, -2 * np.pi):
+        moved = out + shift
+        better = (out < limits[:, 0]) | (out > limits[:, 1])
+        ok = (moved >= limits[:, 0]) & (moved <= limits[:, 1])
+        out = np.where(better & ok, moved, out)
+    return out
+
+
+def inverse_kinematics(
+    robot,  # fgcal.robot.Robot (not imported: the Robot's ik method calls this module)
+    params: np.ndarray,
+    targets: np.ndarray,
+    q_hint: np.ndarray,
+    frame: str = "tool",
+    tcp: np.ndarray | None = None,
+    tol_m: float = 1e-10,
+    tol_rad: float = 1e-10,
+    iterations: int = 200,
+    singular_tol: float = SINGULAR_TOL,
+) -> IKResult:
+    """Joint angles (N, n) putting the TCP on ``targets``: positions (N, 3) or poses (N, 4, 4)
+    in W, starting from ``q_hint`` (N, n); see the module docstring."""
+    targets = np.asarray(targets, dtype=float)
+    pose = targets.ndim == 3
+    q = np.array(q_hint, dtype=float, copy=True)
+    hint = q.copy()
+    tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
+    rows = slice(0, 6) if pose else slice(3, 6)
+    n = robot.n_joints
+    for _ in range(iterations):
+        T, J = _tcp_state(robot, params, q, frame, tcp)
+        error = _errors(T, targets, pose)
+        done = np.linalg.norm(error[:, -3:], axis=1) < tol_m
+        if pose:
+            done &= np.linalg.norm(error[:, :3], axis=1) < tol_rad
+        if done.all():
+            break
+        A = J[:, rows]  # (N, r, n)
+        At = np.swapaxes(A, 1, 2)
+        # Damped pseudo-inverse: A^T (A A^T + lambda I)^-1
+        pinv = At @ np.linalg.inv(A @ At + DAMPING * np.eye(A.shape[1]))
+        step = np.einsum("nij,nj->ni", pinv, error)
+        if A.shape[1] < n:  # redundant: toward the hint in the null space
+            null = np.eye(n) - pinv @ A
+            step += np.einsum("nij,nj->ni", null, hint - q)
+        norm = np.linalg.norm(step, axis=1, keepdims=True)
+        step *= np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))
+        q = np.where(done[:, None], q, q + step)
+    T, J = _tcp_state(robot, params, q, frame, tcp)
+    error = _errors(T, targets, pose)
+    residual_m = np.linalg.norm(error[:, -3:], axis=1)
+    residual_rad = np.linalg.norm(error[:, :3], axis=1) if pose else None
+    q = wrap_into_limits(robot.limits, q)
+    reached = residual_m <= 10 * tol_m  # the loop stops below tol; 10x for the final re-evaluation
+    if pose:
+        reached &= residual_rad <= 10 * tol_rad
+    within = np.all((q >= robot.limits[:, 0]) & (q <= robot.limits[:, 1]), axis=1)
+    smallest = np.linalg.svd(J[:, rows], compute_uv=False)[:, -1]
+    status = np.where(
+        ~reached,
+        "unreachable",
+        np.where(~within, "outside joint limits", np.where(smallest < singular_tol, "near singularity", "ok")),
+    )
+    return IKResult(q, status, residual_m, residual_rad)
