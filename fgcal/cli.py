@@ -137,9 +137,46 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"2/3 calibrating ({config_path})")
     result = calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True))
     _score(result)
+    if result.truth is not None:
+        from .calibration.scoring import compensation_study
+
+        study = result.compensation = compensation_study(result)
+        print(
+            f"  compensation of {study['n_targets']} random targets, driven through the true robot: "
+            f"{study['uncompensated_rms_m']:.3e} m RMS with the nominal model's joints, "
+            f"{study['compensated_rms_m']:.3e} m with the calibrated model's ({study['improvement']:.0f}x)"
+        )
     print("3/3 writing the report")
     write_report(result, out / "report")
     print(f"report: {out / 'report' / 'report.md'}")
+    return 0
+
+
+def cmd_compensate(args: argparse.Namespace) -> int:
+    from .compensate import compensate, nominal_of, read_targets, write_compensation
+    from .robot_io import load_robot
+
+    robot = load_robot(args.robot)
+    if args.payload_mass is not None or args.payload_com is not None:
+        mass = robot.payload_mass if args.payload_mass is None else args.payload_mass
+        com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
+        if not (np.isfinite(mass) and mass >= 0 and np.all(np.isfinite(com))):
+            print("fgcal: error: --payload-mass and --payload-com must be finite, the mass >= 0", file=sys.stderr)
+            return 2
+        robot = robot.with_tool(robot.tool_pose, float(mass), com)
+    nominal = nominal_of(robot, args.nominal)
+    if nominal.n_joints != robot.n_joints:
+        print(f"fgcal: error: --nominal: {nominal.n_joints} joints, the robot has {robot.n_joints}", file=sys.stderr)
+        return 2
+    targets = read_targets(args.targets, robot.n_joints)
+    tcp = None if args.tcp is None else np.array(args.tcp)
+    if tcp is not None and not np.all(np.isfinite(tcp)):
+        print("fgcal: error: --tcp must be three finite numbers (m)", file=sys.stderr)
+        return 2
+    result = compensate(robot, nominal, targets.as_ik_targets(), targets.hints, tcp)
+    write_compensation(args.out, targets.names, result, targets.rotations is not None)
+    counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
+    print(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
     return 0
 
 
@@ -236,6 +273,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object (SI units) on stdout")
     p.add_argument("--faro", help="a dataset from fgcal convert-faro: time the whole calibrate command on it too")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("compensate", help="corrected commands: joints and nominal-model targets reaching TARGETS")
+    p.add_argument("robot", help="the calibrated robot (calibrated_robot.yaml) or a bundled name")
+    p.add_argument("targets", help="CSV: target, x, y, z (m, W) [, rx, ry, rz (rad)] [, q1..qn hints (rad)]")
+    p.add_argument("--out", required=True, help="output CSV (docs/cli.md)")
+    p.add_argument("--tcp", type=float, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
+    p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
+    p.add_argument("--payload-mass", type=float, help="payload (kg) for the deflection (default the robot file's)")
+    p.add_argument("--payload-com", type=float, nargs=3, help="payload centre of mass in the flange frame (m)")
+    p.set_defaults(func=cmd_compensate)
 
     p = sub.add_parser("online", help="online recalibration: fold measurement files from an inbox into the estimate")
     p.add_argument("--state", required=True, help="state directory (log, checkpoints, outputs)")

@@ -120,7 +120,7 @@ def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]
             writer.writerow([format_float(v) if isinstance(v, (float, np.floating)) else v for v in row])
 
 
-def _read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     try:
         # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
         with open(path, newline="", encoding="utf-8-sig") as fh:
@@ -142,7 +142,7 @@ def _read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list
     return header, body
 
 
-def _numbers(
+def parse_numbers(
     path: Path, header: list[str], body: list[list[str]], columns: Sequence[str], kind: str, to_si: float
 ) -> np.ndarray:
     """The columns as floats in SI: plain decimal numbers only (``float`` would also take
@@ -168,8 +168,8 @@ def _numbers(
 
 def _table(path: Path, name: str, units: Units) -> Table:
     id_cols, value_cols, kind = TABLES[name]
-    header, body = _read_csv(path, [*id_cols, *value_cols])
-    values = _numbers(path, header, body, value_cols, kind, units.to_m if kind == "length" else 1.0)
+    header, body = read_csv(path, [*id_cols, *value_cols])
+    values = parse_numbers(path, header, body, value_cols, kind, units.to_m if kind == "length" else 1.0)
     ids = {c: np.array([row[header.index(c)].strip() for row in body], dtype=object) for c in id_cols}
     return Table(ids, values)
 
@@ -212,7 +212,7 @@ def load_dataset(path: str | Path) -> Dataset:
 
     config_path = _inside(root, files, "configurations")
     joint_cols = [f"q{i}" for i in range(1, robot.n_joints + 1)]
-    cfg_header, cfg_body = _read_csv(config_path, ["config"])
+    cfg_header, cfg_body = read_csv(config_path, ["config"])
     present = [c for c in cfg_header if c.startswith("q") and c[1:].isdigit()]
     if present != joint_cols:
         raise InputError(
@@ -223,7 +223,7 @@ def load_dataset(path: str | Path) -> Dataset:
         )
     if not cfg_body:
         raise InputError(config_path, None, "no configurations")
-    q = _numbers(config_path, cfg_header, cfg_body, joint_cols, "angle", units.to_rad)
+    q = parse_numbers(config_path, cfg_header, cfg_body, joint_cols, "angle", units.to_rad)
     configs = np.array([row[cfg_header.index("config")].strip() for row in cfg_body], dtype=object)
     if len(set(configs)) != len(configs):
         raise InputError(config_path, "config", "duplicate configuration ids")

@@ -40,6 +40,7 @@ class CalibrationResult:
     fit: Fit | None = None  # goodness of fit of the last stage
     joint_covariance: JointCovariance | None = None  # (P, auxiliary unknowns), scaled like covariance
     model_comparison: list[dict] | None = None  # with model: auto or compare_models (calibration.models)
+    compensation: dict | None = None  # scoring.compensation_study, when a simulation's truth scores it
     covariance_declared: np.ndarray | None = None  # under the declared noise, unscaled
     validation: dict[str, dict[str, ErrorStats]] = field(default_factory=dict)
     truth: dict | None = None

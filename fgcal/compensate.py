@@ -1,0 +1,142 @@
+"""Compensation: the calibrated model turned into corrected commands (the seed's fourth step).
+
+For each target (a TCP position, optionally with an orientation, in the robot's W), the
+joints at which the *calibrated* model puts the TCP on the target are found by inverse
+kinematics on the full model (fgcal.ik). A controller that runs its *nominal* model is then
+sent the Cartesian command at which its nominal model is at those joints: it moves there, and
+the real robot, which the calibrated model describes, lands on the target.
+
+Targets file (CSV, SI): ``target, x, y, z`` (m), optionally ``rx, ry, rz`` (rotation vector of
+the TCP frame, rad) and ``q1..qn`` (rad: branch hints such as the program's joints; without
+them each target starts from the nominal model's IK within the joint limits). Output CSV:
+``target, q1..qn, x_cmd, y_cmd, z_cmd[, rx_cmd, ry_cmd, rz_cmd], residual_m[, residual_rad],
+status``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import parse_numbers, read_csv, write_csv
+from .errors import InputError
+from .robot import Robot
+from .robot_io import bundled_robots, load_robot
+from .se3 import pose, so3_exp, so3_log
+
+
+@dataclass
+class Targets:
+    names: list[str]
+    positions: np.ndarray  # (N, 3) m
+    rotations: np.ndarray | None  # (N, 3, 3), when the file gives rx, ry, rz
+    hints: np.ndarray | None  # (N, n) rad
+
+    def as_ik_targets(self) -> np.ndarray:
+        if self.rotations is None:
+            return self.positions
+        return np.array([pose(R, p) for R, p in zip(self.rotations, self.positions, strict=True)])
+
+
+def read_targets(path: str | Path, n_joints: int) -> Targets:
+    path = Path(path)
+    header, body = read_csv(path, ["target", "x", "y", "z"])
+    if not body:
+        raise InputError(path, None, "no targets")
+    positions = parse_numbers(path, header, body, ["x", "y", "z"], "length", 1.0)
+    rotation_columns = [c for c in ("rx", "ry", "rz") if c in header]
+    rotations = None
+    if rotation_columns:
+        if len(rotation_columns) != 3:
+            raise InputError(path, "header", "rx, ry and rz come together (a rotation vector, rad)")
+        rotations = so3_exp(parse_numbers(path, header, body, ["rx", "ry", "rz"], "angle", 1.0))
+    joint_columns = [c for c in header if c.startswith("q") and c[1:].isdigit()]
+    hints = None
+    if joint_columns:
+        expected = [f"q{i}" for i in range(1, n_joints + 1)]
+        if joint_columns != expected:
+            raise InputError(
+                path, "header", f"hints need columns {', '.join(expected)}, got {', '.join(joint_columns)}"
+            )
+        hints = parse_numbers(path, header, body, expected, "angle", 1.0)
+    names = [row[header.index("target")].strip() for row in body]
+    return Targets(names, positions, rotations, hints)
+
+
+def nominal_of(robot: Robot, nominal: str | Path | None) -> Robot:
+    """The controller's nominal model: ``nominal`` if given, else the bundled robot of the
+    same name (with the calibrated robot's tool and payload)."""
+    if nominal is not None:
+        return load_robot(nominal)
+    for name in bundled_robots():
+        candidate = load_robot(name)
+        if candidate.name == robot.name:
+            return candidate.with_tool(robot.tool_pose, robot.payload_mass, robot.payload_com)
+    raise InputError(None, "--nominal", f"no bundled robot is named {robot.name!r}: give the nominal model")
+
+
+@dataclass
+class Compensation:
+    q: np.ndarray  # (N, n) joints at which the calibrated model reaches each target
+    commands: np.ndarray  # (N, 4, 4) nominal-model TCP pose at those joints
+    residual_m: np.ndarray
+    residual_rad: np.ndarray | None
+    status: np.ndarray
+
+
+def compensate(
+    robot: Robot,
+    nominal: Robot,
+    targets: np.ndarray,
+    hints: np.ndarray | None,
+    tcp: np.ndarray | None = None,
+) -> Compensation:
+    """Joints on the calibrated ``robot`` for ``targets`` (N, 3) or (N, 4, 4), and the
+    commands (the ``nominal`` model's TCP pose there). Without hints each target starts from
+    the nominal model's IK solution from zero joints."""
+    tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
+    if hints is None:
+        hints = default_hints(nominal, targets, tcp)
+    solved = robot.ik(targets, hints, tcp=tcp)
+    commands = nominal.fk_tool(solved.q).copy()  # (N, 4, 4)
+    commands[:, :3, 3] += commands[:, :3, :3] @ tcp
+    return Compensation(solved.q, commands, solved.residual_m, solved.residual_rad, solved.status)
+
+
+def default_hints(nominal: Robot, targets: np.ndarray, tcp: np.ndarray, starts: int = 8) -> np.ndarray:
+    """Without a program's joints: the nominal model's IK from the middle of the joint ranges,
+    then from seeded random starts within the limits, keeping the first solution within them."""
+    low, high = nominal.limits[:, 0], nominal.limits[:, 1]
+    rng = np.random.default_rng(0)
+    hints = np.tile(0.5 * (low + high), (len(targets), 1))
+    settled = np.zeros(len(targets), dtype=bool)
+    for k in range(starts):
+        start = hints if k == 0 else rng.uniform(low, high, hints.shape)
+        solved = nominal.ik(targets, start, tcp=tcp)
+        good = ~settled & np.isin(solved.status, ("ok", "near singularity"))
+        hints[good] = solved.q[good]
+        settled |= good
+        if settled.all():
+            break
+    return hints
+
+
+def write_compensation(path: str | Path, names: list[str], result: Compensation, with_rotation: bool) -> None:
+    n = result.q.shape[1]
+    header = ["target", *[f"q{i}" for i in range(1, n + 1)], "x_cmd", "y_cmd", "z_cmd"]
+    if with_rotation:
+        header += ["rx_cmd", "ry_cmd", "rz_cmd"]
+    header += ["residual_m"] + (["residual_rad"] if with_rotation else []) + ["status"]
+    rows = []
+    for i, name in enumerate(names):
+        row = [name, *map(float, result.q[i]), *map(float, result.commands[i, :3, 3])]
+        if with_rotation:
+            row += [float(v) for v in so3_log(result.commands[i, :3, :3])]
+        row.append(float(result.residual_m[i]))
+        if with_rotation:
+            row.append(float(result.residual_rad[i]))
+        row.append(str(result.status[i]))
+        rows.append(row)
+    write_csv(Path(path), header, rows)
