@@ -43,3 +43,9 @@ def unit_of(name: str) -> str:
     if kind in COMPLIANCE_KINDS:
         return "rad/(N m)"
     return "rad"
+
+
+def default_compliant_joints(n_joints: int) -> tuple[int, ...]:
+    """The joints whose compliances are candidates when nothing says otherwise: the seed's
+    1-3, those the robot has (a 2-axis positioner has 1 and 2)."""
+    return tuple(j for j in (1, 2, 3) if j <= n_joints)

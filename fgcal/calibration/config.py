@@ -49,7 +49,7 @@ class CalibrationConfig:
     dataset: Path
     formulation: str
     model: str
-    compliant_joints: tuple[int, ...]
+    compliant_joints: tuple[int, ...] | None  # None: default_compliant_joints of the robot
     fixture_orientation: str
     schedule: str
     stages: tuple[tuple[str, ...], ...]
@@ -154,8 +154,9 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         raise doc.error("stages", "schedule 'custom' needs a stages list")
     else:
         stages = list(SEED_STAGES if schedule == "staged" else ONE_SHOT)
-    joints = tuple(doc.items("compliant_joints", [1, 2, 3]))
-    for j in joints:
+    # None: the seed's joints 1-3 that the robot has (resolved when the robot is known).
+    joints = tuple(doc.items("compliant_joints")) if doc.has("compliant_joints") else None
+    for j in joints or ():
         if isinstance(j, bool) or not isinstance(j, int) or j < 1:
             raise doc.error("compliant_joints", f"joint numbers are integers >= 1, got {j!r}")
     bounds = doc.sub("bounds", {})

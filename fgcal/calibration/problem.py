@@ -23,7 +23,7 @@ import numpy as np
 from ..camera import solve_pnp
 from ..dataset import Dataset, Table
 from ..errors import InputError
-from ..parameters import split_name
+from ..parameters import default_compliant_joints, split_name
 from ..robot import Robot
 from .config import CalibrationConfig
 
@@ -106,6 +106,13 @@ def fitting_rows(problem: Problem, table: Table, key: str, subset: np.ndarray | 
             yield index, name, values
 
 
+def compliant_joints(robot: Robot, config: CalibrationConfig) -> tuple[int, ...]:
+    """The config's compliant joints, or by default the seed's 1-3 that the robot has."""
+    if config.compliant_joints is None:
+        return default_compliant_joints(robot.n_joints)
+    return config.compliant_joints
+
+
 def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
     """Parameters the model could estimate: the model's kinds, compliances of the compliant
     joints, base and tool. Identifiability analysis decides which the data determine."""
@@ -118,7 +125,7 @@ def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
         if (
             isinstance(owner, str)
             or kind in kinds
-            or (config.model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in config.compliant_joints)
+            or (config.model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in compliant_joints(robot, config))
         ):
             names.append(name)
     return names
@@ -133,7 +140,7 @@ def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) -> Problem:
     robot = dataset.robot.with_model(config.model)
-    for j in config.compliant_joints:
+    for j in compliant_joints(robot, config):
         if j > robot.n_joints:
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
     detections = None

@@ -30,7 +30,7 @@ import numpy as np
 from ..camera import Camera, solve_pnp
 from ..errors import InputError
 from ..factors import BehindCameraError, FactorError, Projections, RandomWalkFactor, gaussian
-from ..parameters import unit_of
+from ..parameters import default_compliant_joints, unit_of
 from ..robot import Robot
 from .drift import Alarm, DriftTest
 from .growing import GrowingKinematics, RowKinematics
@@ -61,7 +61,7 @@ class OnlineSettings:
     alarm_lag_images: int = 5
     alarm_false_rate: float = 1e-3  # per image, over all parameters
     outlier_gate_px: float = 3.0
-    compliant_joints: tuple[int, ...] = (1, 2, 3)
+    compliant_joints: tuple[int, ...] | None = None  # None: the seed's 1-3 that the robot has
     # Relinearise p_c when it moved by this fraction of its prior sigma, a pose by this (rad, m).
     relinearize_fraction: float = 0.1
     relinearize_pose: float = 1e-4
@@ -119,7 +119,8 @@ class OnlineCalibrator:
         self.intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion])
         self.start = robot.parameter_vector()
         if released is None:
-            found = candidates(robot, s.compliant_joints)
+            joints = s.compliant_joints if s.compliant_joints is not None else default_compliant_joints(robot.n_joints)
+            found = candidates(robot, joints)
             released = structural_identifiability(robot, self.start, found).identifiable
         if not released:
             raise InputError(None, "released", "no parameter to estimate")

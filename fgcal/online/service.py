@@ -83,7 +83,7 @@ def _settings(config: dict, source: Path) -> OnlineSettings:
     values: dict = {}
     for key in config["settings"]:
         default = getattr(defaults, key)
-        if isinstance(default, tuple):
+        if isinstance(default, tuple) or key == "compliant_joints":  # its default, None, means 1-3
             values[key] = _joints(settings, key)
         elif isinstance(default, int):
             values[key] = settings.integer(key, minimum=1)

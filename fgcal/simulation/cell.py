@@ -12,6 +12,7 @@ import numpy as np
 from ..camera import Camera, parse_camera
 from ..errors import InputError
 from ..fields import Fields, read_yaml
+from ..parameters import default_compliant_joints
 from ..robot import Robot
 from ..robot_io import load_robot
 from ..se3 import pose_from_xyz_rpy, transform_points
@@ -239,7 +240,7 @@ def load_cell(path: str | Path) -> Cell:
     compliance = pert.vector("compliance", 2, [1e-6, 1e-5])
     if not 0 <= compliance[0] <= compliance[1]:
         raise pert.error("compliance", "expected [low, high] with 0 <= low <= high, rad/(N m)")
-    joints = tuple(int(j) for j in pert.items("compliant_joints", [1, 2, 3]))
+    joints = tuple(int(j) for j in pert.items("compliant_joints", list(default_compliant_joints(robot.n_joints))))
     for j in joints:
         if not 1 <= j <= robot.n_joints:
             raise pert.error("compliant_joints", f"joint {j} does not exist on a {robot.n_joints}-joint robot")
