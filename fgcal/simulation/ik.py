@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kinematics
+from ..ik import wrap_into_limits
 from ..robot import Robot
 from ..se3 import so3_log
 
@@ -46,18 +47,8 @@ def solve_ik(
         q = np.arctan2(np.sin(q), np.cos(q))
     data = kinematics.forward(robot, params, q)
     err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
-    q = wrap_into_limits(robot, q)
+    q = wrap_into_limits(robot.limits, q)
     within = np.all((q >= robot.limits[:, 0]) & (q <= robot.limits[:, 1]), axis=1)
     converged = (np.linalg.norm(err[:, :3], axis=1) < tol) & (np.linalg.norm(err[:, 3:], axis=1) < tol) & within
     return q, converged
 
-
-def wrap_into_limits(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """Shift angles by multiples of 2 pi toward the joint range (joints may exceed +-pi)."""
-    out = q.copy()
-    for shift in (2 * np.pi, -2 * np.pi):
-        moved = out + shift
-        better = (out < robot.limits[:, 0]) | (out > robot.limits[:, 1])
-        ok = (moved >= robot.limits[:, 0]) & (moved <= robot.limits[:, 1])
-        out = np.where(better & ok, moved, out)
-    return out
