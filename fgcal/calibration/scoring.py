@@ -89,15 +89,11 @@ CHI2_3_95 = 7.814727903251178  # 95 % quantile of chi-square with 3 degrees of f
 
 def position_coverage(result: CalibrationResult) -> float:
     """Fraction of the held-out configurations whose true error (the scored point, gauge
-    removed) lies inside the 95 % ellipsoid of its predicted covariance; needs the truth."""
+    removed: truth_errors) lies inside the 95 % ellipsoid of its predicted covariance; camera
+    formulations, needs the truth."""
     problem = result.problem
     truth = result.truth if result.truth is not None else load_truth(problem.dataset.path)
-    q = problem.dataset.q[problem.test]
-    error = remove_gauge(
-        predicted_positions(problem, result.state, q, result.tool_point, None),
-        true_positions(problem, truth, q, result.tool_point, None),
-        gauge_of(problem),
-    )
+    error = truth_errors(problem, result.state, truth, result.tool_point)["tool_point"]
     covariances = position_covariances(result)
     # Pseudo-inverse: removing the gauge leaves each 3x3 block full rank here, but not by design.
     d2 = np.einsum("ni,nij,nj->n", error, np.linalg.pinv(covariances), error)
@@ -116,7 +112,7 @@ def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: in
 
     problem = result.problem
     truth = result.truth if result.truth is not None else load_truth(problem.dataset.path)
-    robot = problem.robot.with_model(result.config.model)
+    robot = problem.robot  # build_problem gave it the result's model
     params = robot.parameter_dict(result.state.params)
     rng = np.random.default_rng(seed)
     q_data = problem.dataset.q[rng.integers(0, len(problem.dataset.q), n_targets)]
@@ -134,8 +130,7 @@ def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: in
     uncompensated = remove_gauge(
         true_positions(problem, truth, controller.q[usable], tcp, None), targets[usable], gauge
     )
-    compensated_rms = float(np.sqrt(np.mean(np.sum(compensated**2, axis=1))))
-    uncompensated_rms = float(np.sqrt(np.mean(np.sum(uncompensated**2, axis=1))))
+    compensated_rms, uncompensated_rms = stats(compensated).rms, stats(uncompensated).rms
     return {
         "n_targets": int(n_targets),
         "n_scored": int(usable.sum()),
