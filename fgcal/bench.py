@@ -44,7 +44,7 @@ from .calibration.state import State
 from .calibration.validation import default_tool_point, held_out_errors, stats
 from .dataset import load_dataset
 from .factors.point_pair import helmert
-from .parameters import split_name
+from .parameters import is_joint_length
 from .robot_io import robots_dir
 from .se3 import skew, so3_exp, so3_log
 from .simulation.simulate import simulate
@@ -71,7 +71,7 @@ class PairResiduals:
         self.H = scipy.sparse.block_diag(blocks, format="csr")
         self.sigma = problem.config.camera_point_sigma_m
         nominal = problem.robot.nominal_parameters()
-        self.bounded = np.array([i for i, n in enumerate(released) if split_name(n)[0] in ("d", "a")], dtype=int)
+        self.bounded = np.array([i for i, n in enumerate(released) if is_joint_length(n)], dtype=int)
         self.bound_nominal = np.array([nominal[released[i]] for i in self.bounded])
         self.bound_sigma = problem.config.length_bound_m
 

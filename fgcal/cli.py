@@ -210,6 +210,17 @@ def cmd_convert_faro(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from .robot_io import load_robot
+    from .urdf_io import export_urdf
+
+    robot = load_robot(args.robot, args.tip)
+    urdf, sidecar = export_urdf(robot, args.urdf)
+    print(f"wrote {urdf} ({robot.name}, {robot.n_joints} joints: world, base_link, link_1..link_{robot.n_joints}, ")
+    print(f"      flange, tool0) and {sidecar} (joint compliances, which URDF cannot express)")
+    return 0
+
+
 def cmd_robots(args: argparse.Namespace) -> int:
     from .robot_io import bundled_robots, load_robot
 
@@ -222,7 +233,7 @@ def cmd_robots(args: argparse.Namespace) -> int:
 def cmd_fk(args: argparse.Namespace) -> int:
     from .robot_io import load_robot
 
-    robot = load_robot(args.robot)
+    robot = load_robot(args.robot, args.tip)
     q = np.array(args.q, dtype=float)
     if args.deg:
         q = np.deg2rad(q)
@@ -305,11 +316,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output dataset directory")
     p.set_defaults(func=cmd_convert_faro)
 
+    p = sub.add_parser("export", help="write a robot (calibrated or nominal) as URDF, compliances in a sidecar YAML")
+    p.add_argument("robot", help="robot file (calibrated_robot.yaml, a URDF) or a bundled name")
+    p.add_argument("--urdf", required=True, help="output URDF file; the sidecar <stem>.compliance.yaml goes beside it")
+    p.add_argument("--tip", help="tip link of a URDF input (default tool0, else its only leaf)")
+    p.set_defaults(func=cmd_export)
+
     p = sub.add_parser("robots", help="list the bundled robot descriptions")
     p.set_defaults(func=cmd_robots)
 
     p = sub.add_parser("fk", help="forward kinematics of a robot at one configuration (nominal model)")
-    p.add_argument("robot", help="bundled robot name or robot YAML file")
+    p.add_argument("robot", help="bundled robot name, robot YAML file or URDF")
+    p.add_argument("--tip", help="tip link of a URDF (default tool0, else its only leaf)")
     p.add_argument("q", nargs="+", type=float, help="joint angles (rad, or deg with --deg)")
     p.add_argument("--deg", action="store_true", help="joint angles in degrees")
     p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")

@@ -38,7 +38,7 @@ from .camera import Camera, parse_camera
 from .errors import InputError
 from .fields import Fields, is_plain_number, read_yaml
 from .robot import Robot
-from .robot_io import load_robot
+from .robot_io import load_robot, robot_reference
 from .se3 import pose_from_xyz_rpy
 from .units import Units, parse_units
 
@@ -196,7 +196,7 @@ def load_dataset(path: str | Path) -> Dataset:
     units = parse_units(doc.raw("units", None), header_path)
     robot_ref = doc.string("robot")
     try:
-        robot = load_robot(root / robot_ref if robot_ref.endswith((".yaml", ".yml")) else robot_ref)
+        robot = load_robot(robot_reference(root, robot_ref))
     except InputError as exc:
         raise InputError(header_path, "robot", str(exc)) from None
     files = doc.sub("files")

@@ -201,18 +201,16 @@ class Chain:
     """An elementary transform chain with the frame indices the model needs.
 
     ``frames[link_end[i]]`` is frame i+1 (after joint i+1, 0-based i), ``frames[bend[i]]``
-    the bending frame B_{i+1} right after the joint rotation, ``frames[base_end]`` the
-    robot base frame 0 and ``frames[len(elements)]`` the tool frame.
+    the bending frame B_{i+1} right after the joint motion, ``frames[base_end]`` the
+    robot base frame 0, ``frames[flange]`` the flange n and ``frames[len(elements)]`` the
+    tool frame.
     """
 
     elements: tuple[ET, ...]
     base_end: int
     bend: tuple[int, ...]
     link_end: tuple[int, ...]
-
-    @property
-    def flange(self) -> int:
-        return self.link_end[-1]
+    flange: int
 
     @property
     def tool(self) -> int:

@@ -61,11 +61,13 @@ def _errors(T: np.ndarray, targets: np.ndarray, pose: bool) -> np.ndarray:
     return np.concatenate([rotation, translation], axis=1)
 
 
-def wrap_into_limits(limits: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Shift angles by multiples of 2 pi toward the joint range (joints may exceed +-pi)."""
+def wrap_into_limits(limits: np.ndarray, q: np.ndarray, prismatic: np.ndarray | None = None) -> np.ndarray:
+    """Shift angles by multiples of 2 pi toward the joint range (joints may exceed +-pi);
+    prismatic joints (mask, m) are left as they are."""
     out = q.copy()
+    revolute = True if prismatic is None else ~prismatic
     for shift in (2 * np.pi, -2 * np.pi):
-        moved = out + shift
+        moved = out + shift * revolute
         better = (out < limits[:, 0]) | (out > limits[:, 1])
         ok = (moved >= limits[:, 0]) & (moved <= limits[:, 1])
         out = np.where(better & ok, moved, out)
@@ -116,7 +118,7 @@ def inverse_kinematics(
     error = _errors(T, targets, pose)
     residual_m = np.linalg.norm(error[:, -3:], axis=1)
     residual_rad = np.linalg.norm(error[:, :3], axis=1) if pose else None
-    q = wrap_into_limits(robot.limits, q)
+    q = wrap_into_limits(robot.limits, q, robot.prismatic)
     reached = residual_m <= 10 * tol_m  # the loop stops below tol; 10x for the final re-evaluation
     if pose:
         reached &= residual_rad <= 10 * tol_rad

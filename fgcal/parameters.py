@@ -1,6 +1,8 @@
 """The named parameters of SPEC section 2 and their kinds.
 
-Joint i (1-based) has ``theta{i} d{i} a{i} alpha{i} sx{i} sy{i} kx{i} ky{i} kz{i}``;
+A DH joint i (1-based) has ``theta{i} d{i} a{i} alpha{i} sx{i} sy{i} kx{i} ky{i} kz{i}``; a
+joint given by its origin (URDF) has ``theta{i}`` (``d{i}`` if prismatic), the origin
+correction ``tx{i} ty{i} tz{i} rx{i} ry{i} rz{i}`` and the compliances (fgcal.joints).
 ``base.*`` and ``tool.*`` are local perturbations of the nominal base and tool poses,
 translation (m) then rotation vector (rad).
 """
@@ -8,20 +10,32 @@ translation (m) then rotation vector (rad).
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 
 JOINT_KINDS = ("theta", "d", "a", "alpha", "sx", "sy", "kx", "ky", "kz")
+ORIGIN_CORRECTION_KINDS = ("tx", "ty", "tz", "rx", "ry", "rz")
 POSE_KINDS = ("tx", "ty", "tz", "rx", "ry", "rz")
 LENGTH_KINDS = frozenset({"d", "a", "tx", "ty", "tz"})
 COMPLIANCE_KINDS = frozenset({"kx", "ky", "kz"})
-_JOINT_NAME = re.compile(r"^(theta|d|a|alpha|sx|sy|kx|ky|kz)([1-9][0-9]*)$")
+_JOINT_NAME = re.compile(r"^(theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz)([1-9][0-9]*)$")
 _POSE_NAME = re.compile(r"^(base|tool)\.(tx|ty|tz|rx|ry|rz)$")
 
 
-def parameter_names(n_joints: int) -> list[str]:
-    """All parameter names, in the order of the parameter vector."""
-    names = [f"{kind}{i}" for i in range(1, n_joints + 1) for kind in JOINT_KINDS]
+def parameter_names(joint_kinds: int | Sequence[Sequence[str]]) -> list[str]:
+    """All parameter names, in the order of the parameter vector: the kinds of each joint
+    (an int n: n DH joints), then base and tool."""
+    if isinstance(joint_kinds, int):
+        joint_kinds = [JOINT_KINDS] * joint_kinds
+    names = [f"{kind}{i}" for i, kinds in enumerate(joint_kinds, start=1) for kind in kinds]
     names += [f"{pose}.{kind}" for pose in ("base", "tool") for kind in POSE_KINDS]
     return names
+
+
+def is_joint_length(name: str) -> bool:
+    """A length of the arm itself (d, a, an origin translation): what length bounds limit;
+    base and tool translations are free."""
+    kind, owner = split_name(name)
+    return isinstance(owner, int) and kind in LENGTH_KINDS
 
 
 def split_name(name: str) -> tuple[str, int | str]:

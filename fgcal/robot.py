@@ -17,23 +17,25 @@ from . import kinematics
 from .errors import InputError
 from .ets import ET, Chain
 from .ik import IKResult, inverse_kinematics
-from .parameters import JOINT_KINDS, parameter_names
-from .se3 import rpy_from_rotation
+from .joints import DHJoint, Joint, perturbation_elements, pose_elements
+from .parameters import parameter_names
 
 MODELS = ("DH", "DH,s", "DH,s,e")
 
 
 @dataclass(frozen=True)
 class Robot:
-    """Constant description of a serial robot with rotational joints (SI units).
+    """Constant description of a serial robot (SI units).
 
-    ``dh`` rows are the nominal ``(theta, d, a, alpha)`` of each joint (rad, m);
-    ``coms`` the centres of mass of the links in their own frames (m); ``base_pose`` the
-    nominal ``T_W_0`` and ``tool_pose`` the nominal ``T_n_C`` (flange to tool or camera).
+    ``joints`` are the joint geometries (fgcal.joints: DH rows or URDF-style origins and
+    axes), base to flange; ``coms`` the centres of mass of the links in their own frames
+    (m: the frame after joint i's link); ``base_pose`` the nominal ``T_W_0``,
+    ``flange_pose`` the flange in the last link's frame (identity for DH; the tip link of a
+    URDF) and ``tool_pose`` the nominal ``T_n_C`` (flange to tool or camera).
     """
 
     name: str
-    dh: np.ndarray
+    joints: tuple[Joint, ...]
     directions: np.ndarray
     limits: np.ndarray
     masses: np.ndarray
@@ -43,6 +45,7 @@ class Robot:
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     base_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
     tool_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+    flange_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
     overrides: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
     model: str = "DH,s,e"
@@ -50,7 +53,9 @@ class Robot:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(f"unknown model {self.model!r}; expected one of {MODELS}")
-        n = len(self.dh)
+        n = len(self.joints)
+        if n == 0:
+            raise ValueError("a robot needs at least one joint")
         for name, arr, shape in (
             ("directions", self.directions, (n,)),
             ("limits", self.limits, (n, 2)),
@@ -66,19 +71,31 @@ class Robot:
     # -- description -------------------------------------------------------------------
     @property
     def n_joints(self) -> int:
-        return len(self.dh)
+        return len(self.joints)
 
     @property
+    def dh(self) -> np.ndarray:
+        """Nominal ``(theta, d, a, alpha)`` rows (rad, m) of a robot whose joints are all DH."""
+        if not all(isinstance(j, DHJoint) for j in self.joints):
+            raise ValueError(f"{self.name} is not described by DH parameters")
+        return np.array([[j.theta, j.d, j.a, j.alpha] for j in self.joints])
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n,) True for each prismatic joint (its values are m, not rad)."""
+        return np.array([j.prismatic for j in self.joints], dtype=bool)
+
+    @cached_property
     def parameter_names(self) -> list[str]:
-        return parameter_names(self.n_joints)
+        return parameter_names([j.kinds for j in self.joints])
 
     def nominal_parameters(self) -> dict[str, float]:
         """Every SPEC parameter name with its nominal value (SI): the manufacturer's DH,
         zero distortions and compliances, zero base/tool perturbations, then any values
         the robot file sets (a calibrated robot file sets its estimates)."""
         values = dict.fromkeys(self.parameter_names, 0.0)
-        for i, (theta, d, a, alpha) in enumerate(self.dh, start=1):
-            values.update({f"theta{i}": float(theta), f"d{i}": float(d), f"a{i}": float(a), f"alpha{i}": float(alpha)})
+        for i, joint in enumerate(self.joints, start=1):
+            values.update({f"{kind}{i}": float(v) for kind, v in joint.nominal().items()})
         values.update({k: float(v) for k, v in self.overrides.items()})
         return values
 
@@ -189,47 +206,36 @@ class Robot:
         return out[0] if np.ndim(q) == 1 else out
 
 
-def _pose_elements(pose: np.ndarray, first_param: int) -> list[ET]:
-    """A fixed pose as constant elements, then its 6-parameter local perturbation."""
-    xyz = pose[:3, 3]
-    roll, pitch, yaw = rpy_from_rotation(pose[:3, :3])
-    fixed = [ET("Tx", xyz[0]), ET("Ty", xyz[1]), ET("Tz", xyz[2]), ET("Rz", yaw), ET("Ry", pitch), ET("Rx", roll)]
-    elements = [et for et in fixed if et.const != 0.0]
-    elements += [
-        ET("Tx", param=first_param),
-        ET("Ty", param=first_param + 1),
-        ET("Tz", param=first_param + 2),
-        ET("Rvec", param=first_param + 3),
-    ]
-    return elements
-
-
 def build_chain(robot: Robot) -> Chain:
-    """The chain ``T_W_0 * prod_i T_{i-1,i}(q_i) * T_n_C`` of SPEC section 2.
+    """The chain ``T_W_0 * prod_i T_{i-1,i}(q_i) * T_last_flange * T_n_C`` of SPEC section 2.
 
-    Link i: ``Rx(sx) Ry(sy) Rz(s q + theta) Rz(gz) Ry(gy) Rx(gx) Tz(d) Tx(a) Rx(alpha)``;
-    model 'DH' drops sx, sy and g, 'DH,s' drops g.
+    Each joint contributes its elements up to its bending frame, the gravity deflection
+    ``Rz(gz) Ry(gy) Rx(gx)`` (model 'DH,s,e' only) and the rest of its link (fgcal.joints).
+    A DH link is ``Rx(sx) Ry(sy) Rz(s q + theta) Rz(gz) Ry(gy) Rx(gx) Tz(d) Tx(a) Rx(alpha)``;
+    model 'DH' drops sx, sy and g, 'DH,s' drops g. Base and tool are their nominal poses
+    followed by a 6-parameter perturbation.
     """
-    n = robot.n_joints
-    per_joint = len(JOINT_KINDS)
-    idx = {kind: j for j, kind in enumerate(JOINT_KINDS)}
-    base_param, tool_param = per_joint * n, per_joint * n + 6
-    elements: list[ET] = _pose_elements(robot.base_pose, base_param)
+    names = robot.parameter_names
+    index = {name: k for k, name in enumerate(names)}
+    elements: list[ET] = [*pose_elements(robot.base_pose), *perturbation_elements(index["base.tx"])]
     base_end = len(elements)
     bend, link_end = [], []
-    for i in range(n):
-        p = i * per_joint
-        if robot.model != "DH":
-            elements += [ET("Rx", param=p + idx["sx"]), ET("Ry", param=p + idx["sy"])]
-        elements.append(ET("Rz", param=p + idx["theta"], joint=i, sign=float(robot.directions[i])))
+    for i, joint in enumerate(robot.joints):
+
+        def param(kind: str, number: int = i + 1) -> int:
+            return index[f"{kind}{number}"]
+
+        elements += joint.before_bend(param, i, float(robot.directions[i]), robot.model != "DH")
         bend.append(len(elements))
         if robot.model == "DH,s,e":
             elements += [
-                ET("Rz", param=p + idx["kz"], moment=3 * i + 2),
-                ET("Ry", param=p + idx["ky"], moment=3 * i + 1),
-                ET("Rx", param=p + idx["kx"], moment=3 * i),
+                ET("Rz", param=param("kz"), moment=3 * i + 2),
+                ET("Ry", param=param("ky"), moment=3 * i + 1),
+                ET("Rx", param=param("kx"), moment=3 * i),
             ]
-        elements += [ET("Tz", param=p + idx["d"]), ET("Tx", param=p + idx["a"]), ET("Rx", param=p + idx["alpha"])]
+        elements += joint.after_bend(param)
         link_end.append(len(elements))
-    elements += _pose_elements(robot.tool_pose, tool_param)
-    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end))
+    elements += pose_elements(robot.flange_pose)
+    flange = len(elements)
+    elements += [*pose_elements(robot.tool_pose), *perturbation_elements(index["tool.tx"])]
+    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end), flange)

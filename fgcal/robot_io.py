@@ -8,7 +8,10 @@ Schema (documented in docs/formats.md)::
     joints:                        # one entry per joint, base to flange
       - {theta: 0, d: 865, a: 410, alpha: -90, direction: -1, limits: [-185, 185],
          mass: 250, com: [x, y, z]}       # mass kg; com in the link's own frame
+      - {origin: {xyz: [..], rpy: [..]}, axis: [0, 0, 1], type: revolute,   # or a joint as
+         limits: [..], mass: .., com: [..]}  # URDF gives it (type revolute or prismatic)
     base: {xyz: [..], rpy: [..]}   # nominal T_W_0 (default identity)
+    flange: {xyz: [..], rpy: [..]} # the flange in the last link's frame (default identity)
     tool: {xyz: [..], rpy: [..]}   # nominal T_n_C (default identity)
     payload: {mass: 0, com: [0, 0, 0]}   # kg; com in the flange frame
     gravity: [0, 0, -9.81]         # m/s^2 in W
@@ -25,13 +28,28 @@ import yaml
 
 from .errors import InputError
 from .fields import Fields, read_yaml
+from .joints import DHJoint, OriginJoint
 from .parameters import LENGTH_KINDS, parameter_names, split_name
 from .robot import Robot
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 from .units import Units, parse_units
 
-ROBOT_KEYS = ("name", "source", "units", "joints", "base", "tool", "payload", "gravity", "parameters", "notes")
-JOINT_KEYS = ("theta", "d", "a", "alpha", "direction", "limits", "mass", "com")
+ROBOT_KEYS = (
+    "name",
+    "source",
+    "units",
+    "joints",
+    "base",
+    "flange",
+    "tool",
+    "payload",
+    "gravity",
+    "parameters",
+    "notes",
+)
+DH_KEYS = ("theta", "d", "a", "alpha")
+ORIGIN_KEYS = ("origin", "axis", "type")
+JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "direction", "limits", "mass", "com")
 
 
 def robots_dir() -> Path:
@@ -43,9 +61,16 @@ def bundled_robots() -> list[str]:
     return sorted(p.stem for p in robots_dir().glob("*.yaml"))
 
 
-def load_robot(name_or_path: str | Path) -> Robot:
-    """Load a bundled robot by name (e.g. ``"kuka_kr125_2"``) or a robot YAML file."""
+def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
+    """Load a bundled robot by name (e.g. ``"kuka_kr125_2"``), a robot YAML file or a URDF
+    (the chain from its root link to ``tip``: default ``tool0``, else the only leaf)."""
     path = Path(name_or_path)
+    if path.suffix.lower() == ".urdf":
+        from .urdf_io import load_urdf
+
+        return load_urdf(path, tip)
+    if tip is not None:
+        raise InputError(str(name_or_path), "tip", "a tip link applies to URDF files only")
     if path.suffix.lower() not in (".yaml", ".yml"):
         candidate = robots_dir() / f"{name_or_path}.yaml"
         if not candidate.exists():
@@ -54,6 +79,17 @@ def load_robot(name_or_path: str | Path) -> Robot:
             )
         path = candidate
     return parse_robot(read_yaml(path), path)
+
+
+ROBOT_FILE_SUFFIXES = (".yaml", ".yml", ".urdf")
+
+
+def robot_reference(directory: Path, reference: str) -> str:
+    """A ``robot:`` entry of a cell or dataset file: a bundled robot's name as it is, a
+    robot file (YAML or URDF) as its absolute path, relative to ``directory``."""
+    if Path(reference).suffix.lower() in ROBOT_FILE_SUFFIXES:
+        return str((directory / reference).resolve())
+    return reference
 
 
 def _pose(fields: Fields, key: str, units: Units) -> np.ndarray:
@@ -82,22 +118,16 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     joints = doc.sub_list("joints")
     if not joints:
         raise doc.error("joints", "a robot needs at least one joint")
-    dh, directions, limits, masses, coms = [], [], [], [], []
+    geometries, directions, limits, masses, coms = [], [], [], [], []
     for joint in joints:
         joint.check_keys(JOINT_KEYS)
-        dh.append(
-            [
-                joint.number("theta", 0.0, units.to_rad),
-                joint.number("d", 0.0, units.to_m),
-                joint.number("a", 0.0, units.to_m),
-                joint.number("alpha", 0.0, units.to_rad),
-            ]
-        )
+        geometry = _joint_geometry(joint, units)
+        geometries.append(geometry)
         direction = joint.number("direction", 1.0)
         if direction not in (1.0, -1.0):
             raise joint.error("direction", f"must be +1 or -1, got {direction}")
         directions.append(direction)
-        lim = joint.vector("limits", 2, scale=units.to_rad)
+        lim = joint.vector("limits", 2, scale=units.to_m if geometry.prismatic else units.to_rad)
         if not lim[0] < lim[1]:
             raise joint.error("limits", "lower limit must be below upper limit")
         limits.append(lim)
@@ -107,15 +137,15 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     payload.check_keys(("mass", "com"))
     gravity = doc.vector("gravity", 3, [0.0, 0.0, -9.81])
     overrides = {}
-    names = set(parameter_names(len(joints)))
+    names = set(parameter_names([g.kinds for g in geometries]))
     params = doc.sub("parameters", {})
     for key in params.data:
         if key not in names:
-            raise params.error(str(key), f"unknown parameter name for a {len(joints)}-joint robot")
+            raise params.error(str(key), f"unknown parameter name for this {len(joints)}-joint robot")
         overrides[key] = params.number(key, scale=parameter_scale(key, units))
     return Robot(
         name=name,
-        dh=np.array(dh),
+        joints=tuple(geometries),
         directions=np.array(directions),
         limits=np.array(limits),
         masses=np.array(masses),
@@ -125,9 +155,32 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         gravity=gravity,
         base_pose=_pose(doc, "base", units),
         tool_pose=_pose(doc, "tool", units),
+        flange_pose=_pose(doc, "flange", units),
         overrides=overrides,
         source=str(doc.raw("source")),
     )
+
+
+def _joint_geometry(joint: Fields, units: Units) -> DHJoint | OriginJoint:
+    """A DH joint (theta, d, a, alpha) or one given by origin, axis and type; not both."""
+    dh_keys = [k for k in DH_KEYS if joint.has(k)]
+    origin_keys = [k for k in ORIGIN_KEYS if joint.has(k)]
+    if dh_keys and origin_keys:
+        raise joint.error(origin_keys[0], f"a joint is DH ({', '.join(DH_KEYS)}) or origin/axis/type, not both")
+    if not origin_keys:
+        return DHJoint(
+            joint.number("theta", 0.0, units.to_rad),
+            joint.number("d", 0.0, units.to_m),
+            joint.number("a", 0.0, units.to_m),
+            joint.number("alpha", 0.0, units.to_rad),
+        )
+    kind = joint.raw("type", "revolute")
+    if kind not in ("revolute", "prismatic"):
+        raise joint.error("type", f"must be revolute or prismatic, got {kind!r}")
+    axis = joint.vector("axis", 3, [0, 0, 1])
+    if np.linalg.norm(axis) < 1e-9:
+        raise joint.error("axis", "must be a non-zero vector")
+    return OriginJoint(_pose(joint, "origin", units), axis, kind == "prismatic")
 
 
 def _pose_dict(T: np.ndarray) -> dict:
@@ -144,25 +197,31 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     values = robot.nominal_parameters()
     values.update(params or {})
     joints = []
-    for i in range(1, robot.n_joints + 1):
-        joints.append(
+    for i, geometry in enumerate(robot.joints, start=1):
+        if isinstance(geometry, DHJoint):
+            entry = {kind: values.pop(f"{kind}{i}") for kind in DH_KEYS}
+        else:
+            entry = {
+                "origin": _pose_dict(geometry.origin),
+                "axis": [float(v) for v in geometry.axis],
+                "type": "prismatic" if geometry.prismatic else "revolute",
+            }
+        entry.update(
             {
-                "theta": values.pop(f"theta{i}"),
-                "d": values.pop(f"d{i}"),
-                "a": values.pop(f"a{i}"),
-                "alpha": values.pop(f"alpha{i}"),
                 "direction": int(robot.directions[i - 1]),
                 "limits": [float(v) for v in robot.limits[i - 1]],
                 "mass": float(robot.masses[i - 1]),
                 "com": [float(v) for v in robot.coms[i - 1]],
             }
         )
+        joints.append(entry)
     doc = {
         "name": robot.name,
         "source": robot.source,
         "units": {"length": "m", "angle": "rad"},
         "joints": joints,
         "base": _pose_dict(robot.base_pose),
+        "flange": _pose_dict(robot.flange_pose),
         "tool": _pose_dict(robot.tool_pose),
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         "gravity": [float(v) for v in robot.gravity],

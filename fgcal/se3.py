@@ -113,15 +113,17 @@ def pose_from_xyz_rpy(xyz: np.ndarray, rpy_rad: np.ndarray) -> np.ndarray:
 def rpy_from_rotation(rot: np.ndarray) -> np.ndarray:
     """Inverse of the rotation in :func:`pose_from_xyz_rpy`, (roll, pitch, yaw) in rad.
 
-    At pitch = +-90 deg (gimbal lock) roll and yaw turn about one axis; yaw is set to 0 and
-    roll carries the whole turn, so that the angles still reproduce the rotation.
+    Yaw first, then pitch and roll from the rotation with the yaw removed: near pitch = +-90
+    deg (gimbal lock) roll and yaw turn about one axis and yaw is poorly determined, but the
+    roll computed after it takes up its error, so the angles reproduce the rotation to
+    rounding everywhere (at exact gimbal lock yaw is 0 and roll carries the whole turn).
     """
-    sin_pitch = float(np.clip(-rot[2, 0], -1.0, 1.0))
-    if abs(sin_pitch) < 1.0 - 1e-12:
-        return np.array([np.arctan2(rot[2, 1], rot[2, 2]), np.arcsin(sin_pitch), np.arctan2(rot[1, 0], rot[0, 0])])
-    if sin_pitch > 0:  # pitch +90: R = [[0, sin r, cos r], [0, cos r, -sin r], [-1, 0, 0]] (yaw 0)
-        return np.array([np.arctan2(rot[0, 1], rot[0, 2]), np.pi / 2, 0.0])
-    return np.array([np.arctan2(-rot[0, 1], -rot[0, 2]), -np.pi / 2, 0.0])
+    yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    # Rows of Rz(-yaw) R = Ry(pitch) Rx(roll) = [[cp, sp sr, sp cr], [0, cr, -sr], [-sp, cp sr, cp cr]].
+    pitch = float(np.arctan2(-rot[2, 0], c * rot[0, 0] + s * rot[1, 0]))
+    roll = float(np.arctan2(s * rot[0, 2] - c * rot[1, 2], c * rot[1, 1] - s * rot[0, 1]))
+    return np.array([roll, pitch, yaw])
 
 
 def inverse(T: np.ndarray) -> np.ndarray:

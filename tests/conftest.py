@@ -53,3 +53,50 @@ def calibrate_dataset(dataset, config, progress=None):
     result = run.calibrate_dataset(dataset, config, progress)
     scoring.score_with_truth(result)
     return result
+
+
+def random_urdf(path: Path, rng: np.random.Generator, n_joints: int = 6, prismatic: int | None = None) -> Path:
+    """A random serial URDF written by hand (independent of fgcal's exporter): revolute
+    joints with random origins and unit axes, fixed joints between some of them, an
+    off-chain sensor link, inertials, and a tool0 tip after two fixed joints. Joint
+    ``prismatic`` (1-based), if given, is prismatic."""
+
+    def origin() -> str:
+        xyz = " ".join(repr(float(v)) for v in rng.uniform(-0.3, 0.3, 3))
+        rpy = " ".join(repr(float(v)) for v in rng.uniform(-np.pi, np.pi, 3))
+        return f'<origin xyz="{xyz}" rpy="{rpy}"/>'
+
+    def link(name: str) -> str:
+        mass = rng.uniform(0.5, 20.0)
+        com = " ".join(repr(float(v)) for v in rng.uniform(-0.2, 0.2, 3))
+        return (
+            f'<link name="{name}"><inertial><origin xyz="{com}" rpy="0.1 0.2 0.3"/><mass value="{mass!r}"/>'
+            '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>'
+        )
+
+    def fixed(name: str, parent: str, child: str) -> str:
+        return f'<joint name="{name}" type="fixed"><parent link="{parent}"/><child link="{child}"/>{origin()}</joint>'
+
+    parts = ['<?xml version="1.0"?>', '<robot name="random_arm">', '<link name="root"/>']
+    parent = "root"
+    for i in range(1, n_joints + 1):
+        if rng.uniform() < 0.4:  # a fixed joint (an adapter plate) before this joint
+            parts += [link(f"adapter_{i}"), fixed(f"adapter_{i}_joint", parent, f"adapter_{i}")]
+            parent = f"adapter_{i}"
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        kind = "prismatic" if i == prismatic else "revolute"
+        lower, upper = (-0.2, 0.3) if kind == "prismatic" else (-2.5, 2.7)
+        parts += [
+            link(f"link_{i}"),
+            f'<joint name="j{i}" type="{kind}"><parent link="{parent}"/><child link="link_{i}"/>{origin()}'
+            f'<axis xyz="{" ".join(repr(float(v)) for v in axis)}"/>'
+            f'<limit lower="{lower}" upper="{upper}" effort="1" velocity="1"/></joint>',
+        ]
+        parent = f"link_{i}"
+        if i == 2:  # a sensor hanging off the chain
+            parts += [link("sensor"), fixed("sensor_joint", parent, "sensor")]
+    parts += [link("flange"), fixed("flange_joint", parent, "flange"), '<link name="tool0"/>']
+    parts += [fixed("tool0_joint", "flange", "tool0"), "</robot>"]
+    path.write_text("\n".join(parts), encoding="utf-8")
+    return path

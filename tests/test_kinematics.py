@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import random_parameters
+from conftest import random_parameters, random_urdf
 
 import fgcal
 from fgcal import kinematics
@@ -72,12 +72,13 @@ def test_models_agree_at_nominal_and_compliance_needs_dhse():
     np.testing.assert_allclose(robot.with_model("DH,s").fk(q, {"kz2": 1e-6}), robot.fk(q), atol=1e-12)
 
 
-def test_gravity_moment_against_direct_sum():
+@pytest.mark.parametrize("robot_name", ["kuka_kr125_2", "random_urdf"])
+def test_gravity_moment_against_direct_sum(robot_name, tmp_path):
     """t_i = R_W_Bi^T sum_b (c_b - o_Bi) x m_b g, summed body by body from the frames."""
-    robot = fgcal.load_robot("kuka_kr125_2").with_tool(np.eye(4), payload_mass=30.0, payload_com=[0.01, 0.02, 0.1])
+    robot = _load(robot_name, tmp_path).with_tool(np.eye(4), payload_mass=30.0, payload_com=[0.01, 0.02, 0.1])
     rng = np.random.default_rng(5)
     params = robot.parameter_vector(random_parameters(robot, rng))
-    q = rng.uniform(-1, 1, (3, 6))
+    q = rng.uniform(-1, 1, (3, robot.n_joints))
     data = kinematics.forward(robot, params, q)
     chain = robot.chain
     for i in range(robot.n_joints):
@@ -119,11 +120,19 @@ def _relative_error(analytic, numeric):
     return np.linalg.norm(analytic - numeric) / (scale if scale > 1e-9 else 1.0)
 
 
-@pytest.mark.parametrize("robot_name", ["kuka_kr125_2", "ur10e"])
+def _load(robot_name: str, tmp_path) -> fgcal.Robot:
+    """A bundled robot, or a random 7-joint URDF (joint 4 prismatic with 'prismatic')."""
+    if robot_name.startswith("random_urdf"):
+        prismatic = 4 if robot_name.endswith("prismatic") else None
+        return fgcal.load_robot(random_urdf(tmp_path / "arm.urdf", np.random.default_rng(7), 7, prismatic))
+    return fgcal.load_robot(robot_name)
+
+
+@pytest.mark.parametrize("robot_name", ["kuka_kr125_2", "ur10e", "random_urdf", "random_urdf_prismatic"])
 @pytest.mark.parametrize("frame", ["flange", "tool"])
-def test_jacobian_matches_central_differences(robot_name, frame):
+def test_jacobian_matches_central_differences(robot_name, frame, tmp_path):
     rng = np.random.default_rng(11)
-    robot = fgcal.load_robot(robot_name).with_tool(
+    robot = _load(robot_name, tmp_path).with_tool(
         np.array([[0, -1, 0, 0.05], [1, 0, 0, 0.02], [0, 0, 1, 0.15], [0, 0, 0, 1.0]]),
         payload_mass=20.0,
         payload_com=[0.01, 0.0, 0.08],

@@ -6,17 +6,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..fields import Fields, read_yaml
-from ..parameters import JOINT_KINDS
+from ..parameters import JOINT_KINDS, ORIGIN_CORRECTION_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 
 FORMULATIONS = ("pairs", "tracker", "projection")
-KINDS = (*JOINT_KINDS, "base", "tool")
+KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, "base", "tool")
+# Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
+# DH angles and their translation corrections (tx, ty, tz) with the lengths.
 SEED_STAGES = (
     ("theta",),
-    ("alpha", "sx", "sy"),
+    ("alpha", "sx", "sy", "rx", "ry", "rz"),
     ("kx", "ky", "kz"),
-    ("theta", "alpha", "sx", "sy", "kx", "ky", "kz", "d", "a", "base", "tool"),
+    ("theta", "alpha", "sx", "sy", "rx", "ry", "rz", "kx", "ky", "kz", "d", "a", "tx", "ty", "tz", "base", "tool"),
 )
 ONE_SHOT = (SEED_STAGES[-1],)
 PARTNERS = ("other_object", "same_object", "same_side", "any")

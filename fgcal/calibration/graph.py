@@ -23,7 +23,7 @@ from ..factors import (
     TrackerPoints,
     gaussian,
 )
-from ..parameters import split_name
+from ..parameters import is_joint_length
 from .batch import BatchKinematics
 from .initialise import dataset_intrinsics
 from .problem import Problem
@@ -64,7 +64,7 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
     if released:
         stage.values.insert(P_KEY, model.base[model.index])
     nominal = problem.robot.nominal_parameters()
-    bounded = [i for i, name in enumerate(released) if split_name(name)[0] in ("d", "a")]
+    bounded = [i for i, name in enumerate(released) if is_joint_length(name)]
     if bounded:
         _add_prior(
             stage,

@@ -18,7 +18,13 @@ import numpy as np
 from ..parameters import split_name
 from .graph import StageGraph
 
-GROUPS = (("theta", "d", "a", "alpha"), ("sx", "sy"), ("kx", "ky", "kz"), ("tool",), ("base",))
+GROUPS = (
+    ("theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"),
+    ("sx", "sy"),
+    ("kx", "ky", "kz"),
+    ("tool",),
+    ("base",),
+)
 SCALE = {"length": 1e-2, "angle": 1e-2}  # plausible deviations: m, rad
 
 

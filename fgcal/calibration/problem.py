@@ -116,7 +116,7 @@ def compliant_joints(robot: Robot, config: CalibrationConfig) -> tuple[int, ...]
 def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
     """Parameters the model could estimate: the model's kinds, compliances of the compliant
     joints, base and tool. Identifiability analysis decides which the data determine."""
-    kinds = {"theta", "d", "a", "alpha"}
+    kinds = {"theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"}
     if config.model in ("DH,s", "DH,s,e"):
         kinds |= {"sx", "sy"}
     names = []

@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..fields import Fields, read_yaml
 from ..parameters import default_compliant_joints
 from ..robot import Robot
-from ..robot_io import load_robot
+from ..robot_io import load_robot, robot_reference
 from ..se3 import pose_from_xyz_rpy, transform_points
 from ..units import parse_units
 
@@ -178,11 +178,9 @@ def load_cell(path: str | Path) -> Cell:
     doc.check_keys(CELL_KEYS)
     units = parse_units(doc.raw("units", None), path)
     to_m, to_rad = units.to_m, units.to_rad
-    robot_ref = doc.string("robot")
-    robot_path = path.parent / robot_ref
+    robot_ref = robot_reference(path.parent, doc.string("robot"))
     try:
-        is_file = robot_path.suffix in (".yaml", ".yml")
-        robot = load_robot(robot_path if is_file else robot_ref)
+        robot = load_robot(robot_ref)
     except InputError as exc:
         raise InputError(path, "robot", str(exc)) from None
 
@@ -253,7 +251,7 @@ def load_cell(path: str | Path) -> Cell:
     return Cell(
         name=doc.string("name"),
         source=str(path),
-        robot_reference=str(robot_path.resolve()) if is_file else robot_ref,
+        robot_reference=robot_ref,
         robot=robot,
         fixture_pose=_pose(doc, "fixture", to_m, to_rad),
         sides=sides,

@@ -47,8 +47,7 @@ def solve_ik(
         q = np.arctan2(np.sin(q), np.cos(q))
     data = kinematics.forward(robot, params, q)
     err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
-    q = wrap_into_limits(robot.limits, q)
+    q = wrap_into_limits(robot.limits, q, robot.prismatic)
     within = np.all((q >= robot.limits[:, 0]) & (q <= robot.limits[:, 1]), axis=1)
     converged = (np.linalg.norm(err[:, :3], axis=1) < tol) & (np.linalg.norm(err[:, 3:], axis=1) < tol) & within
     return q, converged
-

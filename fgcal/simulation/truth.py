@@ -24,11 +24,11 @@ def perturb_parameters(robot: Robot, pert: Perturbation, rng: np.random.Generato
             )
         elif owner == "tool":
             width = pert.tool_length_m if kind.startswith("t") else pert.tool_angle_rad
-        elif kind in ("d", "a"):
+        elif kind in ("d", "a", "tx", "ty", "tz"):
             width = pert.length_m
         elif kind in ("theta", "alpha"):
             width = pert.angle_rad
-        elif kind in ("sx", "sy"):
+        elif kind in ("sx", "sy", "rx", "ry", "rz"):
             width = pert.distortion_rad
         else:  # compliance
             if owner in pert.compliant_joints and high > 0:
