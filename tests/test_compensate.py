@@ -86,3 +86,23 @@ def test_bad_targets_name_the_file_and_field(calibrated, tmp_path, capsys, text,
     error = capsys.readouterr().err.strip()
     assert status == 2 and error.startswith("fgcal: error: ") and "\n" not in error, error
     assert "t.csv" in error and field in error, error
+
+
+def test_demo_calibrated_robot_exports_to_urdf(calibrated, tmp_path):
+    """Issue 10 acceptance: the demo's calibrated robot, exported, read by yourdfpy: world ->
+    tool0 equals fgcal's tool pose with the compliances at zero, to 1e-9 m and rad."""
+    import yourdfpy
+
+    from fgcal.robot_io import save_robot
+
+    robot = calibrated.problem.robot
+    save_robot(tmp_path / "calibrated_robot.yaml", robot, robot.parameter_dict(calibrated.state.params))
+    assert main(["export", str(tmp_path / "calibrated_robot.yaml"), "--urdf", str(tmp_path / "cal.urdf")]) == 0
+    loaded = fgcal.load_robot(tmp_path / "calibrated_robot.yaml")
+    rigid = {name: 0.0 for name in loaded.parameter_names if name[:2] in ("kx", "ky", "kz")}
+    assert any(loaded.nominal_parameters()[name] != 0.0 for name in rigid)  # compliances were estimated
+    reference = yourdfpy.URDF.load(str(tmp_path / "cal.urdf"), load_meshes=False)
+    rng = np.random.default_rng(5)
+    for q in rng.uniform(loaded.limits[:, 0], loaded.limits[:, 1], (20, 6)):
+        reference.update_cfg(q)
+        assert np.abs(reference.get_transform("tool0", "world") - loaded.fk_tool(q, rigid)).max() < 1e-9
