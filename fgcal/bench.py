@@ -25,6 +25,7 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -422,6 +423,8 @@ def run_bench(
         online = online_bench(data_dir, repeats, compare_batch=n == sizes[0])
         _print_online(online, say)
         result["sizes"][str(n)] = {**batch, **online}
+    say("planning:")
+    result.update(plan_bench(repeats, say))
     if faro is not None:
         say(f"FARO set ({faro}): whole calibrate command against a plain scipy DH fit")
         result.update(faro_bench(Path(faro), out / "faro", repeats, say))
@@ -436,6 +439,29 @@ def run_bench(
             "online_p99_ms": first["online_p99_ms"],
             "held_out_rms_m": first["held_out_rms_m"],
         }
+    )
+    return result
+
+
+def plan_bench(repeats: int, say: Callable[[str], None], n: int = 36, n_candidates: int = 5000) -> dict:
+    """CPU time of fgcal plan on the seed cell: candidates, then the selection of ``n`` of
+    ``n_candidates`` (greedy and exchange with rank-r updates), best of ``repeats``."""
+    from .planning.exchange import plan_design
+    from .planning.plan import prepare
+
+    cell = Path(str(resources.files("fgcal.datasets").joinpath("cells", "kr125_seed.yaml")))
+    candidates, selection = [], []
+    for _ in range(repeats):
+        planner = prepare(cell, n_candidates)
+        candidates.append(planner.timing_s["candidates"] + planner.timing_s["information"])
+        started = time.process_time()
+        plan_design(planner.info, n, "d-optimal")
+        selection.append(time.process_time() - started)
+    result = {"plan_n": n, "plan_candidates": n_candidates, "plan_candidates_cpu_s": min(candidates)}
+    result["plan_selection_cpu_s"] = min(selection)
+    say(
+        f"  plan {n} of {n_candidates} candidates (seed cell, d-optimal): candidates and their information "
+        f"{result['plan_candidates_cpu_s']:.2f} s, selection {result['plan_selection_cpu_s']:.2f} s CPU"
     )
     return result
 

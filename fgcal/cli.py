@@ -34,6 +34,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         progress=lambda msg: print(msg, flush=True),
         render=args.render,
         drift=_parse_drift(args.drift),
+        configurations=args.configurations,
     )
     print(result.summary())
     return 0
@@ -210,6 +211,34 @@ def cmd_convert_faro(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plan(args: argparse.Namespace) -> int:
+    from .planning.plan import plan, write_plan
+
+    if args.candidates < 1:
+        print("fgcal: error: --candidates must be >= 1", file=sys.stderr)
+        return 2
+    result = plan(
+        _bundled_cell(args.cell),
+        args.n,
+        criterion=args.criterion,
+        n_candidates=args.candidates,
+        formulation=args.formulation,
+        model=args.model,
+        seed=args.seed,
+        progress=lambda msg: print(msg, flush=True),
+    )
+    written = write_plan(result, args.out, plot=not args.no_plots)
+    print(
+        f"  predicted position accuracy {result.predicted_sigma_m * 1e3:.4f} mm RMS over the region "
+        f"(space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
+        f"condition number {result.indices['condition_number']:.3g}"
+    )
+    t = result.timing_s
+    print(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
+    print(f"wrote {args.out}: {', '.join(written)}")
+    return 0
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from .robot_io import load_robot
     from .urdf_io import export_urdf
@@ -253,6 +282,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1); same seed, same files")
     p.add_argument("--design", choices=("seed", "space_filling"), help="override the cell's design kind")
     p.add_argument("--n", type=int, help="number of configurations of a space-filling design")
+    p.add_argument(
+        "--configurations", help="CSV of configurations (config, q1..qn, block) to simulate exactly, e.g. fgcal plan's"
+    )
     p.add_argument("--render", action="store_true", help="also render the camera images (ChArUco boards)")
     p.add_argument(
         "--drift", help="step change of one true parameter for the camera measurements, NAME=CHANGE@CONFIG (SI)"
@@ -315,6 +347,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("src", help="folder with measured_joints.txt and measured_SMR_*.txt")
     p.add_argument("--out", required=True, help="output dataset directory")
     p.set_defaults(func=cmd_convert_faro)
+
+    p = sub.add_parser("plan", help="choose the measurement configurations of a cell (docs/planning.md)")
+    p.add_argument("cell", help="cell YAML file, or a bundled cell name (kr125_seed)")
+    p.add_argument("--n", type=int, required=True, help="number of configurations to plan")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument(
+        "--criterion",
+        default="d-optimal",
+        choices=("d-optimal", "position", "o1", "o2", "o3", "o4", "o5"),
+        help="design criterion (default d-optimal)",
+    )
+    p.add_argument("--candidates", type=int, default=5000, help="candidate configurations (default 5000)")
+    p.add_argument("--formulation", choices=("pairs", "projection", "tracker"), default="pairs")
+    p.add_argument("--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e")
+    p.add_argument("--seed", type=int, default=1, help="seed of the candidates (default 1)")
+    p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
+    p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("export", help="write a robot (calibrated or nominal) as URDF, compliances in a sidecar YAML")
     p.add_argument("robot", help="robot file (calibrated_robot.yaml, a URDF) or a bundled name")

@@ -97,11 +97,11 @@ def position_covariances(result) -> np.ndarray:
     data = kinematics.forward(problem.robot, result.state.params, q)
     J = kinematics.jacobian(problem.robot, data, result.released, frame="tool", point=result.tool_point)
     positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
-    flat = _without_gauge(J.reshape(-1, J.shape[2]), positions, gauge_of(problem)).reshape(len(q), 3, -1)
+    flat = without_gauge(J.reshape(-1, J.shape[2]), positions, gauge_of(problem)).reshape(len(q), 3, -1)
     return np.einsum("nij,jk,nlk->nil", flat, result.covariance, flat)
 
 
-def _without_gauge(J: np.ndarray, positions: np.ndarray, gauge: str) -> np.ndarray:
+def without_gauge(J: np.ndarray, positions: np.ndarray, gauge: str) -> np.ndarray:
     """Rows (3N, m) of position Jacobians with the gauge's directions projected out: the
     common translation, or the infinitesimal rigid motions omega x (p - mean) + t."""
     if gauge == "none":

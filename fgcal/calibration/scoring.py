@@ -44,13 +44,16 @@ def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None
     return transform_points(T_T_W @ robot.fk(q, params), np.array(truth["tracker_targets"][target], float))
 
 
-def truth_errors(problem, state: State, truth: dict, point: np.ndarray) -> dict[str, np.ndarray]:
-    """Error vectors (N, 3) (m) on the held-out configurations against the truth, per scored point.
+def truth_errors(
+    problem, state: State, truth: dict, point: np.ndarray, q: np.ndarray | None = None
+) -> dict[str, np.ndarray]:
+    """Error vectors (N, 3) (m) on the held-out configurations (or at ``q``, e.g. independent
+    ones) against the truth, per scored point.
 
     Pairs and projection: ``point`` (in the camera frame) and the camera origin, in W, after
     removing the gauge (fgcal.calibration.validation.gauge_of); tracker: the reflectors in the
     tracker frame, no gauge."""
-    q = problem.dataset.q[problem.test]
+    q = problem.dataset.q[problem.test] if q is None else q
     if not len(q):  # nothing held out: nothing to score
         return {}
     if problem.config.formulation != "tracker":

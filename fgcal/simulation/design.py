@@ -7,12 +7,14 @@ all four points.
 - ``space_filling``: many random viewpoints on random blocks of every side, reduced to N
   configurations by greedy max-min distance in normalised joint space, so that the
   configurations spread over the robot's joint space rather than cluster.
+- a file (``fgcal plan``'s configurations.csv): exactly those configurations and blocks.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -66,14 +68,18 @@ def _random_view(cell: Cell, side: Side, block: list[GridPoint], rng: np.random.
     return look_at(centre + standoff * direction, centre, rng.uniform(-np.pi, np.pi))
 
 
-def _solve_views(
+def solve_views(
     cell: Cell,
     requests: list[tuple[Side, list[GridPoint]]],
     true_camera: Callable,
     rng: np.random.Generator,
     starts: int = 6,
+    iterations: int = 80,
+    tol: float = 1e-9,
+    freeze_converged: bool = False,
 ) -> list[View]:
-    """IK for one random viewpoint per request; keep the reachable, visible ones."""
+    """IK for one random viewpoint per request (``iterations``, ``tol``: of the IK); keep
+    the reachable, visible ones."""
     robot: Robot = cell.robot
     nominal = robot.parameter_vector()
     targets_C = np.array([_random_view(cell, side, block, rng) for side, block in requests])
@@ -85,7 +91,9 @@ def _solve_views(
     q, ok = np.empty_like(q0), np.empty(len(q0), dtype=bool)
     for first in range(0, len(q0), IK_CHUNK):
         chunk = slice(first, first + IK_CHUNK)
-        q[chunk], ok[chunk] = solve_ik(robot, nominal, T_rep[chunk], q0[chunk])
+        q[chunk], ok[chunk] = solve_ik(
+            robot, nominal, T_rep[chunk], q0[chunk], iterations=iterations, tol=tol, freeze_converged=freeze_converged
+        )
     views = []
     for i, (side, block) in enumerate(requests):
         candidates = [j for j in range(i * starts, (i + 1) * starts) if ok[j]]
@@ -125,7 +133,7 @@ def seed_design(cell: Cell, true_camera: Callable, rng: np.random.Generator, max
         missing = [i for i, v in enumerate(views) if v is None]
         if not missing:
             break
-        solved = _solve_views(cell, [wanted[i] for i in missing], true_camera, rng)
+        solved = solve_views(cell, [wanted[i] for i in missing], true_camera, rng)
         if round_ + 1 >= NOTHING_REACHABLE_ROUNDS and not solved and len(missing) == len(wanted):
             raise _unreachable(cell, round_ + 1, len(wanted))
         solved_by_key: dict[str, list[View]] = {}
@@ -166,7 +174,7 @@ def space_filling_design(
             requests.append(
                 (side, side.block(int(rng.integers(side.n_block_rows)), int(rng.integers(side.n_block_cols))))
             )
-        pool += _solve_views(cell, requests, true_camera, rng)
+        pool += solve_views(cell, requests, true_camera, rng)
         if not pool and rounds >= NOTHING_REACHABLE_ROUNDS:
             raise _unreachable(cell, rounds, len(requests))
         if progress:
@@ -205,3 +213,48 @@ def max_min_selection(q: np.ndarray, limits: np.ndarray, count: int, rng: np.ran
         chosen.append(nxt)
         dist = np.minimum(dist, np.linalg.norm(x - x[nxt], axis=1))
     return chosen
+
+
+def blocks_by_label(cell: Cell) -> dict[str, tuple[Side, list[GridPoint]]]:
+    """Every 2x2 block of the cell by its label: the name of its first grid point."""
+    return {
+        side.points[r][c].name: (side, side.block(r, c))
+        for side in cell.sides
+        for r in range(side.n_block_rows)
+        for c in range(side.n_block_cols)
+    }
+
+
+def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[View], list[str]]:
+    """Exactly the configurations of a CSV (``config, q1..qn, block``; rad; ``block`` the
+    label of the block the camera looks at, as fgcal plan writes it). Configurations whose
+    block the simulated true camera does not see are left out; their ids are returned."""
+    from ..dataset import parse_numbers, read_csv
+
+    robot = cell.robot
+    joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    header, body = read_csv(path, ["config", *joints, "block"])
+    if not body:
+        raise InputError(path, None, "no configurations")
+    q = parse_numbers(path, header, body, joints, "angle", 1.0)
+    outside = np.flatnonzero(np.any((q < robot.limits[:, 0] - 1e-9) | (q > robot.limits[:, 1] + 1e-9), axis=1))
+    if outside.size:
+        raise InputError(path, f"line {outside[0] + 2}", f"joint values outside {robot.name}'s limits")
+    blocks = blocks_by_label(cell)
+    views, unseen = [], []
+    for i, row in enumerate(body):
+        config, label = row[header.index("config")].strip(), row[header.index("block")].strip()
+        if label not in blocks:
+            raise InputError(path, f"line {i + 2}, column block", f"no block {label!r} in {cell.name}")
+        side, block = blocks[label]
+        T_W_C = true_camera(q[i][None])[0]
+        points_C = transform_points(
+            inverse(T_W_C), np.array([transform_points(cell.fixture_pose, p.position_F) for p in block])
+        )
+        if cell.camera.sees(points_C):
+            views.append(View(q[i], side, tuple(block)))
+        else:
+            unseen.append(config)
+    if not views:
+        raise InputError(path, None, "the simulated camera sees its block at none of the configurations")
+    return views, unseen

@@ -26,25 +26,37 @@ def solve_ik(
     frame: str = "flange",
     iterations: int = 80,
     tol: float = 1e-9,
+    freeze_converged: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint angles (N, n) reaching ``T_target`` (N, 4, 4) from starts ``q0``.
 
     Returns (q, converged) where converged means rotation and translation errors below
     ``tol`` (rad, m) and all joints within limits (after wrapping by 2 pi where possible).
+    ``freeze_converged``: stop iterating each problem once it is within ``tol`` (faster;
+    the default iterates all to the end, so that simulated datasets stay as they were).
     """
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
     q = q0.copy()
     damping = 1e-4
+    active = np.arange(len(q))
+    revolute = ~robot.prismatic
     for _ in range(iterations):
-        data = kinematics.forward(robot, params, q)
-        err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
+        data = kinematics.forward(robot, params, q[active])
+        err = pose_error(kinematics.frame_pose(robot, data, frame), T_target[active])
+        if freeze_converged:
+            moving = (np.linalg.norm(err[:, :3], axis=1) >= tol) | (np.linalg.norm(err[:, 3:], axis=1) >= tol)
+            if not np.any(moving):
+                break
+            if not np.all(moving):
+                active, err = active[moving], err[moving]
+                data = kinematics.forward(robot, params, q[active])
         J = kinematics.jacobian(robot, data, joints, frame=frame)
         JtJ = np.swapaxes(J, 1, 2) @ J + damping * np.eye(robot.n_joints)
         step = np.linalg.solve(JtJ, (np.swapaxes(J, 1, 2) @ err[..., None]))[..., 0]
         # Limit the step so that far starts do not jump across the workspace.
         norm = np.linalg.norm(step, axis=1, keepdims=True)
-        q = q + step * np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))
-        q = np.arctan2(np.sin(q), np.cos(q))
+        q_new = q[active] + step * np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))
+        q[active] = np.where(revolute, np.arctan2(np.sin(q_new), np.cos(q_new)), q_new)
     data = kinematics.forward(robot, params, q)
     err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
     q = wrap_into_limits(robot.limits, q, robot.prismatic)

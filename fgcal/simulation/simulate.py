@@ -15,7 +15,7 @@ from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..se3 import inverse, rpy_from_rotation, transform_points
 from .cell import Cell, load_cell
-from .design import View, seed_design, space_filling_design
+from .design import View, file_design, seed_design, space_filling_design
 from .truth import perturb_parameters
 
 
@@ -75,9 +75,12 @@ def simulate(
     progress: Callable[[str], None] | None = None,
     render: bool = False,
     drift: Drift | None = None,
+    configurations: str | Path | None = None,
 ) -> SimulationResult:
     """Simulate a dataset of the cell. With ``drift``, one true parameter changes by a step
-    from a configuration on (what online recalibration must notice)."""
+    from a configuration on (what online recalibration must notice). With
+    ``configurations`` (a CSV as fgcal plan writes it), exactly those configurations, with
+    the same true robot as any other design of the cell and seed."""
     started = time.perf_counter()
     say = progress or (lambda _msg: None)
     cell = load_cell(cell_path)
@@ -90,6 +93,10 @@ def simulate(
                 n_configurations=n_configurations or cell.design.n_configurations,
             ),
         )
+    if configurations is not None:
+        if design is not None or n_configurations is not None:
+            raise InputError(None, "--configurations", "takes the place of --design and --n")
+        cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
     robot = cell.robot
     # Independent streams: changing the design does not change the true robot or the noise.
     # Independent child streams (spawning four leaves the first three as they were).
@@ -104,7 +111,14 @@ def simulate(
         return robot.fk_tool(q, true_params)
 
     say(f"designing configurations ({cell.design.kind}) for {robot.name} in {cell.name}")
-    if cell.design.kind == "seed":
+    if configurations is not None:
+        views, unseen = file_design(cell, Path(configurations), true_camera)
+        if unseen:
+            say(
+                f"  {len(unseen)} configurations left out: the simulated true camera does not see their block "
+                f"({', '.join(unseen[:5])}{', ...' if len(unseen) > 5 else ''})"
+            )
+    elif cell.design.kind == "seed":
         views = seed_design(cell, true_camera, design_rng)
     else:
         views = space_filling_design(cell, true_camera, design_rng, progress=say)

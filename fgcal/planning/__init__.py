@@ -1,0 +1,7 @@
+"""Planning the measurement configurations of a calibration (``fgcal plan``, docs/planning.md).
+
+candidates (what the cell can measure) -> information (whitened Jacobian rows of each
+candidate on the identifiable parameters and the auxiliary unknowns) -> exchange (the
+design: greedy then Fedorov exchange with rank-r updates) -> indices (observability
+indices O1..O5) -> plan (the command: files, report, plot).
+"""

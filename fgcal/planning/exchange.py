@@ -1,0 +1,159 @@
+"""Choosing N of M candidates: greedy selection, then Fedorov exchange passes.
+
+The information matrix of a design is ``M = prior + sum_c J_c^T J_c`` over its candidates
+(J_c: r whitened rows). Adding or removing a candidate is a rank-r change, so the effect of
+every candidate on the criterion comes from ``M^-1`` without a refit (A = J_c M^-1,
+S = I + A J_c^T):
+
+- ``d-optimal``: maximise ``log det`` of the parameters' information with the auxiliary
+  unknowns eliminated (D_s-optimality): gain ``log det S - log det S_aux``;
+- ``position``: minimise the mean predicted variance of the scored point over the region,
+  ``trace(W M^-1)``: gain ``trace(S^-1 A W A^T)``;
+- ``o1``..``o5``: the observability indices (fgcal.planning.indices), computed exactly for
+  the candidates with the largest D-gain (a short list: an index needs an eigen-decomposition).
+
+Exchange: each design point in turn is removed and the best candidate (possibly the same)
+put in its place, until a pass changes nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .indices import observability
+from .information import Information
+
+CRITERIA = ("d-optimal", "position", "o1", "o2", "o3", "o4", "o5")
+SHORT_LIST = 24
+
+
+@dataclass
+class DesignState:
+    """Information matrix of a design and its inverse, kept in step by rank-r updates."""
+
+    info: Information
+    M: np.ndarray
+    M_inv: np.ndarray
+    chosen: list[int]
+
+    @classmethod
+    def empty(cls, info: Information) -> DesignState:
+        return cls(info, np.diag(info.prior), np.diag(1.0 / info.prior), [])
+
+    def add(self, c: int) -> None:
+        J = self.info.rows[c]
+        A = J @ self.M_inv
+        S = np.eye(len(J)) + A @ J.T
+        self.M_inv -= A.T @ np.linalg.solve(S, A)
+        self.M += J.T @ J
+        self.chosen.append(c)
+
+    def remove(self, c: int) -> None:
+        J = self.info.rows[c]
+        A = J @ self.M_inv
+        S = np.eye(len(J)) - A @ J.T
+        self.M_inv += A.T @ np.linalg.solve(S, A)
+        self.M -= J.T @ J
+        self.chosen.remove(c)
+
+    def refresh(self) -> None:
+        """Recompute the inverse (rank updates accumulate rounding)."""
+        self.M_inv = np.linalg.inv(self.M)
+
+
+def _d_gains(state: DesignState, rows: np.ndarray) -> np.ndarray:
+    m = state.info.n_params
+    A = rows @ state.M_inv  # (C, r, p)
+    S = np.eye(rows.shape[1]) + A @ np.swapaxes(rows, 1, 2)
+    gain = np.linalg.slogdet(S)[1]
+    aux = rows[:, :, m:]
+    if aux.shape[2]:
+        M_aux_inv = np.linalg.inv(state.M[m:, m:])
+        S_aux = np.eye(rows.shape[1]) + aux @ M_aux_inv @ np.swapaxes(aux, 1, 2)
+        gain -= np.linalg.slogdet(S_aux)[1]
+    return gain
+
+
+def _position_gains(state: DesignState, rows: np.ndarray, W: np.ndarray) -> np.ndarray:
+    A = rows @ state.M_inv
+    S = np.eye(rows.shape[1]) + A @ np.swapaxes(rows, 1, 2)
+    B = A @ W @ np.swapaxes(A, 1, 2)
+    return np.trace(np.linalg.solve(S, B), axis1=1, axis2=2)
+
+
+def _gain_function(criterion: str, info: Information) -> Callable[[DesignState, np.ndarray], np.ndarray]:
+    if criterion == "d-optimal":
+        return lambda state, idx: _d_gains(state, info.rows[idx])
+    if criterion == "position":
+        W = info.region.T @ info.region
+        return lambda state, idx: _position_gains(state, info.rows[idx], W)
+    index = criterion.upper()
+
+    def short_list(state: DesignState, idx: np.ndarray) -> np.ndarray:
+        d = _d_gains(state, info.rows[idx])
+        gains = np.full(len(idx), -np.inf)
+        for k in np.argsort(-d)[:SHORT_LIST]:
+            J = info.rows[idx[k]]
+            rows = len(state.chosen) + 1
+            gains[k] = observability(state.M + J.T @ J, info, rows * info.rows.shape[1])[index]
+        return gains
+
+    return short_list
+
+
+def plan_design(
+    info: Information,
+    n: int,
+    criterion: str,
+    max_passes: int = 4,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[list[int], list[int]]:
+    """The chosen candidate indices (n), and the greedy order (the prefix of any length is
+    the greedy design of that length)."""
+    if criterion not in CRITERIA:
+        raise ValueError(f"unknown criterion {criterion!r}; expected one of {CRITERIA}")
+    gains = _gain_function(criterion, info)
+    all_idx = np.arange(len(info.rows))
+    state = DesignState.empty(info)
+    for _ in range(n):
+        g = gains(state, all_idx)
+        g[state.chosen] = -np.inf
+        state.add(int(np.argmax(g)))
+    greedy = list(state.chosen)
+    for pass_ in range(max_passes):
+        state.refresh()
+        swaps = 0
+        for slot in range(n):
+            current = state.chosen[slot]
+            state.remove(current)
+            g = gains(state, all_idx)
+            g[state.chosen] = -np.inf
+            best = int(np.argmax(g))
+            # Evaluated on its own: a short-list criterion may not have looked at it.
+            stay = float(gains(state, np.array([current]))[0])
+            if best != current and g[best] > stay + 1e-9 * max(1.0, abs(stay)):
+                swaps += 1
+            else:
+                best = current
+            state.add(best)
+            # add() appends: keep the slot order so the loop visits every design point once.
+            state.chosen.insert(slot, state.chosen.pop())
+        if progress:
+            progress(f"  exchange pass {pass_ + 1}: {swaps} swaps")
+        if swaps == 0:
+            break
+    return list(state.chosen), greedy
+
+
+def information_of(info: Information, chosen: list[int] | np.ndarray) -> np.ndarray:
+    rows = info.rows[np.asarray(chosen, dtype=int)].reshape(-1, info.rows.shape[2])
+    return np.diag(info.prior) + rows.T @ rows
+
+
+def predicted_sigma(info: Information, M: np.ndarray) -> float:
+    """RMS (m) over the region of the scored point's predicted error norm (gauge removed)."""
+    covariance = np.linalg.inv(M)
+    return float(np.sqrt(np.einsum("ij,jk,ik->", info.region, covariance, info.region) / info.n_region))

@@ -1,0 +1,319 @@
+"""``fgcal plan``: choose the measurement configurations of a calibration cell.
+
+Writes ``configurations.csv`` (``config, q1..qn`` in rad and, for camera cells, the block
+each configuration looks at: ``fgcal simulate --configurations`` and a real cell's program
+read it), ``plan.json`` (SI) and ``plan.md`` (mm) with the predicted accuracy, the
+observability indices and the condition number, and ``predicted_accuracy.png``: predicted
+accuracy against N for the planned design beside random and space-filling ones.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import strict_json
+from ..calibration.config import FORMULATIONS, CalibrationConfig
+from ..dataset import write_csv
+from ..errors import InputError
+from ..robot import MODELS
+from ..simulation.cell import Cell, load_cell
+from ..simulation.design import max_min_selection
+from .candidates import Candidates, camera_candidates, joint_space_candidates
+from .exchange import CRITERIA, information_of, plan_design, predicted_sigma
+from .indices import observability
+from .information import Information, build_information
+
+RANDOM_DRAWS = 5
+REFERENCE_SIZE = 300
+
+
+@dataclass
+class PlanResult:
+    cell: str
+    robot: str
+    formulation: str
+    model: str
+    criterion: str
+    seed: int
+    n: int
+    candidates: Candidates
+    info: Information
+    chosen: list[int]
+    predicted_sigma_m: float
+    space_filling_sigma_m: float
+    indices: dict[str, float]
+    curves: dict[str, list[float]]
+    timing_s: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {
+            "cell": self.cell,
+            "robot": self.robot,
+            "formulation": self.formulation,
+            "model": self.model,
+            "criterion": self.criterion,
+            "seed": self.seed,
+            "n_configurations": self.n,
+            "n_candidates": len(self.candidates.q),
+            "parameters": self.info.names,
+            "auxiliary_unknowns": self.info.aux_labels,
+            "unidentifiable": self.info.unidentifiable,
+            "measurement_sigma_m": self.info.sigma_m,
+            "gauge_removed": self.info.gauge,
+            "predicted_position_sigma_rms_m": self.predicted_sigma_m,
+            "space_filling_same_n_sigma_rms_m": self.space_filling_sigma_m,
+            "observability": self.indices,
+            "curves": self.curves,
+            "cpu_time_s": self.timing_s,
+        }
+
+
+def _curve_sizes(n: int, n_candidates: int, n_unknowns: int) -> list[int]:
+    sizes = {6, 9, 12, 18, 24, 36, 48, 72, 100, 150, 200, 300, n}
+    low = max(3, int(np.ceil(n_unknowns / 12)))
+    return sorted(s for s in sizes if low <= s <= min(n_candidates, max(3 * n, 100)))
+
+
+def _curves(
+    info: Information, cand: Candidates, limits: np.ndarray, greedy: list[int], sizes: list[int], seed: int
+) -> dict[str, list[float]]:
+    """Predicted RMS sigma (m) against N: the greedy sequence's prefixes (the plan's own
+    algorithm before its exchange passes), random designs (mean of RANDOM_DRAWS) and
+    space-filling designs (max-min in joint space) from the same candidates."""
+    rng = np.random.default_rng(seed)
+    planned, random, space_filling = [], [], []
+    for size in sizes:
+        planned.append(predicted_sigma(info, information_of(info, greedy[:size])) if size <= len(greedy) else None)
+        draws = [rng.choice(len(cand.q), size, replace=False) for _ in range(RANDOM_DRAWS)]
+        random.append(float(np.mean([predicted_sigma(info, information_of(info, d)) for d in draws])))
+        chosen = max_min_selection(cand.q, limits, size, np.random.default_rng(seed + 1))
+        space_filling.append(predicted_sigma(info, information_of(info, chosen)))
+    return {"n": sizes, "planned_m": planned, "random_m": random, "space_filling_m": space_filling}
+
+
+@dataclass
+class Planner:
+    """A cell's candidates and their information, ready to plan designs of any size."""
+
+    cell: Cell
+    formulation: str
+    model: str
+    seed: int
+    candidates: Candidates
+    info: Information
+    timing_s: dict[str, float]
+
+    def space_filling(self, n: int) -> list[int]:
+        return max_min_selection(self.candidates.q, self.cell.robot.limits, n, np.random.default_rng(self.seed + 1))
+
+    def check_size(self, n: int) -> None:
+        n_rows, n_unknowns = self.info.rows.shape[1], self.info.n_params + len(self.info.aux_labels)
+        if not 1 <= n <= len(self.candidates.q):
+            raise InputError(
+                None, "--n", f"plan 1 to {len(self.candidates.q)} (the candidates) configurations, got {n}"
+            )
+        if n * n_rows < n_unknowns:
+            raise InputError(
+                None,
+                "--n",
+                f"{n} configurations give {n * n_rows} measurement rows for {self.info.n_params} parameters and "
+                f"{len(self.info.aux_labels)} auxiliary unknowns: plan more configurations",
+            )
+
+
+def prepare(
+    cell_path: str | Path,
+    n_candidates: int = 5000,
+    formulation: str = "pairs",
+    model: str = "DH,s,e",
+    seed: int = 1,
+    reference_size: int = REFERENCE_SIZE,
+    progress: Callable[[str], None] | None = None,
+) -> Planner:
+    """Candidates of the cell (seeded) and their information rows on the parameters that a
+    space-filling design of ``reference_size`` determines (a parameter the planned design
+    cannot determine keeps its prior, its plausible deviation, in the prediction)."""
+    say = progress or (lambda _msg: None)
+    if formulation not in FORMULATIONS:
+        raise InputError(None, "--formulation", f"unknown formulation {formulation!r} (one of {FORMULATIONS})")
+    if model not in MODELS:
+        raise InputError(None, "--model", f"unknown model {model!r} (one of {MODELS})")
+    if n_candidates < 1:
+        raise InputError(None, "--candidates", f"must be >= 1, got {n_candidates}")
+    cell = load_cell(cell_path)
+    robot = cell.robot.with_model(model)
+    cell = replace(cell, robot=robot)
+    rng = np.random.default_rng(seed)
+    timing: dict[str, float] = {}
+    started = time.process_time()
+    if formulation == "tracker":
+        cand = joint_space_candidates(cell, n_candidates, rng)
+    else:
+        cand = camera_candidates(cell, n_candidates, rng, progress=say)
+    timing["candidates"] = time.process_time() - started
+    started = time.process_time()
+    config = CalibrationConfig.defaults(".", formulation=formulation, model=model)
+    size = min(len(cand.q), reference_size)
+    reference = np.array(max_min_selection(cand.q, robot.limits, size, np.random.default_rng(seed + 1)))
+    info = build_information(cell, robot, cand, config, reference, seed=seed)
+    timing["information"] = time.process_time() - started
+    say(f"  {info.n_params} identifiable parameters, {len(info.aux_labels)} auxiliary unknowns")
+    return Planner(cell, formulation, model, seed, cand, info, timing)
+
+
+def plan(
+    cell_path: str | Path,
+    n: int,
+    criterion: str = "d-optimal",
+    n_candidates: int = 5000,
+    formulation: str = "pairs",
+    model: str = "DH,s,e",
+    seed: int = 1,
+    curve_max: int | None = None,
+    progress: Callable[[str], None] | None = None,
+    planner: Planner | None = None,
+) -> PlanResult:
+    """Plan ``n`` configurations of the cell from ``n_candidates`` (seeded); ``planner``:
+    prepared candidates to reuse (then the cell and candidate options are its own)."""
+    say = progress or (lambda _msg: None)
+    if criterion not in CRITERIA:
+        raise InputError(None, "--criterion", f"unknown criterion {criterion!r} (one of {', '.join(CRITERIA)})")
+    if planner is None:
+        say(f"planning {n} configurations of {cell_path} ({formulation}, {model}) by {criterion}")
+        planner = prepare(cell_path, n_candidates, formulation, model, seed, max(n, REFERENCE_SIZE), say)
+    planner.check_size(n)
+    info, cand, robot = planner.info, planner.candidates, planner.cell.robot
+    timing = dict(planner.timing_s)
+    started = time.process_time()
+    chosen, _ = plan_design(info, n, criterion, progress=say)
+    timing["selection"] = time.process_time() - started
+    started = time.process_time()
+    sizes = _curve_sizes(n, len(cand.q), info.n_params + len(info.aux_labels))
+    if curve_max is not None:
+        sizes = [s for s in sizes if s <= curve_max]
+    # The greedy sequence of the largest size gives every prefix of the curve in one run.
+    greedy = plan_design(info, max(sizes), criterion, max_passes=0)[1] if sizes else []
+    curves = _curves(info, cand, robot.limits, greedy, sizes, planner.seed)
+    timing["curves"] = time.process_time() - started
+    M = information_of(info, chosen)
+    n_rows = info.rows.shape[1]
+    return PlanResult(
+        cell=planner.cell.name,
+        robot=robot.name,
+        formulation=planner.formulation,
+        model=planner.model,
+        criterion=criterion,
+        seed=planner.seed,
+        n=n,
+        candidates=cand,
+        info=info,
+        chosen=chosen,
+        predicted_sigma_m=predicted_sigma(info, M),
+        space_filling_sigma_m=predicted_sigma(info, information_of(info, planner.space_filling(n))),
+        indices=observability(M, info, n * n_rows, with_prior=False),
+        curves=curves,
+        timing_s=timing,
+    )
+
+
+def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> list[str]:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cand, chosen = result.candidates, result.chosen
+    n_joints = cand.q.shape[1]
+    header = ["config", *[f"q{i}" for i in range(1, n_joints + 1)]]
+    rows = [[f"p{k:04d}", *cand.q[c]] for k, c in enumerate(chosen)]
+    if cand.blocks is not None:
+        header.append("block")
+        rows = [[*row, cand.blocks[c]] for row, c in zip(rows, chosen, strict=True)]
+    write_csv(out / "configurations.csv", header, rows)
+    (out / "plan.json").write_text(strict_json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+    (out / "plan.md").write_text(_markdown(result, plot), encoding="utf-8")
+    written = ["configurations.csv", "plan.json", "plan.md"]
+    if plot:
+        _plot(result, out / "predicted_accuracy.png")
+        written.append("predicted_accuracy.png")
+    return written
+
+
+def _mm(value: float | None) -> str:
+    return "-" if value is None else f"{value * 1e3:.4f}"
+
+
+def _markdown(result: PlanResult, plot: bool) -> str:
+    info = result.info
+    lines = [
+        f"# Calibration plan: {result.cell}",
+        "",
+        f"{result.n} configurations of {result.robot} chosen from {len(result.candidates.q)} candidates "
+        f"(seed {result.seed}) by the **{result.criterion}** criterion, for the {result.formulation} "
+        f"formulation and model {result.model}.",
+        "",
+        f"- Predicted position accuracy over the region: **{_mm(result.predicted_sigma_m)} mm RMS** "
+        f"(scored point, {info.gauge} gauge removed; measurement sigma {info.sigma_m * 1e3:g} mm); a "
+        f"space-filling design of the same size: {_mm(result.space_filling_sigma_m)} mm.",
+        f"- {info.n_params} identifiable parameters: {', '.join(info.names)}.",
+        f"- Auxiliary unknowns: {', '.join(info.aux_labels)}.",
+        f"- Not identifiable from a design of this size: {', '.join(info.unidentifiable) or 'none'}.",
+        "",
+        "| index | value |",
+        "|---|---|",
+    ]
+    for key, value in result.indices.items():
+        lines.append(f"| {key} | {value:.4g} |")
+    lines += [
+        "",
+        "Indices on the parameters' whitened Jacobian, columns scaled by plausible deviations (10 mm, "
+        "10 mrad, compliances deflecting 10 mrad), auxiliary unknowns eliminated (docs/planning.md).",
+        "",
+        "## Predicted accuracy against the number of configurations (mm RMS)",
+        "",
+        "| N | planned (greedy) | random | space-filling |",
+        "|---|---|---|---|",
+    ]
+    c = result.curves
+    for i, size in enumerate(c["n"]):
+        lines.append(
+            f"| {size} | {_mm(c['planned_m'][i])} | {_mm(c['random_m'][i])} | {_mm(c['space_filling_m'][i])} |"
+        )
+    if plot:
+        lines += ["", "![predicted accuracy](predicted_accuracy.png)"]
+    t = result.timing_s
+    lines += [
+        "",
+        f"CPU time: candidates {t.get('candidates', 0):.1f} s, information {t.get('information', 0):.1f} s, "
+        f"selection {t.get('selection', 0):.1f} s, curves {t.get('curves', 0):.1f} s.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _plot(result: PlanResult, path: Path) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    c = result.curves
+    fig = Figure(figsize=(6.4, 4.2))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    sizes = np.array(c["n"])
+    planned = [(s, v) for s, v in zip(sizes, c["planned_m"], strict=True) if v is not None]
+    if planned:
+        ax.plot(*zip(*[(s, v * 1e3) for s, v in planned], strict=True), "o-", label=f"planned ({result.criterion})")
+    ax.plot(sizes, np.array(c["random_m"]) * 1e3, "s--", label=f"random (mean of {RANDOM_DRAWS})")
+    ax.plot(sizes, np.array(c["space_filling_m"]) * 1e3, "^--", label="space-filling")
+    ax.plot([result.n], [result.predicted_sigma_m * 1e3], "k*", markersize=12, label="this plan (after exchange)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("configurations N")
+    ax.set_ylabel("predicted position sigma, RMS over the region (mm)")
+    ax.set_title(f"{result.cell}: {result.formulation}, {result.model}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)

@@ -1,0 +1,91 @@
+"""The planning study of issue 14: planned designs against the seed's 36-image design and
+space-filling designs, each simulated (same true robot per seed), calibrated with nothing
+held out and scored against the truth at independent configurations.
+
+Run on demand (``pytest -m study tests/test_planning.py``, or :func:`design_study`): it
+simulates and calibrates some fifty datasets.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..calibration.config import CalibrationConfig
+from ..calibration.run import calibrate
+from ..calibration.scoring import load_truth, truth_errors
+from ..simulation.design import max_min_selection
+from ..simulation.simulate import simulate
+from .candidates import camera_candidates
+from .plan import plan, prepare, write_plan
+
+# The scored point: on the camera's optical axis at the middle of the designs' standoff (m).
+SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
+
+
+def _score(dataset: Path, q_eval: np.ndarray) -> float:
+    """RMS (m) of the scored point's error against the truth at ``q_eval``, the
+    translation gauge removed, after calibrating ``dataset`` with nothing held out."""
+    config = CalibrationConfig.defaults(dataset, formulation="pairs", model="DH,s,e", validation={"holdout": 0.0})
+    result = calibrate(config)
+    truth = load_truth(dataset)
+    errors = truth_errors(result.problem, result.state, truth, SCORED_POINT_C, q=q_eval)["tool_point"]
+    return float(np.sqrt(np.mean(np.sum(errors**2, axis=1))))
+
+
+def n_reaching(sizes: Sequence[int], rms: Sequence[float], target_m: float) -> float | None:
+    """The N at which an RMS-against-N curve first reaches ``target_m`` (log-log
+    interpolation between the bracketing sizes; None if it never does)."""
+    for k, value in enumerate(rms):
+        if value <= target_m:
+            if k == 0:
+                return float(sizes[0])
+            x0, x1, y0, y1 = np.log(sizes[k - 1]), np.log(sizes[k]), np.log(rms[k - 1]), np.log(value)
+            return float(np.exp(x0 + (np.log(target_m) - y0) * (x1 - x0) / (y1 - y0)))
+    return None
+
+
+def design_study(
+    cell: Path,
+    out_dir: Path,
+    seeds: Sequence[int] = (1, 2, 3),
+    planned_sizes: Sequence[int] = (24, 36, 48, 72, 100),
+    space_filling_sizes: Sequence[int] = (36, 72, 100, 150, 200, 300),
+    criterion: str = "d-optimal",
+    n_eval: int = 200,
+    target_m: float = 3e-5,
+    with_seed_design: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
+    say = progress or (lambda _msg: None)
+    out_dir = Path(out_dir)
+    rows = []
+    for seed in seeds:
+        started = time.perf_counter()
+        planner = prepare(cell, seed=seed)
+        # Independent evaluation configurations: another candidate stream, thinned max-min.
+        pool = camera_candidates(planner.cell, 5 * n_eval, np.random.default_rng(10_000 + seed))
+        q_eval = pool.q[max_min_selection(pool.q, planner.cell.robot.limits, n_eval, np.random.default_rng(seed))]
+        base = out_dir / f"seed{seed}"
+        row = {"seed": seed, "planned": {}, "space_filling": {}}
+        if with_seed_design:
+            simulate(cell, base / "seed_design", seed, design="seed")
+            row["seed_design_m"] = _score(base / "seed_design", q_eval)
+        for n in planned_sizes:
+            result = plan(cell, n, criterion, planner=planner, curve_max=0)
+            write_plan(result, base / f"plan{n}", plot=False)
+            simulate(cell, base / f"planned{n}", seed, configurations=base / f"plan{n}" / "configurations.csv")
+            row["planned"][n] = {"rms_m": _score(base / f"planned{n}", q_eval), "predicted_m": result.predicted_sigma_m}
+        for n in space_filling_sizes:
+            simulate(cell, base / f"space_filling{n}", seed, design="space_filling", n_configurations=n)
+            row["space_filling"][n] = {"rms_m": _score(base / f"space_filling{n}", q_eval)}
+        for kind in ("planned", "space_filling"):
+            sizes = sorted(row[kind])
+            if sizes:
+                row[f"{kind}_n_reaching_m"] = n_reaching(sizes, [row[kind][s]["rms_m"] for s in sizes], target_m)
+        say(f"seed {seed}: {row} ({time.perf_counter() - started:.0f} s)")
+        rows.append(row)
+    return {"criterion": criterion, "target_m": target_m, "n_eval": n_eval, "seeds": rows}
