@@ -190,3 +190,31 @@ def test_planned_reach_3e5_with_a_third_of_the_configurations(study):
     planned = np.mean([row["planned_n_reaching_m"] for row in seeds])
     space_filling = np.mean([row["space_filling_n_reaching_m"] for row in seeds])
     assert planned <= space_filling / 3, (planned, space_filling)
+
+
+TRACKER_CELL = SEED_CELL.parent / "irb120_tracker.yaml"
+
+
+def test_tracker_cell_simulates_plans_and_calibrates(tmp_path):
+    """A cell with no camera and no objects: joint-space designs, tracker points only, a plan
+    for the tracker formulation simulated exactly and calibrated against the truth."""
+    from conftest import calibrate
+
+    from fgcal.calibration.config import CalibrationConfig
+    from fgcal.dataset import load_dataset
+
+    assert main(["plan", str(TRACKER_CELL), "--n", "30", "--candidates", "800", "--formulation", "tracker",
+                 "--out", str(tmp_path / "plan"), "--no-plots"]) == 0  # fmt: skip
+    configurations = tmp_path / "plan" / "configurations.csv"
+    assert (
+        main(["simulate", str(TRACKER_CELL), "--configurations", str(configurations), "--out", str(tmp_path / "a")])
+        == 0
+    )
+    dataset = load_dataset(tmp_path / "a")
+    assert set(dataset.tables) == {"tracker_points"} and len(dataset.q) == 30
+    q_plan = np.loadtxt(configurations, delimiter=",", skiprows=1, usecols=range(1, 7))
+    np.testing.assert_allclose(dataset.q, q_plan, atol=1e-12)
+    result = calibrate(CalibrationConfig.defaults(tmp_path / "a", formulation="tracker"))
+    before, after = result.validation["before"]["tool_point"].rms, result.validation["after"]["tool_point"].rms
+    assert after < before / 20, (before, after)
+    assert main(["simulate", str(TRACKER_CELL), "--design", "seed", "--out", str(tmp_path / "b")]) == 2

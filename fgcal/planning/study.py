@@ -19,17 +19,18 @@ from ..calibration.run import calibrate
 from ..calibration.scoring import load_truth, truth_errors
 from ..simulation.design import max_min_selection
 from ..simulation.simulate import simulate
-from .candidates import camera_candidates
+from .candidates import camera_candidates, joint_space_candidates
 from .plan import plan, prepare, write_plan
 
 # The scored point: on the camera's optical axis at the middle of the designs' standoff (m).
 SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
 
 
-def _score(dataset: Path, q_eval: np.ndarray) -> float:
-    """RMS (m) of the scored point's error against the truth at ``q_eval``, the
-    translation gauge removed, after calibrating ``dataset`` with nothing held out."""
-    config = CalibrationConfig.defaults(dataset, formulation="pairs", model="DH,s,e", validation={"holdout": 0.0})
+def _score(dataset: Path, q_eval: np.ndarray, formulation: str) -> float:
+    """RMS (m) of the scored point's error against the truth at ``q_eval`` (pairs: the
+    translation gauge removed; tracker: the reflectors in the tracker frame), after
+    calibrating ``dataset`` with nothing held out."""
+    config = CalibrationConfig.defaults(dataset, formulation=formulation, model="DH,s,e", validation={"holdout": 0.0})
     result = calibrate(config)
     truth = load_truth(dataset)
     errors = truth_errors(result.problem, result.state, truth, SCORED_POINT_C, q=q_eval)["tool_point"]
@@ -58,6 +59,7 @@ def design_study(
     n_eval: int = 200,
     target_m: float = 3e-5,
     with_seed_design: bool = True,
+    formulation: str = "pairs",
     progress: Callable[[str], None] | None = None,
 ) -> dict:
     say = progress or (lambda _msg: None)
@@ -65,23 +67,28 @@ def design_study(
     rows = []
     for seed in seeds:
         started = time.perf_counter()
-        planner = prepare(cell, seed=seed)
+        planner = prepare(cell, seed=seed, formulation=formulation)
         # Independent evaluation configurations: another candidate stream, thinned max-min.
-        pool = camera_candidates(planner.cell, 5 * n_eval, np.random.default_rng(10_000 + seed))
+        eval_rng = np.random.default_rng(10_000 + seed)
+        if formulation == "tracker":
+            pool = joint_space_candidates(planner.cell, 5 * n_eval, eval_rng)
+        else:
+            pool = camera_candidates(planner.cell, 5 * n_eval, eval_rng)
         q_eval = pool.q[max_min_selection(pool.q, planner.cell.robot.limits, n_eval, np.random.default_rng(seed))]
         base = out_dir / f"seed{seed}"
         row = {"seed": seed, "planned": {}, "space_filling": {}}
         if with_seed_design:
             simulate(cell, base / "seed_design", seed, design="seed")
-            row["seed_design_m"] = _score(base / "seed_design", q_eval)
+            row["seed_design_m"] = _score(base / "seed_design", q_eval, formulation)
         for n in planned_sizes:
-            result = plan(cell, n, criterion, planner=planner, curve_max=0)
+            result = plan(cell, n, criterion, formulation=formulation, planner=planner, curve_max=0)
             write_plan(result, base / f"plan{n}", plot=False)
             simulate(cell, base / f"planned{n}", seed, configurations=base / f"plan{n}" / "configurations.csv")
-            row["planned"][n] = {"rms_m": _score(base / f"planned{n}", q_eval), "predicted_m": result.predicted_sigma_m}
+            rms = _score(base / f"planned{n}", q_eval, formulation)
+            row["planned"][n] = {"rms_m": rms, "predicted_m": result.predicted_sigma_m}
         for n in space_filling_sizes:
             simulate(cell, base / f"space_filling{n}", seed, design="space_filling", n_configurations=n)
-            row["space_filling"][n] = {"rms_m": _score(base / f"space_filling{n}", q_eval)}
+            row["space_filling"][n] = {"rms_m": _score(base / f"space_filling{n}", q_eval, formulation)}
         for kind in ("planned", "space_filling"):
             sizes = sorted(row[kind])
             if sizes:

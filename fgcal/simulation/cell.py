@@ -111,7 +111,7 @@ class Cell:
     robot: Robot  # carrying the nominal camera mounting and payload
     fixture_pose: np.ndarray  # T_W_F
     sides: list[Side]
-    camera: Camera
+    camera: Camera | None  # None: a tracker cell (no camera, no objects)
     tracker_pose: np.ndarray  # T_W_T
     tracker_targets: np.ndarray  # (m, 3) in the flange frame, m
     camera_point_sigma_m: float
@@ -184,13 +184,16 @@ def load_cell(path: str | Path) -> Cell:
     except InputError as exc:
         raise InputError(path, "robot", str(exc)) from None
 
-    camera_fields = doc.sub("camera")
-    camera_fields.check_keys(("mounting", "image_size", "intrinsics", "distortion"))
-    camera = parse_camera(camera_fields)
+    # A tracker cell has no camera and no objects: its configurations are drawn in joint space.
+    camera_fields = doc.sub("camera") if doc.has("camera") or doc.has("objects") else None
+    camera = None
+    if camera_fields is not None:
+        camera_fields.check_keys(("mounting", "image_size", "intrinsics", "distortion"))
+        camera = parse_camera(camera_fields)
     payload = doc.sub("payload", {})
     payload.check_keys(("mass", "com"))
     robot = robot.with_tool(
-        _pose(camera_fields, "mounting", to_m, to_rad),
+        _pose(camera_fields, "mounting", to_m, to_rad) if camera_fields is not None else robot.tool_pose,
         payload_mass=payload.number("mass", robot.payload_mass, nonnegative=True),
         payload_com=payload.vector("com", 3, robot.payload_com.tolist(), to_m),
     )
@@ -202,9 +205,9 @@ def load_cell(path: str | Path) -> Cell:
     pitch = grid.number("pitch", 40.0 * 1e-3 / to_m, to_m, positive=True)
     margin = grid.number("margin", pitch / to_m, to_m, nonnegative=True)
     sides = []
-    for obj in doc.sub_list("objects"):
+    for obj in doc.sub_list("objects") if camera is not None else []:
         sides += _cuboid_sides(obj, pitch, margin, to_m, to_rad)
-    if not sides:
+    if camera is not None and not sides:
         raise doc.error("objects", "at least one object side with a grid is needed")
     names = [s.obj for s in sides]
     if len({(s.obj, s.side) for s in sides}) != len(sides):
@@ -248,6 +251,9 @@ def load_cell(path: str | Path) -> Cell:
     standoff = design.vector("standoff", 2, [0.3 / to_m, 0.5 / to_m], to_m)
     if not 0 < standoff[0] <= standoff[1]:
         raise design.error("standoff", "expected [near, far] with 0 < near <= far")
+    design_kind = design.string("kind", "seed" if camera is not None else "space_filling", DESIGNS)
+    if camera is None and design_kind == "seed":
+        raise design.error("kind", "the seed design looks at the objects: a tracker cell (no camera) is space_filling")
     return Cell(
         name=doc.string("name"),
         source=str(path),
@@ -274,7 +280,7 @@ def load_cell(path: str | Path) -> Cell:
             tool_angle_rad=pert.number("tool_angle", 1e-3 / to_rad, to_rad, nonnegative=True),
         ),
         design=Design(
-            kind=design.string("kind", "seed", DESIGNS),
+            kind=design_kind,
             n_configurations=design.integer("n_configurations", 300, minimum=1),
             blocks_per_side=design.integer("blocks_per_side", 3, minimum=1),
             views_per_block=design.integer("views_per_block", 2, minimum=1),

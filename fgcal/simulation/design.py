@@ -34,7 +34,7 @@ class View:
     """A configuration and the block of points its camera sees."""
 
     q: np.ndarray
-    side: Side
+    side: Side | None  # None, and no block, in a tracker cell
     block: tuple[GridPoint, ...]
 
 
@@ -188,6 +188,18 @@ def space_filling_design(
     return [pool[i] for i in max_min_selection(np.array([v.q for v in pool]), cell.robot.limits, n_wanted, rng)]
 
 
+def joint_space_design(cell: Cell, rng: np.random.Generator, oversample: int = 3) -> list[View]:
+    """A tracker cell's space-filling design: configurations uniform within the joint limits
+    (revolute joints within +-pi), thinned to N by greedy max-min distance."""
+    robot = cell.robot
+    n_wanted = cell.design.n_configurations
+    low, high = robot.limits[:, 0].copy(), robot.limits[:, 1].copy()
+    revolute = ~robot.prismatic
+    low[revolute], high[revolute] = np.maximum(low[revolute], -np.pi), np.minimum(high[revolute], np.pi)
+    pool = rng.uniform(low, high, (oversample * n_wanted, robot.n_joints))
+    return [View(pool[i], None, ()) for i in max_min_selection(pool, robot.limits, n_wanted, rng)]
+
+
 # Rounds of random viewpoints without a single reachable, visible one after which the cell is
 # declared unreachable (each round tries every wanted view from six IK starts).
 NOTHING_REACHABLE_ROUNDS = 2
@@ -227,13 +239,14 @@ def blocks_by_label(cell: Cell) -> dict[str, tuple[Side, list[GridPoint]]]:
 
 def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[View], list[str]]:
     """Exactly the configurations of a CSV (``config, q1..qn, block``; rad; ``block`` the
-    label of the block the camera looks at, as fgcal plan writes it). Configurations whose
-    block the simulated true camera does not see are left out; their ids are returned."""
+    label of the block the camera looks at, as fgcal plan writes it; no ``block`` in a
+    tracker cell). Configurations whose block the simulated true camera does not see are left
+    out; their ids are returned."""
     from ..dataset import parse_numbers, read_csv
 
     robot = cell.robot
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
-    header, body = read_csv(path, ["config", *joints, "block"])
+    header, body = read_csv(path, ["config", *joints, *(["block"] if cell.camera is not None else [])])
     if not body:
         raise InputError(path, None, "no configurations")
     q = parse_numbers(path, header, body, joints, "angle", 1.0)
@@ -243,7 +256,11 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     blocks = blocks_by_label(cell)
     views, unseen = [], []
     for i, row in enumerate(body):
-        config, label = row[header.index("config")].strip(), row[header.index("block")].strip()
+        config = row[header.index("config")].strip()
+        if cell.camera is None:  # a tracker cell: nothing to see
+            views.append(View(q[i], None, ()))
+            continue
+        label = row[header.index("block")].strip()
         if label not in blocks:
             raise InputError(path, f"line {i + 2}, column block", f"no block {label!r} in {cell.name}")
         side, block = blocks[label]

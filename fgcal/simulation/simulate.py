@@ -15,7 +15,7 @@ from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..se3 import inverse, rpy_from_rotation, transform_points
 from .cell import Cell, load_cell
-from .design import View, file_design, seed_design, space_filling_design
+from .design import View, file_design, joint_space_design, seed_design, space_filling_design
 from .truth import perturb_parameters
 
 
@@ -97,6 +97,10 @@ def simulate(
         if design is not None or n_configurations is not None:
             raise InputError(None, "--configurations", "takes the place of --design and --n")
         cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
+    if cell.camera is None and cell.design.kind == "seed":
+        raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
+    if render and cell.camera is None:
+        raise InputError(cell.source, "camera", "--render needs a camera: this is a tracker cell")
     robot = cell.robot
     # Independent streams: changing the design does not change the true robot or the noise.
     # Independent child streams (spawning four leaves the first three as they were).
@@ -118,6 +122,8 @@ def simulate(
                 f"  {len(unseen)} configurations left out: the simulated true camera does not see their block "
                 f"({', '.join(unseen[:5])}{', ...' if len(unseen) > 5 else ''})"
             )
+    elif cell.camera is None:
+        views = joint_space_design(cell, design_rng)
     elif cell.design.kind == "seed":
         views = seed_design(cell, true_camera, design_rng)
     else:
@@ -186,12 +192,14 @@ def _write_measurements(
         ["config"] + [f"q{i}" for i in range(1, robot.n_joints + 1)],
         [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)],
     )
+    if cell.camera is None:  # a tracker cell
+        return _write_tracker_points(out, cell, q, config_ids, true_params, rng)
     write_csv(
         out / "points.csv",
         ["point", "object", "side", "x", "y", "z"],
         [[p.name, p.obj, p.side, *map(float, p.position_F)] for p in cell.points()],
     )
-
+    # Camera noise first, then the tracker's: the order of the draws is part of the seed.
     T_C_W = inverse(robot.fk_tool(q, true_params))
     if drift is not None:
         drifted = {**true_params, drift.parameter: true_params[drift.parameter] + drift.change}
@@ -213,8 +221,14 @@ def _write_measurements(
     write_csv(out / "pixels.csv", ["config", "point", "u", "v"], px_rows)
     write_csv(out / "truth" / "camera_points_noise.csv", ["config", "point", "x", "y", "z"], cam_noise)
     write_csv(out / "truth" / "pixels_noise.csv", ["config", "point", "u", "v"], px_noise)
+    counts = _write_tracker_points(out, cell, q, config_ids, true_params, rng)
+    return {"camera_points": len(cam_rows), "pixels": len(px_rows), **counts}
 
-    T_T_n = inverse(cell.tracker_pose) @ robot.fk(q, true_params)
+
+def _write_tracker_points(
+    out: Path, cell: Cell, q: np.ndarray, config_ids: list[str], true_params: dict[str, float], rng
+) -> dict[str, int]:
+    T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params)
     trk_rows, trk_noise = [], []
     for cid, T in zip(config_ids, T_T_n, strict=True):
         for i, target in enumerate(cell.tracker_targets):
@@ -223,7 +237,7 @@ def _write_measurements(
             trk_noise.append([cid, f"t{i + 1}", *map(float, n)])
     write_csv(out / "tracker_points.csv", ["config", "target", "x", "y", "z"], trk_rows)
     write_csv(out / "truth" / "tracker_points_noise.csv", ["config", "target", "x", "y", "z"], trk_noise)
-    return {"camera_points": len(cam_rows), "pixels": len(px_rows), "tracker_points": len(trk_rows)}
+    return {"tracker_points": len(trk_rows)}
 
 
 def _render_images(
@@ -283,7 +297,7 @@ def _write_header(
             if boards
             else {}
         ),
-        "camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)},
+        "camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)} if cell.camera else None,
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         "fixture": _pose_doc(cell.fixture_pose),
         "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
@@ -291,4 +305,12 @@ def _write_header(
         f"{n_configurations} configurations); noise sigma: camera points {cell.camera_point_sigma_m} m, "
         f"pixels {cell.pixel_sigma_px} px, tracker {cell.tracker_sigma_m} m",
     }
+    if cell.camera is None:  # a tracker cell: its tracker points only
+        header["files"] = {k: v for k, v in header["files"].items() if k in ("configurations", "tracker_points")}
+        for key in ("camera", "fixture"):
+            header.pop(key)
+        header["source"] = (
+            f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
+            f"{n_configurations} configurations); noise sigma: tracker {cell.tracker_sigma_m} m"
+        )
     write_header(out, header)
