@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..simulation.cell import Cell
-from ..simulation.design import solve_views
+from ..simulation.design import solve_views, uniform_configurations
 
 # A candidate needs its block in view, not a pose to 1e-9: fewer IK iterations, more candidates.
 IK_ITERATIONS, IK_TOL = 25, 1e-6
@@ -65,11 +65,5 @@ def camera_candidates(
 
 
 def joint_space_candidates(cell: Cell, count: int, rng: np.random.Generator) -> Candidates:
-    """``count`` configurations uniform within the joint limits (revolute joints within
-    +-pi: further turns repeat the same poses)."""
-    robot = cell.robot
-    low, high = robot.limits[:, 0].copy(), robot.limits[:, 1].copy()
-    revolute = ~robot.prismatic
-    low[revolute] = np.maximum(low[revolute], -np.pi)
-    high[revolute] = np.minimum(high[revolute], np.pi)
-    return Candidates(rng.uniform(low, high, (count, robot.n_joints)), None, None)
+    """``count`` configurations uniform within the joint limits (fgcal.simulation.design)."""
+    return Candidates(uniform_configurations(cell.robot, count, rng), None, None)

@@ -188,15 +188,21 @@ def space_filling_design(
     return [pool[i] for i in max_min_selection(np.array([v.q for v in pool]), cell.robot.limits, n_wanted, rng)]
 
 
-def joint_space_design(cell: Cell, rng: np.random.Generator, oversample: int = 3) -> list[View]:
-    """A tracker cell's space-filling design: configurations uniform within the joint limits
-    (revolute joints within +-pi), thinned to N by greedy max-min distance."""
-    robot = cell.robot
-    n_wanted = cell.design.n_configurations
+def uniform_configurations(robot: Robot, count: int, rng: np.random.Generator) -> np.ndarray:
+    """(count, n) configurations uniform within the joint limits, revolute joints within
+    +-pi (further turns repeat the same poses)."""
     low, high = robot.limits[:, 0].copy(), robot.limits[:, 1].copy()
     revolute = ~robot.prismatic
     low[revolute], high[revolute] = np.maximum(low[revolute], -np.pi), np.minimum(high[revolute], np.pi)
-    pool = rng.uniform(low, high, (oversample * n_wanted, robot.n_joints))
+    return rng.uniform(low, high, (count, robot.n_joints))
+
+
+def joint_space_design(cell: Cell, rng: np.random.Generator, oversample: int = 3) -> list[View]:
+    """A tracker cell's space-filling design: configurations uniform within the joint limits,
+    thinned to N by greedy max-min distance."""
+    robot = cell.robot
+    n_wanted = cell.design.n_configurations
+    pool = uniform_configurations(robot, oversample * n_wanted, rng)
     return [View(pool[i], None, ()) for i in max_min_selection(pool, robot.limits, n_wanted, rng)]
 
 
