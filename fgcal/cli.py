@@ -214,9 +214,6 @@ def cmd_convert_faro(args: argparse.Namespace) -> int:
 def cmd_plan(args: argparse.Namespace) -> int:
     from .planning.plan import plan, write_plan
 
-    if args.candidates < 1:
-        print("fgcal: error: --candidates must be >= 1", file=sys.stderr)
-        return 2
     result = plan(
         _bundled_cell(args.cell),
         args.n,

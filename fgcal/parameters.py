@@ -21,11 +21,9 @@ _JOINT_NAME = re.compile(r"^(theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz)([
 _POSE_NAME = re.compile(r"^(base|tool)\.(tx|ty|tz|rx|ry|rz)$")
 
 
-def parameter_names(joint_kinds: int | Sequence[Sequence[str]]) -> list[str]:
+def parameter_names(joint_kinds: Sequence[Sequence[str]]) -> list[str]:
     """All parameter names, in the order of the parameter vector: the kinds of each joint
-    (an int n: n DH joints), then base and tool."""
-    if isinstance(joint_kinds, int):
-        joint_kinds = [JOINT_KINDS] * joint_kinds
+    (fgcal.joints), then base and tool."""
     names = [f"{kind}{i}" for i, kinds in enumerate(joint_kinds, start=1) for kind in kinds]
     names += [f"{pose}.{kind}" for pose in ("base", "tool") for kind in POSE_KINDS]
     return names

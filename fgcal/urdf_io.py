@@ -216,13 +216,14 @@ def _fixed_xml(name: str, parent: str, child: str, T: np.ndarray) -> str:
     )
 
 
-def joint_frames(robot: Robot, params: np.ndarray) -> dict:
-    """Frames of the exported URDF in W at q = 0, compliances zero: ``base`` (T_W_0),
-    ``joints`` (n, 4, 4: joint i's frame, its motion's axis through the origin), ``axes``
-    (n, 3: in the joint frame, signed by the joint direction), ``bodies`` (n, 4, 4: the
-    frames the link masses are given in), ``flange`` and ``tool``."""
+def joint_frames(robot: Robot) -> dict:
+    """Frames of the exported URDF in W at q = 0, at the robot's parameter values with the
+    compliances zero: ``base`` (T_W_0), ``joints`` (n, 4, 4: joint i's frame, its motion's
+    axis through the origin), ``axes`` (n, 3: in the joint frame, signed by the joint
+    direction), ``bodies`` (n, 4, 4: the frames the link masses are given in), ``bends``
+    (n, 4, 4: the bending frames), ``flange`` and ``tool``."""
     chain = robot.chain
-    data = kinematics.forward(robot, params, np.zeros((1, robot.n_joints)))
+    data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
     frames = data.frames_rigid[:, 0]
     motion = [next(k for k, et in enumerate(chain.elements) if et.joint == i) for i in range(robot.n_joints)]
     joints, axes = [], []
@@ -242,6 +243,7 @@ def joint_frames(robot: Robot, params: np.ndarray) -> dict:
         "joints": np.array(joints),
         "axes": np.array(axes),
         "bodies": frames[list(chain.link_end)],
+        "bends": frames[list(chain.bend)],
         "flange": frames[chain.flange],
         "tool": frames[chain.tool],
     }
@@ -249,8 +251,7 @@ def joint_frames(robot: Robot, params: np.ndarray) -> dict:
 
 def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
     """The URDF (text) of ``robot`` at its parameter values (a calibrated robot's estimates)."""
-    params = robot.parameter_vector()
-    f = joint_frames(robot, params)
+    f = joint_frames(robot)
     n = robot.n_joints
     parts = [
         '<?xml version="1.0"?>',
@@ -293,12 +294,10 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
 def compliance_document(robot: Robot, urdf_name: str) -> dict:
     """The sidecar of an exported URDF: the joint compliances (rad/(N m)) and what they mean."""
     values = robot.nominal_parameters()
-    frames = joint_frames(robot, robot.parameter_vector())
-    bends = robot.chain.bend
-    data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
+    frames = joint_frames(robot)
     joints = []
     for i in range(robot.n_joints):
-        B_in_joint = inverse(frames["joints"][i]) @ data.frames_rigid[bends[i], 0]
+        B_in_joint = inverse(frames["joints"][i]) @ frames["bends"][i]
         joints.append(
             {
                 "joint": f"joint_{i + 1}",

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..simulation.cell import Cell
-from ..simulation.design import solve_views, uniform_configurations
+from ..simulation.design import random_block_requests, solve_views, uniform_configurations
 
 # A candidate needs its block in view, not a pose to 1e-9: fewer IK iterations, more candidates.
 IK_ITERATIONS, IK_TOL = 25, 1e-6
@@ -41,12 +41,7 @@ def camera_candidates(
     rounds = 0
     while len(views) < count and rounds < 40:
         rounds += 1
-        requests = []
-        for _ in range(max(256, int(1.4 * (count - len(views))))):
-            side = cell.sides[rng.integers(len(cell.sides))]
-            requests.append(
-                (side, side.block(int(rng.integers(side.n_block_rows)), int(rng.integers(side.n_block_cols))))
-            )
+        requests = random_block_requests(cell, max(256, int(1.4 * (count - len(views)))), rng)
         views += solve_views(
             ik_cell, requests, robot.fk_tool, rng, starts=2, iterations=IK_ITERATIONS, tol=IK_TOL, freeze_converged=True
         )

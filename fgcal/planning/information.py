@@ -59,9 +59,9 @@ class Information:
 
 
 def _camera_rows(
-    robot: Robot, params: np.ndarray, cell: Cell, cand: Candidates, names: list[str], rotation: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    data = kinematics.forward(robot, params, cand.q)
+    robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str], rotation: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows on the parameters and on the fixture, and the block points in the camera frame."""
     T_C_W = inverse(kinematics.frame_pose(robot, data, "tool"))
     J_body = kinematics.jacobian(robot, data, names, frame="tool")  # (M, 6, m)
     p_W = transform_points(cell.fixture_pose[None, None], cand.points_F)  # (M, 4, 3)
@@ -75,13 +75,12 @@ def _camera_rows(
     if rotation:
         blocks.insert(0, -R_C_W @ skew(p_W))
     J_aux = np.concatenate(blocks, axis=-1).reshape(len(cand.q), -1, 3 * len(blocks))
-    return J_p, J_aux
+    return J_p, J_aux, p_C
 
 
 def _tracker_rows(
-    robot: Robot, params: np.ndarray, cell: Cell, cand: Candidates, names: list[str]
+    robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
 ) -> tuple[np.ndarray, np.ndarray]:
-    data = kinematics.forward(robot, params, cand.q)
     T_W_n = kinematics.frame_pose(robot, data, "flange")
     R_T_W = cell.tracker_pose[:3, :3].T
     n_conf, n_targets = len(cand.q), len(cell.tracker_targets)
@@ -108,12 +107,13 @@ def build_information(
     seed: int = 0,
 ) -> Information:
     """Rows of every candidate on the parameters identifiable from the ``reference``
-    candidates (indices: a space-filling design of the planned size, so that the plan's
-    unknowns are those a design of that size can determine)."""
+    candidates (indices: a generous space-filling design, so that the plan's unknowns are
+    those the cell can determine)."""
     names = candidate_parameters(robot, config)
     params = robot.parameter_vector()
+    data = kinematics.forward(robot, params, cand.q)
     if config.formulation == "tracker":
-        J_p, J_aux = _tracker_rows(robot, params, cell, cand, names)
+        J_p, J_aux = _tracker_rows(robot, data, cell, cand, names)
         sigma = cell.tracker_sigma_m
         aux_labels = ["tracker.rx", "tracker.ry", "tracker.rz", "tracker.tx", "tracker.ty", "tracker.tz"]
         aux_labels += [f"reflector{t + 1}.{a}" for t in range(len(cell.tracker_targets)) for a in "xyz"]
@@ -122,7 +122,7 @@ def build_information(
         gauge, point, frame = "none", cell.tracker_targets[0], "flange"
     else:
         rotation = config.formulation == "projection" or config.fixture_orientation == "estimate"
-        J_p, J_aux = _camera_rows(robot, params, cell, cand, names, rotation)
+        J_p, J_aux, p_C = _camera_rows(robot, data, cell, cand, names, rotation)
         sigma = cell.camera_point_sigma_m
         aux_labels = (["fixture.rx", "fixture.ry", "fixture.rz"] if rotation else []) + [
             "fixture.tx",
@@ -131,12 +131,9 @@ def build_information(
         ]
         aux_sigma = ([PRIOR_SIGMA_AUX["rotation"]] * 3 if rotation else []) + [PRIOR_SIGMA_AUX["translation"]] * 3
         gauge = "rigid" if rotation else "translation"
-        data = kinematics.forward(robot, params, cand.q)
-        T_C_W = inverse(kinematics.frame_pose(robot, data, "tool"))
-        p_W = transform_points(cell.fixture_pose[None, None], cand.points_F)
-        point, frame = transform_points(T_C_W[:, None], p_W).reshape(-1, 3).mean(axis=0), "tool"
+        point, frame = p_C.reshape(-1, 3).mean(axis=0), "tool"
     J_p, J_aux = J_p / sigma, J_aux / sigma
-    moments = kinematics.forward(robot, params, cand.q[reference]).moments
+    moments = data.moments[reference]
     identifiability = select(
         J_p[reference].reshape(-1, len(names)),
         J_aux[reference].reshape(-1, J_aux.shape[2]),

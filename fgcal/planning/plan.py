@@ -79,20 +79,18 @@ def _curve_sizes(n: int, n_candidates: int, n_unknowns: int) -> list[int]:
     return sorted(s for s in sizes if low <= s <= min(n_candidates, max(3 * n, 100)))
 
 
-def _curves(
-    info: Information, cand: Candidates, limits: np.ndarray, greedy: list[int], sizes: list[int], seed: int
-) -> dict[str, list[float]]:
+def _curves(planner: Planner, greedy: list[int], sizes: list[int]) -> dict[str, list[float]]:
     """Predicted RMS sigma (m) against N: the greedy sequence's prefixes (the plan's own
     algorithm before its exchange passes), random designs (mean of RANDOM_DRAWS) and
     space-filling designs (max-min in joint space) from the same candidates."""
-    rng = np.random.default_rng(seed)
+    info, n_candidates = planner.info, len(planner.candidates.q)
+    rng = np.random.default_rng(planner.seed)
     planned, random, space_filling = [], [], []
     for size in sizes:
         planned.append(predicted_sigma(info, information_of(info, greedy[:size])) if size <= len(greedy) else None)
-        draws = [rng.choice(len(cand.q), size, replace=False) for _ in range(RANDOM_DRAWS)]
+        draws = [rng.choice(n_candidates, size, replace=False) for _ in range(RANDOM_DRAWS)]
         random.append(float(np.mean([predicted_sigma(info, information_of(info, d)) for d in draws])))
-        chosen = max_min_selection(cand.q, limits, size, np.random.default_rng(seed + 1))
-        space_filling.append(predicted_sigma(info, information_of(info, chosen)))
+        space_filling.append(predicted_sigma(info, information_of(info, planner.space_filling(size))))
     return {"n": sizes, "planned_m": planned, "random_m": random, "space_filling_m": space_filling}
 
 
@@ -198,7 +196,7 @@ def plan(
         sizes = [s for s in sizes if s <= curve_max]
     # The greedy sequence of the largest size gives every prefix of the curve in one run.
     greedy = plan_design(info, max(sizes), criterion, max_passes=0)[1] if sizes else []
-    curves = _curves(info, cand, robot.limits, greedy, sizes, planner.seed)
+    curves = _curves(planner, greedy, sizes)
     timing["curves"] = time.process_time() - started
     M = information_of(info, chosen)
     n_rows = info.rows.shape[1]

@@ -12,7 +12,7 @@ all four points.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,13 +100,24 @@ def solve_views(
         if not candidates:
             continue
         q_i = q[candidates[0]]
-        T_W_C = true_camera(q_i[None])[0]
-        points_C = transform_points(
-            inverse(T_W_C), np.array([transform_points(cell.fixture_pose, p.position_F) for p in block])
-        )
-        if cell.camera.sees(points_C):
+        if sees_block(cell, true_camera(q_i[None])[0], block):
             views.append(View(q_i, side, tuple(block)))
     return views
+
+
+def sees_block(cell: Cell, T_W_C: np.ndarray, block: Sequence[GridPoint]) -> bool:
+    """Whether a camera at ``T_W_C`` sees every point of ``block``."""
+    points_W = transform_points(cell.fixture_pose, np.array([p.position_F for p in block]))
+    return bool(cell.camera.sees(transform_points(inverse(T_W_C), points_W)))
+
+
+def random_block_requests(cell: Cell, count: int, rng: np.random.Generator) -> list[tuple[Side, list[GridPoint]]]:
+    """``count`` (side, block) pairs: a random side, then a random block on it."""
+    requests = []
+    for _ in range(count):
+        side = cell.sides[rng.integers(len(cell.sides))]
+        requests.append((side, side.block(int(rng.integers(side.n_block_rows)), int(rng.integers(side.n_block_cols)))))
+    return requests
 
 
 def _spread_blocks(side: Side, count: int) -> list[tuple[int, int]]:
@@ -168,12 +179,7 @@ def space_filling_design(
     rounds = 0
     while len(pool) < oversample * n_wanted and rounds < 30:
         rounds += 1
-        requests = []
-        for _ in range(max(64, oversample * n_wanted - len(pool))):
-            side = cell.sides[rng.integers(len(cell.sides))]
-            requests.append(
-                (side, side.block(int(rng.integers(side.n_block_rows)), int(rng.integers(side.n_block_cols))))
-            )
+        requests = random_block_requests(cell, max(64, oversample * n_wanted - len(pool)), rng)
         pool += solve_views(cell, requests, true_camera, rng)
         if not pool and rounds >= NOTHING_REACHABLE_ROUNDS:
             raise _unreachable(cell, rounds, len(requests))
@@ -260,6 +266,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     if outside.size:
         raise InputError(path, f"line {outside[0] + 2}", f"joint values outside {robot.name}'s limits")
     blocks = blocks_by_label(cell)
+    T_W_C = true_camera(q) if cell.camera is not None else None
     views, unseen = [], []
     for i, row in enumerate(body):
         config = row[header.index("config")].strip()
@@ -270,11 +277,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
         if label not in blocks:
             raise InputError(path, f"line {i + 2}, column block", f"no block {label!r} in {cell.name}")
         side, block = blocks[label]
-        T_W_C = true_camera(q[i][None])[0]
-        points_C = transform_points(
-            inverse(T_W_C), np.array([transform_points(cell.fixture_pose, p.position_F) for p in block])
-        )
-        if cell.camera.sees(points_C):
+        if sees_block(cell, T_W_C[i], block):
             views.append(View(q[i], side, tuple(block)))
         else:
             unseen.append(config)

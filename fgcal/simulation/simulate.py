@@ -273,6 +273,9 @@ def _write_header(
     out: Path, cell: Cell, seed: int, n_configurations: int, counts: dict[str, int], boards: list | None = None
 ) -> None:
     robot = cell.robot
+    camera = cell.camera is not None  # a tracker cell has its tracker points only
+    camera_files = {"points": "points.csv", "camera_points": "camera_points.csv", "pixels": "pixels.csv"}
+    camera_noise = f"camera points {cell.camera_point_sigma_m} m, pixels {cell.pixel_sigma_px} px, " if camera else ""
     header = {
         "format": FORMAT,
         "robot": cell.robot_reference,
@@ -280,9 +283,7 @@ def _write_header(
         "measured": [k for k in counts if k != "images"],
         "files": {
             "configurations": "configurations.csv",
-            "points": "points.csv",
-            "camera_points": "camera_points.csv",
-            "pixels": "pixels.csv",
+            **(camera_files if camera else {}),
             "tracker_points": "tracker_points.csv",
         },
         **(
@@ -297,20 +298,11 @@ def _write_header(
             if boards
             else {}
         ),
-        "camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)} if cell.camera else None,
+        **({"camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)}} if camera else {}),
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
-        "fixture": _pose_doc(cell.fixture_pose),
+        **({"fixture": _pose_doc(cell.fixture_pose)} if camera else {}),
         "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
         "source": f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
-        f"{n_configurations} configurations); noise sigma: camera points {cell.camera_point_sigma_m} m, "
-        f"pixels {cell.pixel_sigma_px} px, tracker {cell.tracker_sigma_m} m",
+        f"{n_configurations} configurations); noise sigma: {camera_noise}tracker {cell.tracker_sigma_m} m",
     }
-    if cell.camera is None:  # a tracker cell: its tracker points only
-        header["files"] = {k: v for k, v in header["files"].items() if k in ("configurations", "tracker_points")}
-        for key in ("camera", "fixture"):
-            header.pop(key)
-        header["source"] = (
-            f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
-            f"{n_configurations} configurations); noise sigma: tracker {cell.tracker_sigma_m} m"
-        )
     write_header(out, header)
