@@ -16,6 +16,7 @@ from .kinematics import Kinematics
 from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
 from .projection import BehindCameraError, Projections, project
+from .touch import SocketSpacings, TouchPoints
 from .tracker import Distances, Poses, TrackerPoints
 
 __all__ = [
@@ -33,6 +34,8 @@ __all__ = [
     "Projections",
     "RandomWalkFactor",
     "RobustLoss",
+    "SocketSpacings",
+    "TouchPoints",
     "TrackerPoints",
     "gaussian",
     "helmert",

@@ -21,6 +21,8 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 - pixels: ``config, point, u, v`` (px)
 - tracker_points: ``config, target, x, y, z`` (tool target in the tracker frame)
 - tracker_references: ``config, target, x, y, z`` (fixed targets in the cell, stability check)
+- touch_points: ``config, point`` (the tool's probe sits at the fixed point ``point``: a socket)
+- point_distances: ``point_a, point_b, distance`` (known distances between touch points)
 """
 
 from __future__ import annotations
@@ -65,8 +67,10 @@ TABLES = {
     "pixels": (("config", "point"), ("u", "v"), "pixel"),
     "tracker_points": (("config", "target"), ("x", "y", "z"), "length"),
     "tracker_references": (("config", "target"), ("x", "y", "z"), "length"),
+    "touch_points": (("config", "point"), (), "length"),
+    "point_distances": (("point_a", "point_b"), ("distance",), "length"),
 }
-MEASUREMENTS = ("camera_points", "pixels", "tracker_points", "tracker_references")
+MEASUREMENTS = ("camera_points", "pixels", "tracker_points", "tracker_references", "touch_points", "point_distances")
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
 # what overflows the algebra (a 1e300 reading once hung the tracker initialisation).
 LIMITS = {"length": 1e4, "pixel": 1e6, "angle": 1e3}
@@ -249,6 +253,8 @@ def load_dataset(path: str | Path) -> Dataset:
                 bad = [p for p in dataset.tables[name].ids["point"] if p not in point_names]
                 if bad:
                     raise InputError(_inside(root, files, name), "point", f"unknown point {bad[0]!r}")
+    if "point_distances" in dataset.tables:
+        _check_distances(dataset, _inside(root, files, "point_distances"))
     if doc.has("tracker") and "tracker_points" in dataset.tables:
         tracker = doc.sub("tracker")
         tracker.check_keys(("targets",))
@@ -284,6 +290,28 @@ def load_dataset(path: str | Path) -> Dataset:
             raise doc.error("images", f"no such directory: {dataset.images_dir}")
         dataset.boards = _boards(doc.sub("markers"), units)
     return dataset
+
+
+def _check_distances(dataset: Dataset, path: Path) -> None:
+    """Known distances join two different touched points, once each, and are positive."""
+    if "touch_points" not in dataset.tables:
+        raise InputError(path, None, "distances between touch points need the touch_points table")
+    touched = set(dataset.tables["touch_points"].ids["point"])
+    table = dataset.tables["point_distances"]
+    seen = set()
+    for line, (a, b, d) in enumerate(
+        zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True), start=2
+    ):
+        for column, name in (("point_a", a), ("point_b", b)):
+            if name not in touched:
+                raise InputError(path, f"line {line}, column {column}", f"point {name!r} is never touched")
+        if a == b:
+            raise InputError(path, f"line {line}", f"a distance joins two different points, got {a!r} twice")
+        if not d > 0:
+            raise InputError(path, f"line {line}, column distance", f"must be > 0, got {d}")
+        if frozenset((a, b)) in seen:
+            raise InputError(path, f"line {line}", f"the distance {a}-{b} is given twice")
+        seen.add(frozenset((a, b)))
 
 
 def _boards(markers: Fields, units: Units) -> list:

@@ -58,13 +58,15 @@ def robots_dir() -> Path:
 
 
 def bundled_robots() -> list[str]:
-    return sorted(p.stem for p in robots_dir().glob("*.yaml"))
+    return sorted(p.stem for p in robots_dir().iterdir() if p.suffix in (".yaml", ".urdf"))
 
 
 def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
     """Load a bundled robot by name (e.g. ``"kuka_kr125_2"``), a robot YAML file or a URDF
     (the chain from its root link to ``tip``: default ``tool0``, else the only leaf)."""
     path = Path(name_or_path)
+    if path.suffix.lower() not in ROBOT_FILE_SUFFIXES and (robots_dir() / f"{name_or_path}.urdf").exists():
+        path = robots_dir() / f"{name_or_path}.urdf"  # a bundled URDF robot
     if path.suffix.lower() == ".urdf":
         from .urdf_io import load_urdf
 

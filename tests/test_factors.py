@@ -21,6 +21,8 @@ from fgcal.factors import (
     Projections,
     RandomWalkFactor,
     RobustLoss,
+    SocketSpacings,
+    TouchPoints,
     TrackerPoints,
     gaussian,
 )
@@ -110,6 +112,11 @@ def _measurement_sets():
         sets.append((Distances(model, key, 5, 6, np.array([0, 2]), np.array([1.7, 2.1]), 1e-3, robust=robust), values))
         measured = [_pose().matrix(), _pose().matrix()]
         sets.append((Poses(model, key, 1, 4, np.array([2, 0]), measured, 1e-3, 1e-2, robust=robust), values))
+        values.insert(8, RNG.normal(0, 1.0, 9))
+        touches = TouchPoints(model, key, 6, 8, 3, np.array([0, 1, 2, 2]), np.array([0, 2, 2, 1]), 1e-3, robust)
+        sets.append((touches, values))
+        if released:  # the spacings have no P: once is enough
+            sets.append((SocketSpacings(8, 3, np.array([[0, 1], [2, 0]]), np.array([0.4, 0.7]), 1e-4, robust), values))
     return sets
 
 

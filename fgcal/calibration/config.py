@@ -10,7 +10,9 @@ from ..parameters import JOINT_KINDS, ORIGIN_CORRECTION_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 
-FORMULATIONS = ("pairs", "tracker", "projection")
+FORMULATIONS = ("pairs", "tracker", "projection", "touch")
+# Formulations whose data locate points on the flange (reflectors, a touch probe), not a camera.
+FLANGE_FORMULATIONS = ("tracker", "touch")
 KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
 # DH angles and their translation corrections (tx, ty, tz) with the lengths.
@@ -59,6 +61,8 @@ class CalibrationConfig:
     camera_point_sigma_m: float
     tracker_sigma_m: float
     pixel_sigma_px: float
+    touch_sigma_m: float  # where a touch puts the tool point, about its socket
+    spacing_sigma_m: float  # of the known distances between touch points
     kinematic_sigma: float | None  # None: 1% of the measurement sigma
     robust: dict
     pair_partner: str
@@ -84,7 +88,14 @@ class CalibrationConfig:
             "pairs": self.camera_point_sigma_m,
             "tracker": self.tracker_sigma_m,
             "projection": 1e-3 * self.pixel_sigma_px,
+            "touch": self.touch_sigma_m,
         }[self.formulation]
+
+    @property
+    def frame(self) -> str:
+        """The frame the measurements locate: the flange (its points' positions are unknowns)
+        or the tool (the camera)."""
+        return "flange" if self.formulation in FLANGE_FORMULATIONS else "tool"
 
     @property
     def pose_tie_sigma(self) -> float:
@@ -164,9 +175,11 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     bounds = doc.sub("bounds", {})
     bounds.check_keys(("length",))
     noise = doc.sub("noise", {})
-    noise.check_keys(("camera_point_sigma", "tracker_sigma", "pixel_sigma_px", "kinematic_sigma"))
+    noise.check_keys(
+        ("camera_point_sigma", "tracker_sigma", "pixel_sigma_px", "touch_sigma", "spacing_sigma", "kinematic_sigma")
+    )
     robust = doc.sub("robust", {})
-    robust.check_keys(("camera_points", "tracker_points", "pixels"))
+    robust.check_keys(("camera_points", "tracker_points", "pixels", "touch_points"))
     pairs = doc.sub("pairs", {})
     pairs.check_keys(("partner", "seed", "group_images", "points_from"))
     validation = doc.sub("validation", {})
@@ -193,10 +206,13 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, positive=True),
         tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, positive=True),
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, positive=True),
+        touch_sigma_m=noise.number("touch_sigma", 2e-5 / to_m, to_m, positive=True),
+        spacing_sigma_m=noise.number("spacing_sigma", 1e-5 / to_m, to_m, positive=True),
         kinematic_sigma=noise.number("kinematic_sigma", None, positive=True) if noise.has("kinematic_sigma") else None,
         robust={
             "camera_points": _robust(robust, "camera_points", None),
             "tracker_points": _robust(robust, "tracker_points", ["huber", 3.0]),
+            "touch_points": _robust(robust, "touch_points", ["huber", 3.0]),
             # Cauchy: the influence of a gross false detection fades (Huber's stays k sigma).
             "pixels": _robust(robust, "pixels", ["cauchy", 3.0]),
         },

@@ -9,7 +9,8 @@ can read them back (docs/formats.md):
     units: {length: m, angle: rad}
     camera_mounting: {pose: {xyz, rpy}}                      # T_n_C, flange to camera (or tool)
     tracker: {pose: {xyz, rpy}, sigma: {rotation: [3], translation: [3]}}   # T_T_W
-    tool_points: {t1: {xyz: [3], sigma: [3]}, ...}           # reflectors, flange frame
+    tool_points: {t1: {xyz: [3], sigma: [3]}, ...}           # reflectors (or the touch probe), flange frame
+    touch_points: {p1: {xyz: [3], sigma: [3]}, ...}          # the touched fixed points, W
     fixture: {pose: {xyz, rpy}, sigma: {...}}                # T_W_F, projection formulation
     fixture_rotation: {rpy: [3], sigma: [3]}                 # R_W_F, pairs with an estimated one
     intrinsics: {fx_px, fy_px, cx_px, cy_px, k1, k2, p1, p2, k3, sigma: {...}}
@@ -24,7 +25,7 @@ import yaml
 
 from ..fields import Fields, read_yaml
 from ..se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation
-from .graph import FIXTURE_KEY, INTRINSICS_KEY, OBJECT_KEY, TOOL_POINTS_KEY, TRACKER_KEY
+from .graph import FIXTURE_KEY, INTRINSICS_KEY, OBJECT_KEY, SOCKETS_KEY, TOOL_POINTS_KEY, TRACKER_KEY
 
 FORMAT = "fgcal-estimates/1"
 INTRINSICS = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3")
@@ -57,14 +58,11 @@ def estimates_document(result) -> dict:
     doc: dict = {"format": FORMAT, "units": {"length": "m", "angle": "rad"}, "camera_mounting": {"pose": _pose(T_n_C)}}
     if state.tracker_pose is not None:
         doc["tracker"] = {"pose": _pose(state.tracker_pose), "sigma": _pose_sigma(_sigmas(result, TRACKER_KEY))}
-        sigma = _sigmas(result, TOOL_POINTS_KEY)
-        doc["tool_points"] = {
-            str(name): {
-                "xyz": [float(v) for v in point],
-                "sigma": None if sigma is None else [float(v) for v in sigma[3 * i : 3 * i + 3]],
-            }
-            for i, (name, point) in enumerate(zip(problem.targets, state.tool_points, strict=True))
-        }
+    if state.tool_points is not None:
+        names = problem.targets if state.tracker_pose is not None else ["probe"]
+        doc["tool_points"] = _points(names, state.tool_points, _sigmas(result, TOOL_POINTS_KEY))
+    if state.sockets is not None:
+        doc["touch_points"] = _points(problem.touch_points, state.sockets, _sigmas(result, SOCKETS_KEY))
     if state.fixture_pose is not None:
         doc["fixture"] = {"pose": _pose(state.fixture_pose), "sigma": _pose_sigma(_sigmas(result, OBJECT_KEY))}
     if state.fixture_rotation is not None:
@@ -80,6 +78,16 @@ def estimates_document(result) -> dict:
     return doc
 
 
+def _points(names: list[str], points: np.ndarray, sigma: np.ndarray | None) -> dict:
+    return {
+        str(name): {
+            "xyz": [float(v) for v in point],
+            "sigma": None if sigma is None else [float(v) for v in sigma[3 * i : 3 * i + 3]],
+        }
+        for i, (name, point) in enumerate(zip(names, points, strict=True))
+    }
+
+
 def write_estimates(result, path: str | Path) -> None:
     Path(path).write_text(yaml.safe_dump(estimates_document(result), sort_keys=False), encoding="utf-8")
 
@@ -90,8 +98,8 @@ def load_estimates(path: str | Path) -> dict:
     damaged file."""
     path = Path(path)
     doc = Fields(read_yaml(path), path)
-    doc.check_keys(("format", "units", "camera_mounting", "tracker", "tool_points", "fixture", "fixture_rotation",
-                    "intrinsics"))  # fmt: skip
+    doc.check_keys(("format", "units", "camera_mounting", "tracker", "tool_points", "touch_points", "fixture",
+                    "fixture_rotation", "intrinsics"))  # fmt: skip
     if doc.string("format") != FORMAT:
         raise doc.error("format", f"expected {FORMAT!r}")
     out: dict = {}
@@ -107,6 +115,9 @@ def load_estimates(path: str | Path) -> dict:
     if doc.has("tool_points"):
         points = doc.sub("tool_points")
         out["tool_points"] = {str(name): points.sub(str(name)).vector("xyz", 3) for name in points.data}
+    if doc.has("touch_points"):
+        points = doc.sub("touch_points")
+        out["touch_points"] = {str(name): points.sub(str(name)).vector("xyz", 3) for name in points.data}
     if doc.has("fixture"):
         out["fixture_pose"] = pose(doc.sub("fixture"))
     if doc.has("fixture_rotation"):

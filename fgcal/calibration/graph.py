@@ -20,6 +20,8 @@ from ..factors import (
     PointPairs,
     Projections,
     RobustLoss,
+    SocketSpacings,
+    TouchPoints,
     TrackerPoints,
     gaussian,
 )
@@ -35,6 +37,7 @@ TRACKER_KEY = gtsam.symbol("l", 0)
 OBJECT_KEY = gtsam.symbol("o", 0)
 INTRINSICS_KEY = gtsam.symbol("k", 0)
 TOOL_POINTS_KEY = gtsam.symbol("s", 0)
+SOCKETS_KEY = gtsam.symbol("a", 0)
 
 
 @dataclass
@@ -80,6 +83,8 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
         make, robust = _pairs(problem, state, stage), config.robust["camera_points"]
     elif config.formulation == "projection":
         make, robust = _projection(problem, state, stage), config.robust["pixels"]
+    elif config.formulation == "touch":
+        make, robust = _touch(problem, state, stage), config.robust["touch_points"]
     else:
         make, robust = _tracker(problem, state, stage), config.robust["tracker_points"]
     measurements, order = make(None)
@@ -88,6 +93,20 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
         kind, threshold = robust
         stage.robust_scale = robust_scale([measurements], stage.values)
         measurements, order = make(RobustLoss(kind, threshold * stage.robust_scale))
+    _add_measurements(stage, measurements, order)
+    if config.formulation == "touch" and problem.spacings:
+        spacings = SocketSpacings(
+            SOCKETS_KEY,
+            len(problem.touch_points),
+            np.array([(a, b) for a, b, _ in problem.spacings]),
+            np.array([d for _, _, d in problem.spacings]),
+            config.spacing_sigma_m,
+        )
+        _add_measurements(stage, spacings, None)
+    return stage
+
+
+def _add_measurements(stage: StageGraph, measurements: MeasurementSet, order: np.ndarray | None) -> None:
     stage.measurements.append(measurements)
     stage.observations.append(order)
     factors = gtsam.NonlinearFactorGraph()
@@ -95,7 +114,6 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
         factors.add(factor.factor)
     stage.measurement_graphs.append(factors)
     stage.graph.push_back(factors)
-    return stage
 
 
 def _add_prior(stage: StageGraph, factor) -> None:
@@ -251,6 +269,31 @@ def _tracker(problem: Problem, state: State, stage: StageGraph):
     return make
 
 
+def _touch(problem: Problem, state: State, stage: StageGraph):
+    stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float))
+    stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3)
+    stage.values.insert(SOCKETS_KEY, np.asarray(state.sockets, dtype=float).reshape(-1))
+    stage.aux[SOCKETS_KEY] = ("touch_points", 3 * len(state.sockets))
+    order = np.argsort([o[0] for o in problem.touch_obs], kind="stable")
+    observations = [problem.touch_obs[i] for i in order]
+
+    def make(robust):
+        touches = TouchPoints(
+            stage.model,
+            stage.params_key,
+            TOOL_POINTS_KEY,
+            SOCKETS_KEY,
+            len(state.sockets),
+            np.array([o[0] for o in observations]),
+            np.array([o[1] for o in observations]),
+            problem.config.touch_sigma_m,
+            robust=robust,
+        )
+        return touches, order
+
+    return make
+
+
 def read_state(stage: StageGraph, values: gtsam.Values, previous: State) -> State:
     params = stage.model.full(values.atVector(P_KEY)) if stage.released else previous.params.copy()
     state = State(params)
@@ -263,4 +306,7 @@ def read_state(stage: StageGraph, values: gtsam.Values, previous: State) -> Stat
     if previous.tracker_pose is not None:
         state.tracker_pose = values.atPose3(TRACKER_KEY).matrix()
         state.tool_points = values.atVector(TOOL_POINTS_KEY).reshape(-1, 3)
+    if previous.sockets is not None:
+        state.tool_points = values.atVector(TOOL_POINTS_KEY).reshape(-1, 3)
+        state.sockets = values.atVector(SOCKETS_KEY).reshape(-1, 3)
     return state

@@ -25,6 +25,9 @@ def initial_state(problem: Problem) -> State:
         state.fixture_rotation = problem.fixture_rotation.copy()
     if problem.config.formulation == "tracker":
         state.tracker_pose, state.tool_points = initial_tracker(problem, params)
+    if problem.config.formulation == "touch":
+        probe, state.sockets = initial_touch(problem, params)
+        state.tool_points = probe[None, :]
     if problem.config.formulation == "projection":
         # Nobody measured the mounting or the fixture: both start from the images.
         T_C_F = pnp_per_image(problem)
@@ -119,6 +122,27 @@ def initial_tracker(problem: Problem, params: np.ndarray, rounds: int = 15) -> t
     T_L = np.eye(4)
     T_L[:3, :3], T_L[:3, 3] = R_L, t_L
     return T_L, points
+
+
+def initial_touch(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Touch probe s (flange frame) and touch points a_k (W) from the nominal model, no guess
+    needed: ``R_j s - a_k = -p_j`` is linear in both, solved by least squares (m)."""
+    flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
+    n_points = len(problem.touch_points)
+    A = np.zeros((3 * len(problem.touch_obs), 3 + 3 * n_points))
+    b = np.zeros(3 * len(problem.touch_obs))
+    for row, (j, k) in enumerate(problem.touch_obs):
+        A[3 * row : 3 * row + 3, :3] = flange[j, :3, :3]
+        A[3 * row : 3 * row + 3, 3 + 3 * k : 6 + 3 * k] = -np.eye(3)
+        b[3 * row : 3 * row + 3] = -flange[j, :3, 3]
+    solution, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+    if rank < A.shape[1]:
+        raise InputError(
+            problem.dataset.path / "touch_points.csv",
+            None,
+            "the touches cannot locate the probe: touch each point with the tool in clearly different orientations",
+        )
+    return solution[:3], solution[3:].reshape(n_points, 3)
 
 
 def dataset_intrinsics(problem: Problem) -> np.ndarray:

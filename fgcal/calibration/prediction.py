@@ -12,8 +12,16 @@ from .. import kinematics
 from ..factors import TrackerPoints
 from ..se3 import skew, transform_points
 from .batch import BatchKinematics
-from .graph import P_KEY, TOOL_POINTS_KEY, TRACKER_KEY
-from .validation import focal_px, gauge_of, held_out_pairs, held_out_projections, projection_inputs
+from .graph import P_KEY, SOCKETS_KEY, TOOL_POINTS_KEY, TRACKER_KEY
+from .validation import (
+    focal_px,
+    gauge_of,
+    held_out_pairs,
+    held_out_projections,
+    held_out_touches,
+    projection_inputs,
+    touch_inputs,
+)
 
 
 def predicted_held_out(result, against_truth: bool) -> dict:
@@ -26,6 +34,9 @@ def predicted_held_out(result, against_truth: bool) -> dict:
       and the tool points; against measurements, plus 3 sigma^2 per point;
     - pairs and projection against the truth: the scored point in W, the gauge (common offset
       or best rigid motion, as gauge_of says) removed; no noise (the truth is exact);
+    - touch against held-out touches: the probe's distance from the touched point, through P,
+      the probe and the touched points, plus 3 sigma^2 per touch;
+    - touch against the truth: the probe in W, through P and the probe, the rigid gauge removed;
     - pairs against held-out point pairs: through P (an estimated fixture rotation's own
       uncertainty is left out), plus 3 sigma^2 per contrast;
     - projection against held-out pixels: through P, the fixture pose (and the intrinsics when
@@ -58,6 +69,16 @@ def predicted_held_out(result, against_truth: bool) -> dict:
         covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
         parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
         noise = 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2
+    elif not against_truth and config.formulation == "touch":
+        touches = held_out_touches(problem, result.state, result.released)
+        if touches is None:
+            return {}
+        J = np.hstack(touches.compute(touch_inputs(result.state, p_values), True).blocks).reshape(
+            len(touches.configs), 3, -1
+        )
+        covariance = result.joint_covariance.block([P_KEY, TOOL_POINTS_KEY, SOCKETS_KEY])
+        parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
+        noise = 3.0 * factor * config.touch_sigma_m**2
     elif not against_truth and config.formulation == "projection":
         projections = held_out_projections(problem, result.state, result.released)
         if projections is None:
@@ -95,10 +116,16 @@ def position_covariances(result) -> np.ndarray:
     problem = result.problem
     q = problem.dataset.q[problem.test]
     data = kinematics.forward(problem.robot, result.state.params, q)
-    J = kinematics.jacobian(problem.robot, data, result.released, frame="tool", point=result.tool_point)
-    positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
+    frame = problem.frame
+    J = kinematics.jacobian(problem.robot, data, result.released, frame=frame, point=result.tool_point)
+    pose = kinematics.frame_pose(problem.robot, data, frame)
+    positions = transform_points(pose, result.tool_point)
+    covariance = result.covariance
+    if problem.config.formulation == "touch":  # the probe is estimated too: d(X s)/ds = R_X
+        J = np.concatenate([J, pose[:, :3, :3]], axis=2)
+        covariance = result.joint_covariance.block([P_KEY, TOOL_POINTS_KEY])
     flat = without_gauge(J.reshape(-1, J.shape[2]), positions, gauge_of(problem)).reshape(len(q), 3, -1)
-    return np.einsum("nij,jk,nlk->nil", flat, result.covariance, flat)
+    return np.einsum("nij,jk,nlk->nil", flat, covariance, flat)
 
 
 def without_gauge(J: np.ndarray, positions: np.ndarray, gauge: str) -> np.ndarray:
@@ -143,7 +170,7 @@ def workspace_map(result) -> dict | None:
         return None
     if config.formulation != "tracker":
         data = kinematics.forward(problem.robot, result.state.params, q)
-        positions = transform_points(kinematics.frame_pose(problem.robot, data, "tool"), result.tool_point)
+        positions = transform_points(kinematics.frame_pose(problem.robot, data, problem.frame), result.tool_point)
         sigma = np.sqrt(np.trace(position_covariances(result), axis1=1, axis2=2))
         after = result.validation.get("after", {}).get("tool_point")
         measured = after.errors if after is not None and len(after.errors) == len(q) else None

@@ -59,6 +59,9 @@ class Problem:
         default_factory=list
     )  # (fit index, p_F, px, point)
     targets: list[str] = field(default_factory=list)
+    touch_obs: list[tuple[int, int]] = field(default_factory=list)  # (fit index, touch point index)
+    touch_points: list[str] = field(default_factory=list)  # names of the fixed points (sockets)
+    spacings: list[tuple[int, int, float]] = field(default_factory=list)  # (point, point, distance m)
     skipped_images: list[tuple[str, str]] = field(default_factory=list)
     rejected: list[dict] = field(default_factory=list)  # outliers removed: config, kind, point or target, size
     detection: dict = field(default_factory=dict)
@@ -73,6 +76,8 @@ class Problem:
             return sum(3 * (len(p.c) - 1) for p in self.pairs)
         if self.config.formulation == "projection":
             return 2 * len(self.pixel_obs)
+        if self.config.formulation == "touch":
+            return 3 * len(self.touch_obs) + len(self.spacings)
         return 3 * len(self.tracker_obs)
 
     def pair_categories(self) -> dict[str, int]:
@@ -151,8 +156,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) ->
         dataset = copy.copy(dataset)
         dataset.tables = {**dataset.tables, "pixels": detections.pixels}
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
-    frame = "flange" if config.formulation == "tracker" else "tool"
-    problem = Problem(config, dataset, robot, frame, fit, test, candidate_parameters(robot, config))
+    problem = Problem(config, dataset, robot, config.frame, fit, test, candidate_parameters(robot, config))
     if detections is not None:
         problem.skipped_images = detections.skipped
         problem.detection = {
@@ -165,6 +169,8 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) ->
         _build_pairs(problem)
     elif config.formulation == "projection":
         _build_projection(problem)
+    elif config.formulation == "touch":
+        _build_touch(problem)
     else:
         _build_tracker(problem)
     return problem
@@ -313,3 +319,28 @@ def _build_tracker(problem: Problem) -> None:
             None,
             f"only {len(problem.tracker_obs)} tracker measurements in the fitting set: too few",
         )
+
+
+def _build_touch(problem: Problem) -> None:
+    data = problem.dataset
+    if "touch_points" not in data.tables:
+        raise InputError(data.path / "dataset.yaml", "measured", "the touch formulation needs touch_points")
+    table = data.tables["touch_points"]
+    problem.touch_points = sorted(set(table.ids["point"]))
+    index = {name: i for i, name in enumerate(problem.touch_points)}
+    for fit_index, point, _ in fitting_rows(problem, table, "point"):
+        problem.touch_obs.append((fit_index, index[point]))
+    counts = Counter(point for _, point in problem.touch_obs)
+    lonely = [problem.touch_points[k] for k in range(len(problem.touch_points)) if counts.get(k, 0) < 2]
+    if lonely:
+        # A point touched once only locates itself: it says nothing about the robot.
+        raise InputError(
+            data.path / "touch_points.csv",
+            "point",
+            f"point {lonely[0]!r} is touched {counts.get(index[lonely[0]], 0)} times in the fitting set: "
+            "each point needs several touches in different configurations",
+        )
+    distances = data.tables.get("point_distances")
+    if distances is not None:
+        for a, b, d in zip(distances.ids["point_a"], distances.ids["point_b"], distances.values[:, 0], strict=True):
+            problem.spacings.append((index[a], index[b], float(d)))

@@ -113,8 +113,9 @@ def report_dict(result: CalibrationResult) -> dict:
         "validation": {
             **validation,
             "scored_point_m": [float(v) for v in result.tool_point] if config.formulation != "tracker" else None,
+            "scored_point_frame": "flange" if config.formulation == "touch" else "camera",
             "reference": "ground truth" if result.truth else "held-out measurements",
-            "gauge_removed": gauge_of(problem),
+            "gauge_removed": gauge_of(problem) if result.truth else "none",
             "predicted_position_sigma_m": predicted,
         },
         "estimates_file": "estimates.yaml",  # every estimate besides the robot, with sigmas (estimates.py)
@@ -179,8 +180,8 @@ def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
     names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
     if not names:
         return {}
-    frame = "tool" if result.config.formulation != "tracker" else "flange"
-    point = result.tool_point if result.config.formulation != "tracker" else result.state.tool_points[0]
+    frame = result.config.frame
+    point = result.state.tool_points[0] if result.config.formulation == "tracker" else result.tool_point
     data = kinematics.forward(problem.robot, result.state.params, problem.q_fit)
     J = kinematics.jacobian(problem.robot, data, names, frame=frame, point=point)  # (N, 3, k)
     values = np.array([result.state.params[problem.robot.parameter_names.index(n)] for n in names])
@@ -337,7 +338,11 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 "and intrinsics; each pixel error times the point's depth over the focal length (m)."
                 if "reprojection_error_m" in val["after"]
                 else f"Reference: {val['reference']}; gauge removed: {val['gauge_removed']}."
-                + (f" Scored point in the camera frame: {val['scored_point_m']} m." if val["scored_point_m"] else "")
+                + (
+                    f" Scored point in the {val['scored_point_frame']} frame: {val['scored_point_m']} m."
+                    if val["scored_point_m"]
+                    else ""
+                )
             ),
             "",
             "| | mean | RMS | P50 | P95 | max | RMS x, y, z |",

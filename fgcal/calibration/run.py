@@ -87,10 +87,14 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
     removed when more than MAX_REJECTED_FRACTION would go (a model problem, not bad data)."""
     if problem.config.formulation == "pairs":
         return _reject_pairs(problem, stage, values)
-    kind = {"projection": "pixels", "tracker": "tracker_points"}[problem.config.formulation]
+    kind = {"projection": "pixels", "tracker": "tracker_points", "touch": "touch_points"}[problem.config.formulation]
     if problem.config.robust.get(kind) is None:
         return False
-    observations = problem.pixel_obs if kind == "pixels" else problem.tracker_obs
+    observations = {
+        "pixels": problem.pixel_obs,
+        "tracker_points": problem.tracker_obs,
+        "touch_points": problem.touch_obs,
+    }[kind]
     measurements, order = stage.measurements[0], stage.observations[0]
     scale = robust_scale(stage.measurements, values)
     dims = np.diff(np.append(measurements.unit_starts, measurements.n_rows))
@@ -100,10 +104,17 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
     if not outlier.any() or outlier.sum() > MAX_REJECTED_FRACTION * len(outlier):
         return False
     unit = "px" if kind == "pixels" else "m"
-    sigma = problem.config.pixel_sigma_px if kind == "pixels" else problem.config.tracker_sigma_m
+    sigma = {
+        "pixels": problem.config.pixel_sigma_px,
+        "tracker_points": problem.config.tracker_sigma_m,
+        "touch_points": problem.config.touch_sigma_m,
+    }[kind]
     for o, size in zip(observations, rms, strict=True):
         if size > REJECT_SIGMA * scale:
-            name = o[3] if kind == "pixels" else problem.targets[o[1]]
+            if kind == "pixels":
+                name = o[3]
+            else:
+                name = (problem.targets if kind == "tracker_points" else problem.touch_points)[o[1]]
             problem.rejected.append(_rejection(problem, o[0], kind, name, size, size * sigma, unit))
     observations[:] = [o for o, bad in zip(observations, outlier, strict=True) if not bad]
     return True
@@ -249,7 +260,7 @@ def calibrate_dataset(
             state.params[problem.robot.parameter_names.index(name)] = nominal[problem.robot.parameter_names.index(name)]
     stages: list[StageReport] = []
     solve_started = time.perf_counter()
-    if state.tracker_pose is not None or state.fixture_rotation is not None or state.fixture_pose is not None:
+    if state.n_auxiliary:
         state, report, _, _ = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
         stages.append(report)
     before = state
@@ -273,13 +284,17 @@ def calibrate_dataset(
             problem, f"{len(config.stages)} (after rejection)", last_stage.released, state, say
         )
         stages.append(report)
+    if last_stage is not None:
+        state, last_stage, last_values, final_ident = _identifiable_at_solution(
+            problem, identifiability, state, last_stage, last_values, stages, say
+        )
     if config.formulation == "pairs":
         _flag_held_out_pairs(problem, state)
     solve_time = time.perf_counter() - solve_started
     joint = joint_covariance(last_stage, last_values) if last_stage is not None else None
     covariance = joint.block([P_KEY]) if joint is not None else np.zeros((0, 0))
     released = list(last_stage.released) if last_stage is not None else []
-    point = default_tool_point(problem)
+    point = default_tool_point(problem, state)
     fit = stages[-1].fit if stages else None
     factor = fit.variance_factor if fit is not None else 1.0
     result = CalibrationResult(
@@ -303,6 +318,44 @@ def calibrate_dataset(
         result.validation[label] = {k: stats(v) for k, v in held_out_errors(problem, st).items()}
     result.timing = {"solve_s": solve_time, "total_s": time.perf_counter() - started}
     return result
+
+
+def _identifiable_at_solution(problem, identifiability, state, stage, values, stages, say):
+    """The identifiability analysis again at the solution, on the released parameters.
+
+    At the starting point the residuals are far above the noise, and a direction that only
+    changes the residuals in proportion to themselves (a common scale of every length and
+    touched point, a rotation about the vertical when compliances have gravity moments) looks
+    determined there; at the solution it is not. Released parameters found unidentifiable at
+    the solution are fixed at their estimates (gauge directions: any value fits as well) and the
+    last stage is solved again, so that the covariance describes only what the data determine."""
+    at_solution = analyse(build_graph(problem, stage.released, state), problem.config.min_information)
+    dropped = [name for name in stage.released if name in at_solution.unidentifiable]
+    again = at_solution
+    if dropped:
+        say(
+            f"  at the solution {len(dropped)} released parameters are not identifiable ({', '.join(dropped)}): "
+            "fixed at their estimates, solving the last stage again"
+        )
+        kept = [name for name in stage.released if name not in dropped]
+        state, report, stage, values = solve_stage(problem, f"{stages[-1].name} (identifiable set)", kept, state, say)
+        stages.append(report)
+        again = analyse(build_graph(problem, kept, state), problem.config.min_information)
+    unidentifiable = dict(identifiability.unidentifiable)
+    absorbed_by = dict(identifiability.absorbed_by)
+    for name in dropped:
+        unidentifiable[name] = f"at the solution, {at_solution.unidentifiable[name]}"
+        if name in at_solution.absorbed_by:
+            absorbed_by[name] = at_solution.absorbed_by[name]
+    final = Identifiability(
+        again.identifiable,
+        unidentifiable,
+        again.singular_values,
+        again.condition_number,
+        again.n_rows,
+        absorbed_by,
+    )
+    return state, stage, values, final
 
 
 def held_out_summary(result: CalibrationResult) -> str | None:

@@ -32,9 +32,12 @@ def _pose(doc: dict) -> np.ndarray:
 
 def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None, target: str | None) -> np.ndarray:
     """True positions (N, 3) of what is scored: for pairs, ``point`` fixed in the true
-    camera frame, in W; for the tracker, the reflector ``target`` in the tracker frame."""
+    camera frame, in W; for the tracker, the reflector ``target`` in the tracker frame; for
+    touches, the true probe in W."""
     robot = problem.dataset.robot.with_model(truth.get("model", "DH,s,e"))
     params = truth["parameters"]
+    if problem.config.formulation == "touch":  # the true probe, whatever the estimate
+        return transform_points(robot.fk(q, params), np.array(truth["touch_probe"], float))
     if problem.config.formulation != "tracker":
         # The true tool.* perturbs the simulation's nominal mounting, which a dataset's (or a
         # user's) mounting guess need not equal.
@@ -58,7 +61,8 @@ def truth_errors(
         return {}
     if problem.config.formulation != "tracker":
         out = {}
-        for label, p in (("tool_point", point), ("camera_origin", np.zeros(3))):
+        labels = (("tool_point", point), ("camera_origin", np.zeros(3)))
+        for label, p in labels[:1] if problem.config.formulation == "touch" else labels:
             residual = remove_gauge(
                 predicted_positions(problem, state, q, p, None),
                 true_positions(problem, truth, q, p, None),

@@ -6,6 +6,9 @@
   orientation also its rotation), so the common offset (or best rigid motion) over the held-out
   configurations is removed before scoring. The camera origin's error is reported too.
 - Tracker formulation: the predicted reflector positions in the tracker frame; no gauge.
+- Touch formulation: the predicted probe position at each held-out touch against the touched
+  point's estimate (both in W); no gauge. Against the truth, the probe's position in W with
+  the best rigid motion removed (W is where the nominal base puts it).
 
 Here against held-out measurements (the tracker's); against a simulation's ground truth in
 fgcal.calibration.scoring, called after the calibration.
@@ -18,10 +21,10 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ..factors import PointPairs, Projections
+from ..factors import PointPairs, Projections, TouchPoints
 from ..se3 import kabsch, transform_points
 from .batch import BatchKinematics
-from .graph import INTRINSICS_KEY, OBJECT_KEY, P_KEY
+from .graph import INTRINSICS_KEY, OBJECT_KEY, P_KEY, SOCKETS_KEY, TOOL_POINTS_KEY
 from .initialise import dataset_intrinsics
 from .problem import Problem, fitting_rows, pair_groups
 from .state import State
@@ -83,15 +86,21 @@ def remove_gauge(predicted: np.ndarray, reference: np.ndarray, gauge: str) -> np
     return predicted @ R.T + t - reference
 
 
-def default_tool_point(problem: Problem) -> np.ndarray:
-    """The mean measured point in the camera frame: where the camera works (m)."""
+def default_tool_point(problem: Problem, state: State) -> np.ndarray:
+    """The scored tool point (m): the touch probe (flange frame), else the mean measured point
+    in the camera frame, where the camera works."""
+    if problem.config.formulation == "touch":
+        return state.tool_points[0].copy()
     table = problem.dataset.tables.get("camera_points")
     return table.values.mean(axis=0) if table is not None and len(table) else np.zeros(3)
 
 
 def gauge_of(problem: Problem) -> str:
+    """The gauge removed before scoring against the truth."""
     if problem.config.formulation == "tracker":
         return "none"
+    if problem.config.formulation == "touch":
+        return "rigid"  # the touched points are estimated in the frame of the nominal base
     if problem.config.formulation == "projection":
         # The fixture pose is estimated relative to the robot: W is tied to the nominal base.
         return "rigid"
@@ -103,9 +112,11 @@ def predicted_positions(
 ) -> np.ndarray:
     robot = problem.robot
     params = robot.parameter_dict(state.params)
-    if problem.config.formulation != "tracker":
-        return transform_points(robot.fk_tool(q, params), point)
-    return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
+    if problem.config.formulation == "tracker":
+        return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
+    if problem.config.formulation == "touch":  # the state's own probe
+        return transform_points(robot.fk(q, params), state.tool_points[0])
+    return transform_points(robot.fk_tool(q, params), point)
 
 
 def held_out_pairs(problem: Problem, state: State, released: list[str]) -> PointPairs | None:
@@ -154,6 +165,32 @@ def held_out_projections(problem: Problem, state: State, released: list[str]) ->
     )
 
 
+def held_out_touches(problem: Problem, state: State, released: list[str]) -> TouchPoints | None:
+    """The held-out touches, at the state's parameters (P variable over ``released``), probe
+    and touched points."""
+    rows = sorted(
+        (i, problem.touch_points.index(name))
+        for i, name, _ in fitting_rows(problem, problem.dataset.tables["touch_points"], "point", problem.test)
+    )
+    if not rows:
+        return None
+    model = BatchKinematics(problem.robot, state.params, released, problem.dataset.q[problem.test], "flange")
+    return TouchPoints(
+        model,
+        P_KEY if released else None,
+        TOOL_POINTS_KEY,
+        SOCKETS_KEY,
+        len(problem.touch_points),
+        np.array([r[0] for r in rows]),
+        np.array([r[1] for r in rows]),
+        problem.config.touch_sigma_m,
+    )
+
+
+def touch_inputs(state: State, params: np.ndarray | None) -> list:
+    return [*([] if params is None else [params]), state.tool_points[0], state.sockets.reshape(-1)]
+
+
 def projection_inputs(problem: Problem, state: State, params: np.ndarray | None) -> list:
     inputs = [] if params is None else [params]
     inputs.append(gtsam.Pose3(state.fixture_pose))
@@ -190,6 +227,11 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
         pixels = np.linalg.norm(projections.compute(inputs, False).residual.reshape(-1, 2), axis=1)
         metric = pixels * projections.camera_points(inputs)[3][:, 2] / focal_px(problem, state)
         return {"reprojection": metric, "reprojection_px": pixels}
+    if problem.config.formulation == "touch":
+        touches = held_out_touches(problem, state, [])
+        if touches is None:
+            return {}
+        return {"tool_point": touches.compute(touch_inputs(state, None), False).residual.reshape(-1, 3)}
     q = data.q[problem.test]
     errors = []
     # Held-out measurements: predict each reflector at every held-out configuration once.

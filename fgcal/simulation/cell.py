@@ -30,6 +30,7 @@ CELL_KEYS = (
     "camera",
     "payload",
     "tracker",
+    "touch",
     "noise",
     "perturbation",
     "design",
@@ -104,6 +105,18 @@ class Design:
 
 
 @dataclass(frozen=True)
+class TouchSetup:
+    """A probe on the flange touching fixed points (sockets) in the cell, all in SI."""
+
+    probe: np.ndarray  # (3,) the probe's centre in the flange frame (the true one)
+    names: tuple[str, ...]
+    points: np.ndarray  # (k, 3) in W
+    touches_per_point: int
+    max_tilt_rad: float  # of the probe's approach from straight down
+    known_distances: bool  # the drawing gives the distances between the points
+
+
+@dataclass(frozen=True)
 class Cell:
     name: str
     source: str
@@ -119,6 +132,9 @@ class Cell:
     tracker_sigma_m: float
     perturbation: Perturbation
     design: Design
+    touch: TouchSetup | None = None  # a touch cell: a probe touching fixed points
+    touch_sigma_m: float = 0.0
+    spacing_sigma_m: float = 0.0
 
     def points(self) -> list[GridPoint]:
         return [p for side in self.sides for row in side.points for p in row]
@@ -171,6 +187,33 @@ def _cuboid_sides(obj: Fields, pitch: float, margin: float, to_m: float, to_rad:
     return sides
 
 
+def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
+    touch.check_keys(("probe", "points", "touches_per_point", "max_tilt", "known_distances"))
+    names, points = [], []
+    for point in touch.sub_list("points"):
+        point.check_keys(("name", "xyz"))
+        names.append(point.string("name"))
+        points.append(point.vector("xyz", 3, scale=to_m))
+    if len(points) < 3:
+        raise touch.error("points", f"at least 3 points are needed to touch, got {len(points)}")
+    if len(set(names)) != len(names):
+        raise touch.error("points", "duplicate point names")
+    known = touch.raw("known_distances", True)
+    if not isinstance(known, bool):
+        raise touch.error("known_distances", f"expected true or false, got {known!r}")
+    tilt = touch.number("max_tilt", 40.0 * np.pi / 180 / to_rad, to_rad, positive=True)
+    if tilt >= np.pi / 2:
+        raise touch.error("max_tilt", "the probe approaches from above: below 90 deg")
+    return TouchSetup(
+        probe=touch.vector("probe", 3, scale=to_m),
+        names=tuple(names),
+        points=np.array(points),
+        touches_per_point=touch.integer("touches_per_point", 12, minimum=3),
+        max_tilt_rad=float(tilt),
+        known_distances=known,
+    )
+
+
 def load_cell(path: str | Path) -> Cell:
     """Load and validate a cell file; every error names the file and field."""
     path = Path(path)
@@ -221,8 +264,11 @@ def load_cell(path: str | Path) -> Cell:
         for i, t in enumerate(raw_targets)
     ]
 
+    touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
+    if touch is not None and camera is not None:
+        raise doc.error("touch", "a cell has a camera or a touch probe, not both")
     noise = doc.sub("noise", {})
-    noise.check_keys(("camera_point_sigma", "pixel_sigma_px", "tracker_sigma"))
+    noise.check_keys(("camera_point_sigma", "pixel_sigma_px", "tracker_sigma", "touch_sigma", "spacing_sigma"))
     pert = doc.sub("perturbation", {})
     pert.check_keys(
         (
@@ -252,6 +298,8 @@ def load_cell(path: str | Path) -> Cell:
     if not 0 < standoff[0] <= standoff[1]:
         raise design.error("standoff", "expected [near, far] with 0 < near <= far")
     design_kind = design.string("kind", "seed" if camera is not None else "space_filling", DESIGNS)
+    if touch is not None:
+        design_kind = "touch"
     if camera is None and design_kind == "seed":
         raise design.error("kind", "the seed design looks at the objects: a tracker cell (no camera) is space_filling")
     return Cell(
@@ -267,6 +315,9 @@ def load_cell(path: str | Path) -> Cell:
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, nonnegative=True),
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, nonnegative=True),
         tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, nonnegative=True),
+        touch=touch,
+        touch_sigma_m=noise.number("touch_sigma", 1e-5 / to_m, to_m, nonnegative=True),
+        spacing_sigma_m=noise.number("spacing_sigma", 5e-6 / to_m, to_m, nonnegative=True),
         perturbation=Perturbation(
             length_m=pert.number("length", 5e-3 / to_m, to_m, nonnegative=True),
             angle_rad=pert.number("angle", 2e-3 / to_rad, to_rad, nonnegative=True),

@@ -16,6 +16,7 @@ from ..errors import InputError
 from ..se3 import inverse, rpy_from_rotation, transform_points
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
+from .touch import touch_design, write_touch_tables
 from .truth import perturb_parameters
 
 
@@ -97,6 +98,10 @@ def simulate(
         if design is not None or n_configurations is not None:
             raise InputError(None, "--configurations", "takes the place of --design and --n")
         cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
+    if cell.touch is not None and (configurations is not None or design is not None or drift is not None):
+        raise InputError(
+            cell.source, "touch", "a touch cell's configurations are its touches: no other design or drift"
+        )
     if cell.camera is None and cell.design.kind == "seed":
         raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
     if render and cell.camera is None:
@@ -122,6 +127,9 @@ def simulate(
                 f"  {len(unseen)} configurations left out: the simulated true camera does not see their block "
                 f"({', '.join(unseen[:5])}{', ...' if len(unseen) > 5 else ''})"
             )
+    elif cell.touch is not None:
+        q_touch, touched, seating = touch_design(cell, robot.parameter_vector(true_params), design_rng, noise_rng)
+        views = [View(qi, None, ()) for qi in q_touch]
     elif cell.camera is None:
         views = joint_space_design(cell, design_rng)
     elif cell.design.kind == "seed":
@@ -134,7 +142,11 @@ def simulate(
 
     out = Path(out_dir)
     (out / "truth").mkdir(parents=True, exist_ok=True)
-    counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift)
+    if cell.touch is not None:
+        _write_configurations(out, cell, q, config_ids)
+        counts = write_touch_tables(out, cell, config_ids, touched, seating, noise_rng)
+    else:
+        counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift)
     deviation = positioning_deviation(cell, q, true_params)
     boards = None
     if render:
@@ -154,10 +166,21 @@ def simulate(
         "fixture_pose": _pose_doc(cell.fixture_pose),
         "tracker_pose": _pose_doc(cell.tracker_pose),
         "tracker_targets": {f"t{i + 1}": [float(v) for v in t] for i, t in enumerate(cell.tracker_targets)},
+        **(
+            {
+                "touch_probe": [float(v) for v in cell.touch.probe],
+                "touch_points": {
+                    n: [float(v) for v in p] for n, p in zip(cell.touch.names, cell.touch.points, strict=True)
+                },
+            }
+            if cell.touch is not None
+            else {}
+        ),
         "noise_sigma": {
             "camera_point_m": cell.camera_point_sigma_m,
             "pixel_px": cell.pixel_sigma_px,
             "tracker_m": cell.tracker_sigma_m,
+            **({"touch_m": cell.touch_sigma_m, "spacing_m": cell.spacing_sigma_m} if cell.touch is not None else {}),
         },
         "deviation_before_calibration_m": {"mean": float(deviation.mean()), "max": float(deviation.max())},
     }
@@ -187,11 +210,7 @@ def _write_measurements(
     drift: Drift | None = None,
 ) -> dict[str, int]:
     robot = cell.robot
-    write_csv(
-        out / "configurations.csv",
-        ["config"] + [f"q{i}" for i in range(1, robot.n_joints + 1)],
-        [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)],
-    )
+    _write_configurations(out, cell, q, config_ids)
     if cell.camera is None:  # a tracker cell
         return _write_tracker_points(out, cell, q, config_ids, true_params, rng)
     write_csv(
@@ -223,6 +242,14 @@ def _write_measurements(
     write_csv(out / "truth" / "pixels_noise.csv", ["config", "point", "u", "v"], px_noise)
     counts = _write_tracker_points(out, cell, q, config_ids, true_params, rng)
     return {"camera_points": len(cam_rows), "pixels": len(px_rows), **counts}
+
+
+def _write_configurations(out: Path, cell: Cell, q: np.ndarray, config_ids: list[str]) -> None:
+    write_csv(
+        out / "configurations.csv",
+        ["config"] + [f"q{i}" for i in range(1, cell.robot.n_joints + 1)],
+        [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)],
+    )
 
 
 def _write_tracker_points(
@@ -276,6 +303,24 @@ def _write_header(
     camera = cell.camera is not None  # a tracker cell has its tracker points only
     camera_files = {"points": "points.csv", "camera_points": "camera_points.csv", "pixels": "pixels.csv"}
     camera_noise = f"camera points {cell.camera_point_sigma_m} m, pixels {cell.pixel_sigma_px} px, " if camera else ""
+    source = (
+        f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
+        f"{n_configurations} configurations); noise sigma: "
+    )
+    if cell.touch is not None:
+        write_header(
+            out,
+            {
+                "format": FORMAT,
+                "robot": cell.robot_reference,
+                "units": {"length": "m", "angle": "rad"},
+                "measured": list(counts),
+                "files": {"configurations": "configurations.csv", **{k: f"{k}.csv" for k in counts}},
+                "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
+                "source": source + f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m",
+            },
+        )
+        return
     header = {
         "format": FORMAT,
         "robot": cell.robot_reference,
@@ -302,7 +347,6 @@ def _write_header(
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         **({"fixture": _pose_doc(cell.fixture_pose)} if camera else {}),
         "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
-        "source": f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
-        f"{n_configurations} configurations); noise sigma: {camera_noise}tracker {cell.tracker_sigma_m} m",
+        "source": source + f"{camera_noise}tracker {cell.tracker_sigma_m} m",
     }
     write_header(out, header)

@@ -1,0 +1,102 @@
+"""Touch cells: the true robot puts its probe into each fixed point from many directions.
+
+Each touch is a flange pose whose probe centre sits at the point (plus the seating noise:
+where the ball settles, and the robot's repeatability), the probe approaching from above
+within ``max_tilt`` in a random direction with a random spin about the approach, reached by
+inverse kinematics on the true robot, so that the recorded joint angles are those at which
+the real robot would be seated.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..dataset import write_csv
+from ..errors import InputError
+from ..se3 import pose, so3_exp
+from .cell import Cell
+from .ik import solve_ik
+
+STARTS = 8  # IK starts per touch, from random configurations
+
+
+def approach_rotation(max_tilt_rad: float, rng: np.random.Generator) -> np.ndarray:
+    """A flange orientation whose z axis (the probe's axis) points down within ``max_tilt``
+    of the vertical, uniformly over that cap, with a uniform spin about it."""
+    tilt = np.arccos(rng.uniform(np.cos(max_tilt_rad), 1.0))
+    azimuth, spin = rng.uniform(-np.pi, np.pi, 2)
+    down = np.diag([1.0, -1.0, -1.0])  # z along -z of W
+    axis = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    return so3_exp(tilt * axis) @ down @ so3_exp(np.array([0.0, 0.0, spin]))
+
+
+def touch_design(
+    cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator, noise_rng: np.random.Generator
+) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Configurations (N, n) of the touches, the point each touches, and its seating noise (N, 3)
+    (m): ``touches_per_point`` touches of every point, in a shuffled order."""
+    touch, robot = cell.touch, cell.robot
+    order = [k for k in range(len(touch.names)) for _ in range(touch.touches_per_point)]
+    order = [order[i] for i in design_rng.permutation(len(order))]
+    noise = noise_rng.normal(0.0, cell.touch_sigma_m, (len(order), 3))
+    q = np.zeros((len(order), robot.n_joints))
+    pending = np.arange(len(order))
+    for _ in range(20):  # rounds of new orientations for the touches not reached yet
+        R = np.array([approach_rotation(touch.max_tilt_rad, design_rng) for _ in pending])
+        targets = np.array(
+            [
+                pose(R_i, touch.points[order[i]] + noise[i] - R_i @ touch.probe)
+                for i, R_i in zip(pending, R, strict=True)
+            ]
+        )
+        low, high = robot.limits[:, 0], robot.limits[:, 1]
+        starts = design_rng.uniform(
+            np.maximum(low, -np.pi), np.minimum(high, np.pi), (STARTS, len(pending), robot.n_joints)
+        )
+        solved = np.zeros(len(pending), dtype=bool)
+        for start in starts:
+            left = ~solved
+            if not left.any():
+                break
+            q_try, ok = solve_ik(robot, true_params, targets[left], start[left], frame="flange", freeze_converged=True)
+            rows = np.flatnonzero(left)[ok]
+            q[pending[rows]] = q_try[ok]
+            solved[rows] = True
+        pending = pending[~solved]
+        if not len(pending):
+            return q, [touch.names[k] for k in order], noise
+    raise InputError(
+        cell.source,
+        "touch.points",
+        f"{len(pending)} touches unreachable after 20 rounds of orientations: point "
+        f"{touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe within max_tilt of vertical",
+    )
+
+
+def write_touch_tables(
+    out: Path, cell: Cell, config_ids: list[str], points: list[str], noise: np.ndarray, rng: np.random.Generator
+) -> dict[str, int]:
+    """touch_points.csv and, when the drawing gives them, point_distances.csv (every pair,
+    each distance with the spacing noise); the noise goes to truth/."""
+    touch = cell.touch
+    write_csv(out / "touch_points.csv", ["config", "point"], [[c, p] for c, p in zip(config_ids, points, strict=True)])
+    write_csv(
+        out / "truth" / "touch_points_noise.csv",
+        ["config", "point", "x", "y", "z"],
+        [[c, p, *map(float, n)] for c, p, n in zip(config_ids, points, noise, strict=True)],
+    )
+    counts = {"touch_points": len(points)}
+    if touch.known_distances:
+        rows, noise_rows = [], []
+        for a in range(len(touch.names)):
+            for b in range(a + 1, len(touch.names)):
+                n = float(rng.normal(0.0, cell.spacing_sigma_m))
+                distance = float(np.linalg.norm(touch.points[a] - touch.points[b]))
+                rows.append([touch.names[a], touch.names[b], distance + n])
+                noise_rows.append([touch.names[a], touch.names[b], n])
+        write_csv(out / "point_distances.csv", ["point_a", "point_b", "distance"], rows)
+        write_csv(out / "truth" / "point_distances_noise.csv", ["point_a", "point_b", "distance"], noise_rows)
+        counts["point_distances"] = len(rows)
+    return counts

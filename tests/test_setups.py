@@ -1,0 +1,129 @@
+"""Measurement setups beyond the camera and the 3D tracker, each simulated and calibrated end
+to end against the simulation's truth: touch points (a probe seated in fixed sockets)."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import REPO, calibrate
+
+from fgcal.calibration.config import CalibrationConfig
+from fgcal.calibration.prediction import predicted_held_out
+from fgcal.calibration.run import calibrate as calibrate_untouched
+from fgcal.dataset import load_dataset
+from fgcal.errors import InputError
+from fgcal.simulation.simulate import simulate
+
+TOUCH_CELL = REPO / "datasets" / "cells" / "seven_axis_touch.yaml"
+# What the cell's engineer knows: the arm's shoulder and elbow carry its weight (the cell's
+# truth has compliance there), and the seating repeatability and the plate's measurement.
+TOUCH_CONFIG = {
+    "formulation": "touch",
+    "compliant_joints": [2, 4],
+    "noise": {"touch_sigma": 5e-6, "spacing_sigma": 3e-6},
+}
+
+
+@pytest.fixture(scope="module")
+def touch_sims(tmp_path_factory) -> dict[int, Path]:
+    out = {}
+    for seed in (1, 2):
+        out[seed] = tmp_path_factory.mktemp(f"touch_{seed}")
+        simulate(TOUCH_CELL, out[seed], seed=seed)
+    return out
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_touch_points_calibrate_a_seven_axis_urdf_arm(touch_sims, seed):
+    """Issue 12 acceptance: a 7-axis arm loaded from URDF, a probe seated in five sockets with
+    known spacing, no instrument. The held-out error against the truth (rigid gauge removed) is
+    at most 1.5x its prediction and at least 50x below the nominal model's; against the held-out
+    touches themselves, likewise. (Seeds 1-8 gave truth / predicted 0.85-1.20, held-out touches /
+    predicted 0.88-1.12, improvement 230-540x.)"""
+    dataset = load_dataset(touch_sims[seed])
+    assert dataset.robot.n_joints == 7 and str(dataset.header["robot"]).endswith(".urdf")
+    config = CalibrationConfig.defaults(touch_sims[seed], **TOUCH_CONFIG)
+    measured = calibrate_untouched(config)  # not scored with the truth: the held-out touches
+    predicted = predicted_held_out(measured, against_truth=False)["rms"]
+    assert measured.validation["after"]["tool_point"].rms <= 1.5 * predicted
+    assert measured.fit.consistent
+
+    result = calibrate(config)
+    assert result.truth is not None
+    before = result.validation["before"]["tool_point"].rms
+    after = result.validation["after"]["tool_point"].rms
+    assert after <= 1.5 * predicted_held_out(result, against_truth=True)["rms"]
+    assert after * 50 <= before
+
+
+def test_touch_points_without_known_distances_lose_the_scale(touch_sims, tmp_path):
+    """Without a known distance every length can grow by one factor and the touches agree as
+    well: the identifiability analysis finds one more combination of lengths unidentifiable."""
+    data = tmp_path / "data"
+    shutil.copytree(touch_sims[1], data)
+    header = yaml.safe_load((data / "dataset.yaml").read_text())
+    header["measured"].remove("point_distances")
+    del header["files"]["point_distances"]
+    (data / "dataset.yaml").write_text(yaml.safe_dump(header))
+    shutil.rmtree(data / "truth")
+    with_scale = calibrate_untouched(CalibrationConfig.defaults(touch_sims[1], **TOUCH_CONFIG))
+    without = calibrate_untouched(CalibrationConfig.defaults(data, **TOUCH_CONFIG))
+    # Judged at the solution: at the start the residuals (120 sigma) change with the scale.
+    assert len(without.final_identifiability.identifiable) == len(with_scale.final_identifiability.identifiable) - 1
+    # The lost direction is a combination of lengths (which parameter names it depends on the pivoting).
+    reasons = [r for r in without.final_identifiability.unidentifiable.values() if r.startswith("at the solution")]
+    assert any(re.search(r"t[xyz]\d", r) for r in reasons), reasons
+
+
+def test_noise_free_touches_are_exact(tmp_path):
+    """With exact seating and exact distances the calibration reproduces the true probe
+    positions to below a micrometre: the formulation, its Jacobians and the simulation agree.
+    (Not to 1e-9: a fixed redundant parameter is absorbed by its partners to first order only;
+    the second order of 0.05 deg deviations leaves about 3e-7 m.)"""
+    cell = yaml.safe_load(TOUCH_CELL.read_text())
+    cell["robot"] = str(TOUCH_CELL.parent / cell["robot"])
+    cell["noise"] = {"touch_sigma": 0.0, "spacing_sigma": 0.0}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    simulate(tmp_path / "cell.yaml", tmp_path / "data", seed=3)
+    config = CalibrationConfig.defaults(
+        tmp_path / "data", **{**TOUCH_CONFIG, "noise": {"touch_sigma": 1e-9, "spacing_sigma": 1e-9}}
+    )
+    result = calibrate(config)
+    assert result.validation["after"]["tool_point"].rms < 1e-6
+
+
+def _write(path: Path, text: str) -> None:
+    path.write_text(text, encoding="utf-8")
+
+
+@pytest.mark.parametrize(
+    ("table", "text", "message"),
+    [
+        ("point_distances.csv", "point_a,point_b,distance\ns1,s9,0.5\n", "point 's9' is never touched"),
+        ("point_distances.csv", "point_a,point_b,distance\ns1,s1,0.5\n", "two different points"),
+        ("point_distances.csv", "point_a,point_b,distance\ns1,s2,-0.5\n", "must be > 0"),
+        ("point_distances.csv", "point_a,point_b,distance\ns1,s2,0.5\ns2,s1,0.5\n", "given twice"),
+    ],
+)
+def test_bad_touch_tables_name_the_file_and_line(touch_sims, tmp_path, table, text, message):
+    data = tmp_path / "data"
+    shutil.copytree(touch_sims[1], data)
+    _write(data / table, text)
+    with pytest.raises(InputError, match=message) as error:
+        load_dataset(data)
+    assert table in str(error.value)
+
+
+def test_a_point_touched_once_is_refused(touch_sims, tmp_path):
+    data = tmp_path / "data"
+    shutil.copytree(touch_sims[1], data)
+    rows = (data / "touch_points.csv").read_text().splitlines()
+    kept = [rows[0]] + [r for r in rows[1:] if not r.endswith(",s3")] + [f"{rows[1].split(',')[0]},s3"]
+    _write(data / "touch_points.csv", "\n".join(kept) + "\n")
+    config = CalibrationConfig.defaults(data, **{**TOUCH_CONFIG, "validation": {"holdout": 0.0}})
+    with pytest.raises(InputError, match="'s3' is touched 1 times"):
+        calibrate_untouched(config)
