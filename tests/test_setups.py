@@ -7,6 +7,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from conftest import REPO, calibrate
@@ -127,3 +128,69 @@ def test_a_point_touched_once_is_refused(touch_sims, tmp_path):
     config = CalibrationConfig.defaults(data, **{**TOUCH_CONFIG, "validation": {"holdout": 0.0}})
     with pytest.raises(InputError, match="'s3' is touched 1 times"):
         calibrate_untouched(config)
+
+
+def _positioner_cell(tmp_path: Path, table_height_mm: float) -> Path:
+    """A two-axis positioner (bundled) measured by a tracker with three reflectors 1 m from the
+    table centre; ``table_height_mm`` puts the table centre above the tilt axis (0: on it)."""
+    robot = yaml.safe_load((REPO / "datasets" / "robots" / "positioner_2axis.yaml").read_text())
+    robot["joints"][1]["origin"]["xyz"] = [0, 0, table_height_mm]
+    (tmp_path / "positioner.yaml").write_text(yaml.safe_dump(robot))
+    cell = {
+        "name": "positioner tracker cell",
+        "robot": "positioner.yaml",
+        "units": {"length": "mm", "angle": "deg"},
+        "payload": {"mass": 40, "com": [0, 0, 150]},
+        "tracker": {
+            "pose": {"xyz": [2500, -1500, 1200], "rpy": [0, 0, 150]},
+            "targets": [[1000, 0, 0], [-500, 866, 0], [-500, -866, 0]],
+        },
+        "noise": {"tracker_sigma": 0.02},
+        "perturbation": {"length": 0.5, "angle": 0.05, "distortion": 0.05, "compliance": [1e-7, 1e-6]},
+        "design": {"kind": "space_filling", "n_configurations": 60},
+    }
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    return tmp_path / "cell.yaml"
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_positioner_with_far_reflectors_starts_right_with_defaults(tmp_path, seed):
+    """Issue 12: a 2-axis positioner whose table centre (the flange) sits on its axes, three
+    reflectors 1 m out. The flange origins never move, so they say nothing about the tracker's
+    orientation; the single-start initialisation ended stage 0 at 0.45 m for these seeds. With
+    the default settings the calibration now starts from the right minimum and ends at the
+    noise."""
+    simulate(_positioner_cell(tmp_path, 0.0), tmp_path / "data", seed=seed)
+    config = CalibrationConfig.defaults(tmp_path / "data", formulation="tracker", noise={"tracker_sigma": 2e-5})
+    result = calibrate(config)
+    assert result.stages[0].residual_rms < 1e-3
+    before, after = (result.validation[k]["tool_point"].rms for k in ("before", "after"))
+    assert after <= 1.5 * predicted_held_out(result, against_truth=True)["rms"] and after * 20 <= before
+
+
+def test_data_that_do_not_fit_are_refused_without_writing_a_robot(tmp_path):
+    """Tracker rows attached to the wrong configurations: stage 0 cannot explain them (0.5 m per
+    coordinate against 20 um of noise), and fgcal says so with the likely causes, exit status 2,
+    no robot written."""
+    import csv
+    import subprocess
+    import sys
+
+    simulate(_positioner_cell(tmp_path, 250.0), tmp_path / "data", seed=2)
+    path = tmp_path / "data" / "tracker_points.csv"
+    rows = list(csv.reader(path.open()))
+    configs = sorted({r[0] for r in rows[1:]})
+    shuffled = dict(zip(configs, np.random.default_rng(0).permutation(configs), strict=True))
+    body = sorted(([shuffled[r[0]], *r[1:]] for r in rows[1:]), key=lambda r: r[0])
+    with path.open("w", newline="") as fh:
+        csv.writer(fh).writerows([rows[0], *body])
+    (tmp_path / "calib.yaml").write_text("dataset: data\nformulation: tracker\nnoise: {tracker_sigma: 2.0e-5}\n")
+    out = tmp_path / "out"
+    run = subprocess.run(
+        [sys.executable, "-m", "fgcal.cli", "calibrate", str(tmp_path / "calib.yaml"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert "cannot be explained" in run.stderr and "rows shifted" in run.stderr
+    assert not (out / "calibrated_robot.yaml").exists()

@@ -8,6 +8,8 @@ linear fits of the tool points), before the graph is built.
 
 from __future__ import annotations
 
+import itertools
+
 import cv2
 import numpy as np
 
@@ -100,28 +102,56 @@ def initial_fixture_pose(problem: Problem, params: np.ndarray, T_C_F: dict[int, 
 
 def initial_tracker(problem: Problem, params: np.ndarray, rounds: int = 15) -> tuple[np.ndarray, np.ndarray]:
     """Tracker pose T_T_W and tool points from the nominal model, no guess needed:
-    alternate a Kabsch fit of the tracker pose with a linear fit of the tool points."""
+    alternate a Kabsch fit of the tracker pose with a linear fit of the tool points and the
+    tracker's position, from several starting orientations of the tracker (the 24 rotations
+    of a cube, and the Kabsch fit of the flange origins), keeping the best fit. One start is
+    not enough: when the flange origin barely moves (a positioner's table centre on its
+    axes) the flange origins say nothing about the tracker's orientation, and the alternation
+    from a wrong one settles in a false minimum half a metre off."""
     flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
     j = np.array([o[0] for o in problem.tracker_obs])
     t = np.array([o[1] for o in problem.tracker_obs])
     measured = np.array([o[2] for o in problem.tracker_obs])
     n_targets = len(problem.targets)
-    points = np.zeros((n_targets, 3))
-    R_L, t_L = np.eye(3), np.zeros(3)
-    for _ in range(rounds):
-        world = transform_points(flange[j], points[t])
-        R_L, t_L = kabsch(world, measured)
+    R_j, p_j = flange[j, :3, :3], flange[j, :3, 3]
+
+    def fit_points(R_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # m - R_L p_j = R_L R_j s_t + t_L: linear in the tool points and t_L.
-        A = np.zeros((3 * len(j), 3 * n_targets + 3))
-        for row, (jj, tt) in enumerate(zip(j, t, strict=True)):
-            A[3 * row : 3 * row + 3, 3 * tt : 3 * tt + 3] = R_L @ flange[jj, :3, :3]
-            A[3 * row : 3 * row + 3, -3:] = np.eye(3)
-        b = (measured - flange[j, :3, 3] @ R_L.T).reshape(-1)
-        solution = np.linalg.lstsq(A, b, rcond=None)[0]
-        points = solution[:-3].reshape(n_targets, 3)
+        A = np.zeros((len(j), 3, 3 * n_targets + 3))
+        for target in range(n_targets):
+            rows = t == target
+            A[rows, :, 3 * target : 3 * target + 3] = R_L @ R_j[rows]
+        A[:, :, -3:] = np.eye(3)
+        b = measured - p_j @ R_L.T
+        solution = np.linalg.lstsq(A.reshape(-1, A.shape[2]), b.reshape(-1), rcond=None)[0]
+        return solution[:-3].reshape(n_targets, 3), solution[-3:]
+
+    def refine(R_L: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        for _ in range(rounds):
+            points, t_L = fit_points(R_L)
+            R_L, t_L = kabsch(transform_points(flange[j], points[t]), measured)
+        points, t_L = fit_points(R_L)
+        world = np.einsum("oij,oj->oi", R_j, points[t]) + p_j
+        cost = float(np.sum((world @ R_L.T + t_L - measured) ** 2))
+        return cost, R_L, t_L, points
+
+    starts = [kabsch(p_j, measured)[0], *cube_rotations()]
+    _, R_L, t_L, points = min((refine(R) for R in starts), key=lambda fit: fit[0])
     T_L = np.eye(4)
     T_L[:3, :3], T_L[:3, 3] = R_L, t_L
     return T_L, points
+
+
+def cube_rotations() -> list[np.ndarray]:
+    """The 24 proper rotations that map the coordinate axes onto themselves."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            R = np.zeros((3, 3))
+            R[np.arange(3), perm] = signs
+            if np.linalg.det(R) > 0:
+                out.append(R)
+    return out
 
 
 def initial_touch(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

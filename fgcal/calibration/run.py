@@ -65,6 +65,48 @@ def _check_enough(problem: Problem, parameters: list[str], state: State) -> None
         )
 
 
+# The first stage explains the data with the nominal robot (or a few offsets): a residual RMS
+# beyond both of these is no kinematic error (a 125 kg arm is off by 1-2 cm) but data that do
+# not belong to the model.
+GROSS_RESIDUAL = {"m": 0.05, "px": 500.0}  # px: a third of an image; the nominal robot alone leaves 150
+GROSS_SIGMAS = 1000.0
+
+LIKELY_CAUSES = {
+    "tracker": "the tracker points do not belong to their configurations (rows shifted, configuration ids "
+    "mismatched), reflector names swapped between targets, joint angles or lengths in other units than "
+    "units: declares, or another robot than the one that moved",
+    "touch": "touch rows naming the wrong point, joint angles in other units than units: declares, or another "
+    "robot than the one that moved",
+    "pairs": "camera points in another unit or frame, point names that do not match the drawing, a wrong "
+    "camera mounting or fixture pose, or joint angles in other units than units: declares",
+    "projection": "pixels matched to the wrong points, wrong intrinsics, a camera mounting far from the "
+    "dataset's, or joint angles in other units than units: declares",
+}
+
+
+def _check_first_stage(problem: Problem, report: StageReport, stage, values) -> None:
+    """Refuse to go on when the first stage leaves the typical residual (the median over the
+    observations of their RMS per coordinate: a few gross misreads are the robust loss's job)
+    far above both the declared noise and anything a kinematic error explains (GROSS_RESIDUAL,
+    GROSS_SIGMAS)."""
+    config = problem.config
+    measurements = stage.measurements[0]
+    dims = np.diff(np.append(measurements.unit_starts, measurements.n_rows))
+    sigma = float(measurements.sigma[0])
+    typical = float(np.median(measurements.unit_norms(values) / np.sqrt(dims))) * sigma
+    if typical <= GROSS_RESIDUAL[report.unit] or typical <= GROSS_SIGMAS * sigma:
+        return
+    size = f"{typical:.3g} px" if report.unit == "px" else f"{typical * 1e3:.4g} mm"
+    raise InputError(
+        problem.dataset.path,
+        None,
+        f"the data cannot be explained: after stage {report.name} the typical residual is {size} per "
+        f"coordinate, {typical / sigma:.3g} times the declared noise and beyond any kinematic error "
+        f"({GROSS_RESIDUAL[report.unit]:g} {report.unit}). No robot was written. Likely causes: "
+        f"{LIKELY_CAUSES[config.formulation]}.",
+    )
+
+
 REJECT_SIGMA = 5.0
 MAX_REJECTED_FRACTION = 0.1
 REJECTION_ROUNDS = 3
@@ -261,8 +303,9 @@ def calibrate_dataset(
     stages: list[StageReport] = []
     solve_started = time.perf_counter()
     if state.n_auxiliary:
-        state, report, _, _ = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
+        state, report, first_stage, first_values = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
         stages.append(report)
+        _check_first_stage(problem, report, first_stage, first_values)
     before = state
     final_ident = identifiability
     last_stage = last_values = None
@@ -273,6 +316,8 @@ def calibrate_dataset(
             continue
         state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
         stages.append(report)
+        if len(stages) == 1:
+            _check_first_stage(problem, report, last_stage, last_values)
     for _ in range(REJECTION_ROUNDS):  # again while the refit shows more: a biased fit hides some
         if last_stage is None or not reject_outliers(problem, last_stage, last_values):
             break
