@@ -194,3 +194,52 @@ def test_data_that_do_not_fit_are_refused_without_writing_a_robot(tmp_path):
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert "cannot be explained" in run.stderr and "rows shifted" in run.stderr
     assert not (out / "calibrated_robot.yaml").exists()
+
+
+def test_tracker_references_report_drift_and_misreads(tmp_path):
+    """Three reflectors fixed in the cell, read at every configuration: one drifts 0.2 mm along x
+    over the session, one has two misreads of 30 mm; the check recovers the drift, names the
+    misreads, and flags nothing in the clean reflector."""
+    from fgcal.calibration.references import reference_check
+    from fgcal.dataset import write_csv
+
+    simulate(_positioner_cell(tmp_path, 250.0), tmp_path / "data", seed=1)
+    dataset = load_dataset(tmp_path / "data")
+    rng = np.random.default_rng(0)
+    n = len(dataset.configs)
+    rows = []
+    for name, origin in (("r1", [2.0, 1.0, 0.0]), ("r2", [2.5, -1.0, 0.2]), ("r3", [1.5, 0.0, -0.3])):
+        xyz = np.array(origin) + rng.normal(0.0, 2e-5, (n, 3))
+        if name == "r1":
+            xyz[:, 0] += np.linspace(0.0, 2e-4, n)
+        if name == "r2":
+            xyz[[10, 40]] += [0.03, 0.0, 0.0]
+        rows += [[c, name, *map(float, p)] for c, p in zip(dataset.configs, xyz, strict=True)]
+    write_csv(tmp_path / "data" / "tracker_references.csv", ["config", "target", "x", "y", "z"], rows)
+    header = yaml.safe_load((tmp_path / "data" / "dataset.yaml").read_text())
+    header["files"]["tracker_references"] = "tracker_references.csv"
+    header["measured"].append("tracker_references")
+    (tmp_path / "data" / "dataset.yaml").write_text(yaml.safe_dump(header))
+
+    check = reference_check(load_dataset(tmp_path / "data"), 2e-5)
+    r1, r2, r3 = (check["targets"][k] for k in ("r1", "r2", "r3"))
+    assert abs(r1["drift_m"][0] - 1.8e-4) < 3e-5 and r1["misreads"] == []  # 90 % of 0.2 mm between the tenths
+    assert r2["misreads"] == [str(dataset.configs[10]), str(dataset.configs[40])]
+    assert r2["largest_misread_m"] == pytest.approx(0.03, abs=1e-4) and r3["misreads"] == []
+    assert all(abs(t["noise_sigma_m"] - 2e-5) < 6e-6 for t in (r1, r2, r3))
+
+
+@pytest.mark.skipif(not (REPO.parent / "shared" / "data" / "irb120_faro").exists(), reason="../shared absent")
+def test_real_tracker_references(tmp_path):
+    """The FARO set's fixed reflectors: ref3 has gross outliers of hundreds of mm (its README);
+    the check names them and nothing in ref1 and ref2, and the references drift together by a
+    few hundredths of a mm over the session."""
+    from fgcal.calibration.references import reference_check
+    from fgcal.faro import convert_faro
+
+    convert_faro(REPO.parent / "shared" / "data" / "irb120_faro", tmp_path / "faro")
+    check = reference_check(load_dataset(tmp_path / "faro"), 5e-5)
+    ref1, ref2, ref3 = (check["targets"][k] for k in ("ref1", "ref2", "ref3"))
+    assert ref1["misreads"] == [] and ref2["misreads"] == []
+    assert 1 <= len(ref3["misreads"]) <= 20 and ref3["largest_misread_m"] > 0.1
+    assert 1e-5 < check["common_drift_norm_m"] < 2e-4

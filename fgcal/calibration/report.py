@@ -84,6 +84,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "detection": problem.detection or None,
         "skipped_images": [{"config": c, "reason": r} for c, r in problem.skipped_images],
         "rejected_measurements": problem.rejected,
+        "tracker_references": result.references,
         "stages": [
             {
                 "stage": s.name,
@@ -315,6 +316,32 @@ def _units(unit: str):
     return fmt(1e6, ".4g"), fmt(1e6, ".4g")
 
 
+def _references_lines(check: dict) -> list[str]:
+    """The tracker's stability section (fgcal.calibration.references), in mm."""
+    lines = [
+        "",
+        "## Tracker stability (reference reflectors)",
+        "",
+        f"The references moved by {check['common_drift_norm_m'] * 1e3:.4g} mm in common over the session "
+        "(the tracker's own drift, which the calibration cannot tell from the robot's errors). "
+        f"Method: {check['method']}.",
+        "",
+        "| reference | readings | noise sigma (mm) | drift (mm) | misreads | largest misread (mm) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, t in check["targets"].items():
+        if "note" in t:
+            lines.append(f"| {name} | {t['readings']} | - | - | {t['note']} | - |")
+            continue
+        largest = "-" if t["largest_misread_m"] is None else f"{t['largest_misread_m'] * 1e3:.4g}"
+        shown = ", ".join(t["misreads"][:8]) + (", ..." if len(t["misreads"]) > 8 else "")
+        lines.append(
+            f"| {name} | {t['readings']} | {t['noise_sigma_m'] * 1e3:.3g} | {t['drift_norm_m'] * 1e3:.3g} | "
+            f"{len(t['misreads'])}{f' ({shown})' if shown else ''} | {largest} |"
+        )
+    return lines
+
+
 def _markdown(doc: dict, plots: dict[str, str]) -> str:
     lines = [
         f"# Calibration report: {doc['robot']}",
@@ -381,6 +408,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             lines.append(
                 f"| {r['config']} | {r['kind']} | {r.get('point', r.get('target'))} | {r['size_sigma']:.3g} | {size} |"
             )
+    if doc.get("tracker_references"):
+        lines += _references_lines(doc["tracker_references"])
     if doc.get("compensation"):
         c = doc["compensation"]
         lines += [

@@ -20,6 +20,7 @@ from .initialise import initial_state
 from .models import compare_models
 from .prediction import predicted_held_out
 from .problem import PairGroup, Problem, build_problem, pair_groups
+from .references import reference_check
 from .solve import StageReport, solve_stage, stage_parameters
 from .state import State
 from .validation import SCORES, ErrorStats, default_tool_point, held_out_errors, primary_score, stats
@@ -45,6 +46,7 @@ class CalibrationResult:
     validation: dict[str, dict[str, ErrorStats]] = field(default_factory=dict)
     truth: dict | None = None
     timing: dict[str, float] = field(default_factory=dict)
+    references: dict | None = None  # the tracker's stability (calibration.references)
 
     @property
     def sigmas(self) -> dict[str, float]:
@@ -361,6 +363,13 @@ def calibrate_dataset(
         say(f"  {fit.sentence()}")
     for label, st in (("before", before), ("after", state)):
         result.validation[label] = {k: stats(v) for k, v in held_out_errors(problem, st).items()}
+    result.references = reference_check(problem.dataset, config.tracker_sigma_m)
+    if result.references is not None:
+        misreads = sum(len(t.get("misreads", [])) for t in result.references["targets"].values())
+        say(
+            f"  tracker references: common drift {result.references['common_drift_norm_m'] * 1e3:.3g} mm over the "
+            f"session, {misreads} gross misreads"
+        )
     result.timing = {"solve_s": solve_time, "total_s": time.perf_counter() - started}
     return result
 
