@@ -190,6 +190,7 @@ def test_data_that_do_not_fit_are_refused_without_writing_a_robot(tmp_path):
         [sys.executable, "-m", "fgcal.cli", "calibrate", str(tmp_path / "calib.yaml"), "--out", str(out)],
         capture_output=True,
         text=True,
+        cwd=tmp_path,  # not the checkout: its fgcal/ is not the installed package (factors/ is mapped in)
     )
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert "cannot be explained" in run.stderr and "rows shifted" in run.stderr
