@@ -283,6 +283,15 @@ class MeasurementSet:
         residual = self.whitened(self.read(values), False, robust=False).residual
         return np.sqrt(np.add.reduceat(residual**2, self.unit_starts))
 
+    def unit_rms(self, values: gtsam.Values) -> np.ndarray:
+        """Whitened RMS per row of each robust unit (its norm over the square root of its rows)."""
+        return self.unit_norms(values) / np.sqrt(self.unit_dims)
+
+    @property
+    def unit_dims(self) -> np.ndarray:
+        """Rows of each robust unit."""
+        return np.diff(np.append(self.unit_starts, self.n_rows))
+
     def raw_residual(self, values: gtsam.Values) -> np.ndarray:
         return self.whitened(self.read(values), False, robust=False).residual * self.sigma
 

@@ -112,12 +112,10 @@ def load_estimates(path: str | Path) -> dict:
     out["camera_mounting"] = pose(doc.sub("camera_mounting"))
     if doc.has("tracker"):
         out["tracker_pose"] = pose(doc.sub("tracker"))
-    if doc.has("tool_points"):
-        points = doc.sub("tool_points")
-        out["tool_points"] = {str(name): points.sub(str(name)).vector("xyz", 3) for name in points.data}
-    if doc.has("touch_points"):
-        points = doc.sub("touch_points")
-        out["touch_points"] = {str(name): points.sub(str(name)).vector("xyz", 3) for name in points.data}
+    for key in ("tool_points", "touch_points"):
+        if doc.has(key):
+            points = doc.sub(key)
+            out[key] = {str(name): points.sub(str(name)).vector("xyz", 3) for name in points.data}
     if doc.has("fixture"):
         out["fixture_pose"] = pose(doc.sub("fixture"))
     if doc.has("fixture_rotation"):

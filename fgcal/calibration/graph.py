@@ -159,8 +159,7 @@ def robust_scale(measurements: list[MeasurementSet], values: gtsam.Values) -> fl
     """
     scaled = []
     for m in measurements:
-        dims = np.diff(np.append(m.unit_starts, m.n_rows))
-        scaled.append(m.unit_norms(values) / chi_median(dims))
+        scaled.append(m.unit_norms(values) / chi_median(m.unit_dims))
     if not scaled:
         return 1.0
     return max(1.0, float(np.median(np.concatenate(scaled))))
@@ -305,8 +304,8 @@ def read_state(stage: StageGraph, values: gtsam.Values, previous: State) -> Stat
         state.intrinsics = values.atVector(INTRINSICS_KEY)
     if previous.tracker_pose is not None:
         state.tracker_pose = values.atPose3(TRACKER_KEY).matrix()
+    if previous.tool_points is not None:
         state.tool_points = values.atVector(TOOL_POINTS_KEY).reshape(-1, 3)
     if previous.sockets is not None:
-        state.tool_points = values.atVector(TOOL_POINTS_KEY).reshape(-1, 3)
         state.sockets = values.atVector(SOCKETS_KEY).reshape(-1, 3)
     return state

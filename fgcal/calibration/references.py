@@ -13,6 +13,7 @@ from .graph import chi_median
 WINDOW = 11  # readings in the running median that the misreads are measured from
 MISREAD_SIGMA = 5.0  # a reading this many sigmas from the running median is a misread
 END_FRACTION = 0.1  # drift: the median of the last tenth of the readings minus that of the first
+CHI3_MEDIAN = float(chi_median(np.array([3]))[0])  # median norm of a 3-D standard normal vector
 
 
 def reference_check(dataset: Dataset, declared_sigma_m: float) -> dict | None:
@@ -35,8 +36,8 @@ def reference_check(dataset: Dataset, declared_sigma_m: float) -> dict | None:
             targets[str(name)] = {"readings": len(xyz), "note": f"fewer than {WINDOW} readings: not assessed"}
             continue
         deviation = np.linalg.norm(xyz - running_median(xyz, WINDOW), axis=1)
-        sigma = float(np.median(deviation) / chi_median(np.array([3]))[0])
-        threshold = MISREAD_SIGMA * max(sigma, declared_sigma_m) * float(chi_median(np.array([3]))[0])
+        sigma = float(np.median(deviation)) / CHI3_MEDIAN
+        threshold = MISREAD_SIGMA * max(sigma, declared_sigma_m) * CHI3_MEDIAN
         misread = deviation > threshold
         clean = xyz[~misread]
         ends = max(1, round(END_FRACTION * len(clean)))

@@ -93,9 +93,8 @@ def _check_first_stage(problem: Problem, report: StageReport, stage, values) -> 
     GROSS_SIGMAS)."""
     config = problem.config
     measurements = stage.measurements[0]
-    dims = np.diff(np.append(measurements.unit_starts, measurements.n_rows))
     sigma = float(measurements.sigma[0])
-    typical = float(np.median(measurements.unit_norms(values) / np.sqrt(dims))) * sigma
+    typical = float(np.median(measurements.unit_rms(values))) * sigma
     if typical <= GROSS_RESIDUAL[report.unit] or typical <= GROSS_SIGMAS * sigma:
         return
     size = f"{typical:.3g} px" if report.unit == "px" else f"{typical * 1e3:.4g} mm"
@@ -131,35 +130,26 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
     removed when more than MAX_REJECTED_FRACTION would go (a model problem, not bad data)."""
     if problem.config.formulation == "pairs":
         return _reject_pairs(problem, stage, values)
-    kind = {"projection": "pixels", "tracker": "tracker_points", "touch": "touch_points"}[problem.config.formulation]
+    # The measurement kind, its observations and the name of each one's point or target.
+    kind, observations, name_of = {
+        "projection": ("pixels", problem.pixel_obs, lambda o: o[3]),
+        "tracker": ("tracker_points", problem.tracker_obs, lambda o: problem.targets[o[1]]),
+        "touch": ("touch_points", problem.touch_obs, lambda o: problem.touch_points[o[1]]),
+    }[problem.config.formulation]
     if problem.config.robust.get(kind) is None:
         return False
-    observations = {
-        "pixels": problem.pixel_obs,
-        "tracker_points": problem.tracker_obs,
-        "touch_points": problem.touch_obs,
-    }[kind]
     measurements, order = stage.measurements[0], stage.observations[0]
     scale = robust_scale(stage.measurements, values)
-    dims = np.diff(np.append(measurements.unit_starts, measurements.n_rows))
     rms = np.zeros(len(observations))
-    rms[order] = measurements.unit_norms(values) / np.sqrt(dims)
+    rms[order] = measurements.unit_rms(values)
     outlier = rms > REJECT_SIGMA * scale
     if not outlier.any() or outlier.sum() > MAX_REJECTED_FRACTION * len(outlier):
         return False
     unit = "px" if kind == "pixels" else "m"
-    sigma = {
-        "pixels": problem.config.pixel_sigma_px,
-        "tracker_points": problem.config.tracker_sigma_m,
-        "touch_points": problem.config.touch_sigma_m,
-    }[kind]
+    sigma = float(measurements.sigma[0])  # the declared sigma of the kind, as the set was whitened
     for o, size in zip(observations, rms, strict=True):
         if size > REJECT_SIGMA * scale:
-            if kind == "pixels":
-                name = o[3]
-            else:
-                name = (problem.targets if kind == "tracker_points" else problem.touch_points)[o[1]]
-            problem.rejected.append(_rejection(problem, o[0], kind, name, size, size * sigma, unit))
+            problem.rejected.append(_rejection(problem, o[0], kind, name_of(o), size, size * sigma, unit))
     observations[:] = [o for o, bad in zip(observations, outlier, strict=True) if not bad]
     return True
 
