@@ -15,7 +15,7 @@ from .base import (
 from .kinematics import Kinematics
 from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
-from .projection import BehindCameraError, Projections, project
+from .projection import BehindCameraError, Projections, StaticProjections, project
 from .touch import SocketSpacings, TouchPoints
 from .tracker import Distances, Poses, TrackerPoints
 
@@ -35,6 +35,7 @@ __all__ = [
     "RandomWalkFactor",
     "RobustLoss",
     "SocketSpacings",
+    "StaticProjections",
     "TouchPoints",
     "TrackerPoints",
     "gaussian",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..se3 import skew
-from .base import Evaluation, MeasurementSet, RobustLoss, row_starts
+from .base import Evaluation, MeasurementSet, RobustLoss, point_jacobian, row_starts
 from .kinematics import Kinematics, params_variable
 
 
@@ -162,6 +162,95 @@ class Projections(MeasurementSet):
         R_O = T_W_O[:3, :3]
         d_object = np.concatenate([-R_O @ skew(self.points_O), np.broadcast_to(R_O, (len(p_C), 3, 3))], axis=2)
         blocks.append(np.matmul(d_point @ np.swapaxes(R_C, 1, 2), d_object).reshape(-1, 6))
+        if self.intrinsics is None:
+            blocks.append(d_intrinsics.reshape(-1, 9))
+        return Evaluation((pixel - self.measured).reshape(-1), blocks)
+
+
+class StaticProjections(MeasurementSet):
+    """``r_o = project(K, dist, L X(P, q_j) B p_o) - z_o``  (px), one factor per image j.
+
+    Eye-to-hand: a static camera sees a board carried by the robot. The board's point ``p_o``
+    (board frame) is seen at pixel ``z_o`` at configuration j, whose flange pose X comes from
+    the kinematics; ``L`` (T_C_W, the camera's pose) and ``B`` (T_n_B, the board's mounting on
+    the flange) are Pose3 variables; the intrinsics as in :class:`Projections`. The robust unit
+    is one pixel observation.
+    """
+
+    def __init__(
+        self,
+        kinematics: Kinematics,
+        params_key: int | None,
+        camera_key: int,
+        board_key: int,
+        configs: np.ndarray,
+        points_B: np.ndarray,
+        measured_px: np.ndarray,
+        sigma_px: float,
+        intrinsics: np.ndarray | None = None,
+        intrinsics_key: int | None = None,
+        robust: RobustLoss | None = None,
+    ) -> None:
+        if (intrinsics is None) == (intrinsics_key is None):
+            raise ValueError("give either constant intrinsics or an intrinsics variable key")
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.configs = np.asarray(configs, dtype=int)
+        self.points_B = np.asarray(points_B, dtype=float).reshape(-1, 3)
+        self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
+        if not len(self.configs) == len(self.points_B) == len(self.measured) or not len(self.configs):
+            raise ValueError("one configuration, point and pixel per observation, at least one")
+        starts = np.flatnonzero(np.r_[True, self.configs[1:] != self.configs[:-1]])
+        if len(starts) != len(np.unique(self.configs)):
+            raise ValueError("the observations of an image must be consecutive")
+        self.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
+        self.variables = [
+            *params_variable(params_key, kinematics),
+            (camera_key, "pose3", None),
+            (board_key, "pose3", None),
+        ]
+        if intrinsics_key is not None:
+            self.variables.append((intrinsics_key, "vector", 9))
+        self.sigma = np.full(2 * len(self.configs), float(sigma_px))
+        self.factor_starts = 2 * starts
+        self.unit_starts = row_starts([2] * len(self.configs))
+        super().__init__(robust)
+
+    def camera_points(self, inputs: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Flange poses (O, 4, 4), the board's points on the flange (O, 3), in W and in the camera."""
+        params = inputs[0] if self.params_key is not None else None
+        first = 1 if self.params_key is not None else 0
+        T_C_W, T_n_B = inputs[first].matrix(), inputs[first + 1].matrix()
+        T_X = self.kinematics.poses(params)[self.configs]
+        p_n = self.points_B @ T_n_B[:3, :3].T + T_n_B[:3, 3]
+        p_W = np.einsum("oij,oj->oi", T_X[:, :3, :3], p_n) + T_X[:, :3, 3]
+        p_C = p_W @ T_C_W[:3, :3].T + T_C_W[:3, 3]
+        return T_X, p_n, p_W, p_C
+
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        intrinsics = np.asarray(inputs[-1], dtype=float) if self.intrinsics is None else self.intrinsics
+        T_X, p_n, p_W, p_C = self.camera_points(inputs)
+        if np.any(p_C[:, 2] <= 1e-6):
+            worst = int(np.argmin(p_C[:, 2]))
+            raise BehindCameraError(
+                f"board point behind the camera (depth {p_C[worst, 2]:.3g} m at configuration "
+                f"{self.configs[worst]}): the camera pose estimate is far off"
+            )
+        if not jacobians:
+            return Evaluation((project(intrinsics, p_C) - self.measured).reshape(-1), [])
+        pixel, d_point, d_intrinsics = project(intrinsics, p_C, True)
+        first = 1 if self.params_key is not None else 0
+        R_L = inputs[first].matrix()[:3, :3]
+        R_B = inputs[first + 1].matrix()[:3, :3]
+        R_X = T_X[:, :3, :3]
+        d_world = d_point @ R_L  # d pixel / d p_W
+        blocks = []
+        if self.params_key is not None:
+            J = self.kinematics.jacobians(inputs[0])[self.configs]
+            blocks.append(np.matmul(d_world @ point_jacobian(R_X, p_n), J).reshape(-1, J.shape[2]))
+        blocks.append((d_point @ point_jacobian(R_L, p_W)).reshape(-1, 6))
+        board = point_jacobian(np.broadcast_to(R_B, R_X.shape), self.points_B)  # d p_n / d B
+        blocks.append((d_world @ R_X @ board).reshape(-1, 6))
         if self.intrinsics is None:
             blocks.append(d_intrinsics.reshape(-1, 9))
         return Evaluation((pixel - self.measured).reshape(-1), blocks)

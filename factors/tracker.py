@@ -81,19 +81,22 @@ class TrackerPoints(MeasurementSet):
 
 
 class Distances(MeasurementSet):
-    """``r_o = |X(P, q_j) s - a| - d_o``  (m), one factor per measurement.
+    """``r_o = |X(P, q_j) s - a_k| - d_o``  (m), one factor per measurement.
 
-    Measured distance d_o from an anchor point a (Point3 variable, in W) to the tool point s
-    (Point3 variable, flange frame) at configuration j.
+    A ballbar (or any 1D gauge) between the tool point s (flange frame, a 3-vector variable)
+    and the fixed pivot k, whose position a_k in W is unknown (all pivots are one vector
+    variable A = (a_0, a_1, ...)), reads d_o at configuration j. The robust unit is one reading.
     """
 
     def __init__(
         self,
         kinematics: Kinematics,
         params_key: int | None,
-        anchor_key: int,
-        point_key: int,
+        tool_point_key: int,
+        pivots_key: int,
+        n_pivots: int,
         configs: np.ndarray,
+        pivots: np.ndarray,
         distances_m: np.ndarray,
         sigma_m: float,
         robust: RobustLoss | None = None,
@@ -101,13 +104,15 @@ class Distances(MeasurementSet):
         self.kinematics = kinematics
         self.params_key = params_key
         self.configs = np.asarray(configs, dtype=int)
+        self.pivots = np.asarray(pivots, dtype=int)
         self.distances = np.asarray(distances_m, dtype=float).reshape(-1)
-        if len(self.configs) != len(self.distances) or not len(self.configs):
-            raise ValueError("one configuration per distance, at least one")
+        if not len(self.configs) == len(self.pivots) == len(self.distances) or not len(self.configs):
+            raise ValueError("one configuration and pivot per distance, at least one")
+        self.n_pivots = int(n_pivots)
         self.variables = [
             *params_variable(params_key, kinematics),
-            (anchor_key, "point3", None),
-            (point_key, "point3", None),
+            (tool_point_key, "vector", 3),
+            (pivots_key, "vector", 3 * self.n_pivots),
         ]
         self.sigma = np.full(len(self.configs), float(sigma_m))
         self.factor_starts = np.arange(len(self.configs))
@@ -116,20 +121,27 @@ class Distances(MeasurementSet):
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
         params = inputs[0] if self.params_key is not None else None
-        anchor, s = (np.asarray(v, dtype=float) for v in inputs[-2:])
+        s = np.asarray(inputs[-2], dtype=float)
+        pivots = np.asarray(inputs[-1], dtype=float).reshape(-1, 3)
         T_X = self.kinematics.poses(params)[self.configs]
-        delta = T_X[:, :3, :3] @ s + T_X[:, :3, 3] - anchor
+        R_X = T_X[:, :3, :3]
+        delta = R_X @ s + T_X[:, :3, 3] - pivots[self.pivots]
         length = np.linalg.norm(delta, axis=1)
         residual = length - self.distances
         if not jacobians:
             return Evaluation(residual, [])
-        unit = delta / length[:, None]
+        unit = delta / np.maximum(length, 1e-300)[:, None]
         blocks = []
         if params is not None:
             J = self.kinematics.jacobians(params)[self.configs]
-            d_xi = np.einsum("oi,oij->oj", unit, point_jacobian(T_X[:, :3, :3], s))
+            d_xi = np.einsum("oi,oij->oj", unit, point_jacobian(R_X, np.broadcast_to(s, (len(R_X), 3))))
             blocks.append(np.einsum("oj,ojm->om", d_xi, J))
-        blocks += [-unit, np.einsum("oi,oij->oj", unit, T_X[:, :3, :3])]
+        blocks.append(np.einsum("oi,oij->oj", unit, R_X))
+        d_pivots = np.zeros((len(self.configs), 3 * self.n_pivots))
+        rows = np.arange(len(self.configs))
+        for axis in range(3):
+            d_pivots[rows, 3 * self.pivots + axis] = -unit[:, axis]
+        blocks.append(d_pivots)
         return Evaluation(residual, blocks)
 
 

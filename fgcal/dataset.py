@@ -23,6 +23,9 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 - tracker_references: ``config, target, x, y, z`` (fixed targets in the cell, stability check)
 - touch_points: ``config, point`` (the tool's probe sits at the fixed point ``point``: a socket)
 - point_distances: ``point_a, point_b, distance`` (known distances between touch points)
+- tracker_poses: ``config, x, y, z, qw, qx, qy, qz`` (a 6D probe's pose in the tracker frame,
+  or a board's pose in a camera: position and unit quaternion)
+- distances: ``config, pivot, distance`` (a ballbar from the tool ball to the fixed pivot)
 """
 
 from __future__ import annotations
@@ -69,11 +72,24 @@ TABLES = {
     "tracker_references": (("config", "target"), ("x", "y", "z"), "length"),
     "touch_points": (("config", "point"), (), "length"),
     "point_distances": (("point_a", "point_b"), ("distance",), "length"),
+    "tracker_poses": (("config",), ("x", "y", "z", "qw", "qx", "qy", "qz"), ("length",) * 3 + ("unitless",) * 4),
+    "distances": (("config", "pivot"), ("distance",), "length"),
 }
-MEASUREMENTS = ("camera_points", "pixels", "tracker_points", "tracker_references", "touch_points", "point_distances")
+MEASUREMENTS = (
+    "camera_points",
+    "pixels",
+    "tracker_points",
+    "tracker_references",
+    "touch_points",
+    "point_distances",
+    "tracker_poses",
+    "distances",
+)
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
 # what overflows the algebra (a 1e300 reading once hung the tracker initialisation).
-LIMITS = {"length": 1e4, "pixel": 1e6, "angle": 1e3}
+LIMITS = {"length": 1e4, "pixel": 1e6, "angle": 1e3, "unitless": 1e3}
+# A quaternion whose norm is this far from 1 is no rotation (rounding in an export is 1e-6).
+QUATERNION_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -171,9 +187,13 @@ def parse_numbers(
 
 
 def _table(path: Path, name: str, units: Units) -> Table:
-    id_cols, value_cols, kind = TABLES[name]
+    id_cols, value_cols, kinds = TABLES[name]
     header, body = read_csv(path, [*id_cols, *value_cols])
-    values = parse_numbers(path, header, body, value_cols, kind, units.to_m if kind == "length" else 1.0)
+    kinds = (kinds,) * len(value_cols) if isinstance(kinds, str) else kinds
+    values = np.empty((len(body), len(value_cols)))
+    for j, (column, kind) in enumerate(zip(value_cols, kinds, strict=True)):
+        to_si = units.to_m if kind == "length" else 1.0
+        values[:, j] = parse_numbers(path, header, body, [column], kind, to_si)[:, 0]
     ids = {c: np.array([row[header.index(c)].strip() for row in body], dtype=object) for c in id_cols}
     return Table(ids, values)
 
@@ -255,6 +275,14 @@ def load_dataset(path: str | Path) -> Dataset:
                     raise InputError(_inside(root, files, name), "point", f"unknown point {bad[0]!r}")
     if "point_distances" in dataset.tables:
         _check_distances(dataset, _inside(root, files, "point_distances"))
+    if "tracker_poses" in dataset.tables:
+        _check_poses(dataset, _inside(root, files, "tracker_poses"))
+    if "distances" in dataset.tables:
+        bad = np.flatnonzero(~(dataset.tables["distances"].values[:, 0] > 0))
+        if len(bad):
+            raise InputError(
+                _inside(root, files, "distances"), f"line {bad[0] + 2}, column distance", "a distance must be > 0"
+            )
     if doc.has("tracker") and "tracker_points" in dataset.tables:
         tracker = doc.sub("tracker")
         tracker.check_keys(("targets",))
@@ -312,6 +340,21 @@ def _check_distances(dataset: Dataset, path: Path) -> None:
         if frozenset((a, b)) in seen:
             raise InputError(path, f"line {line}", f"the distance {a}-{b} is given twice")
         seen.add(frozenset((a, b)))
+
+
+def _check_poses(dataset: Dataset, path: Path) -> None:
+    """Unit quaternions (normalised here), one pose per configuration."""
+    table = dataset.tables["tracker_poses"]
+    norms = np.linalg.norm(table.values[:, 3:], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
+    if len(bad):
+        raise InputError(path, f"line {bad[0] + 2}, columns qw-qz", f"not a unit quaternion (norm {norms[bad[0]]:.6g})")
+    table.values[:, 3:] /= norms[:, None]
+    seen: set[str] = set()
+    for line, config in enumerate(table.ids["config"], start=2):
+        if config in seen:
+            raise InputError(path, f"line {line}, column config", f"configuration {config!r} has two poses")
+        seen.add(config)
 
 
 def _boards(markers: Fields, units: Units) -> list:

@@ -145,3 +145,23 @@ def kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarr
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
     R = Vt.T @ D @ U.T
     return R, mu_t - R @ mu_s
+
+
+def quaternion_rotation(wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the quaternion (qw, qx, qy, qz), normalised first."""
+    w, x, y, z = np.asarray(wxyz, dtype=float) / np.linalg.norm(wxyz)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def rotation_quaternion(rot: np.ndarray) -> np.ndarray:
+    """Unit quaternion (qw, qx, qy, qz), qw >= 0, of a rotation matrix (via its rotation vector)."""
+    rotvec = so3_log(rot)
+    angle = np.linalg.norm(rotvec)
+    axis = rotvec / angle if angle > 0 else np.zeros(3)
+    return np.array([np.cos(angle / 2), *(np.sin(angle / 2) * axis)])

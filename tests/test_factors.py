@@ -22,6 +22,7 @@ from fgcal.factors import (
     RandomWalkFactor,
     RobustLoss,
     SocketSpacings,
+    StaticProjections,
     TouchPoints,
     TrackerPoints,
     gaussian,
@@ -84,6 +85,17 @@ def _measurement_sets():
         pixels = RNG.uniform(300, 900, (4, 2))
         sets.append((Projections(model, key, 2, configs, points, pixels, 0.5, intrinsics_key=3, robust=robust), values))
         sets.append((Projections(model, key, 2, configs, points, pixels, 0.5, intrinsics=intrinsics), values))
+        # Eye-to-hand: a camera 0.5 m in front of configuration 1's board, the board on the flange.
+        board = gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), RNG.normal(0, 0.1, 3))
+        values.insert(4, board)
+        offset = gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), np.array([0.02, -0.03, 0.5]))
+        values.insert(5, offset.compose(gtsam.Pose3(model.poses(values.atVector(P_KEY))[1]).compose(board).inverse()))
+        configs = np.array([1, 1, 1, 1, 1, 1])
+        points = RNG.normal(0, 0.05, (6, 3))
+        pixels = RNG.uniform(300, 900, (6, 2))
+        static = StaticProjections(model, key, 5, 4, configs, points, pixels, 0.5, intrinsics_key=3, robust=robust)
+        sets.append((static, values))
+        sets.append((StaticProjections(model, key, 5, 4, configs, points, pixels, 0.5, intrinsics=intrinsics), values))
 
         values = gtsam.Values()
         model = _kinematics(values)
@@ -109,10 +121,13 @@ def _measurement_sets():
                 values,
             )
         )
-        sets.append((Distances(model, key, 5, 6, np.array([0, 2]), np.array([1.7, 2.1]), 1e-3, robust=robust), values))
         measured = [_pose().matrix(), _pose().matrix()]
         sets.append((Poses(model, key, 1, 4, np.array([2, 0]), measured, 1e-3, 1e-2, robust=robust), values))
         values.insert(8, RNG.normal(0, 1.0, 9))
+        distances = Distances(
+            model, key, 6, 8, 3, np.array([0, 2, 1]), np.array([2, 0, 2]), np.array([1.7, 2.1, 0.9]), 1e-3, robust
+        )
+        sets.append((distances, values))
         touches = TouchPoints(model, key, 6, 8, 3, np.array([0, 1, 2, 2]), np.array([0, 2, 2, 1]), 1e-3, robust)
         sets.append((touches, values))
         if released:  # the spacings have no P: once is enough

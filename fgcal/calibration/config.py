@@ -10,9 +10,10 @@ from ..parameters import JOINT_KINDS, ORIGIN_CORRECTION_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 
-FORMULATIONS = ("pairs", "tracker", "projection", "touch")
-# Formulations whose data locate points on the flange (reflectors, a touch probe), not a camera.
-FLANGE_FORMULATIONS = ("tracker", "touch")
+FORMULATIONS = ("pairs", "tracker", "projection", "touch", "poses", "distances", "static_camera")
+# Formulations whose data locate something on the flange (reflectors, a probe, a ballbar's ball,
+# a board), not a camera on the tool.
+FLANGE_FORMULATIONS = ("tracker", "touch", "poses", "distances", "static_camera")
 KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
 # DH angles and their translation corrections (tx, ty, tz) with the lengths.
@@ -63,6 +64,9 @@ class CalibrationConfig:
     pixel_sigma_px: float
     touch_sigma_m: float  # where a touch puts the tool point, about its socket
     spacing_sigma_m: float  # of the known distances between touch points
+    pose_sigma_m: float  # of a measured pose's position (6D probe, a board's pose)
+    pose_sigma_rad: float  # of a measured pose's orientation, about each axis
+    distance_sigma_m: float  # of a ballbar's (1D gauge's) reading
     kinematic_sigma: float | None  # None: 1% of the measurement sigma
     robust: dict
     pair_partner: str
@@ -89,6 +93,9 @@ class CalibrationConfig:
             "tracker": self.tracker_sigma_m,
             "projection": 1e-3 * self.pixel_sigma_px,
             "touch": self.touch_sigma_m,
+            "poses": self.pose_sigma_m,
+            "distances": self.distance_sigma_m,
+            "static_camera": 1e-3 * self.pixel_sigma_px,
         }[self.formulation]
 
     @property
@@ -176,10 +183,20 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     bounds.check_keys(("length",))
     noise = doc.sub("noise", {})
     noise.check_keys(
-        ("camera_point_sigma", "tracker_sigma", "pixel_sigma_px", "touch_sigma", "spacing_sigma", "kinematic_sigma")
+        (
+            "camera_point_sigma",
+            "tracker_sigma",
+            "pixel_sigma_px",
+            "touch_sigma",
+            "spacing_sigma",
+            "pose_sigma",
+            "pose_angle_sigma",
+            "distance_sigma",
+            "kinematic_sigma",
+        )
     )
     robust = doc.sub("robust", {})
-    robust.check_keys(("camera_points", "tracker_points", "pixels", "touch_points"))
+    robust.check_keys(("camera_points", "tracker_points", "pixels", "touch_points", "tracker_poses", "distances"))
     pairs = doc.sub("pairs", {})
     pairs.check_keys(("partner", "seed", "group_images", "points_from"))
     validation = doc.sub("validation", {})
@@ -208,11 +225,16 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, positive=True),
         touch_sigma_m=noise.number("touch_sigma", 2e-5 / to_m, to_m, positive=True),
         spacing_sigma_m=noise.number("spacing_sigma", 1e-5 / to_m, to_m, positive=True),
+        pose_sigma_m=noise.number("pose_sigma", 2e-5 / to_m, to_m, positive=True),
+        pose_sigma_rad=noise.number("pose_angle_sigma", 1e-4 / units.to_rad, units.to_rad, positive=True),
+        distance_sigma_m=noise.number("distance_sigma", 5e-6 / to_m, to_m, positive=True),
         kinematic_sigma=noise.number("kinematic_sigma", None, positive=True) if noise.has("kinematic_sigma") else None,
         robust={
             "camera_points": _robust(robust, "camera_points", None),
             "tracker_points": _robust(robust, "tracker_points", ["huber", 3.0]),
             "touch_points": _robust(robust, "touch_points", ["huber", 3.0]),
+            "tracker_poses": _robust(robust, "tracker_poses", ["huber", 3.0]),
+            "distances": _robust(robust, "distances", ["huber", 3.0]),
             # Cauchy: the influence of a gross false detection fades (Huber's stays k sigma).
             "pixels": _robust(robust, "pixels", ["cauchy", 3.0]),
         },

@@ -9,8 +9,11 @@ can read them back (docs/formats.md):
     units: {length: m, angle: rad}
     camera_mounting: {pose: {xyz, rpy}}                      # T_n_C, flange to camera (or tool)
     tracker: {pose: {xyz, rpy}, sigma: {rotation: [3], translation: [3]}}   # T_T_W
-    tool_points: {t1: {xyz: [3], sigma: [3]}, ...}           # reflectors (or the touch probe), flange frame
+    static_camera: {pose: {xyz, rpy}, sigma: {...}}          # T_C_W, the eye-to-hand camera
+    tool_frame: {pose: {xyz, rpy}, sigma: {...}}             # T_n_E, a 6D probe or a board on the flange
+    tool_points: {t1: {xyz: [3], sigma: [3]}, ...}           # reflectors, a touch probe or a ball; flange
     touch_points: {p1: {xyz: [3], sigma: [3]}, ...}          # the touched fixed points, W
+    pivots: {p1: {xyz: [3], sigma: [3]}, ...}                # a ballbar's fixed pivots, W
     fixture: {pose: {xyz, rpy}, sigma: {...}}                # T_W_F, projection formulation
     fixture_rotation: {rpy: [3], sigma: [3]}                 # R_W_F, pairs with an estimated one
     intrinsics: {fx_px, fy_px, cx_px, cy_px, k1, k2, p1, p2, k3, sigma: {...}}
@@ -25,7 +28,15 @@ import yaml
 
 from ..fields import Fields, read_yaml
 from ..se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation
-from .graph import FIXTURE_KEY, INTRINSICS_KEY, OBJECT_KEY, SOCKETS_KEY, TOOL_POINTS_KEY, TRACKER_KEY
+from .graph import (
+    FIXED_POINTS_KEY,
+    FIXTURE_KEY,
+    INTRINSICS_KEY,
+    OBJECT_KEY,
+    TOOL_POINTS_KEY,
+    TOOL_POSE_KEY,
+    TRACKER_KEY,
+)
 
 FORMAT = "fgcal-estimates/1"
 INTRINSICS = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3")
@@ -56,13 +67,20 @@ def estimates_document(result) -> dict:
     zero = np.zeros((1, robot.n_joints))
     T_n_C = inverse(robot.fk(zero, params)[0]) @ robot.fk_tool(zero, params)[0]
     doc: dict = {"format": FORMAT, "units": {"length": "m", "angle": "rad"}, "camera_mounting": {"pose": _pose(T_n_C)}}
+    formulation = problem.config.formulation
     if state.tracker_pose is not None:
-        doc["tracker"] = {"pose": _pose(state.tracker_pose), "sigma": _pose_sigma(_sigmas(result, TRACKER_KEY))}
+        instrument = "static_camera" if formulation == "static_camera" else "tracker"
+        doc[instrument] = {"pose": _pose(state.tracker_pose), "sigma": _pose_sigma(_sigmas(result, TRACKER_KEY))}
+    if state.tool_pose is not None:
+        doc["tool_frame"] = {"pose": _pose(state.tool_pose), "sigma": _pose_sigma(_sigmas(result, TOOL_POSE_KEY))}
     if state.tool_points is not None:
-        names = problem.targets if state.tracker_pose is not None else ["probe"]
+        names = {"tracker": problem.targets, "touch": ["probe"], "distances": ["ball"]}[formulation]
         doc["tool_points"] = _points(names, state.tool_points, _sigmas(result, TOOL_POINTS_KEY))
-    if state.sockets is not None:
-        doc["touch_points"] = _points(problem.touch_points, state.sockets, _sigmas(result, SOCKETS_KEY))
+    if state.fixed_points is not None:
+        key, names = (
+            ("pivots", problem.pivots) if formulation == "distances" else ("touch_points", problem.touch_points)
+        )
+        doc[key] = _points(names, state.fixed_points, _sigmas(result, FIXED_POINTS_KEY))
     if state.fixture_pose is not None:
         doc["fixture"] = {"pose": _pose(state.fixture_pose), "sigma": _pose_sigma(_sigmas(result, OBJECT_KEY))}
     if state.fixture_rotation is not None:
@@ -98,8 +116,8 @@ def load_estimates(path: str | Path) -> dict:
     damaged file."""
     path = Path(path)
     doc = Fields(read_yaml(path), path)
-    doc.check_keys(("format", "units", "camera_mounting", "tracker", "tool_points", "touch_points", "fixture",
-                    "fixture_rotation", "intrinsics"))  # fmt: skip
+    doc.check_keys(("format", "units", "camera_mounting", "tracker", "static_camera", "tool_frame", "tool_points",
+                    "touch_points", "pivots", "fixture", "fixture_rotation", "intrinsics"))  # fmt: skip
     if doc.string("format") != FORMAT:
         raise doc.error("format", f"expected {FORMAT!r}")
     out: dict = {}
@@ -110,9 +128,10 @@ def load_estimates(path: str | Path) -> dict:
         return pose_from_xyz_rpy(inner.vector("xyz", 3), inner.vector("rpy", 3))
 
     out["camera_mounting"] = pose(doc.sub("camera_mounting"))
-    if doc.has("tracker"):
-        out["tracker_pose"] = pose(doc.sub("tracker"))
-    for key in ("tool_points", "touch_points"):
+    for key, name in (("tracker", "tracker_pose"), ("static_camera", "tracker_pose"), ("tool_frame", "tool_pose")):
+        if doc.has(key):
+            out[name] = pose(doc.sub(key))
+    for key in ("tool_points", "touch_points", "pivots"):
         if doc.has(key):
             points = doc.sub(key)
             out[key] = {str(name): points.sub(str(name)).vector("xyz", 3) for name in points.data}

@@ -15,12 +15,15 @@ import gtsam
 import numpy as np
 
 from ..factors import (
+    Distances,
     MeasurementSet,
     ParameterBoundFactor,
     PointPairs,
+    Poses,
     Projections,
     RobustLoss,
     SocketSpacings,
+    StaticProjections,
     TouchPoints,
     TrackerPoints,
     gaussian,
@@ -37,7 +40,8 @@ TRACKER_KEY = gtsam.symbol("l", 0)
 OBJECT_KEY = gtsam.symbol("o", 0)
 INTRINSICS_KEY = gtsam.symbol("k", 0)
 TOOL_POINTS_KEY = gtsam.symbol("s", 0)
-SOCKETS_KEY = gtsam.symbol("a", 0)
+FIXED_POINTS_KEY = gtsam.symbol("a", 0)
+TOOL_POSE_KEY = gtsam.symbol("e", 0)
 
 
 @dataclass
@@ -85,6 +89,12 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
         make, robust = _projection(problem, state, stage), config.robust["pixels"]
     elif config.formulation == "touch":
         make, robust = _touch(problem, state, stage), config.robust["touch_points"]
+    elif config.formulation == "poses":
+        make, robust = _poses(problem, state, stage), config.robust["tracker_poses"]
+    elif config.formulation == "distances":
+        make, robust = _distances(problem, state, stage), config.robust["distances"]
+    elif config.formulation == "static_camera":
+        make, robust = _static_camera(problem, state, stage), config.robust["pixels"]
     else:
         make, robust = _tracker(problem, state, stage), config.robust["tracker_points"]
     measurements, order = make(None)
@@ -96,7 +106,7 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
     _add_measurements(stage, measurements, order)
     if config.formulation == "touch" and problem.spacings:
         spacings = SocketSpacings(
-            SOCKETS_KEY,
+            FIXED_POINTS_KEY,
             len(problem.touch_points),
             np.array([(a, b) for a, b, _ in problem.spacings]),
             np.array([d for _, _, d in problem.spacings]),
@@ -203,10 +213,10 @@ def _pairs(problem: Problem, state: State, stage: StageGraph):
     return make
 
 
-def _projection(problem: Problem, state: State, stage: StageGraph):
+def _intrinsics(problem: Problem, state: State, stage: StageGraph) -> tuple[np.ndarray | None, int | None]:
+    """The intrinsics as a constant (the dataset's), or as a variable with a prior from the
+    earlier intrinsic calibration when the config estimates them: (constant, key)."""
     config = problem.config
-    stage.values.insert(OBJECT_KEY, gtsam.Pose3(state.fixture_pose))
-    stage.aux[OBJECT_KEY] = ("fixture", 6)
     if state.intrinsics is not None:
         # Estimated, with a prior from the earlier intrinsic calibration (the dataset's values).
         stage.values.insert(INTRINSICS_KEY, state.intrinsics)
@@ -217,9 +227,15 @@ def _projection(problem: Problem, state: State, stage: StageGraph):
                 INTRINSICS_KEY, dataset_intrinsics(problem), gaussian(np.array(config.intrinsics_prior_sigmas))
             ),
         )
-        constant, key = None, INTRINSICS_KEY
-    else:
-        constant, key = dataset_intrinsics(problem), None
+        return None, INTRINSICS_KEY
+    return dataset_intrinsics(problem), None
+
+
+def _projection(problem: Problem, state: State, stage: StageGraph):
+    config = problem.config
+    stage.values.insert(OBJECT_KEY, gtsam.Pose3(state.fixture_pose))
+    stage.aux[OBJECT_KEY] = ("fixture", 6)
+    constant, key = _intrinsics(problem, state, stage)
     order = np.argsort([o[0] for o in problem.pixel_obs], kind="stable")  # an image's pixels together
     observations = [problem.pixel_obs[i] for i in order]
 
@@ -271,8 +287,8 @@ def _tracker(problem: Problem, state: State, stage: StageGraph):
 def _touch(problem: Problem, state: State, stage: StageGraph):
     stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float))
     stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3)
-    stage.values.insert(SOCKETS_KEY, np.asarray(state.sockets, dtype=float).reshape(-1))
-    stage.aux[SOCKETS_KEY] = ("touch_points", 3 * len(state.sockets))
+    stage.values.insert(FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1))
+    stage.aux[FIXED_POINTS_KEY] = ("touch_points", 3 * len(state.fixed_points))
     order = np.argsort([o[0] for o in problem.touch_obs], kind="stable")
     observations = [problem.touch_obs[i] for i in order]
 
@@ -281,14 +297,95 @@ def _touch(problem: Problem, state: State, stage: StageGraph):
             stage.model,
             stage.params_key,
             TOOL_POINTS_KEY,
-            SOCKETS_KEY,
-            len(state.sockets),
+            FIXED_POINTS_KEY,
+            len(state.fixed_points),
             np.array([o[0] for o in observations]),
             np.array([o[1] for o in observations]),
             problem.config.touch_sigma_m,
             robust=robust,
         )
         return touches, order
+
+    return make
+
+
+def _static_camera(problem: Problem, state: State, stage: StageGraph):
+    config = problem.config
+    stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
+    stage.aux[TRACKER_KEY] = ("camera", 6)
+    stage.values.insert(TOOL_POSE_KEY, gtsam.Pose3(state.tool_pose))
+    stage.aux[TOOL_POSE_KEY] = ("board", 6)
+    constant, key = _intrinsics(problem, state, stage)
+    order = np.argsort([o[0] for o in problem.pixel_obs], kind="stable")  # an image's pixels together
+    observations = [problem.pixel_obs[i] for i in order]
+
+    def make(robust):
+        projections = StaticProjections(
+            stage.model,
+            stage.params_key,
+            TRACKER_KEY,
+            TOOL_POSE_KEY,
+            np.array([o[0] for o in observations]),
+            np.array([o[1] for o in observations]),
+            np.array([o[2] for o in observations]),
+            config.pixel_sigma_px,
+            intrinsics=constant,
+            intrinsics_key=key,
+            robust=robust,
+        )
+        return projections, order
+
+    return make
+
+
+def _poses(problem: Problem, state: State, stage: StageGraph):
+    config = problem.config
+    stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
+    stage.aux[TRACKER_KEY] = ("tracker", 6)
+    stage.values.insert(TOOL_POSE_KEY, gtsam.Pose3(state.tool_pose))
+    stage.aux[TOOL_POSE_KEY] = ("probe", 6)
+    order = np.argsort([o[0] for o in problem.pose_obs], kind="stable")
+    observations = [problem.pose_obs[i] for i in order]
+
+    def make(robust):
+        poses = Poses(
+            stage.model,
+            stage.params_key,
+            TRACKER_KEY,
+            TOOL_POSE_KEY,
+            np.array([o[0] for o in observations]),
+            [o[1] for o in observations],
+            config.pose_sigma_rad,
+            config.pose_sigma_m,
+            robust=robust,
+        )
+        return poses, order
+
+    return make
+
+
+def _distances(problem: Problem, state: State, stage: StageGraph):
+    stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float))
+    stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3)
+    stage.values.insert(FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1))
+    stage.aux[FIXED_POINTS_KEY] = ("pivots", 3 * len(state.fixed_points))
+    order = np.argsort([o[0] for o in problem.distance_obs], kind="stable")
+    observations = [problem.distance_obs[i] for i in order]
+
+    def make(robust):
+        distances = Distances(
+            stage.model,
+            stage.params_key,
+            TOOL_POINTS_KEY,
+            FIXED_POINTS_KEY,
+            len(state.fixed_points),
+            np.array([o[0] for o in observations]),
+            np.array([o[1] for o in observations]),
+            np.array([o[2] for o in observations]),
+            problem.config.distance_sigma_m,
+            robust=robust,
+        )
+        return distances, order
 
     return make
 
@@ -306,6 +403,8 @@ def read_state(stage: StageGraph, values: gtsam.Values, previous: State) -> Stat
         state.tracker_pose = values.atPose3(TRACKER_KEY).matrix()
     if previous.tool_points is not None:
         state.tool_points = values.atVector(TOOL_POINTS_KEY).reshape(-1, 3)
-    if previous.sockets is not None:
-        state.sockets = values.atVector(SOCKETS_KEY).reshape(-1, 3)
+    if previous.fixed_points is not None:
+        state.fixed_points = values.atVector(FIXED_POINTS_KEY).reshape(-1, 3)
+    if previous.tool_pose is not None:
+        state.tool_pose = values.atPose3(TOOL_POSE_KEY).matrix()
     return state

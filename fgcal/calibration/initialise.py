@@ -28,8 +28,24 @@ def initial_state(problem: Problem) -> State:
     if problem.config.formulation == "tracker":
         state.tracker_pose, state.tool_points = initial_tracker(problem, params)
     if problem.config.formulation == "touch":
-        probe, state.sockets = initial_touch(problem, params)
+        probe, state.fixed_points = initial_touch(problem, params)
         state.tool_points = probe[None, :]
+    if problem.config.formulation == "distances":
+        ball, state.fixed_points = initial_ballbar(problem, params)
+        state.tool_points = ball[None, :]
+    if problem.config.formulation == "poses":
+        flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
+        state.tracker_pose, state.tool_pose = initial_pose_chain(
+            flange[[j for j, _ in problem.pose_obs]], np.array([Z for _, Z in problem.pose_obs])
+        )
+    if problem.config.formulation == "static_camera":
+        # The board's pose in the camera per image (solvePnP), then the chain through the robot.
+        T_C_B = pnp_per_image(problem)
+        flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
+        images = sorted(T_C_B)
+        state.tracker_pose, state.tool_pose = initial_pose_chain(flange[images], np.array([T_C_B[j] for j in images]))
+        if problem.config.intrinsics_prior_sigmas is not None:
+            state.intrinsics = dataset_intrinsics(problem)
     if problem.config.formulation == "projection":
         # Nobody measured the mounting or the fixture: both start from the images.
         T_C_F = pnp_per_image(problem)
@@ -173,6 +189,91 @@ def initial_touch(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.
             "the touches cannot locate the probe: touch each point with the tool in clearly different orientations",
         )
     return solution[:3], solution[3:].reshape(n_points, 3)
+
+
+def initial_pose_chain(flange: np.ndarray, measured: np.ndarray, rounds: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """L (the instrument's T_I_W) and E (the measured frame on the flange, T_n_E) from
+    measured poses ``Z_j = L X_j E`` (N, 4, 4) and the flange poses X_j of the current model:
+    OpenCV's calibrateHandEye (Park) in its eye-to-hand use (the flange poses inverted gives
+    ``Y = L^-1`` and the constant E), then alternating averages of L and E (chordal mean of
+    the rotations, mean of the translations), which settle the noise of the hand-eye step."""
+    inverse_flange = np.linalg.inv(flange)
+    R, t = cv2.calibrateHandEye(
+        list(inverse_flange[:, :3, :3]),
+        list(inverse_flange[:, :3, 3]),
+        list(measured[:, :3, :3]),
+        list(measured[:, :3, 3]),
+        method=cv2.CALIB_HAND_EYE_PARK,
+    )
+    W_from_instrument = np.eye(4)
+    W_from_instrument[:3, :3], W_from_instrument[:3, 3] = R, np.ravel(t)
+    L = np.linalg.inv(W_from_instrument)
+    for _ in range(rounds):
+        E = mean_pose(inverse_flange @ np.linalg.inv(L) @ measured)
+        L = mean_pose(measured @ np.linalg.inv(flange @ E))
+    return L, mean_pose(inverse_flange @ np.linalg.inv(L) @ measured)
+
+
+def mean_pose(poses: np.ndarray) -> np.ndarray:
+    """Chordal mean of the rotations and mean of the translations of poses (N, 4, 4)."""
+    U, _, Vt = np.linalg.svd(poses[:, :3, :3].sum(axis=0))
+    T = np.eye(4)
+    T[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    T[:3, 3] = poses[:, :3, 3].mean(axis=0)
+    return T
+
+
+def initial_ballbar(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tool ball s (flange frame) and pivots a_k (W) from the nominal model, no guess needed.
+
+    ``|R_j s + t_j - a_k|^2 = d^2`` is linear in s, a_k, w_k = |s|^2 + |a_k|^2 and
+    M_k = a_k s^T (the bilinear term a_k . R_j s = <R_j, M_k>); that least-squares solution,
+    and a start with the ball at the flange centre whose pivots a sphere fit places, are each
+    refined by nonlinear least squares on (s, a) alone, and the better kept (m)."""
+    from scipy.optimize import least_squares
+
+    flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
+    j = np.array([o[0] for o in problem.distance_obs])
+    k = np.array([o[1] for o in problem.distance_obs])
+    d = np.array([o[2] for o in problem.distance_obs])
+    R, t = flange[j, :3, :3], flange[j, :3, 3]
+    n_pivots = len(problem.pivots)
+    A = np.zeros((len(j), 3 + 13 * n_pivots))
+    A[:, :3] = 2.0 * np.einsum("oji,oj->oi", R, t)
+    rows = np.arange(len(j))
+    A[rows, 3 + 13 * k] = 1.0
+    for axis in range(3):
+        A[rows, 4 + 13 * k + axis] = -2.0 * t[:, axis]
+    for entry in range(9):
+        A[rows, 7 + 13 * k + entry] = -2.0 * R.reshape(-1, 9)[:, entry]
+    linear = np.linalg.lstsq(A, d**2 - np.sum(t * t, axis=1), rcond=None)[0]
+    starts = [
+        (linear[:3], np.array([linear[4 + 13 * p : 7 + 13 * p] for p in range(n_pivots)])),
+        (np.zeros(3), np.array([_sphere_centre(t[k == p], d[k == p]) for p in range(n_pivots)])),
+    ]
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        s, pivots = x[:3], x[3:].reshape(-1, 3)
+        return np.linalg.norm(R @ s + t - pivots[k], axis=1) - d
+
+    fits = [least_squares(residual, np.concatenate([s, a.reshape(-1)]), method="lm") for s, a in starts]
+    best = min(fits, key=lambda fit: fit.cost)
+    if not np.all(np.isfinite(best.x)) or np.sqrt(2 * best.cost / len(d)) > 0.05:
+        raise InputError(
+            problem.dataset.path / "distances.csv",
+            None,
+            "the distances cannot locate the ball and the pivots (typical residual "
+            f"{np.sqrt(2 * best.cost / len(d)) * 1e3:.3g} mm with the nominal robot): measure each pivot with "
+            "the tool in clearly different positions and orientations",
+        )
+    return best.x[:3], best.x[3:].reshape(-1, 3)
+
+
+def _sphere_centre(points: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Centre a of the sphere through points at known distances: ``2 p.a - |a|^2 = |p|^2 - d^2``
+    is linear in (a, |a|^2)."""
+    A = np.hstack([2.0 * points, -np.ones((len(points), 1))])
+    return np.linalg.lstsq(A, np.sum(points**2, axis=1) - radii**2, rcond=None)[0][:3]
 
 
 def dataset_intrinsics(problem: Problem) -> np.ndarray:

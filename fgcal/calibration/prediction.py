@@ -9,18 +9,19 @@ import gtsam
 import numpy as np
 
 from .. import kinematics
-from ..factors import TrackerPoints
+from ..factors import TrackerPoints, point_jacobian
 from ..se3 import skew, transform_points
 from .batch import BatchKinematics
-from .graph import P_KEY, SOCKETS_KEY, TOOL_POINTS_KEY, TRACKER_KEY
+from .graph import P_KEY, TOOL_POINTS_KEY, TOOL_POSE_KEY, TRACKER_KEY
 from .validation import (
+    CHAIN_FORMULATIONS,
+    FIXED_POINT_FORMULATIONS,
     focal_px,
     gauge_of,
+    held_out_measurements,
     held_out_pairs,
     held_out_projections,
-    held_out_touches,
     projection_inputs,
-    touch_inputs,
 )
 
 
@@ -36,7 +37,13 @@ def predicted_held_out(result, against_truth: bool) -> dict:
       or best rigid motion, as gauge_of says) removed; no noise (the truth is exact);
     - touch against held-out touches: the probe's distance from the touched point, through P,
       the probe and the touched points, plus 3 sigma^2 per touch;
-    - touch against the truth: the probe in W, through P and the probe, the rigid gauge removed;
+    - distances against held-out readings: through P, the ball and the pivots, plus sigma^2;
+    - touch and distances against the truth: the probe (ball) in W, through P and the probe,
+      the rigid gauge removed;
+    - poses against held-out poses: the probe origin in the tracker frame, through P, the
+      tracker pose and the probe frame, plus 3 sigma_m^2; against the truth the same, no noise;
+    - static camera against held-out pixels: as projection, through P, the camera pose and the
+      board mounting; against the truth the board origin in the camera frame, no noise;
     - pairs against held-out point pairs: through P (an estimated fixture rotation's own
       uncertainty is left out), plus 3 sigma^2 per contrast;
     - projection against held-out pixels: through P, the fixture pose (and the intrinsics when
@@ -69,16 +76,11 @@ def predicted_held_out(result, against_truth: bool) -> dict:
         covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
         parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
         noise = 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2
-    elif not against_truth and config.formulation == "touch":
-        touches = held_out_touches(problem, result.state, result.released)
-        if touches is None:
+    elif not against_truth and config.formulation in (*FIXED_POINT_FORMULATIONS, *CHAIN_FORMULATIONS):
+        held_out = held_out_measurements(problem, result.state, result.released)
+        if held_out is None:
             return {}
-        J = np.hstack(touches.compute(touch_inputs(result.state, p_values), True).blocks).reshape(
-            len(touches.configs), 3, -1
-        )
-        covariance = result.joint_covariance.block([P_KEY, TOOL_POINTS_KEY, SOCKETS_KEY])
-        parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
-        noise = 3.0 * factor * config.touch_sigma_m**2
+        parameters, noise = _held_out_prediction(problem, result, held_out, p_values, factor)
     elif not against_truth and config.formulation == "projection":
         projections = held_out_projections(problem, result.state, result.released)
         if projections is None:
@@ -109,6 +111,31 @@ def predicted_held_out(result, against_truth: bool) -> dict:
     }
 
 
+def _held_out_prediction(problem, result, held_out, p_values: np.ndarray, factor: float) -> tuple[np.ndarray, float]:
+    """Per held-out unit, the variance its score takes from the estimate (the set's Jacobian
+    through the joint covariance of its variables), and the noise variance of the score."""
+    config = problem.config
+    measurements, aux = held_out
+    inputs = [p_values, *aux]
+    width = sum(d for _, _, d in measurements.variables)
+    J = np.hstack(measurements.compute(inputs, True).blocks)
+    covariance = result.joint_covariance.block([key for key, _, _ in measurements.variables])
+    if config.formulation == "touch":
+        return _through(J.reshape(-1, 3, width), covariance), 3.0 * factor * config.touch_sigma_m**2
+    if config.formulation == "distances":
+        return _through(J.reshape(-1, 1, width), covariance), factor * config.distance_sigma_m**2
+    if config.formulation == "poses":  # the position rows of each pose's Log
+        return _through(J.reshape(-1, 6, width)[:, 3:], covariance), 3.0 * factor * config.pose_sigma_m**2
+    to_m = measurements.camera_points(inputs)[3][:, 2] / focal_px(problem, result.state)
+    parameters = _through(J.reshape(-1, 2, width), covariance) * to_m**2
+    return parameters, 2.0 * factor * config.pixel_sigma_px**2 * float(np.mean(to_m**2))
+
+
+def _through(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Trace of J C J^T per unit: J (n, k, m), C (m, m)."""
+    return np.einsum("oij,jk,oik->o", J, covariance, J)
+
+
 def position_covariances(result) -> np.ndarray:
     """Covariance (N, 3, 3) of the scored point's error at each held-out configuration, with
     the score's gauge removed (camera formulations, scored against the truth), from the
@@ -121,9 +148,23 @@ def position_covariances(result) -> np.ndarray:
     pose = kinematics.frame_pose(problem.robot, data, frame)
     positions = transform_points(pose, result.tool_point)
     covariance = result.covariance
-    if problem.config.formulation == "touch":  # the probe is estimated too: d(X s)/ds = R_X
+    formulation = problem.config.formulation
+    if formulation in FIXED_POINT_FORMULATIONS:  # the probe is estimated too: d(X s)/ds = R_X
         J = np.concatenate([J, pose[:, :3, :3]], axis=2)
         covariance = result.joint_covariance.block([P_KEY, TOOL_POINTS_KEY])
+    if formulation in CHAIN_FORMULATIONS:
+        # E's origin e moves with E's translation: d(X e)/dE = R_X R_E [0, I].
+        T_E = result.state.tool_pose
+        d_tool = np.concatenate([np.zeros((len(q), 3, 3)), pose[:, :3, :3] @ T_E[:3, :3]], axis=2)
+        J = np.concatenate([J, d_tool], axis=2)
+        covariance = result.joint_covariance.block([P_KEY, TOOL_POSE_KEY])
+    if formulation == "poses":
+        # Scored in the tracker's frame, L X e: through L as well, everything turned by R_L.
+        T_L = result.state.tracker_pose
+        d_tracker = point_jacobian(T_L[:3, :3], positions)
+        positions = transform_points(T_L, positions)
+        J = np.concatenate([T_L[:3, :3] @ J, np.broadcast_to(d_tracker, (len(q), 3, 6))], axis=2)
+        covariance = result.joint_covariance.block([P_KEY, TOOL_POSE_KEY, TRACKER_KEY])
     flat = without_gauge(J.reshape(-1, J.shape[2]), positions, gauge_of(problem)).reshape(len(q), 3, -1)
     return np.einsum("nij,jk,nlk->nil", flat, covariance, flat)
 

@@ -25,6 +25,7 @@ from ..dataset import Dataset, Table
 from ..errors import InputError
 from ..parameters import default_compliant_joints, split_name
 from ..robot import Robot
+from ..se3 import pose, quaternion_rotation
 from .config import CalibrationConfig
 
 CATEGORIES = ("same_image", "same_side", "same_object", "other_object")
@@ -62,6 +63,9 @@ class Problem:
     touch_obs: list[tuple[int, int]] = field(default_factory=list)  # (fit index, touch point index)
     touch_points: list[str] = field(default_factory=list)  # names of the fixed points (sockets)
     spacings: list[tuple[int, int, float]] = field(default_factory=list)  # (point, point, distance m)
+    pose_obs: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (fit index, measured 4x4 pose)
+    distance_obs: list[tuple[int, int, float]] = field(default_factory=list)  # (fit index, pivot, distance m)
+    pivots: list[str] = field(default_factory=list)  # names of a ballbar's fixed pivots
     skipped_images: list[tuple[str, str]] = field(default_factory=list)
     rejected: list[dict] = field(default_factory=list)  # outliers removed: config, kind, point or target, size
     detection: dict = field(default_factory=dict)
@@ -74,8 +78,12 @@ class Problem:
     def n_residuals(self) -> int:
         if self.config.formulation == "pairs":
             return sum(3 * (len(p.c) - 1) for p in self.pairs)
-        if self.config.formulation == "projection":
+        if self.config.formulation in ("projection", "static_camera"):
             return 2 * len(self.pixel_obs)
+        if self.config.formulation == "poses":
+            return 6 * len(self.pose_obs)
+        if self.config.formulation == "distances":
+            return len(self.distance_obs)
         if self.config.formulation == "touch":
             return 3 * len(self.touch_obs) + len(self.spacings)
         return 3 * len(self.tracker_obs)
@@ -167,8 +175,12 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) ->
         }
     if config.formulation == "pairs":
         _build_pairs(problem)
-    elif config.formulation == "projection":
+    elif config.formulation in ("projection", "static_camera"):
         _build_projection(problem)
+    elif config.formulation == "poses":
+        _build_poses(problem)
+    elif config.formulation == "distances":
+        _build_distances(problem)
     elif config.formulation == "touch":
         _build_touch(problem)
     else:
@@ -294,7 +306,7 @@ def pair_groups(problem: Problem, subset: np.ndarray, exclude: set[tuple[str, st
 
 def _build_projection(problem: Problem) -> None:
     data = problem.dataset
-    _require_pixels(data, "the projection formulation needs")
+    _require_pixels(data, f"the {problem.config.formulation} formulation needs")
     points = data.tables["points"]
     where = {name: i for i, name in enumerate(points.ids["point"])}
     table = data.tables["pixels"]
@@ -344,3 +356,36 @@ def _build_touch(problem: Problem) -> None:
     if distances is not None:
         for a, b, d in zip(distances.ids["point_a"], distances.ids["point_b"], distances.values[:, 0], strict=True):
             problem.spacings.append((index[a], index[b], float(d)))
+
+
+def _build_poses(problem: Problem) -> None:
+    data = problem.dataset
+    if "tracker_poses" not in data.tables:
+        raise InputError(data.path / "dataset.yaml", "measured", "the poses formulation needs tracker_poses")
+    for index, _, values in fitting_rows(problem, data.tables["tracker_poses"], "config"):
+        problem.pose_obs.append((index, pose(quaternion_rotation(values[3:]), values[:3])))
+    if len(problem.pose_obs) < 3:
+        raise InputError(
+            data.path / "tracker_poses.csv", None, f"only {len(problem.pose_obs)} poses in the fitting set: too few"
+        )
+
+
+def _build_distances(problem: Problem) -> None:
+    data = problem.dataset
+    if "distances" not in data.tables:
+        raise InputError(data.path / "dataset.yaml", "measured", "the distances formulation needs distances")
+    table = data.tables["distances"]
+    problem.pivots = sorted(set(table.ids["pivot"]))
+    index = {name: i for i, name in enumerate(problem.pivots)}
+    for fit_index, pivot, values in fitting_rows(problem, table, "pivot"):
+        problem.distance_obs.append((fit_index, index[pivot], float(values[0])))
+    counts = Counter(k for _, k, _ in problem.distance_obs)
+    few = [name for k, name in enumerate(problem.pivots) if counts.get(k, 0) < 6]
+    if few:
+        # Three for the pivot, three for the ball, and more for the robot.
+        raise InputError(
+            data.path / "distances.csv",
+            "pivot",
+            f"pivot {few[0]!r} has {counts.get(index[few[0]], 0)} readings in the fitting set: each pivot needs "
+            "many, in clearly different configurations",
+        )

@@ -9,6 +9,7 @@ import numpy as np
 from .. import kinematics, strict_json
 from ..parameters import unit_of
 from ..robot_io import save_robot
+from .config import FLANGE_FORMULATIONS
 from .covariance import correlation
 from .estimates import write_estimates
 from .goodness import Fit
@@ -114,7 +115,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "validation": {
             **validation,
             "scored_point_m": [float(v) for v in result.tool_point] if config.formulation != "tracker" else None,
-            "scored_point_frame": "flange" if config.formulation == "touch" else "camera",
+            "scored_point_frame": "flange" if config.formulation in FLANGE_FORMULATIONS else "camera",
             "reference": "ground truth" if result.truth else "held-out measurements",
             "gauge_removed": gauge_of(problem) if result.truth else "none",
             "predicted_position_sigma_m": predicted,
@@ -129,8 +130,9 @@ def _score_name(key: str) -> str:
     """report.json's name of a held-out score, with its unit."""
     if key == "tool_point":
         return "position_error_m"
-    if key.endswith("_px"):
-        return f"{key.removesuffix('_px')}_error_px"
+    for unit in ("px", "rad"):
+        if key.endswith(f"_{unit}"):
+            return f"{key.removesuffix(f'_{unit}')}_error_{unit}"
     return f"{key}_error_m"
 
 
@@ -377,11 +379,16 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         ]
         for label in ("before", "after"):
             for key, stat in val[label].items():
-                pixels = key.endswith("_px")
-                scale, unit = (1.0, "px") if pixels else (1e3, "mm")
+                scale, unit = (
+                    (1.0, "px")
+                    if key.endswith("_px")
+                    else (180.0 / np.pi, "deg")
+                    if key.endswith("_rad")
+                    else (1e3, "mm")
+                )
                 cells = " | ".join("-" if stat[k] is None else f"{stat[k] * scale:.4g}" for k in _STATS)
                 axes = ", ".join(f"{stat['rms_' + a] * scale:.3g}" for a in "xyz") if "rms_x" in stat else "-"
-                name = key.removesuffix("_m").removesuffix("_px").replace("_", " ")
+                name = key.removesuffix("_m").removesuffix("_px").removesuffix("_rad").replace("_", " ")
                 lines.append(f"| {label}: {name} ({unit}) | {cells} | {axes} |")
         if val.get("predicted_position_sigma_m"):
             p = val["predicted_position_sigma_m"]

@@ -83,6 +83,13 @@ LIKELY_CAUSES = {
     "camera mounting or fixture pose, or joint angles in other units than units: declares",
     "projection": "pixels matched to the wrong points, wrong intrinsics, a camera mounting far from the "
     "dataset's, or joint angles in other units than units: declares",
+    "static_camera": "pixels matched to the wrong board points, wrong intrinsics, images that do not belong to "
+    "their configurations, or joint angles in other units than units: declares",
+    "poses": "poses that do not belong to their configurations (rows shifted), quaternions in another order "
+    "than qw, qx, qy, qz or inverted poses (the instrument in the probe's frame), joint angles or lengths in "
+    "other units than units: declares, or another robot than the one that moved",
+    "distances": "readings that do not belong to their configurations or pivots, a ballbar's deviation from its "
+    "nominal length instead of its full length, joint angles or lengths in other units than units: declares",
 }
 
 
@@ -93,7 +100,8 @@ def _check_first_stage(problem: Problem, report: StageReport, stage, values) -> 
     GROSS_SIGMAS)."""
     config = problem.config
     measurements = stage.measurements[0]
-    sigma = float(measurements.sigma[0])
+    # In the report's unit (a 6D pose's whitened residual is counted in position sigmas).
+    sigma = config.pixel_sigma_px if report.unit == "px" else config.measurement_sigma_m
     typical = float(np.median(measurements.unit_rms(values))) * sigma
     if typical <= GROSS_RESIDUAL[report.unit] or typical <= GROSS_SIGMAS * sigma:
         return
@@ -135,6 +143,9 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
         "projection": ("pixels", problem.pixel_obs, lambda o: o[3]),
         "tracker": ("tracker_points", problem.tracker_obs, lambda o: problem.targets[o[1]]),
         "touch": ("touch_points", problem.touch_obs, lambda o: problem.touch_points[o[1]]),
+        "static_camera": ("pixels", problem.pixel_obs, lambda o: o[3]),
+        "poses": ("tracker_poses", problem.pose_obs, lambda o: "pose"),
+        "distances": ("distances", problem.distance_obs, lambda o: problem.pivots[o[1]]),
     }[problem.config.formulation]
     if problem.config.robust.get(kind) is None:
         return False
@@ -146,7 +157,8 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
     if not outlier.any() or outlier.sum() > MAX_REJECTED_FRACTION * len(outlier):
         return False
     unit = "px" if kind == "pixels" else "m"
-    sigma = float(measurements.sigma[0])  # the declared sigma of the kind, as the set was whitened
+    # The declared sigma of the kind, as the set was whitened (a pose: its position's).
+    sigma = float(measurements.sigma[-1])
     for o, size in zip(observations, rms, strict=True):
         if size > REJECT_SIGMA * scale:
             problem.rejected.append(_rejection(problem, o[0], kind, name_of(o), size, size * sigma, unit))

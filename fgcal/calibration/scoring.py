@@ -33,11 +33,20 @@ def _pose(doc: dict) -> np.ndarray:
 def true_positions(problem, truth: dict, q: np.ndarray, point: np.ndarray | None, target: str | None) -> np.ndarray:
     """True positions (N, 3) of what is scored: for pairs, ``point`` fixed in the true
     camera frame, in W; for the tracker, the reflector ``target`` in the tracker frame; for
-    touches, the true probe in W."""
+    touches and ballbars, the true probe (ball) in W; for 6D poses, the origin of the true
+    probe's frame in the true tracker's frame; for a static camera, the true board's origin in W."""
     robot = problem.dataset.robot.with_model(truth.get("model", "DH,s,e"))
     params = truth["parameters"]
-    if problem.config.formulation == "touch":  # the true probe, whatever the estimate
+    formulation = problem.config.formulation
+    if formulation == "touch":  # the true probe, whatever the estimate
         return transform_points(robot.fk(q, params), np.array(truth["touch_probe"], float))
+    if formulation == "distances":
+        return transform_points(robot.fk(q, params), np.array(truth["ballbar"]["ball"], float))
+    if formulation == "poses":  # the true probe's origin, in the true tracker's frame
+        T_T_W = inverse(_pose(truth["tracker_pose"]))
+        return transform_points(T_T_W @ robot.fk(q, params), _pose(truth["tracker_probe"])[:3, 3])
+    if formulation == "static_camera":  # the true board's origin, in W
+        return transform_points(robot.fk(q, params), _pose(truth["static_camera"]["board_mount"])[:3, 3])
     if problem.config.formulation != "tracker":
         # The true tool.* perturbs the simulation's nominal mounting, which a dataset's (or a
         # user's) mounting guess need not equal.
@@ -62,7 +71,7 @@ def truth_errors(
     if problem.config.formulation != "tracker":
         out = {}
         labels = (("tool_point", point), ("camera_origin", np.zeros(3)))
-        for label, p in labels[:1] if problem.config.formulation == "touch" else labels:
+        for label, p in labels if problem.config.formulation in ("pairs", "projection") else labels[:1]:
             residual = remove_gauge(
                 predicted_positions(problem, state, q, p, None),
                 true_positions(problem, truth, q, p, None),

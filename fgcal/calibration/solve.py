@@ -156,7 +156,7 @@ def solve_stage(
         iterations += more
         new_state = read_state(stage, result, new_state)
     norm, rms = measurement_residuals(stage, result)
-    unit = "px" if problem.config.formulation == "projection" else "m"
+    unit = "px" if problem.config.formulation in ("projection", "static_camera") else "m"
     report = StageReport(
         name,
         released,

@@ -13,9 +13,10 @@ class State:
 
     params: np.ndarray
     fixture_rotation: np.ndarray | None = None  # R_W_F, when estimated
-    tracker_pose: np.ndarray | None = None  # T_T_W
-    tool_points: np.ndarray | None = None  # (m, 3) in the flange frame: reflectors, or the touch probe
-    sockets: np.ndarray | None = None  # (k, 3) in W: the fixed points the touch probe sits in
+    tracker_pose: np.ndarray | None = None  # T_T_W: the instrument (tracker, static camera) from W
+    tool_points: np.ndarray | None = None  # (m, 3) in the flange frame: reflectors, a probe, a ball
+    fixed_points: np.ndarray | None = None  # (k, 3) in W: the sockets a probe sits in, a ballbar's pivots
+    tool_pose: np.ndarray | None = None  # T_n_E: a 6D probe's or a board's frame on the flange
     fixture_pose: np.ndarray | None = None  # T_W_F, when the projection formulation estimates it
     intrinsics: np.ndarray | None = None  # (fx, fy, cx, cy, k1, k2, p1, p2, k3), when estimated
 
@@ -27,8 +28,10 @@ class State:
             count += 6
         if self.tool_points is not None:
             count += 3 * len(self.tool_points)
-        if self.sockets is not None:
-            count += 3 * len(self.sockets)
+        if self.fixed_points is not None:
+            count += 3 * len(self.fixed_points)
+        if self.tool_pose is not None:
+            count += 6
         if self.fixture_rotation is not None:
             count += 3
         if self.fixture_pose is not None:

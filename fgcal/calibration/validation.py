@@ -9,6 +9,15 @@
 - Touch formulation: the predicted probe position at each held-out touch against the touched
   point's estimate (both in W); no gauge. Against the truth, the probe's position in W with
   the best rigid motion removed (W is where the nominal base puts it).
+- Distances (ballbar): each held-out reading against the predicted distance from the ball to
+  its pivot. Against the truth, as touches: the ball in W, the best rigid motion removed.
+- Poses (6D probe): the predicted probe origin in the tracker frame against the measured one,
+  and the angle between the predicted and measured orientations; no gauge. Against the truth,
+  the probe origin in the tracker frame.
+- Static camera: each held-out pixel's reprojection error, in the board's plane (m) as for
+  projection. Against the truth, the board's origin in W with the best rigid motion removed:
+  the robot's accuracy, not how well the camera knows its own depth (its pose's uncertainty
+  would otherwise dominate the score).
 
 Here against held-out measurements (the tracker's); against a simulation's ground truth in
 fgcal.calibration.scoring, called after the calibration.
@@ -21,10 +30,10 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ..factors import PointPairs, Projections, TouchPoints
-from ..se3 import kabsch, transform_points
+from ..factors import Distances, MeasurementSet, PointPairs, Poses, Projections, StaticProjections, TouchPoints
+from ..se3 import kabsch, pose, quaternion_rotation, transform_points
 from .batch import BatchKinematics
-from .graph import INTRINSICS_KEY, OBJECT_KEY, P_KEY, SOCKETS_KEY, TOOL_POINTS_KEY
+from .graph import FIXED_POINTS_KEY, INTRINSICS_KEY, OBJECT_KEY, P_KEY, TOOL_POINTS_KEY, TOOL_POSE_KEY, TRACKER_KEY
 from .initialise import dataset_intrinsics
 from .problem import Problem, fitting_rows, pair_groups
 from .state import State
@@ -62,7 +71,17 @@ def stats(errors: np.ndarray) -> ErrorStats:
 
 
 # Held-out scores, in order of preference, with their label (all in m).
-SCORES = {"tool_point": "position error", "point_pair": "point-pair error", "reprojection": "reprojection error"}
+SCORES = {
+    "tool_point": "position error",
+    "distance": "distance error",
+    "point_pair": "point-pair error",
+    "reprojection": "reprojection error",
+}
+# Formulations whose tool point (a probe, a ball) is an unknown 3-vector, and whose fixed
+# points (sockets, pivots) are estimated in W: scored against the truth up to a rigid motion.
+FIXED_POINT_FORMULATIONS = ("touch", "distances")
+# Formulations whose instrument (a 6D tracker, a static camera) sees a frame E on the flange.
+CHAIN_FORMULATIONS = ("poses", "static_camera")
 
 
 def primary_score(validation: dict, label: str) -> tuple[str, ErrorStats] | None:
@@ -87,20 +106,23 @@ def remove_gauge(predicted: np.ndarray, reference: np.ndarray, gauge: str) -> np
 
 
 def default_tool_point(problem: Problem, state: State) -> np.ndarray:
-    """The scored tool point (m): the touch probe (flange frame), else the mean measured point
-    in the camera frame, where the camera works."""
-    if problem.config.formulation == "touch":
+    """The scored tool point (m): the touch probe or the ballbar's ball, the origin of the 6D
+    probe or of the board (flange frame), else the mean measured point in the camera frame,
+    where the camera works."""
+    if problem.config.formulation in FIXED_POINT_FORMULATIONS:
         return state.tool_points[0].copy()
+    if problem.config.formulation in CHAIN_FORMULATIONS:
+        return state.tool_pose[:3, 3].copy()
     table = problem.dataset.tables.get("camera_points")
     return table.values.mean(axis=0) if table is not None and len(table) else np.zeros(3)
 
 
 def gauge_of(problem: Problem) -> str:
     """The gauge removed before scoring against the truth."""
-    if problem.config.formulation == "tracker":
-        return "none"
-    if problem.config.formulation == "touch":
-        return "rigid"  # the touched points are estimated in the frame of the nominal base
+    if problem.config.formulation in ("tracker", "poses"):
+        return "none"  # scored in the tracker's frame, which the data fix
+    if problem.config.formulation in (*FIXED_POINT_FORMULATIONS, "static_camera"):
+        return "rigid"  # scored in W, where the nominal base puts the robot
     if problem.config.formulation == "projection":
         # The fixture pose is estimated relative to the robot: W is tied to the nominal base.
         return "rigid"
@@ -114,8 +136,12 @@ def predicted_positions(
     params = robot.parameter_dict(state.params)
     if problem.config.formulation == "tracker":
         return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_points[target_index])
-    if problem.config.formulation == "touch":  # the state's own probe
+    if problem.config.formulation in FIXED_POINT_FORMULATIONS:  # the state's own probe or ball
         return transform_points(robot.fk(q, params), state.tool_points[0])
+    if problem.config.formulation == "poses":  # the probe's origin, in the tracker's frame
+        return transform_points(state.tracker_pose @ robot.fk(q, params), state.tool_pose[:3, 3])
+    if problem.config.formulation == "static_camera":  # the board's origin, in W
+        return transform_points(robot.fk(q, params), state.tool_pose[:3, 3])
     return transform_points(robot.fk_tool(q, params), point)
 
 
@@ -165,30 +191,71 @@ def held_out_projections(problem: Problem, state: State, released: list[str]) ->
     )
 
 
-def held_out_touches(problem: Problem, state: State, released: list[str]) -> TouchPoints | None:
-    """The held-out touches, at the state's parameters (P variable over ``released``), probe
-    and touched points."""
+def held_out_measurements(problem: Problem, state: State, released: list[str]) -> tuple[MeasurementSet, list] | None:
+    """The held-out measurements of the touch, distances, poses and static-camera formulations
+    as one measurement set at the state's parameters (P variable over ``released``), and its
+    inputs besides P (the state's auxiliary unknowns); None when nothing is held out."""
+    config, data = problem.config, problem.dataset
+    test = problem.test
+    model = BatchKinematics(problem.robot, state.params, released, data.q[test], "flange")
+    key = P_KEY if released else None
+    if config.formulation == "touch":
+        rows = sorted(
+            (i, problem.touch_points.index(name))
+            for i, name, _ in fitting_rows(problem, data.tables["touch_points"], "point", test)
+        )
+        if not rows:
+            return None
+        measurements = TouchPoints(
+            model, key, TOOL_POINTS_KEY, FIXED_POINTS_KEY, len(problem.touch_points),
+            np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), config.touch_sigma_m,
+        )  # fmt: skip
+        return measurements, [state.tool_points[0], state.fixed_points.reshape(-1)]
+    if config.formulation == "distances":
+        rows = sorted(
+            (i, problem.pivots.index(name), float(v[0]))
+            for i, name, v in fitting_rows(problem, data.tables["distances"], "pivot", test)
+        )
+        if not rows:
+            return None
+        measurements = Distances(
+            model, key, TOOL_POINTS_KEY, FIXED_POINTS_KEY, len(problem.pivots),
+            np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
+            config.distance_sigma_m,
+        )  # fmt: skip
+        return measurements, [state.tool_points[0], state.fixed_points.reshape(-1)]
+    chain = [gtsam.Pose3(state.tracker_pose), gtsam.Pose3(state.tool_pose)]
+    if config.formulation == "poses":
+        rows = sorted(
+            ((i, pose(quaternion_rotation(v[3:]), v[:3]))
+             for i, _, v in fitting_rows(problem, data.tables["tracker_poses"], "config", test)),
+            key=lambda row: row[0],
+        )  # fmt: skip
+        if not rows:
+            return None
+        measurements = Poses(
+            model, key, TRACKER_KEY, TOOL_POSE_KEY, np.array([r[0] for r in rows]), [r[1] for r in rows],
+            config.pose_sigma_rad, config.pose_sigma_m,
+        )  # fmt: skip
+        return measurements, chain
+    points = data.tables["points"]
+    where = {name: i for i, name in enumerate(points.ids["point"])}
     rows = sorted(
-        (i, problem.touch_points.index(name))
-        for i, name, _ in fitting_rows(problem, problem.dataset.tables["touch_points"], "point", problem.test)
-    )
+        ((i, points.values[where[name]], uv) for i, name, uv in fitting_rows(problem, data.tables["pixels"],
+         "point", test)),
+        key=lambda row: row[0],
+    )  # fmt: skip
     if not rows:
         return None
-    model = BatchKinematics(problem.robot, state.params, released, problem.dataset.q[problem.test], "flange")
-    return TouchPoints(
-        model,
-        P_KEY if released else None,
-        TOOL_POINTS_KEY,
-        SOCKETS_KEY,
-        len(problem.touch_points),
-        np.array([r[0] for r in rows]),
-        np.array([r[1] for r in rows]),
-        problem.config.touch_sigma_m,
-    )
-
-
-def touch_inputs(state: State, params: np.ndarray | None) -> list:
-    return [*([] if params is None else [params]), state.tool_points[0], state.sockets.reshape(-1)]
+    estimated = state.intrinsics is not None
+    measurements = StaticProjections(
+        model, key, TRACKER_KEY, TOOL_POSE_KEY,
+        np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
+        config.pixel_sigma_px,
+        intrinsics=None if estimated else dataset_intrinsics(problem),
+        intrinsics_key=INTRINSICS_KEY if estimated else None,
+    )  # fmt: skip
+    return measurements, [*chain, *([np.asarray(state.intrinsics, dtype=float)] if estimated else [])]
 
 
 def projection_inputs(problem: Problem, state: State, params: np.ndarray | None) -> list:
@@ -197,6 +264,17 @@ def projection_inputs(problem: Problem, state: State, params: np.ndarray | None)
     if state.intrinsics is not None:
         inputs.append(np.asarray(state.intrinsics, dtype=float))
     return inputs
+
+
+def pose_errors(poses: Poses, inputs: list) -> dict[str, np.ndarray]:
+    """Per measured pose Z: the error vector (m) of the predicted origin of E, ``L X E``, in
+    the instrument's frame, and the angle (rad) between the predicted and measured orientations."""
+    tracker, tool = (p.matrix() for p in inputs[-2:])
+    predicted = tracker @ poses.kinematics.poses(None)[poses.configs] @ tool
+    measured = np.linalg.inv(np.array([Z.matrix() for Z in poses.measured_inverse]))
+    relative = np.einsum("oji,ojk->oik", measured[:, :3, :3], predicted[:, :3, :3])
+    angles = np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    return {"tool_point": predicted[:, :3, 3] - measured[:, :3, 3], "orientation_rad": angles}
 
 
 def focal_px(problem: Problem, state: State) -> float:
@@ -227,11 +305,21 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
         pixels = np.linalg.norm(projections.compute(inputs, False).residual.reshape(-1, 2), axis=1)
         metric = pixels * projections.camera_points(inputs)[3][:, 2] / focal_px(problem, state)
         return {"reprojection": metric, "reprojection_px": pixels}
-    if problem.config.formulation == "touch":
-        touches = held_out_touches(problem, state, [])
-        if touches is None:
+    if problem.config.formulation in (*FIXED_POINT_FORMULATIONS, *CHAIN_FORMULATIONS):
+        held_out = held_out_measurements(problem, state, [])
+        if held_out is None:
             return {}
-        return {"tool_point": touches.compute(touch_inputs(state, None), False).residual.reshape(-1, 3)}
+        measurements, inputs = held_out
+        residual = measurements.compute(inputs, False).residual
+        if problem.config.formulation == "touch":
+            return {"tool_point": residual.reshape(-1, 3)}
+        if problem.config.formulation == "distances":
+            return {"distance": np.abs(residual)}
+        if problem.config.formulation == "poses":
+            return pose_errors(measurements, inputs)
+        pixels = np.linalg.norm(residual.reshape(-1, 2), axis=1)
+        metric = pixels * measurements.camera_points(inputs)[3][:, 2] / focal_px(problem, state)
+        return {"reprojection": metric, "reprojection_px": pixels}
     q = data.q[problem.test]
     errors = []
     # Held-out measurements: predict each reflector at every held-out configuration once.

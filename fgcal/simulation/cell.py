@@ -31,6 +31,8 @@ CELL_KEYS = (
     "payload",
     "tracker",
     "touch",
+    "ballbar",
+    "static_camera",
     "noise",
     "perturbation",
     "design",
@@ -117,6 +119,30 @@ class TouchSetup:
 
 
 @dataclass(frozen=True)
+class BallbarSetup:
+    """A ballbar (or 1D gauge) between a ball on the flange and fixed pivots, all in SI."""
+
+    ball: np.ndarray  # (3,) the ball's centre in the flange frame (the true one)
+    names: tuple[str, ...]
+    pivots: np.ndarray  # (k, 3) in W
+    length_m: tuple[float, float]  # the bar's travel: shortest and longest reading
+    readings_per_pivot: int
+    max_tilt_rad: float  # of the flange's z axis from straight down
+
+
+@dataclass(frozen=True)
+class StaticCameraSetup:
+    """A camera fixed in the cell watching a board on the flange (eye-to-hand), all in SI."""
+
+    camera: Camera
+    pose: np.ndarray  # T_W_C
+    board_mount: np.ndarray  # T_n_B: the board's frame on the flange
+    board_points: np.ndarray  # (m, 3) the board's corners in its frame (z = 0)
+    point_names: tuple[str, ...]
+    max_view_angle_rad: float  # between the board's normal and the line of sight
+
+
+@dataclass(frozen=True)
 class Cell:
     name: str
     source: str
@@ -135,6 +161,11 @@ class Cell:
     touch: TouchSetup | None = None  # a touch cell: a probe touching fixed points
     touch_sigma_m: float = 0.0
     spacing_sigma_m: float = 0.0
+    tracker_probe: np.ndarray | None = None  # T_n_E of a 6D probe: the tracker measures its pose too
+    tracker_angle_sigma_rad: float = 0.0
+    ballbar: BallbarSetup | None = None
+    distance_sigma_m: float = 0.0
+    static_camera: StaticCameraSetup | None = None
 
     def points(self) -> list[GridPoint]:
         return [p for side in self.sides for row in side.points for p in row]
@@ -214,6 +245,57 @@ def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
     )
 
 
+def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
+    bar.check_keys(("ball", "pivots", "length", "readings_per_pivot", "max_tilt"))
+    names, pivots = [], []
+    for pivot in bar.sub_list("pivots"):
+        pivot.check_keys(("name", "xyz"))
+        names.append(pivot.string("name"))
+        pivots.append(pivot.vector("xyz", 3, scale=to_m))
+    if not pivots:
+        raise bar.error("pivots", "at least one pivot is needed")
+    if len(set(names)) != len(names):
+        raise bar.error("pivots", "duplicate pivot names")
+    length = bar.vector("length", 2, scale=to_m)
+    if not 0 < length[0] <= length[1]:
+        raise bar.error("length", "expected [shortest, longest] with 0 < shortest <= longest")
+    tilt = bar.number("max_tilt", 45.0 * np.pi / 180 / to_rad, to_rad, positive=True)
+    if tilt >= np.pi / 2:
+        raise bar.error("max_tilt", "the tool points down: below 90 deg")
+    return BallbarSetup(
+        ball=bar.vector("ball", 3, scale=to_m),
+        names=tuple(names),
+        pivots=np.array(pivots),
+        length_m=(float(length[0]), float(length[1])),
+        readings_per_pivot=bar.integer("readings_per_pivot", 40, minimum=6),
+        max_tilt_rad=float(tilt),
+    )
+
+
+def _static_camera(section: Fields, to_m: float, to_rad: float) -> StaticCameraSetup:
+    section.check_keys(("pose", "image_size", "intrinsics", "distortion", "board", "max_view_angle"))
+    board = section.sub("board")
+    board.check_keys(("mount", "corners", "square"))
+    corners = board.vector("corners", 2)
+    if np.any(corners < 2) or np.any(corners != np.round(corners)):
+        raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
+    square = board.number("square", scale=to_m, positive=True)
+    cols, rows = int(corners[0]), int(corners[1])
+    points = np.array([[c * square, r * square, 0.0] for r in range(rows) for c in range(cols)])
+    points[:, :2] -= points[:, :2].mean(axis=0)  # the board's frame at its centre
+    angle = section.number("max_view_angle", 60.0 * np.pi / 180 / to_rad, to_rad, positive=True)
+    if angle >= np.pi / 2:
+        raise section.error("max_view_angle", "the camera sees the board's face: below 90 deg")
+    return StaticCameraSetup(
+        camera=parse_camera(section),
+        pose=_pose(section, "pose", to_m, to_rad),
+        board_mount=_pose(board, "mount", to_m, to_rad),
+        board_points=points,
+        point_names=tuple(f"b_r{r:02d}c{c:02d}" for r in range(rows) for c in range(cols)),
+        max_view_angle_rad=float(angle),
+    )
+
+
 def load_cell(path: str | Path) -> Cell:
     """Load and validate a cell file; every error names the file and field."""
     path = Path(path)
@@ -257,7 +339,7 @@ def load_cell(path: str | Path) -> Cell:
         raise doc.error("objects", f"duplicate object name or side among {sorted(set(names))}")
 
     tracker = doc.sub("tracker", {})
-    tracker.check_keys(("pose", "targets"))
+    tracker.check_keys(("pose", "targets", "probe"))
     raw_targets = tracker.items("targets", [[0, 0, 0.1 / to_m]])
     targets = [
         Fields({"t": t}, path, tracker.path(f"targets[{i}]")).vector("t", 3, scale=to_m)
@@ -265,10 +347,24 @@ def load_cell(path: str | Path) -> Cell:
     ]
 
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
-    if touch is not None and camera is not None:
-        raise doc.error("touch", "a cell has a camera or a touch probe, not both")
+    ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
+    static = _static_camera(doc.sub("static_camera"), to_m, to_rad) if doc.has("static_camera") else None
+    setups = [key for key, setup in (("camera", camera), ("touch", touch), ("ballbar", ballbar),
+              ("static_camera", static)) if setup is not None]  # fmt: skip
+    if len(setups) > 1:
+        raise doc.error(setups[1], f"a cell has one of camera, touch, ballbar and static_camera; got {setups}")
     noise = doc.sub("noise", {})
-    noise.check_keys(("camera_point_sigma", "pixel_sigma_px", "tracker_sigma", "touch_sigma", "spacing_sigma"))
+    noise.check_keys(
+        (
+            "camera_point_sigma",
+            "pixel_sigma_px",
+            "tracker_sigma",
+            "tracker_angle_sigma",
+            "touch_sigma",
+            "spacing_sigma",
+            "distance_sigma",
+        )
+    )
     pert = doc.sub("perturbation", {})
     pert.check_keys(
         (
@@ -298,8 +394,8 @@ def load_cell(path: str | Path) -> Cell:
     if not 0 < standoff[0] <= standoff[1]:
         raise design.error("standoff", "expected [near, far] with 0 < near <= far")
     design_kind = design.string("kind", "seed" if camera is not None else "space_filling", DESIGNS)
-    if touch is not None:
-        design_kind = "touch"
+    if touch is not None or ballbar is not None:
+        design_kind = "touch" if touch is not None else "ballbar"
     if camera is None and design_kind == "seed":
         raise design.error("kind", "the seed design looks at the objects: a tracker cell (no camera) is space_filling")
     return Cell(
@@ -318,6 +414,11 @@ def load_cell(path: str | Path) -> Cell:
         touch=touch,
         touch_sigma_m=noise.number("touch_sigma", 1e-5 / to_m, to_m, nonnegative=True),
         spacing_sigma_m=noise.number("spacing_sigma", 5e-6 / to_m, to_m, nonnegative=True),
+        tracker_probe=_pose(tracker, "probe", to_m, to_rad) if tracker.has("probe") else None,
+        tracker_angle_sigma_rad=noise.number("tracker_angle_sigma", 1e-4 / to_rad, to_rad, nonnegative=True),
+        ballbar=ballbar,
+        distance_sigma_m=noise.number("distance_sigma", 2e-6 / to_m, to_m, nonnegative=True),
+        static_camera=static,
         perturbation=Perturbation(
             length_m=pert.number("length", 5e-3 / to_m, to_m, nonnegative=True),
             angle_rad=pert.number("angle", 2e-3 / to_rad, to_rad, nonnegative=True),

@@ -13,9 +13,11 @@ import yaml
 
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
-from ..se3 import inverse, rpy_from_rotation, transform_points
+from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
+from .ballbar import ballbar_design, write_ballbar_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
+from .static_camera import static_camera_design, write_static_camera_tables
 from .touch import touch_design, write_touch_tables
 from .truth import perturb_parameters
 
@@ -98,10 +100,13 @@ def simulate(
         if design is not None or n_configurations is not None:
             raise InputError(None, "--configurations", "takes the place of --design and --n")
         cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
-    if cell.touch is not None and (configurations is not None or design is not None or drift is not None):
-        raise InputError(
-            cell.source, "touch", "a touch cell's configurations are its touches: no other design or drift"
-        )
+    for setup, what in ((cell.touch, "touch"), (cell.ballbar, "ballbar")):
+        if setup is not None and (configurations is not None or design is not None or drift is not None):
+            raise InputError(
+                cell.source, what, f"a {what} cell's configurations are its readings: no other design or drift"
+            )
+    if cell.static_camera is not None and (configurations is not None or drift is not None):
+        raise InputError(cell.source, "static_camera", "a static-camera cell draws its own design: no file or drift")
     if cell.camera is None and cell.design.kind == "seed":
         raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
     if render and cell.camera is None:
@@ -130,6 +135,11 @@ def simulate(
     elif cell.touch is not None:
         q_touch, touched, seating = touch_design(cell, robot.parameter_vector(true_params), design_rng, noise_rng)
         views = [View(qi, None, ()) for qi in q_touch]
+    elif cell.ballbar is not None:
+        q_bar, bar_pivots, bar_lengths = ballbar_design(cell, robot.parameter_vector(true_params), design_rng)
+        views = [View(qi, None, ()) for qi in q_bar]
+    elif cell.static_camera is not None:
+        views = static_camera_design(cell, true_params, design_rng)
     elif cell.camera is None:
         views = joint_space_design(cell, design_rng)
     elif cell.design.kind == "seed":
@@ -145,6 +155,12 @@ def simulate(
     if cell.touch is not None:
         _write_configurations(out, cell, q, config_ids)
         counts = write_touch_tables(out, cell, config_ids, touched, seating, noise_rng)
+    elif cell.ballbar is not None:
+        _write_configurations(out, cell, q, config_ids)
+        counts = write_ballbar_table(out, cell, config_ids, bar_pivots, bar_lengths, noise_rng)
+    elif cell.static_camera is not None:
+        _write_configurations(out, cell, q, config_ids)
+        counts = write_static_camera_tables(out, cell, q, config_ids, true_params, noise_rng)
     else:
         counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift)
     deviation = positioning_deviation(cell, q, true_params)
@@ -176,11 +192,36 @@ def simulate(
             if cell.touch is not None
             else {}
         ),
+        **({"tracker_probe": _pose_doc(cell.tracker_probe)} if cell.tracker_probe is not None else {}),
+        **(
+            {
+                "ballbar": {
+                    "ball": [float(v) for v in cell.ballbar.ball],
+                    "pivots": {
+                        n: [float(v) for v in p] for n, p in zip(cell.ballbar.names, cell.ballbar.pivots, strict=True)
+                    },
+                }
+            }
+            if cell.ballbar is not None
+            else {}
+        ),
+        **(
+            {
+                "static_camera": {
+                    "pose": _pose_doc(cell.static_camera.pose),
+                    "board_mount": _pose_doc(cell.static_camera.board_mount),
+                }
+            }
+            if cell.static_camera is not None
+            else {}
+        ),
         "noise_sigma": {
             "camera_point_m": cell.camera_point_sigma_m,
             "pixel_px": cell.pixel_sigma_px,
             "tracker_m": cell.tracker_sigma_m,
             **({"touch_m": cell.touch_sigma_m, "spacing_m": cell.spacing_sigma_m} if cell.touch is not None else {}),
+            **({"tracker_angle_rad": cell.tracker_angle_sigma_rad} if cell.tracker_probe is not None else {}),
+            **({"distance_m": cell.distance_sigma_m} if cell.ballbar is not None else {}),
         },
         "deviation_before_calibration_m": {"mean": float(deviation.mean()), "max": float(deviation.max())},
     }
@@ -264,7 +305,19 @@ def _write_tracker_points(
             trk_noise.append([cid, f"t{i + 1}", *map(float, n)])
     write_csv(out / "tracker_points.csv", ["config", "target", "x", "y", "z"], trk_rows)
     write_csv(out / "truth" / "tracker_points_noise.csv", ["config", "target", "x", "y", "z"], trk_noise)
-    return {"tracker_points": len(trk_rows)}
+    counts = {"tracker_points": len(trk_rows)}
+    if cell.tracker_probe is not None:  # after the points' draws, which stay as they were
+        columns = ["config", "x", "y", "z", "qw", "qx", "qy", "qz"]
+        rows, noise_rows = [], []
+        for cid, T in zip(config_ids, T_T_n @ cell.tracker_probe, strict=True):
+            angle, position = rng.normal(0.0, cell.tracker_angle_sigma_rad, 3), rng.normal(0.0, cell.tracker_sigma_m, 3)
+            measured = pose(T[:3, :3] @ so3_exp(angle), T[:3, 3] + position)
+            rows.append([cid, *map(float, measured[:3, 3]), *map(float, rotation_quaternion(measured[:3, :3]))])
+            noise_rows.append([cid, *map(float, position), *map(float, angle)])
+        write_csv(out / "tracker_poses.csv", columns, rows)
+        write_csv(out / "truth" / "tracker_poses_noise.csv", ["config", "x", "y", "z", "rx", "ry", "rz"], noise_rows)
+        counts["tracker_poses"] = len(rows)
+    return counts
 
 
 def _render_images(
@@ -307,7 +360,14 @@ def _write_header(
         f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
         f"{n_configurations} configurations); noise sigma: "
     )
-    if cell.touch is not None:
+    if cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None:
+        if cell.touch is not None:
+            noise = f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m"
+        elif cell.ballbar is not None:
+            noise = f"ballbar {cell.distance_sigma_m} m"
+        else:
+            noise = f"pixels {cell.pixel_sigma_px} px (a static camera watching a board on the flange)"
+        files = {k: f"{k}.csv" for k in counts}
         write_header(
             out,
             {
@@ -315,9 +375,14 @@ def _write_header(
                 "robot": cell.robot_reference,
                 "units": {"length": "m", "angle": "rad"},
                 "measured": list(counts),
-                "files": {"configurations": "configurations.csv", **{k: f"{k}.csv" for k in counts}},
+                "files": {
+                    "configurations": "configurations.csv",
+                    **({"points": "points.csv"} if cell.static_camera is not None else {}),
+                    **files,
+                },
+                **({"camera": cell.static_camera.camera.to_document()} if cell.static_camera is not None else {}),
                 "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
-                "source": source + f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m",
+                "source": source + noise,
             },
         )
         return
@@ -330,6 +395,7 @@ def _write_header(
             "configurations": "configurations.csv",
             **(camera_files if camera else {}),
             "tracker_points": "tracker_points.csv",
+            **({"tracker_poses": "tracker_poses.csv"} if "tracker_poses" in counts else {}),
         },
         **(
             {

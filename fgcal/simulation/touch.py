@@ -37,24 +37,45 @@ def touch_design(
 ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Configurations (N, n) of the touches, the point each touches, and its seating noise (N, 3)
     (m): ``touches_per_point`` touches of every point, in a shuffled order."""
-    touch, robot = cell.touch, cell.robot
+    touch = cell.touch
     order = [k for k in range(len(touch.names)) for _ in range(touch.touches_per_point)]
     order = [order[i] for i in design_rng.permutation(len(order))]
     noise = noise_rng.normal(0.0, cell.touch_sigma_m, (len(order), 3))
-    q = np.zeros((len(order), robot.n_joints))
-    pending = np.arange(len(order))
-    for _ in range(20):  # rounds of new orientations for the touches not reached yet
-        R = np.array([approach_rotation(touch.max_tilt_rad, design_rng) for _ in pending])
-        targets = np.array(
-            [
-                pose(R_i, touch.points[order[i]] + noise[i] - R_i @ touch.probe)
-                for i, R_i in zip(pending, R, strict=True)
-            ]
+    positions = touch.points[order] + noise
+    q, pending = reach(cell, true_params, positions, touch.probe, touch.max_tilt_rad, design_rng)
+    if len(pending):
+        raise InputError(
+            cell.source,
+            "touch.points",
+            f"{len(pending)} touches unreachable after {ROUNDS} rounds of orientations: point "
+            f"{touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe within max_tilt of "
+            "vertical",
         )
+    return q, [touch.names[k] for k in order], noise
+
+
+ROUNDS = 20  # rounds of new orientations for the positions not reached yet
+
+
+def reach(
+    cell: Cell,
+    true_params: np.ndarray,
+    positions: np.ndarray,
+    tool_point: np.ndarray,
+    max_tilt_rad: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Configurations (N, n) of the true robot that put ``tool_point`` (flange frame) at each
+    of ``positions`` (W), the flange's z axis down within ``max_tilt_rad``, by inverse
+    kinematics from random starts; and the indices of the positions not reached."""
+    robot = cell.robot
+    q = np.zeros((len(positions), robot.n_joints))
+    pending = np.arange(len(positions))
+    for _ in range(ROUNDS):
+        R = np.array([approach_rotation(max_tilt_rad, rng) for _ in pending])
+        targets = np.array([pose(R_i, positions[i] - R_i @ tool_point) for i, R_i in zip(pending, R, strict=True)])
         low, high = robot.limits[:, 0], robot.limits[:, 1]
-        starts = design_rng.uniform(
-            np.maximum(low, -np.pi), np.minimum(high, np.pi), (STARTS, len(pending), robot.n_joints)
-        )
+        starts = rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (STARTS, len(pending), robot.n_joints))
         solved = np.zeros(len(pending), dtype=bool)
         for start in starts:
             left = ~solved
@@ -66,13 +87,8 @@ def touch_design(
             solved[rows] = True
         pending = pending[~solved]
         if not len(pending):
-            return q, [touch.names[k] for k in order], noise
-    raise InputError(
-        cell.source,
-        "touch.points",
-        f"{len(pending)} touches unreachable after 20 rounds of orientations: point "
-        f"{touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe within max_tilt of vertical",
-    )
+            break
+    return q, pending
 
 
 def write_touch_tables(
