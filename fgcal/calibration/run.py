@@ -422,7 +422,7 @@ def held_out_summary(result: CalibrationResult) -> str | None:
     (key, before), (_, after) = scores
     if key != "tool_point":
         return (
-            f"  held-out {SCORES[key]} (no truth: the held-out images' measurements): before {before.rms:.3e} m "
+            f"  held-out {SCORES[key]} (no truth: the held-out measurements): before {before.rms:.3e} m "
             f"RMS, after {after.rms:.3e} m"
             + (f" (predicted {p['rms']:.3e} m)" if (p := predicted_held_out(result, against_truth=False)) else "")
         )
