@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..fields import Fields, read_yaml
@@ -84,6 +84,11 @@ class CalibrationConfig:
     # Camera intrinsics (projection): None = fixed at the dataset's values; otherwise the prior
     # sigmas (fx, fy, cx, cy in px; k1, k2, p1, p2, k3) around them, from an earlier calibration.
     intrinsics_prior_sigmas: tuple[float, ...] | None = None
+    # A separate validation set (a dataset directory): its configurations are the held-out ones
+    # (with the fitting set's own holdout, 0 by default then); tool points measured only there
+    # are declared here (flange frame, m) or fitted leave-one-out.
+    validation_dataset: Path | None = None
+    validation_tool_points: dict = field(default_factory=dict)
 
     @property
     def measurement_sigma_m(self) -> float:
@@ -200,8 +205,13 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     pairs = doc.sub("pairs", {})
     pairs.check_keys(("partner", "seed", "group_images", "points_from"))
     validation = doc.sub("validation", {})
-    validation.check_keys(("holdout", "seed"))
-    holdout = validation.number("holdout", 0.25)
+    validation.check_keys(("holdout", "seed", "dataset", "tool_points"))
+    validation_dataset = base / validation.string("dataset") if validation.has("dataset") else None
+    declared_points = validation.sub("tool_points", {})
+    validation_tool_points = {
+        str(name): tuple(declared_points.vector(str(name), 3, scale=units.to_m)) for name in declared_points.data
+    }
+    holdout = validation.number("holdout", 0.0 if validation_dataset is not None else 0.25)
     if not 0.0 <= holdout < 0.9:
         raise validation.error("holdout", f"fraction of configurations held out must be in [0, 0.9), got {holdout}")
     ident = doc.sub("identifiability", {})
@@ -249,6 +259,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         solver_method=solver.string("method", "lm", ("lm", "gtsam_lm")),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),
         intrinsics_prior_sigmas=_intrinsics(doc),
+        validation_dataset=validation_dataset,
+        validation_tool_points=validation_tool_points,
     )
 
 

@@ -16,6 +16,7 @@ from .graph import P_KEY, TOOL_POINTS_KEY, TOOL_POSE_KEY, TRACKER_KEY
 from .validation import (
     CHAIN_FORMULATIONS,
     FIXED_POINT_FORMULATIONS,
+    declared_test_point,
     focal_px,
     gauge_of,
     held_out_measurements,
@@ -58,24 +59,30 @@ def predicted_held_out(result, against_truth: bool) -> dict:
     p_values = model.base[model.index]
     if config.formulation == "tracker":
         rows = _held_out_tracker_rows(problem) if not against_truth else _all_targets(problem, len(q))
-        if not rows:
+        parameters, noise = np.zeros(0), np.zeros(0)
+        if rows:
+            points = TrackerPoints(
+                model,
+                P_KEY,
+                TRACKER_KEY,
+                TOOL_POINTS_KEY,
+                len(result.state.tool_points),
+                np.array([r[0] for r in rows]),
+                np.array([r[1] for r in rows]),
+                np.zeros((len(rows), 3)),
+                config.tracker_sigma_m,
+            )
+            inputs = [p_values, gtsam.Pose3(result.state.tracker_pose), result.state.tool_points.reshape(-1)]
+            J = np.hstack(points.compute(inputs, True).blocks).reshape(len(rows), 3, -1)
+            covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
+            parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
+            noise = np.full(len(rows), 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2)
+        if not against_truth:
+            for more, more_noise in _test_point_rows(result, model, p_values, factor):
+                parameters, noise = np.concatenate([parameters, more]), np.concatenate([noise, more_noise])
+        if not len(parameters):
             return {}
-        points = TrackerPoints(
-            model,
-            P_KEY,
-            TRACKER_KEY,
-            TOOL_POINTS_KEY,
-            len(result.state.tool_points),
-            np.array([r[0] for r in rows]),
-            np.array([r[1] for r in rows]),
-            np.zeros((len(rows), 3)),
-            config.tracker_sigma_m,
-        )
-        inputs = [p_values, gtsam.Pose3(result.state.tracker_pose), result.state.tool_points.reshape(-1)]
-        J = np.hstack(points.compute(inputs, True).blocks).reshape(len(rows), 3, -1)
-        covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY, TOOL_POINTS_KEY])
-        parameters = np.einsum("oij,jk,oik->o", J, covariance, J)
-        noise = 0.0 if against_truth else 3.0 * factor * config.tracker_sigma_m**2
+        noise = float(np.mean(noise))
     elif not against_truth and config.formulation in (*FIXED_POINT_FORMULATIONS, *CHAIN_FORMULATIONS):
         held_out = held_out_measurements(problem, result.state, result.released)
         if held_out is None:
@@ -180,6 +187,57 @@ def without_gauge(J: np.ndarray, positions: np.ndarray, gauge: str) -> np.ndarra
         G = np.hstack([-skew(positions - positions.mean(axis=0)).reshape(-1, 3), G])
     Q, _ = np.linalg.qr(G)
     return J - Q @ (Q.T @ J)
+
+
+def _test_point_rows(result, model: BatchKinematics, p_values: np.ndarray, factor: float):
+    """Per test point of a validation set (a tracker target the fit never saw), the variance
+    each of its held-out errors takes from P and the tracker pose, and its noise variance, for
+    the score of fgcal.calibration.validation.test_point_errors. Declared: the error's
+    Jacobian A_j at the declared point. Leave-one-out: ``A_j - R_j mean_{i != j}(R_i^T A_i)``
+    (the refitted point follows the others), and the noise 3 sigma^2 (1 + 1/(n - 1))."""
+    problem, config = result.problem, result.config
+    table = problem.dataset.tables["tracker_points"]
+    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
+    test_pos = {int(c): i for i, c in enumerate(problem.test)}
+    T_X, J_P = model.poses(p_values), model.jacobians(p_values)
+    T_L = result.state.tracker_pose
+    covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY])
+    sigma2 = 3.0 * factor * config.tracker_sigma_m**2
+    for target in sorted({str(n) for n in table.ids["target"]} - set(problem.targets)):
+        at = np.array(
+            [test_pos[config_pos[c]] for c, n in zip(table.ids["config"], table.ids["target"], strict=True)
+             if n == target and config_pos[c] in test_pos]
+        )  # fmt: skip
+        if not len(at):
+            continue
+        declared = declared_test_point(problem, result.state, target)
+        # Where the point is on the flange: declared, or as the measurements put it (for A_j only).
+        s = declared if declared is not None else _mean_back_projection(problem, table, target, T_L, T_X)
+        R_X = T_X[at, :3, :3]
+        p_W = np.einsum("oij,j->oi", R_X, s) + T_X[at, :3, 3]
+        A = np.concatenate(
+            [T_L[:3, :3] @ point_jacobian(R_X, np.broadcast_to(s, (len(at), 3))) @ J_P[at],
+             np.broadcast_to(point_jacobian(T_L[:3, :3], p_W), (len(at), 3, 6))],
+            axis=2,
+        )  # fmt: skip
+        if declared is not None:
+            yield np.einsum("oij,jk,oik->o", A, covariance, A), np.full(len(at), sigma2)
+            continue
+        R = T_L[:3, :3] @ R_X
+        back = np.einsum("oji,ojk->oik", R, A)  # R_i^T A_i
+        loo = A - np.einsum("oij,ojk->oik", R, (back.sum(axis=0) - back) / (len(at) - 1))
+        yield np.einsum("oij,jk,oik->o", loo, covariance, loo), np.full(len(at), sigma2 * (1 + 1 / (len(at) - 1)))
+
+
+def _mean_back_projection(problem, table, target: str, T_L: np.ndarray, T_X: np.ndarray) -> np.ndarray:
+    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
+    test_pos = {int(c): i for i, c in enumerate(problem.test)}
+    back = [
+        np.linalg.inv(T_L @ T_X[test_pos[config_pos[c]]]) @ np.r_[xyz, 1.0]
+        for c, n, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
+        if n == target and config_pos[c] in test_pos
+    ]
+    return np.mean(back, axis=0)[:3]
 
 
 def _held_out_tracker_rows(problem) -> list[tuple[int, int]]:

@@ -164,6 +164,11 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) ->
         dataset = copy.copy(dataset)
         dataset.tables = {**dataset.tables, "pixels": detections.pixels}
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
+    if config.validation_dataset is not None:
+        from .validation_set import with_validation_set
+
+        dataset, validation = with_validation_set(dataset, config)
+        test = np.concatenate([test, validation])
     problem = Problem(config, dataset, robot, config.frame, fit, test, candidate_parameters(robot, config))
     if detections is not None:
         problem.skipped_images = detections.skipped
@@ -321,7 +326,9 @@ def _build_tracker(problem: Problem) -> None:
     if "tracker_points" not in data.tables:
         raise InputError(data.path / "dataset.yaml", "measured", "the tracker formulation needs tracker_points")
     table = data.tables["tracker_points"]
-    problem.targets = sorted(set(table.ids["target"]))
+    # The targets the fit sees; one measured only at held-out configurations (a test point of a
+    # validation set) is scored through its declared or leave-one-out position.
+    problem.targets = sorted({target for _, target, _ in fitting_rows(problem, table, "target")})
     target_index = {t: i for i, t in enumerate(problem.targets)}
     for index, target, xyz in fitting_rows(problem, table, "target"):
         problem.tracker_obs.append((index, target_index[target], xyz))

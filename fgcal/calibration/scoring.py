@@ -93,6 +93,12 @@ def score_with_truth(result: CalibrationResult) -> bool:
     truth = load_truth(result.problem.dataset.path)
     if truth is None:
         return False
+    validation = result.config.validation_dataset
+    if validation is not None:
+        # A validation set is scored against the truth only when it measured the same true robot.
+        other = load_truth(validation)
+        if other is None or other["parameters"] != truth["parameters"]:
+            return False
     result.truth = truth
     for label, state in (("before", result.before), ("after", result.state)):
         errors = truth_errors(result.problem, state, truth, result.tool_point)

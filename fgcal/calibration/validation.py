@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..errors import InputError
 from ..factors import Distances, MeasurementSet, PointPairs, Poses, Projections, StaticProjections, TouchPoints
 from ..se3 import kabsch, pose, quaternion_rotation, transform_points
 from .batch import BatchKinematics
@@ -326,13 +327,59 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
     table = data.tables["tracker_points"]
     config_pos = {c: i for i, c in enumerate(data.configs)}
     test_pos = {int(c): i for i, c in enumerate(problem.test)}
-    for t, target in enumerate(problem.targets):
+    held_out = sorted({str(n) for _, n, _ in fitting_rows(problem, table, "target", problem.test)})
+    for target in held_out:
         rows = [
             (test_pos[config_pos[cid]], xyz)
             for cid, name, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
             if name == target and config_pos[cid] in test_pos
         ]
-        if rows:
-            predicted = predicted_positions(problem, state, q, None, t)[[i for i, _ in rows]]
-            errors.append(predicted - np.array([xyz for _, xyz in rows]))
+        at = [i for i, _ in rows]
+        measured = np.array([xyz for _, xyz in rows])
+        if target in problem.targets:
+            predicted = predicted_positions(problem, state, q, None, problem.targets.index(target))[at]
+            errors.append(predicted - measured)
+        else:
+            errors.append(test_point_errors(problem, state, target, q[at], measured))
     return {"tool_point": np.concatenate(errors) if errors else np.zeros(0)}
+
+
+def declared_test_point(problem: Problem, state: State, target: str) -> np.ndarray | None:
+    """A declared test point in the calibrated flange frame, or None. Declared positions are
+    in the tool's drawing; when three or more fitting targets are declared too, the drawing is
+    carried onto their estimates by the best rigid motion (the calibrated flange frame is an
+    effective one: the last joint's errors move it, and the fitted targets with it), else the
+    declared position is taken as it is."""
+    declared = problem.config.validation_tool_points
+    if target not in declared:
+        return None
+    anchors = [t for t in problem.targets if t in declared]
+    point = np.array(declared[target], dtype=float)
+    if len(anchors) < 3:
+        return point
+    R, t = kabsch(
+        np.array([declared[a] for a in anchors]), state.tool_points[[problem.targets.index(a) for a in anchors]]
+    )
+    return R @ point + t
+
+
+def test_point_errors(problem: Problem, state: State, target: str, q: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Error vectors (m, tracker frame) at a tool point the fit never saw, measured at ``q``:
+    at its declared position (config ``validation.tool_points``: declared_test_point), else at its
+    leave-one-out position, the mean of its other measurements carried back to the flange
+    through the calibrated robot (the test point's position is then not scored, only how the
+    robot moves it)."""
+    T_T_n = state.tracker_pose @ problem.robot.fk(q, problem.robot.parameter_dict(state.params))
+    declared = declared_test_point(problem, state, target)
+    if declared is not None:
+        return transform_points(T_T_n, declared) - measured
+    if len(q) < 2:
+        raise InputError(
+            problem.config.path,
+            "validation.tool_points",
+            f"test point {target!r} is measured once in the validation set: declare its position on the flange, "
+            "or measure it at several configurations (it is fitted leave-one-out)",
+        )
+    back = np.einsum("oji,oj->oi", T_T_n[:, :3, :3], measured - T_T_n[:, :3, 3])  # flange frame
+    loo = (back.sum(axis=0) - back) / (len(q) - 1)
+    return np.einsum("oij,oj->oi", T_T_n[:, :3, :3], loo) + T_T_n[:, :3, 3] - measured
