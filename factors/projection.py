@@ -80,6 +80,14 @@ def project(intrinsics: np.ndarray, p_C: np.ndarray, jacobians: bool = False):
     return pixel, d_point, d_intrinsics
 
 
+def image_starts(configs: np.ndarray) -> np.ndarray:
+    """First observation of each image; an image's observations must be consecutive."""
+    starts = np.flatnonzero(np.r_[True, configs[1:] != configs[:-1]])
+    if len(starts) != len(np.unique(configs)):
+        raise ValueError("the observations of an image must be consecutive")
+    return starts
+
+
 class BehindCameraError(ValueError):
     """A point projects from behind the camera: the estimate is far off."""
 
@@ -118,9 +126,7 @@ class Projections(MeasurementSet):
         self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
         if not len(self.configs) == len(self.points_O) == len(self.measured) or not len(self.configs):
             raise ValueError("one configuration, point and pixel per observation, at least one")
-        starts = np.flatnonzero(np.r_[True, self.configs[1:] != self.configs[:-1]])
-        if len(starts) != len(np.unique(self.configs)):
-            raise ValueError("the observations of an image must be consecutive")
+        starts = image_starts(self.configs)
         self.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
         self.variables = [*params_variable(params_key, kinematics), (object_key, "pose3", None)]
         if intrinsics_key is not None:
@@ -200,9 +206,7 @@ class StaticProjections(MeasurementSet):
         self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
         if not len(self.configs) == len(self.points_B) == len(self.measured) or not len(self.configs):
             raise ValueError("one configuration, point and pixel per observation, at least one")
-        starts = np.flatnonzero(np.r_[True, self.configs[1:] != self.configs[:-1]])
-        if len(starts) != len(np.unique(self.configs)):
-            raise ValueError("the observations of an image must be consecutive")
+        starts = image_starts(self.configs)
         self.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
         self.variables = [
             *params_variable(params_key, kinematics),

@@ -284,13 +284,19 @@ def _tracker(problem: Problem, state: State, stage: StageGraph):
     return make
 
 
-def _touch(problem: Problem, state: State, stage: StageGraph):
+def _tool_and_fixed_points(state: State, stage: StageGraph, observations: list, name: str):
+    """The tool point (a probe, a ball) and the fixed points in W (sockets, pivots) as
+    variables; the observations ordered by configuration, and that order."""
     stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float))
     stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3)
     stage.values.insert(FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1))
-    stage.aux[FIXED_POINTS_KEY] = ("touch_points", 3 * len(state.fixed_points))
-    order = np.argsort([o[0] for o in problem.touch_obs], kind="stable")
-    observations = [problem.touch_obs[i] for i in order]
+    stage.aux[FIXED_POINTS_KEY] = (name, 3 * len(state.fixed_points))
+    order = np.argsort([o[0] for o in observations], kind="stable")
+    return [observations[i] for i in order], order
+
+
+def _touch(problem: Problem, state: State, stage: StageGraph):
+    observations, order = _tool_and_fixed_points(state, stage, problem.touch_obs, "touch_points")
 
     def make(robust):
         touches = TouchPoints(
@@ -365,12 +371,7 @@ def _poses(problem: Problem, state: State, stage: StageGraph):
 
 
 def _distances(problem: Problem, state: State, stage: StageGraph):
-    stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float))
-    stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3)
-    stage.values.insert(FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1))
-    stage.aux[FIXED_POINTS_KEY] = ("pivots", 3 * len(state.fixed_points))
-    order = np.argsort([o[0] for o in problem.distance_obs], kind="stable")
-    observations = [problem.distance_obs[i] for i in order]
+    observations, order = _tool_and_fixed_points(state, stage, problem.distance_obs, "pivots")
 
     def make(robust):
         distances = Distances(
