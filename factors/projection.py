@@ -88,8 +88,51 @@ def image_starts(configs: np.ndarray) -> np.ndarray:
     return starts
 
 
+def _pixel_set(
+    owner: MeasurementSet,
+    kinematics: Kinematics,
+    params_key: int | None,
+    pose_keys: list[int],
+    configs: np.ndarray,
+    points: np.ndarray,
+    measured_px: np.ndarray,
+    sigma_px: float,
+    intrinsics: np.ndarray | None,
+    intrinsics_key: int | None,
+) -> None:
+    """What every set of pixel observations holds: the points (their frame's coordinates), the
+    pixels, the intrinsics as a constant or a variable after P and the Pose3 variables, one
+    factor per image and a pixel as the robust unit."""
+    if (intrinsics is None) == (intrinsics_key is None):
+        raise ValueError("give either constant intrinsics or an intrinsics variable key")
+    owner.kinematics = kinematics
+    owner.params_key = params_key
+    owner.configs = np.asarray(configs, dtype=int)
+    owner.points = np.asarray(points, dtype=float).reshape(-1, 3)
+    owner.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
+    if not len(owner.configs) == len(owner.points) == len(owner.measured) or not len(owner.configs):
+        raise ValueError("one configuration, point and pixel per observation, at least one")
+    owner.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
+    owner.variables = [*params_variable(params_key, kinematics), *((key, "pose3", None) for key in pose_keys)]
+    if intrinsics_key is not None:
+        owner.variables.append((intrinsics_key, "vector", 9))
+    owner.sigma = np.full(2 * len(owner.configs), float(sigma_px))
+    owner.factor_starts = 2 * image_starts(owner.configs)
+    owner.unit_starts = row_starts([2] * len(owner.configs))
+
+
 class BehindCameraError(ValueError):
     """A point projects from behind the camera: the estimate is far off."""
+
+
+def _in_front(p_C: np.ndarray, configs: np.ndarray, what: str, estimate: str) -> None:
+    """BehindCameraError unless every camera-frame point (O, 3) is in front of the camera."""
+    if np.any(p_C[:, 2] <= 1e-6):
+        worst = int(np.argmin(p_C[:, 2]))
+        raise BehindCameraError(
+            f"{what} behind the camera (depth {p_C[worst, 2]:.3g} m at configuration {configs[worst]}): "
+            f"{estimate} is far off"
+        )
 
 
 class Projections(MeasurementSet):
@@ -117,23 +160,8 @@ class Projections(MeasurementSet):
         intrinsics_key: int | None = None,
         robust: RobustLoss | None = None,
     ) -> None:
-        if (intrinsics is None) == (intrinsics_key is None):
-            raise ValueError("give either constant intrinsics or an intrinsics variable key")
-        self.kinematics = kinematics
-        self.params_key = params_key
-        self.configs = np.asarray(configs, dtype=int)
-        self.points_O = np.asarray(points_O, dtype=float).reshape(-1, 3)
-        self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
-        if not len(self.configs) == len(self.points_O) == len(self.measured) or not len(self.configs):
-            raise ValueError("one configuration, point and pixel per observation, at least one")
-        starts = image_starts(self.configs)
-        self.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
-        self.variables = [*params_variable(params_key, kinematics), (object_key, "pose3", None)]
-        if intrinsics_key is not None:
-            self.variables.append((intrinsics_key, "vector", 9))
-        self.sigma = np.full(2 * len(self.configs), float(sigma_px))
-        self.factor_starts = 2 * starts
-        self.unit_starts = row_starts([2] * len(self.configs))
+        _pixel_set(self, kinematics, params_key, [object_key], configs, points_O, measured_px, sigma_px,
+                   intrinsics, intrinsics_key)  # fmt: skip
         super().__init__(robust)
 
     def camera_points(self, inputs: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -141,19 +169,14 @@ class Projections(MeasurementSet):
         params = inputs[0] if self.params_key is not None else None
         T_W_O = inputs[1 if self.params_key is not None else 0].matrix()
         T_W_C = self.kinematics.poses(params)[self.configs]
-        p_W = self.points_O @ T_W_O[:3, :3].T + T_W_O[:3, 3]
+        p_W = self.points @ T_W_O[:3, :3].T + T_W_O[:3, 3]
         p_C = np.einsum("oji,oj->oi", T_W_C[:, :3, :3], p_W - T_W_C[:, :3, 3])
         return T_W_C, T_W_O, p_W, p_C
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
         intrinsics = np.asarray(inputs[-1], dtype=float) if self.intrinsics is None else self.intrinsics
         T_W_C, T_W_O, _, p_C = self.camera_points(inputs)
-        if np.any(p_C[:, 2] <= 1e-6):
-            worst = int(np.argmin(p_C[:, 2]))
-            raise BehindCameraError(
-                f"point behind the camera (depth {p_C[worst, 2]:.3g} m at configuration {self.configs[worst]}): "
-                "the pose estimate is far off"
-            )
+        _in_front(p_C, self.configs, "point", "the pose estimate")
         if not jacobians:
             return Evaluation((project(intrinsics, p_C) - self.measured).reshape(-1), [])
         pixel, d_point, d_intrinsics = project(intrinsics, p_C, True)
@@ -166,7 +189,7 @@ class Projections(MeasurementSet):
             blocks.append(np.matmul(d_xi, J).reshape(-1, J.shape[2]))
         # O Exp(eta): p_W -> p_W + R_O (omega x p_O + v)
         R_O = T_W_O[:3, :3]
-        d_object = np.concatenate([-R_O @ skew(self.points_O), np.broadcast_to(R_O, (len(p_C), 3, 3))], axis=2)
+        d_object = np.concatenate([-R_O @ skew(self.points), np.broadcast_to(R_O, (len(p_C), 3, 3))], axis=2)
         blocks.append(np.matmul(d_point @ np.swapaxes(R_C, 1, 2), d_object).reshape(-1, 6))
         if self.intrinsics is None:
             blocks.append(d_intrinsics.reshape(-1, 9))
@@ -197,27 +220,8 @@ class StaticProjections(MeasurementSet):
         intrinsics_key: int | None = None,
         robust: RobustLoss | None = None,
     ) -> None:
-        if (intrinsics is None) == (intrinsics_key is None):
-            raise ValueError("give either constant intrinsics or an intrinsics variable key")
-        self.kinematics = kinematics
-        self.params_key = params_key
-        self.configs = np.asarray(configs, dtype=int)
-        self.points_B = np.asarray(points_B, dtype=float).reshape(-1, 3)
-        self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
-        if not len(self.configs) == len(self.points_B) == len(self.measured) or not len(self.configs):
-            raise ValueError("one configuration, point and pixel per observation, at least one")
-        starts = image_starts(self.configs)
-        self.intrinsics = None if intrinsics is None else np.asarray(intrinsics, dtype=float)
-        self.variables = [
-            *params_variable(params_key, kinematics),
-            (camera_key, "pose3", None),
-            (board_key, "pose3", None),
-        ]
-        if intrinsics_key is not None:
-            self.variables.append((intrinsics_key, "vector", 9))
-        self.sigma = np.full(2 * len(self.configs), float(sigma_px))
-        self.factor_starts = 2 * starts
-        self.unit_starts = row_starts([2] * len(self.configs))
+        _pixel_set(self, kinematics, params_key, [camera_key, board_key], configs, points_B, measured_px, sigma_px,
+                   intrinsics, intrinsics_key)  # fmt: skip
         super().__init__(robust)
 
     def camera_points(self, inputs: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -226,7 +230,7 @@ class StaticProjections(MeasurementSet):
         first = 1 if self.params_key is not None else 0
         T_C_W, T_n_B = inputs[first].matrix(), inputs[first + 1].matrix()
         T_X = self.kinematics.poses(params)[self.configs]
-        p_n = self.points_B @ T_n_B[:3, :3].T + T_n_B[:3, 3]
+        p_n = self.points @ T_n_B[:3, :3].T + T_n_B[:3, 3]
         p_W = np.einsum("oij,oj->oi", T_X[:, :3, :3], p_n) + T_X[:, :3, 3]
         p_C = p_W @ T_C_W[:3, :3].T + T_C_W[:3, 3]
         return T_X, p_n, p_W, p_C
@@ -234,12 +238,7 @@ class StaticProjections(MeasurementSet):
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
         intrinsics = np.asarray(inputs[-1], dtype=float) if self.intrinsics is None else self.intrinsics
         T_X, p_n, p_W, p_C = self.camera_points(inputs)
-        if np.any(p_C[:, 2] <= 1e-6):
-            worst = int(np.argmin(p_C[:, 2]))
-            raise BehindCameraError(
-                f"board point behind the camera (depth {p_C[worst, 2]:.3g} m at configuration "
-                f"{self.configs[worst]}): the camera pose estimate is far off"
-            )
+        _in_front(p_C, self.configs, "board point", "the camera pose estimate")
         if not jacobians:
             return Evaluation((project(intrinsics, p_C) - self.measured).reshape(-1), [])
         pixel, d_point, d_intrinsics = project(intrinsics, p_C, True)
@@ -253,7 +252,7 @@ class StaticProjections(MeasurementSet):
             J = self.kinematics.jacobians(inputs[0])[self.configs]
             blocks.append(np.matmul(d_world @ point_jacobian(R_X, p_n), J).reshape(-1, J.shape[2]))
         blocks.append((d_point @ point_jacobian(R_L, p_W)).reshape(-1, 6))
-        board = point_jacobian(np.broadcast_to(R_B, R_X.shape), self.points_B)  # d p_n / d B
+        board = point_jacobian(np.broadcast_to(R_B, R_X.shape), self.points)  # d p_n / d B
         blocks.append((d_world @ R_X @ board).reshape(-1, 6))
         if self.intrinsics is None:
             blocks.append(d_intrinsics.reshape(-1, 9))

@@ -194,8 +194,7 @@ def _pairs(problem: Problem, state: State, stage: StageGraph):
     fixture_key = None
     if state.fixture_rotation is not None:
         fixture_key = FIXTURE_KEY
-        stage.values.insert(FIXTURE_KEY, gtsam.Rot3(state.fixture_rotation))
-        stage.aux[FIXTURE_KEY] = ("fixture.r", 3)
+        _add_variable(stage, FIXTURE_KEY, gtsam.Rot3(state.fixture_rotation), "fixture.r", 3)
     groups = [(np.array(g.images)[g.owner], g.c, g.p_F) for g in problem.pairs]
 
     def make(robust):
@@ -213,14 +212,26 @@ def _pairs(problem: Problem, state: State, stage: StageGraph):
     return make
 
 
+def _add_variable(stage: StageGraph, key: int, value, name: str, dim: int) -> None:
+    """An auxiliary unknown of the stage: its starting value and its (name, tangent dimension)."""
+    stage.values.insert(key, value)
+    stage.aux[key] = (name, dim)
+
+
+def _by_configuration(observations: list) -> tuple[list, np.ndarray]:
+    """Observations ``(configuration index, ...)`` ordered by configuration (a configuration's
+    together, as one factor per configuration or image needs), and that order."""
+    order = np.argsort([o[0] for o in observations], kind="stable")
+    return [observations[i] for i in order], order
+
+
 def _intrinsics(problem: Problem, state: State, stage: StageGraph) -> tuple[np.ndarray | None, int | None]:
     """The intrinsics as a constant (the dataset's), or as a variable with a prior from the
     earlier intrinsic calibration when the config estimates them: (constant, key)."""
     config = problem.config
     if state.intrinsics is not None:
         # Estimated, with a prior from the earlier intrinsic calibration (the dataset's values).
-        stage.values.insert(INTRINSICS_KEY, state.intrinsics)
-        stage.aux[INTRINSICS_KEY] = ("intrinsics", 9)
+        _add_variable(stage, INTRINSICS_KEY, state.intrinsics, "intrinsics", 9)
         _add_prior(
             stage,
             gtsam.PriorFactorVector(
@@ -233,11 +244,9 @@ def _intrinsics(problem: Problem, state: State, stage: StageGraph) -> tuple[np.n
 
 def _projection(problem: Problem, state: State, stage: StageGraph):
     config = problem.config
-    stage.values.insert(OBJECT_KEY, gtsam.Pose3(state.fixture_pose))
-    stage.aux[OBJECT_KEY] = ("fixture", 6)
+    _add_variable(stage, OBJECT_KEY, gtsam.Pose3(state.fixture_pose), "fixture", 6)
     constant, key = _intrinsics(problem, state, stage)
-    order = np.argsort([o[0] for o in problem.pixel_obs], kind="stable")  # an image's pixels together
-    observations = [problem.pixel_obs[i] for i in order]
+    observations, order = _by_configuration(problem.pixel_obs)  # an image's pixels together
 
     def make(robust):
         projections = Projections(
@@ -259,12 +268,15 @@ def _projection(problem: Problem, state: State, stage: StageGraph):
 
 def _tracker(problem: Problem, state: State, stage: StageGraph):
     config = problem.config
-    stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
-    stage.aux[TRACKER_KEY] = ("tracker", 6)
-    stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points, dtype=float).reshape(-1))
-    stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3 * len(state.tool_points))
-    order = np.argsort([o[0] for o in problem.tracker_obs], kind="stable")  # a configuration's points together
-    observations = [problem.tracker_obs[i] for i in order]
+    _add_variable(stage, TRACKER_KEY, gtsam.Pose3(state.tracker_pose), "tracker", 6)
+    _add_variable(
+        stage,
+        TOOL_POINTS_KEY,
+        np.asarray(state.tool_points, dtype=float).reshape(-1),
+        "tool_points",
+        3 * len(state.tool_points),
+    )
+    observations, order = _by_configuration(problem.tracker_obs)  # a configuration's points together
 
     def make(robust):
         points = TrackerPoints(
@@ -287,12 +299,10 @@ def _tracker(problem: Problem, state: State, stage: StageGraph):
 def _tool_and_fixed_points(state: State, stage: StageGraph, observations: list, name: str):
     """The tool point (a probe, a ball) and the fixed points in W (sockets, pivots) as
     variables; the observations ordered by configuration, and that order."""
-    stage.values.insert(TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float))
-    stage.aux[TOOL_POINTS_KEY] = ("tool_points", 3)
-    stage.values.insert(FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1))
-    stage.aux[FIXED_POINTS_KEY] = (name, 3 * len(state.fixed_points))
-    order = np.argsort([o[0] for o in observations], kind="stable")
-    return [observations[i] for i in order], order
+    _add_variable(stage, TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float), "tool_points", 3)
+    _add_variable(stage, FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1), name,
+                  3 * len(state.fixed_points))  # fmt: skip
+    return _by_configuration(observations)
 
 
 def _touch(problem: Problem, state: State, stage: StageGraph):
@@ -317,13 +327,10 @@ def _touch(problem: Problem, state: State, stage: StageGraph):
 
 def _static_camera(problem: Problem, state: State, stage: StageGraph):
     config = problem.config
-    stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
-    stage.aux[TRACKER_KEY] = ("camera", 6)
-    stage.values.insert(TOOL_POSE_KEY, gtsam.Pose3(state.tool_pose))
-    stage.aux[TOOL_POSE_KEY] = ("board", 6)
+    _add_variable(stage, TRACKER_KEY, gtsam.Pose3(state.tracker_pose), "camera", 6)
+    _add_variable(stage, TOOL_POSE_KEY, gtsam.Pose3(state.tool_pose), "board", 6)
     constant, key = _intrinsics(problem, state, stage)
-    order = np.argsort([o[0] for o in problem.pixel_obs], kind="stable")  # an image's pixels together
-    observations = [problem.pixel_obs[i] for i in order]
+    observations, order = _by_configuration(problem.pixel_obs)  # an image's pixels together
 
     def make(robust):
         projections = StaticProjections(
@@ -346,12 +353,9 @@ def _static_camera(problem: Problem, state: State, stage: StageGraph):
 
 def _poses(problem: Problem, state: State, stage: StageGraph):
     config = problem.config
-    stage.values.insert(TRACKER_KEY, gtsam.Pose3(state.tracker_pose))
-    stage.aux[TRACKER_KEY] = ("tracker", 6)
-    stage.values.insert(TOOL_POSE_KEY, gtsam.Pose3(state.tool_pose))
-    stage.aux[TOOL_POSE_KEY] = ("probe", 6)
-    order = np.argsort([o[0] for o in problem.pose_obs], kind="stable")
-    observations = [problem.pose_obs[i] for i in order]
+    _add_variable(stage, TRACKER_KEY, gtsam.Pose3(state.tracker_pose), "tracker", 6)
+    _add_variable(stage, TOOL_POSE_KEY, gtsam.Pose3(state.tool_pose), "probe", 6)
+    observations, order = _by_configuration(problem.pose_obs)
 
     def make(robust):
         poses = Poses(

@@ -16,12 +16,14 @@ from .graph import P_KEY, TOOL_POINTS_KEY, TOOL_POSE_KEY, TRACKER_KEY
 from .validation import (
     CHAIN_FORMULATIONS,
     FIXED_POINT_FORMULATIONS,
+    back_projections,
     declared_test_point,
     focal_px,
     gauge_of,
     held_out_measurements,
     held_out_pairs,
     held_out_projections,
+    held_out_target,
     projection_inputs,
 )
 
@@ -196,23 +198,19 @@ def _test_point_rows(result, model: BatchKinematics, p_values: np.ndarray, facto
     Jacobian A_j at the declared point. Leave-one-out: ``A_j - R_j mean_{i != j}(R_i^T A_i)``
     (the refitted point follows the others), and the noise 3 sigma^2 (1 + 1/(n - 1))."""
     problem, config = result.problem, result.config
-    table = problem.dataset.tables["tracker_points"]
-    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
-    test_pos = {int(c): i for i, c in enumerate(problem.test)}
     T_X, J_P = model.poses(p_values), model.jacobians(p_values)
     T_L = result.state.tracker_pose
     covariance = result.joint_covariance.block([P_KEY, TRACKER_KEY])
     sigma2 = 3.0 * factor * config.tracker_sigma_m**2
-    for target in sorted({str(n) for n in table.ids["target"]} - set(problem.targets)):
-        at = np.array(
-            [test_pos[config_pos[c]] for c, n in zip(table.ids["config"], table.ids["target"], strict=True)
-             if n == target and config_pos[c] in test_pos]
-        )  # fmt: skip
+    for target in sorted(
+        {str(n) for n in problem.dataset.tables["tracker_points"].ids["target"]} - set(problem.targets)
+    ):
+        at, measured = held_out_target(problem, target)
         if not len(at):
             continue
         declared = declared_test_point(problem, result.state, target)
         # Where the point is on the flange: declared, or as the measurements put it (for A_j only).
-        s = declared if declared is not None else _mean_back_projection(problem, table, target, T_L, T_X)
+        s = declared if declared is not None else back_projections(T_L @ T_X[at], measured).mean(axis=0)
         R_X = T_X[at, :3, :3]
         p_W = np.einsum("oij,j->oi", R_X, s) + T_X[at, :3, 3]
         A = np.concatenate(
@@ -227,17 +225,6 @@ def _test_point_rows(result, model: BatchKinematics, p_values: np.ndarray, facto
         back = np.einsum("oji,ojk->oik", R, A)  # R_i^T A_i
         loo = A - np.einsum("oij,ojk->oik", R, (back.sum(axis=0) - back) / (len(at) - 1))
         yield np.einsum("oij,jk,oik->o", loo, covariance, loo), np.full(len(at), sigma2 * (1 + 1 / (len(at) - 1)))
-
-
-def _mean_back_projection(problem, table, target: str, T_L: np.ndarray, T_X: np.ndarray) -> np.ndarray:
-    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
-    test_pos = {int(c): i for i, c in enumerate(problem.test)}
-    back = [
-        np.linalg.inv(T_L @ T_X[test_pos[config_pos[c]]]) @ np.r_[xyz, 1.0]
-        for c, n, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
-        if n == target and config_pos[c] in test_pos
-    ]
-    return np.mean(back, axis=0)[:3]
 
 
 def _held_out_tracker_rows(problem) -> list[tuple[int, int]]:

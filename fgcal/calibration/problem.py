@@ -323,9 +323,7 @@ def _build_projection(problem: Problem) -> None:
 
 def _build_tracker(problem: Problem) -> None:
     data = problem.dataset
-    if "tracker_points" not in data.tables:
-        raise InputError(data.path / "dataset.yaml", "measured", "the tracker formulation needs tracker_points")
-    table = data.tables["tracker_points"]
+    table = _measured(problem, "tracker_points")
     # The targets the fit sees; one measured only at held-out configurations (a test point of a
     # validation set) is scored through its declared or leave-one-out position.
     problem.targets = sorted({target for _, target, _ in fitting_rows(problem, table, "target")})
@@ -342,21 +340,18 @@ def _build_tracker(problem: Problem) -> None:
 
 def _build_touch(problem: Problem) -> None:
     data = problem.dataset
-    if "touch_points" not in data.tables:
-        raise InputError(data.path / "dataset.yaml", "measured", "the touch formulation needs touch_points")
-    table = data.tables["touch_points"]
+    table = _measured(problem, "touch_points")
     problem.touch_points = sorted(set(table.ids["point"]))
     index = {name: i for i, name in enumerate(problem.touch_points)}
     for fit_index, point, _ in fitting_rows(problem, table, "point"):
         problem.touch_obs.append((fit_index, index[point]))
-    counts = Counter(point for _, point in problem.touch_obs)
-    lonely = [problem.touch_points[k] for k in range(len(problem.touch_points)) if counts.get(k, 0) < 2]
-    if lonely:
-        # A point touched once only locates itself: it says nothing about the robot.
+    # A point touched once only locates itself: it says nothing about the robot.
+    lonely = _fewest(problem.touch_points, [k for _, k in problem.touch_obs], 2)
+    if lonely is not None:
         raise InputError(
             data.path / "touch_points.csv",
             "point",
-            f"point {lonely[0]!r} is touched {counts.get(index[lonely[0]], 0)} times in the fitting set: "
+            f"point {lonely[0]!r} is touched {lonely[1]} times in the fitting set: "
             "each point needs several touches in different configurations",
         )
     distances = data.tables.get("point_distances")
@@ -367,9 +362,7 @@ def _build_touch(problem: Problem) -> None:
 
 def _build_poses(problem: Problem) -> None:
     data = problem.dataset
-    if "tracker_poses" not in data.tables:
-        raise InputError(data.path / "dataset.yaml", "measured", "the poses formulation needs tracker_poses")
-    for index, _, values in fitting_rows(problem, data.tables["tracker_poses"], "config"):
+    for index, _, values in fitting_rows(problem, _measured(problem, "tracker_poses"), "config"):
         problem.pose_obs.append((index, pose(quaternion_rotation(values[3:]), values[:3])))
     if len(problem.pose_obs) < 3:
         raise InputError(
@@ -379,20 +372,37 @@ def _build_poses(problem: Problem) -> None:
 
 def _build_distances(problem: Problem) -> None:
     data = problem.dataset
-    if "distances" not in data.tables:
-        raise InputError(data.path / "dataset.yaml", "measured", "the distances formulation needs distances")
-    table = data.tables["distances"]
+    table = _measured(problem, "distances")
     problem.pivots = sorted(set(table.ids["pivot"]))
     index = {name: i for i, name in enumerate(problem.pivots)}
     for fit_index, pivot, values in fitting_rows(problem, table, "pivot"):
         problem.distance_obs.append((fit_index, index[pivot], float(values[0])))
-    counts = Counter(k for _, k, _ in problem.distance_obs)
-    few = [name for k, name in enumerate(problem.pivots) if counts.get(k, 0) < 6]
-    if few:
-        # Three for the pivot, three for the ball, and more for the robot.
+    # Three for the pivot, three for the ball, and more for the robot.
+    few = _fewest(problem.pivots, [k for _, k, _ in problem.distance_obs], 6)
+    if few is not None:
         raise InputError(
             data.path / "distances.csv",
             "pivot",
-            f"pivot {few[0]!r} has {counts.get(index[few[0]], 0)} readings in the fitting set: each pivot needs "
+            f"pivot {few[0]!r} has {few[1]} readings in the fitting set: each pivot needs "
             "many, in clearly different configurations",
         )
+
+
+def _measured(problem: Problem, table: str) -> Table:
+    """The dataset's table that the formulation needs, or an error naming it."""
+    data = problem.dataset
+    if table not in data.tables:
+        raise InputError(
+            data.path / "dataset.yaml", "measured", f"the {problem.config.formulation} formulation needs {table}"
+        )
+    return data.tables[table]
+
+
+def _fewest(names: list[str], indices: list[int], minimum: int) -> tuple[str, int] | None:
+    """The first of ``names`` that ``indices`` (observations' name indices) count fewer than
+    ``minimum`` times, with its count; None when every name has enough."""
+    counts = Counter(indices)
+    for k, name in enumerate(names):
+        if counts.get(k, 0) < minimum:
+            return name, counts.get(k, 0)
+    return None

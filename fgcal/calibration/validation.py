@@ -325,17 +325,9 @@ def held_out_errors(problem: Problem, state: State) -> dict[str, np.ndarray]:
     errors = []
     # Held-out measurements: predict each reflector at every held-out configuration once.
     table = data.tables["tracker_points"]
-    config_pos = {c: i for i, c in enumerate(data.configs)}
-    test_pos = {int(c): i for i, c in enumerate(problem.test)}
     held_out = sorted({str(n) for _, n, _ in fitting_rows(problem, table, "target", problem.test)})
     for target in held_out:
-        rows = [
-            (test_pos[config_pos[cid]], xyz)
-            for cid, name, xyz in zip(table.ids["config"], table.ids["target"], table.values, strict=True)
-            if name == target and config_pos[cid] in test_pos
-        ]
-        at = [i for i, _ in rows]
-        measured = np.array([xyz for _, xyz in rows])
+        at, measured = held_out_target(problem, target)
         if target in problem.targets:
             predicted = predicted_positions(problem, state, q, None, problem.targets.index(target))[at]
             errors.append(predicted - measured)
@@ -380,6 +372,19 @@ def test_point_errors(problem: Problem, state: State, target: str, q: np.ndarray
             f"test point {target!r} is measured once in the validation set: declare its position on the flange, "
             "or measure it at several configurations (it is fitted leave-one-out)",
         )
-    back = np.einsum("oji,oj->oi", T_T_n[:, :3, :3], measured - T_T_n[:, :3, 3])  # flange frame
+    back = back_projections(T_T_n, measured)
     loo = (back.sum(axis=0) - back) / (len(q) - 1)
     return np.einsum("oij,oj->oi", T_T_n[:, :3, :3], loo) + T_T_n[:, :3, 3] - measured
+
+
+def held_out_target(problem: Problem, target: str) -> tuple[np.ndarray, np.ndarray]:
+    """Where a tracker target was measured at held-out configurations: their positions in
+    ``problem.test`` and the measured points (tracker frame, m)."""
+    rows = [(i, xyz) for i, name, xyz in fitting_rows(problem, problem.dataset.tables["tracker_points"], "target",
+            problem.test) if name == target]  # fmt: skip
+    return np.array([i for i, _ in rows], dtype=int), np.array([xyz for _, xyz in rows]).reshape(-1, 3)
+
+
+def back_projections(T_T_n: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Measured points (tracker frame) carried back into the flange frame of each pose T_T_n."""
+    return np.einsum("oji,oj->oi", T_T_n[:, :3, :3], measured - T_T_n[:, :3, 3])

@@ -218,17 +218,24 @@ def _cuboid_sides(obj: Fields, pitch: float, margin: float, to_m: float, to_rad:
     return sides
 
 
-def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
-    touch.check_keys(("probe", "points", "touches_per_point", "max_tilt", "known_distances"))
+def _named_points(section: Fields, key: str, to_m: float, minimum: int, needed: str) -> tuple[list[str], list]:
+    """The ``{name, xyz}`` list under ``key``: names and positions (m), at least ``minimum``,
+    names unique."""
     names, points = [], []
-    for point in touch.sub_list("points"):
+    for point in section.sub_list(key):
         point.check_keys(("name", "xyz"))
         names.append(point.string("name"))
         points.append(point.vector("xyz", 3, scale=to_m))
-    if len(points) < 3:
-        raise touch.error("points", f"at least 3 points are needed to touch, got {len(points)}")
+    if len(points) < minimum:
+        raise section.error(key, f"at least {minimum} {needed}, got {len(points)}")
     if len(set(names)) != len(names):
-        raise touch.error("points", "duplicate point names")
+        raise section.error(key, f"duplicate {key[:-1]} names")
+    return names, points
+
+
+def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
+    touch.check_keys(("probe", "points", "touches_per_point", "max_tilt", "known_distances"))
+    names, points = _named_points(touch, "points", to_m, 3, "points are needed to touch")
     known = touch.raw("known_distances", True)
     if not isinstance(known, bool):
         raise touch.error("known_distances", f"expected true or false, got {known!r}")
@@ -247,15 +254,7 @@ def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
 
 def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
     bar.check_keys(("ball", "pivots", "length", "readings_per_pivot", "max_tilt"))
-    names, pivots = [], []
-    for pivot in bar.sub_list("pivots"):
-        pivot.check_keys(("name", "xyz"))
-        names.append(pivot.string("name"))
-        pivots.append(pivot.vector("xyz", 3, scale=to_m))
-    if not pivots:
-        raise bar.error("pivots", "at least one pivot is needed")
-    if len(set(names)) != len(names):
-        raise bar.error("pivots", "duplicate pivot names")
+    names, pivots = _named_points(bar, "pivots", to_m, 1, "pivot is needed")
     length = bar.vector("length", 2, scale=to_m)
     if not 0 < length[0] <= length[1]:
         raise bar.error("length", "expected [shortest, longest] with 0 < shortest <= longest")
