@@ -211,6 +211,14 @@ def cmd_convert_faro(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_csv(args: argparse.Namespace) -> int:
+    from .csv_import import import_tables
+
+    counts = import_tables(args.mapping, args.out)
+    print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    return 0
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     from .planning.plan import plan, write_plan
 
@@ -344,6 +352,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("src", help="folder with measured_joints.txt and measured_SMR_*.txt")
     p.add_argument("--out", required=True, help="output dataset directory")
     p.set_defaults(func=cmd_convert_faro)
+
+    p = sub.add_parser(
+        "import-csv", help="convert tracker, probe or ballbar exports (CSV, text) to a dataset (docs/formats.md)"
+    )
+    p.add_argument("mapping", help="mapping YAML (format: fgcal-import/1): files, columns, units")
+    p.add_argument("--out", required=True, help="output dataset directory")
+    p.set_defaults(func=cmd_import_csv)
 
     p = sub.add_parser("plan", help="choose the measurement configurations of a cell (docs/planning.md)")
     p.add_argument("cell", help="cell YAML file, or a bundled cell name (kr125_seed)")

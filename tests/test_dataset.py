@@ -122,5 +122,8 @@ def test_faro_converter_errors(tmp_path):
     with pytest.raises(fgcal.InputError, match=r"measured_joints\.txt"):
         convert_faro(tmp_path / "src", tmp_path / "out")
     np.savetxt(tmp_path / "src" / "measured_joints.txt", np.zeros((3, 5)))
-    with pytest.raises(fgcal.InputError, match="expected 6 columns"):
+    with pytest.raises(fgcal.InputError, match=r"no measured_SMR_\*\.txt"):
+        convert_faro(tmp_path / "src", tmp_path / "out")
+    np.savetxt(tmp_path / "src" / "measured_SMR_1.txt", np.ones((3, 3)))
+    with pytest.raises(fgcal.InputError, match=r"column 6 does not exist in .*measured_joints\.txt \(5 columns\)"):
         convert_faro(tmp_path / "src", tmp_path / "out")
