@@ -62,6 +62,13 @@ class KinematicsData:
     torque_world: np.ndarray  # (N, n, 3) tau_i in W, N m
     _twists: dict = field(default_factory=dict)
 
+    def subset(self, rows: np.ndarray) -> KinematicsData:
+        """The data of some of the configurations (what forward() would give for them)."""
+        return KinematicsData(
+            self.params, self.q[rows], self.frames[:, rows], self.frames_rigid[:, rows], self.moments[rows],
+            self.first_moment[rows], self.suffix_mass, self.torque_world[rows],
+        )  # fmt: skip
+
     def twists(self, chain_elements, rigid: bool) -> list[np.ndarray]:
         key = "rigid" if rigid else "deformed"
         if key not in self._twists:

@@ -64,16 +64,35 @@ class DesignState:
         self.M_inv = np.linalg.inv(self.M)
 
 
-def _d_gains(state: DesignState, rows: np.ndarray) -> np.ndarray:
+def _logdet_spd(S: np.ndarray) -> np.ndarray:
+    """log det of a stack of symmetric positive definite matrices: by Cholesky (half an LU's
+    work), or by LU where rounding left one not quite positive definite (weak priors)."""
+    try:
+        return 2.0 * np.log(np.diagonal(np.linalg.cholesky(S), axis1=1, axis2=2)).sum(axis=1)
+    except np.linalg.LinAlgError:
+        return np.linalg.slogdet(S)[1]
+
+
+def _d_gains(state: DesignState, rows: np.ndarray, aux_gram: np.ndarray | None = None) -> np.ndarray:
+    """``log det S - log det S_aux`` per candidate. ``aux_gram``: the candidates' ``a^T a`` of
+    their auxiliary columns a, when there are fewer of those than rows; Sylvester's identity
+    ``det(I_r + a K a^T) = det(I_k + K a^T a)`` then gives the aux term from k x k matrices."""
     m = state.info.n_params
-    A = rows @ state.M_inv  # (C, r, p)
-    S = np.eye(rows.shape[1]) + A @ np.swapaxes(rows, 1, 2)
-    gain = np.linalg.slogdet(S)[1]
+    n_candidates, r, p = rows.shape
+    # One matrix product for all candidates, not one per candidate.
+    A = (rows.reshape(-1, p) @ state.M_inv).reshape(n_candidates, r, p)
+    S = A @ np.swapaxes(rows, 1, 2)
+    S[:, np.arange(r), np.arange(r)] += 1.0
+    gain = _logdet_spd(S)
     aux = rows[:, :, m:]
     if aux.shape[2]:
         M_aux_inv = np.linalg.inv(state.M[m:, m:])
-        S_aux = np.eye(rows.shape[1]) + aux @ M_aux_inv @ np.swapaxes(aux, 1, 2)
-        gain -= np.linalg.slogdet(S_aux)[1]
+        if aux_gram is not None:
+            gain -= np.linalg.slogdet(np.eye(aux.shape[2]) + M_aux_inv @ aux_gram)[1]
+        else:
+            S_aux = aux @ M_aux_inv @ np.swapaxes(aux, 1, 2)
+            S_aux[:, np.arange(r), np.arange(r)] += 1.0
+            gain -= _logdet_spd(S_aux)
     return gain
 
 
@@ -85,15 +104,17 @@ def _position_gains(state: DesignState, rows: np.ndarray, W: np.ndarray) -> np.n
 
 
 def _gain_function(criterion: str, info: Information) -> Callable[[DesignState, np.ndarray], np.ndarray]:
+    aux = info.rows[:, :, info.n_params :]
+    aux_gram = np.swapaxes(aux, 1, 2) @ aux if 0 < aux.shape[2] < aux.shape[1] else None
     if criterion == "d-optimal":
-        return lambda state, idx: _d_gains(state, info.rows[idx])
+        return lambda state, idx: _d_gains(state, info.rows[idx], None if aux_gram is None else aux_gram[idx])
     if criterion == "position":
         W = info.region.T @ info.region
         return lambda state, idx: _position_gains(state, info.rows[idx], W)
     index = criterion.upper()
 
     def short_list(state: DesignState, idx: np.ndarray) -> np.ndarray:
-        d = _d_gains(state, info.rows[idx])
+        d = _d_gains(state, info.rows[idx], None if aux_gram is None else aux_gram[idx])
         gains = np.full(len(idx), -np.inf)
         for k in np.argsort(-d)[:SHORT_LIST]:
             J = info.rows[idx[k]]
@@ -110,15 +131,20 @@ def plan_design(
     criterion: str,
     max_passes: int = 4,
     progress: Callable[[str], None] | None = None,
+    greedy_order: list[int] | None = None,
 ) -> tuple[list[int], list[int]]:
     """The chosen candidate indices (n), and the greedy order (the prefix of any length is
-    the greedy design of that length)."""
+    the greedy design of that length). ``greedy_order``: a longer greedy order of the same
+    criterion, whose prefix is then the start (the same additions, not recomputed)."""
     if criterion not in CRITERIA:
         raise ValueError(f"unknown criterion {criterion!r}; expected one of {CRITERIA}")
     gains = _gain_function(criterion, info)
     all_idx = np.arange(len(info.rows))
     state = DesignState.empty(info)
-    for _ in range(n):
+    for k in range(n):
+        if greedy_order is not None and k < len(greedy_order):
+            state.add(greedy_order[k])
+            continue
         g = gains(state, all_idx)
         g[state.chosen] = -np.inf
         state.add(int(np.argmax(g)))

@@ -188,14 +188,15 @@ def plan(
     info, cand, robot = planner.info, planner.candidates, planner.cell.robot
     timing = dict(planner.timing_s)
     started = time.process_time()
-    chosen, _ = plan_design(info, n, criterion, progress=say)
-    timing["selection"] = time.process_time() - started
-    started = time.process_time()
     sizes = _curve_sizes(n, len(cand.q), info.n_params + len(info.aux_labels))
     if curve_max is not None:
         sizes = [s for s in sizes if s <= curve_max]
-    # The greedy sequence of the largest size gives every prefix of the curve in one run.
-    greedy = plan_design(info, max(sizes), criterion, max_passes=0)[1] if sizes else []
+    # One greedy sequence, to the largest size, gives every prefix: the curve's planned
+    # designs and the start of this plan's exchange.
+    greedy = plan_design(info, max([n, *sizes]), criterion, max_passes=0)[1]
+    chosen, _ = plan_design(info, n, criterion, progress=say, greedy_order=greedy)
+    timing["selection"] = time.process_time() - started
+    started = time.process_time()
     curves = _curves(planner, greedy, sizes)
     timing["curves"] = time.process_time() - started
     M = information_of(info, chosen)

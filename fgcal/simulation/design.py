@@ -38,34 +38,45 @@ class View:
     block: tuple[GridPoint, ...]
 
 
-def look_at(camera_position: np.ndarray, target: np.ndarray, roll_rad: float) -> np.ndarray:
-    """Camera pose T_W_C with optical axis (z) from ``camera_position`` to ``target``."""
+def look_at(camera_position: np.ndarray, target: np.ndarray, roll_rad: np.ndarray | float) -> np.ndarray:
+    """Camera poses T_W_C (..., 4, 4) with optical axis (z) from ``camera_position`` (..., 3)
+    to ``target`` (..., 3), rolled by ``roll_rad`` about it."""
     z = target - camera_position
-    z = z / np.linalg.norm(z)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    z = z / np.linalg.norm(z, axis=-1, keepdims=True)
+    helper = np.where((np.abs(z[..., 2]) < 0.9)[..., None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
     x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
+    x /= np.linalg.norm(x, axis=-1, keepdims=True)
     y = np.cross(z, x)
-    R = np.stack([x, y, z], axis=1)
+    R = np.stack([x, y, z], axis=-1)
     c, s = np.cos(roll_rad), np.sin(roll_rad)
-    R = R @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    return pose(R, camera_position)
+    zero, one = np.zeros_like(c), np.ones_like(c)
+    roll = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], -2)
+    return pose(R @ roll, camera_position)
 
 
-def _random_view(cell: Cell, side: Side, block: list[GridPoint], rng: np.random.Generator) -> np.ndarray:
-    """A camera pose at a random standoff, viewing angle and roll onto the block centre."""
-    centre_F = np.mean([p.position_F for p in block], axis=0)
-    centre = transform_points(cell.fixture_pose, centre_F)
-    normal = cell.fixture_pose[:3, :3] @ side.normal_F
-    tilt = np.arccos(rng.uniform(np.cos(cell.design.max_view_angle_rad), 1.0))
-    azimuth = rng.uniform(-np.pi, np.pi)
-    helper = np.array([1.0, 0, 0]) if abs(normal[0]) < 0.9 else np.array([0, 1.0, 0])
+def _random_views(cell: Cell, requests: list[tuple[Side, list[GridPoint]]], rng: np.random.Generator) -> np.ndarray:
+    """Camera poses (N, 4, 4), each at a random standoff, viewing angle and roll onto its
+    block's centre; per request the draws are tilt, azimuth, standoff and roll, in that order."""
+    design = cell.design
+    centre = transform_points(
+        cell.fixture_pose, np.array([np.mean([p.position_F for p in b], axis=0) for _, b in requests])
+    )
+    normal = np.array([side.normal_F for side, _ in requests]) @ cell.fixture_pose[:3, :3].T
+    u = rng.random((len(requests), 4))
+    # As Generator.uniform(low, high) draws: low + (high - low) * u, the same numbers.
+    cos_max = np.cos(design.max_view_angle_rad)
+    tilt = np.arccos(cos_max + (1.0 - cos_max) * u[:, 0])
+    azimuth = -np.pi + (np.pi - -np.pi) * u[:, 1]
+    standoff = design.standoff_m[0] + (design.standoff_m[1] - design.standoff_m[0]) * u[:, 2]
+    roll = -np.pi + (np.pi - -np.pi) * u[:, 3]
+    helper = np.where((np.abs(normal[:, 0]) < 0.9)[:, None], [1.0, 0, 0], [0, 1.0, 0])
     e1 = np.cross(normal, helper)
-    e1 /= np.linalg.norm(e1)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(normal, e1)
-    direction = np.cos(tilt) * normal + np.sin(tilt) * (np.cos(azimuth) * e1 + np.sin(azimuth) * e2)
-    standoff = rng.uniform(*cell.design.standoff_m)
-    return look_at(centre + standoff * direction, centre, rng.uniform(-np.pi, np.pi))
+    direction = np.cos(tilt)[:, None] * normal + np.sin(tilt)[:, None] * (
+        np.cos(azimuth)[:, None] * e1 + np.sin(azimuth)[:, None] * e2
+    )
+    return look_at(centre + standoff[:, None] * direction, centre, roll)
 
 
 def solve_views(
@@ -82,7 +93,9 @@ def solve_views(
     the reachable, visible ones."""
     robot: Robot = cell.robot
     nominal = robot.parameter_vector()
-    targets_C = np.array([_random_view(cell, side, block, rng) for side, block in requests])
+    if not requests:
+        return []
+    targets_C = _random_views(cell, requests, rng)
     T_target = targets_C @ inverse(robot.tool_pose)
     T_rep = np.repeat(T_target, starts, axis=0)
     low, high = robot.limits[:, 0], robot.limits[:, 1]
@@ -94,14 +107,18 @@ def solve_views(
         q[chunk], ok[chunk] = solve_ik(
             robot, nominal, T_rep[chunk], q0[chunk], iterations=iterations, tol=tol, freeze_converged=freeze_converged
         )
+    # The first converged start of each request; one forward-kinematics pass for them all.
+    first: dict[int, int] = {}
+    for j in np.flatnonzero(ok):
+        first.setdefault(int(j) // starts, int(j))
+    if not first:
+        return []
+    T_W_C = true_camera(q[list(first.values())])
     views = []
-    for i, (side, block) in enumerate(requests):
-        candidates = [j for j in range(i * starts, (i + 1) * starts) if ok[j]]
-        if not candidates:
-            continue
-        q_i = q[candidates[0]]
-        if sees_block(cell, true_camera(q_i[None])[0], block):
-            views.append(View(q_i, side, tuple(block)))
+    for (i, j), camera in zip(first.items(), T_W_C, strict=True):
+        side, block = requests[i]
+        if sees_block(cell, camera, block):
+            views.append(View(q[j], side, tuple(block)))
     return views
 
 

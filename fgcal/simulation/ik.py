@@ -48,8 +48,7 @@ def solve_ik(
             if not np.any(moving):
                 break
             if not np.all(moving):
-                active, err = active[moving], err[moving]
-                data = kinematics.forward(robot, params, q[active])
+                active, err, data = active[moving], err[moving], data.subset(moving)
         J = kinematics.jacobian(robot, data, joints, frame=frame)
         JtJ = np.swapaxes(J, 1, 2) @ J + damping * np.eye(robot.n_joints)
         step = np.linalg.solve(JtJ, (np.swapaxes(J, 1, 2) @ err[..., None]))[..., 0]
