@@ -81,11 +81,16 @@ class TrackerPoints(MeasurementSet):
 
 
 class Distances(MeasurementSet):
-    """``r_o = |X(P, q_j) s - a_k| - d_o``  (m), one factor per measurement.
+    """``r_o = |X(P, q_j) s - e_o| - d_o``  (m), one factor per measurement, where the other
+    end ``e_o`` is a fixed pivot ``a_k`` or the same tool point at another configuration,
+    ``X(P, q_b) s``.
 
     A ballbar (or any 1D gauge) between the tool point s (flange frame, a 3-vector variable)
     and the fixed pivot k, whose position a_k in W is unknown (all pivots are one vector
-    variable A = (a_0, a_1, ...)), reads d_o at configuration j. The robust unit is one reading.
+    variable A = (a_0, a_1, ...)), or a gauge between two positions of the tool point (a
+    two-ball bar, an interferometer's travel), reads d_o at configuration j. ``pivots[o]`` is
+    -1 for a reading between configurations, ``others[o]`` -1 for a reading to a pivot; with
+    no pivot at all, there is no pivot variable. The robust unit is one reading.
     """
 
     def __init__(
@@ -93,27 +98,33 @@ class Distances(MeasurementSet):
         kinematics: Kinematics,
         params_key: int | None,
         tool_point_key: int,
-        pivots_key: int,
+        pivots_key: int | None,
         n_pivots: int,
         configs: np.ndarray,
         pivots: np.ndarray,
         distances_m: np.ndarray,
         sigma_m: float,
         robust: RobustLoss | None = None,
+        others: np.ndarray | None = None,
     ) -> None:
         self.kinematics = kinematics
         self.params_key = params_key
         self.configs = np.asarray(configs, dtype=int)
         self.pivots = np.asarray(pivots, dtype=int)
+        self.others = np.full(len(self.configs), -1) if others is None else np.asarray(others, dtype=int)
         self.distances = np.asarray(distances_m, dtype=float).reshape(-1)
-        if not len(self.configs) == len(self.pivots) == len(self.distances) or not len(self.configs):
-            raise ValueError("one configuration and pivot per distance, at least one")
+        if not len(self.configs) == len(self.pivots) == len(self.others) == len(self.distances) or not len(
+            self.configs
+        ):
+            raise ValueError("one configuration, pivot or other configuration, and distance per reading")
+        if np.any((self.pivots >= 0) == (self.others >= 0)):
+            raise ValueError("each reading is to a pivot or to another configuration, not both or neither")
         self.n_pivots = int(n_pivots)
-        self.variables = [
-            *params_variable(params_key, kinematics),
-            (tool_point_key, "vector", 3),
-            (pivots_key, "vector", 3 * self.n_pivots),
-        ]
+        if (self.n_pivots > 0) != (pivots_key is not None):
+            raise ValueError("a pivot variable exactly when there are pivots")
+        self.variables = [*params_variable(params_key, kinematics), (tool_point_key, "vector", 3)]
+        if pivots_key is not None:
+            self.variables.append((pivots_key, "vector", 3 * self.n_pivots))
         self.sigma = np.full(len(self.configs), float(sigma_m))
         self.factor_starts = np.arange(len(self.configs))
         self.unit_starts = self.factor_starts
@@ -121,11 +132,17 @@ class Distances(MeasurementSet):
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
         params = inputs[0] if self.params_key is not None else None
-        s = np.asarray(inputs[-2], dtype=float)
-        pivots = np.asarray(inputs[-1], dtype=float).reshape(-1, 3)
-        T_X = self.kinematics.poses(params)[self.configs]
-        R_X = T_X[:, :3, :3]
-        delta = R_X @ s + T_X[:, :3, 3] - pivots[self.pivots]
+        s = np.asarray(inputs[1 if params is not None else 0], dtype=float)
+        to_pivot, to_other = self.pivots >= 0, self.others >= 0
+        T_all = self.kinematics.poses(params)
+        T_X, T_B = T_all[self.configs], T_all[np.maximum(self.others, 0)]
+        R_X, R_B = T_X[:, :3, :3], T_B[:, :3, :3]
+        end = np.zeros((len(self.configs), 3))
+        if self.n_pivots:
+            pivots = np.asarray(inputs[-1], dtype=float).reshape(-1, 3)
+            end[to_pivot] = pivots[self.pivots[to_pivot]]
+        end[to_other] = R_B[to_other] @ s + T_B[to_other, :3, 3]
+        delta = R_X @ s + T_X[:, :3, 3] - end
         length = np.linalg.norm(delta, axis=1)
         residual = length - self.distances
         if not jacobians:
@@ -133,15 +150,22 @@ class Distances(MeasurementSet):
         unit = delta / np.maximum(length, 1e-300)[:, None]
         blocks = []
         if params is not None:
-            J = self.kinematics.jacobians(params)[self.configs]
-            d_xi = np.einsum("oi,oij->oj", unit, point_jacobian(R_X, np.broadcast_to(s, (len(R_X), 3))))
-            blocks.append(np.einsum("oj,ojm->om", d_xi, J))
-        blocks.append(np.einsum("oi,oij->oj", unit, R_X))
-        d_pivots = np.zeros((len(self.configs), 3 * self.n_pivots))
-        rows = np.arange(len(self.configs))
-        for axis in range(3):
-            d_pivots[rows, 3 * self.pivots + axis] = -unit[:, axis]
-        blocks.append(d_pivots)
+            J = self.kinematics.jacobians(params)
+            ones = np.broadcast_to(s, (len(R_X), 3))
+            d_xi = np.einsum("oi,oij->oj", unit, point_jacobian(R_X, ones))
+            d_params = np.einsum("oj,ojm->om", d_xi, J[self.configs])
+            d_xi_other = np.einsum("oi,oij->oj", unit, point_jacobian(R_B, ones))
+            d_params[to_other] -= np.einsum("oj,ojm->om", d_xi_other, J[np.maximum(self.others, 0)])[to_other]
+            blocks.append(d_params)
+        d_s = np.einsum("oi,oij->oj", unit, R_X)
+        d_s[to_other] -= np.einsum("oi,oij->oj", unit, R_B)[to_other]
+        blocks.append(d_s)
+        if self.n_pivots:
+            d_pivots = np.zeros((len(self.configs), 3 * self.n_pivots))
+            rows = np.flatnonzero(to_pivot)
+            for axis in range(3):
+                d_pivots[rows, 3 * self.pivots[rows] + axis] = -unit[rows, axis]
+            blocks.append(d_pivots)
         return Evaluation(residual, blocks)
 
 

@@ -36,6 +36,7 @@ MAPPING_KEYS = (
     "tracker_references",
     "tracker_poses",
     "distances",
+    "tool_distances",
     "payload",
     "source",
     "notes",
@@ -49,6 +50,7 @@ TABLE_KEYS = {
     "tracker_references": ("config", "target", "target_name", "xyz", "zeros_mean_not_found"),
     "tracker_poses": ("config", "xyz", "quaternion", "euler", "zeros_mean_not_found"),
     "distances": ("config", "pivot", "pivot_name", "distance", "zeros_mean_not_found"),
+    "tool_distances": ("config_a", "config_b", "distance", "zeros_mean_not_found"),
 }
 DELIMITERS = {",": ",", ";": ";", "tab": "\t", "whitespace": None}
 # Cells that mean "not measured" in common exports (a reflector out of sight), besides any the
@@ -239,21 +241,22 @@ def _measurements(
     source = read_source(fields, base)
     own = _units(fields, units)
     length_scale = own.to_m / units.to_m
-    if fields.has("config"):
-        config_column = source.index(fields, "config", fields.raw("config"))
-    else:
-        config_column = None
-        if len(source.rows) != n_configs:
-            raise InputError(
-                source.path,
-                None,
-                f"{len(source.rows)} rows, but there are {n_configs} configurations "
-                f"(without a config column, row i is configuration i; {fields.path('config')} names one)",
-            )
+    # The columns joining a row to its configuration(s); a single one may be left to row order.
+    joins = ("config_a", "config_b") if name == "tool_distances" else ("config",)
+    if name == "tool_distances" and not all(fields.has(k) for k in joins):
+        raise fields.error("config_a", "a distance between configurations names both: config_a and config_b columns")
+    config_columns = [source.index(fields, k, fields.raw(k)) for k in joins if fields.has(k)]
+    if not config_columns and len(source.rows) != n_configs:
+        raise InputError(
+            source.path,
+            None,
+            f"{len(source.rows)} rows, but there are {n_configs} configurations "
+            f"(without a config column, row i is configuration i; {fields.path('config')} names one)",
+        )
     ids = [id_name for id_name in ("target", "pivot") if id_name in TABLE_KEYS[name]]
     id_sources = {k: _id(fields, source, k) for k in ids}
     rotation: tuple[list[int], str | None] = ([], None)
-    if name == "distances":
+    if name in ("distances", "tool_distances"):
         value_columns = [source.index(fields, "distance", fields.raw("distance"))]
     else:
         value_columns = _columns(fields, source, "xyz", 3)
@@ -264,18 +267,18 @@ def _measurements(
     if not isinstance(zeros, bool):
         raise fields.error("zeros_mean_not_found", f"expected true or false, got {zeros!r}")
     config_ids = list(configs)
-    imported = Imported(["config", *ids], [])
+    imported = Imported([*joins, *ids], [])
     for r in range(len(source.rows)):
         where = f"line {source.lines[r]}"
-        config = source.text(r, config_column) if config_column is not None else config_ids[r]
-        if config not in configs:
-            raise InputError(
-                source.path, f"{where}, column {source.columns[config_column]}", f"unknown configuration {config!r}"
-            )
+        row: list[object] = [source.text(r, c) for c in config_columns] if config_columns else [config_ids[r]]
+        for config, column in zip(row, config_columns, strict=False):
+            if config not in configs:
+                raise InputError(
+                    source.path, f"{where}, column {source.columns[column]}", f"unknown configuration {config!r}"
+                )
         if source.missing(r, measured):
             imported.dropped += 1
             continue
-        row: list[object] = [config]
         for k in ids:
             column, fixed = id_sources[k]
             row.append(fixed if column is None else source.text(r, column))
@@ -290,7 +293,7 @@ def _measurements(
             imported.dropped += 1
             continue
         imported.rows.append(row + values)
-    if name == "distances":
+    if name in ("distances", "tool_distances"):
         imported.header.append("distance")
     elif name == "tracker_poses":
         imported.header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
@@ -342,7 +345,7 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
         raise InputError(source, "robot", str(exc)) from None
     configurations, configs = _configurations(doc.sub("configurations"), base, units, robot.n_joints)
     tables: dict[str, Imported] = {}
-    for name in ("tracker_points", "tracker_references", "tracker_poses", "distances"):
+    for name in ("tracker_points", "tracker_references", "tracker_poses", "distances", "tool_distances"):
         if not doc.has(name):
             continue
         raw = doc.raw(name)

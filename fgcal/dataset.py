@@ -26,6 +26,7 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 - tracker_poses: ``config, x, y, z, qw, qx, qy, qz`` (a 6D probe's pose in the tracker frame,
   or a board's pose in a camera: position and unit quaternion)
 - distances: ``config, pivot, distance`` (a ballbar from the tool ball to the fixed pivot)
+- tool_distances: ``config_a, config_b, distance`` (between the tool ball at two configurations)
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ TABLES = {
     "point_distances": (("point_a", "point_b"), ("distance",), "length"),
     "tracker_poses": (("config",), ("x", "y", "z", "qw", "qx", "qy", "qz"), ("length",) * 3 + ("unitless",) * 4),
     "distances": (("config", "pivot"), ("distance",), "length"),
+    "tool_distances": (("config_a", "config_b"), ("distance",), "length"),
 }
 MEASUREMENTS = (
     "camera_points",
@@ -84,6 +86,7 @@ MEASUREMENTS = (
     "point_distances",
     "tracker_poses",
     "distances",
+    "tool_distances",
 )
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
 # what overflows the algebra (a 1e300 reading once hung the tracker initialisation).
@@ -259,10 +262,10 @@ def load_dataset(path: str | Path) -> Dataset:
             continue
         table_path = _inside(root, files, name)
         table = _table(table_path, name, units)
-        if "config" in table.ids:
-            unknown = [c for c in table.ids["config"] if c not in known]
+        for column in ("config", "config_a", "config_b"):
+            unknown = [c for c in table.ids.get(column, []) if c not in known]
             if unknown:
-                raise InputError(table_path, "config", f"unknown configuration id {unknown[0]!r}")
+                raise InputError(table_path, column, f"unknown configuration id {unknown[0]!r}")
         dataset.tables[name] = table
     if "camera_points" in dataset.tables or "pixels" in dataset.tables:
         if "points" not in dataset.tables:
@@ -277,11 +280,19 @@ def load_dataset(path: str | Path) -> Dataset:
         _check_distances(dataset, _inside(root, files, "point_distances"))
     if "tracker_poses" in dataset.tables:
         _check_poses(dataset, _inside(root, files, "tracker_poses"))
-    if "distances" in dataset.tables:
-        bad = np.flatnonzero(~(dataset.tables["distances"].values[:, 0] > 0))
-        if len(bad):
+    for name in ("distances", "tool_distances"):
+        if name in dataset.tables:
+            bad = np.flatnonzero(~(dataset.tables[name].values[:, 0] > 0))
+            if len(bad):
+                raise InputError(
+                    _inside(root, files, name), f"line {bad[0] + 2}, column distance", "a distance must be > 0"
+                )
+    if "tool_distances" in dataset.tables:
+        table = dataset.tables["tool_distances"]
+        same = np.flatnonzero(table.ids["config_a"] == table.ids["config_b"])
+        if len(same):
             raise InputError(
-                _inside(root, files, "distances"), f"line {bad[0] + 2}, column distance", "a distance must be > 0"
+                _inside(root, files, "tool_distances"), f"line {same[0] + 2}", "config_a and config_b are the same"
             )
     if doc.has("tracker") and "tracker_points" in dataset.tables:
         tracker = doc.sub("tracker")

@@ -128,6 +128,17 @@ def _measurement_sets():
             model, key, 6, 8, 3, np.array([0, 2, 1]), np.array([2, 0, 2]), np.array([1.7, 2.1, 0.9]), 1e-3, robust
         )
         sets.append((distances, values))
+        # Readings to pivots and between configurations (a two-ball bar), and the latter alone.
+        mixed = Distances(
+            model, key, 6, 8, 3, np.array([0, 2, 1]), np.array([2, -1, -1]), np.array([1.7, 2.1, 0.9]), 1e-3, robust,
+            others=np.array([-1, 0, 2]),
+        )  # fmt: skip
+        sets.append((mixed, values))
+        between = Distances(
+            model, key, 6, None, 0, np.array([0, 2]), np.array([-1, -1]), np.array([2.1, 0.9]), 1e-3, robust,
+            others=np.array([1, 0]),
+        )  # fmt: skip
+        sets.append((between, values))
         touches = TouchPoints(model, key, 6, 8, 3, np.array([0, 1, 2, 2]), np.array([0, 2, 2, 1]), 1e-3, robust)
         sets.append((touches, values))
         if released:  # the spacings have no P: once is enough

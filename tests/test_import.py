@@ -273,3 +273,30 @@ def test_quaternion_columns_and_their_norm(probe_session, tmp_path):
     _break(tmp_path / "probe.csv", 3, 4, "0.5")
     with pytest.raises(InputError, match=r"probe\.csv: line 3: quaternion norm .* is not 1"):
         import_tables(tmp_path / "mapping.yaml", tmp_path / "out")
+
+
+def test_distances_between_configurations(tmp_path):
+    """A gauge's log of readings between two configurations names both ends; one end that is
+    no configuration, or a missing second column, is refused."""
+    np.savetxt(tmp_path / "joints.txt", np.linspace(0.0, 0.5, 24).reshape(4, 6))
+    (tmp_path / "gauge.csv").write_text("from,to,mm\nc0000,c0001,150.25\nc0002,c0003,99.5\nc0001,c0003,\n")
+    mapping = {
+        "format": "fgcal-import/1",
+        "robot": "abb_irb120",
+        "units": {"length": "mm", "angle": "rad"},
+        "configurations": {"file": "joints.txt", "header": False, "joints": [1, 2, 3, 4, 5, 6]},
+        "tool_distances": {"file": "gauge.csv", "config_a": "from", "config_b": "to", "distance": "mm"},
+    }
+    (tmp_path / "gauge.yaml").write_text(yaml.safe_dump(mapping))
+    counts = import_tables(tmp_path / "gauge.yaml", tmp_path / "out")
+    assert counts["tool_distances"] == 2 and counts["tool_distances_dropped_not_found"] == 1
+    table = load_dataset(tmp_path / "out").tables["tool_distances"]
+    assert list(table.ids["config_a"]) == ["c0000", "c0002"] and list(table.ids["config_b"]) == ["c0001", "c0003"]
+    np.testing.assert_allclose(table.values[:, 0], [0.15025, 0.0995], rtol=1e-15)
+    (tmp_path / "gauge.csv").write_text("from,to,mm\nc0000,c0009,150.25\n")
+    with pytest.raises(InputError, match=r"gauge\.csv: line 2, column to: unknown configuration 'c0009'"):
+        import_tables(tmp_path / "gauge.yaml", tmp_path / "out")
+    del mapping["tool_distances"]["config_b"]
+    (tmp_path / "gauge.yaml").write_text(yaml.safe_dump(mapping))
+    with pytest.raises(InputError, match=r"tool_distances\.config_a: .* config_a and config_b"):
+        import_tables(tmp_path / "gauge.yaml", tmp_path / "out")

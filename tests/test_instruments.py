@@ -25,40 +25,43 @@ from fgcal.simulation.simulate import simulate
 
 CELLS = REPO / "datasets" / "cells"
 # Per setup: the cell, the seeds, and what the cell's engineer declares (the instrument's noise).
+# Per setup: its formulation, the cell, and what the cell's engineer declares (the noise).
 SETUPS = {
-    "poses": (CELLS / "irb120_tracker6d.yaml", {"noise": {"pose_sigma": 1.5e-5, "pose_angle_sigma": 8.7e-5}}),
-    "distances": (CELLS / "irb120_ballbar.yaml", {"noise": {"distance_sigma": 1e-6}}),
-    "static_camera": (CELLS / "irb120_static_camera.yaml", {"noise": {"pixel_sigma_px": 0.1}}),
+    "poses": ("poses", CELLS / "irb120_tracker6d.yaml", {"noise": {"pose_sigma": 1.5e-5, "pose_angle_sigma": 8.7e-5}}),
+    "distances": ("distances", CELLS / "irb120_ballbar.yaml", {"noise": {"distance_sigma": 1e-6}}),
+    # A gauge between the ball at two configurations: no fixed point at all.
+    "tool_distances": ("distances", CELLS / "irb120_ball_pairs.yaml", {"noise": {"distance_sigma": 1e-6}}),
+    "static_camera": ("static_camera", CELLS / "irb120_static_camera.yaml", {"noise": {"pixel_sigma_px": 0.1}}),
 }
 
 
 @pytest.fixture(scope="module")
 def sims(tmp_path_factory) -> dict[tuple[str, int], Path]:
     out = {}
-    for formulation, (cell, _) in SETUPS.items():
+    for setup, (_, cell, _) in SETUPS.items():
         for seed in (2, 3):
-            out[formulation, seed] = tmp_path_factory.mktemp(f"{formulation}_{seed}")
-            simulate(cell, out[formulation, seed], seed=seed)
+            out[setup, seed] = tmp_path_factory.mktemp(f"{setup}_{seed}")
+            simulate(cell, out[setup, seed], seed=seed)
     return out
 
 
-def _config(sims, formulation: str, seed: int, **overrides) -> CalibrationConfig:
-    return CalibrationConfig.defaults(
-        sims[formulation, seed], formulation=formulation, **{**SETUPS[formulation][1], **overrides}
-    )
+def _config(sims, setup: str, seed: int, **overrides) -> CalibrationConfig:
+    formulation, _, declared = SETUPS[setup]
+    return CalibrationConfig.defaults(sims[setup, seed], formulation=formulation, **{**declared, **overrides})
 
 
 @pytest.mark.parametrize("seed", [2, 3])
-@pytest.mark.parametrize("formulation", list(SETUPS))
-def test_each_instrument_calibrates_end_to_end(sims, formulation, seed):
+@pytest.mark.parametrize("setup", list(SETUPS))
+def test_each_instrument_calibrates_end_to_end(sims, setup, seed):
     """Issue 12 acceptance, per setup: against the held-out measurements and against the
     truth, the held-out error is at most 1.5x its prediction, and against the truth at least
     50x below the nominal model's. (Seeds 1-4: 6D poses truth/predicted 0.78-1.03,
-    improvement 114-125x; ballbar 0.47-0.92, 483-616x; static camera 0.46-1.38, 108-368x.)"""
-    config = _config(sims, formulation, seed)
+    improvement 114-125x; ballbar 0.47-0.92, 483-616x; ball between two configurations
+    0.53-0.96, 665-872x; static camera 0.46-1.38, 108-368x.)"""
+    config = _config(sims, setup, seed)
     measured = calibrate_untouched(config)  # not scored with the truth: the held-out measurements
     assert measured.fit.consistent
-    score = {"poses": "tool_point", "distances": "distance", "static_camera": "reprojection"}[formulation]
+    score = {"poses": "tool_point", "distances": "distance", "static_camera": "reprojection"}[config.formulation]
     predicted = predicted_held_out(measured, against_truth=False)["rms"]
     assert measured.validation["after"][score].rms <= 1.5 * predicted
 
@@ -141,6 +144,12 @@ def _copy(sims, key, tmp_path: Path) -> Path:
         (("poses", 2), "tracker_poses.csv", lambda rows: rows[:2] + rows[1:], "line 3", "has two poses"),
         (("distances", 2), "distances.csv", lambda rows: [rows[0], _last(rows[1], "-0.2"), *rows[2:]], "line 2",
          "must be > 0"),
+        (("tool_distances", 2), "tool_distances.csv", lambda rows: [rows[0], _last(rows[1], "0"), *rows[2:]],
+         "line 2", "must be > 0"),
+        (("tool_distances", 2), "tool_distances.csv", lambda rows: [rows[0], "c0001,c0001,0.1", *rows[2:]],
+         "line 2", "config_a and config_b are the same"),
+        (("tool_distances", 2), "tool_distances.csv", lambda rows: [rows[0], "c0001,c9999,0.1", *rows[2:]],
+         "config_b", "unknown configuration id 'c9999'"),
     ],
 )  # fmt: skip
 def test_bad_instrument_tables_name_the_file_and_line(sims, tmp_path, key, table, edit, where, message):

@@ -76,7 +76,7 @@ def estimates_document(result) -> dict:
     if state.tool_points is not None:
         names = {"tracker": problem.targets, "touch": ["probe"], "distances": ["ball"]}[formulation]
         doc["tool_points"] = _points(names, state.tool_points, _sigmas(result, TOOL_POINTS_KEY))
-    if state.fixed_points is not None:
+    if state.fixed_points is not None and len(state.fixed_points):
         key, names = (
             ("pivots", problem.pivots) if formulation == "distances" else ("touch_points", problem.touch_points)
         )

@@ -300,8 +300,9 @@ def _tool_and_fixed_points(state: State, stage: StageGraph, observations: list, 
     """The tool point (a probe, a ball) and the fixed points in W (sockets, pivots) as
     variables; the observations ordered by configuration, and that order."""
     _add_variable(stage, TOOL_POINTS_KEY, np.asarray(state.tool_points[0], dtype=float), "tool_points", 3)
-    _add_variable(stage, FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1), name,
-                  3 * len(state.fixed_points))  # fmt: skip
+    if len(state.fixed_points):  # distances between configurations alone have no fixed point
+        _add_variable(stage, FIXED_POINTS_KEY, np.asarray(state.fixed_points, dtype=float).reshape(-1), name,
+                      3 * len(state.fixed_points))  # fmt: skip
     return _by_configuration(observations)
 
 
@@ -382,13 +383,14 @@ def _distances(problem: Problem, state: State, stage: StageGraph):
             stage.model,
             stage.params_key,
             TOOL_POINTS_KEY,
-            FIXED_POINTS_KEY,
+            FIXED_POINTS_KEY if len(state.fixed_points) else None,
             len(state.fixed_points),
             np.array([o[0] for o in observations]),
             np.array([o[1] for o in observations]),
             np.array([o[2] for o in observations]),
             problem.config.distance_sigma_m,
             robust=robust,
+            others=np.array([o[3] for o in observations]),
         )
         return distances, order
 
@@ -409,7 +411,9 @@ def read_state(stage: StageGraph, values: gtsam.Values, previous: State) -> Stat
     if previous.tool_points is not None:
         state.tool_points = values.atVector(TOOL_POINTS_KEY).reshape(-1, 3)
     if previous.fixed_points is not None:
-        state.fixed_points = values.atVector(FIXED_POINTS_KEY).reshape(-1, 3)
+        state.fixed_points = (
+            values.atVector(FIXED_POINTS_KEY).reshape(-1, 3) if len(previous.fixed_points) else previous.fixed_points
+        )
     if previous.tool_pose is not None:
         state.tool_pose = values.atPose3(TOOL_POSE_KEY).matrix()
     return state

@@ -226,47 +226,65 @@ def mean_pose(poses: np.ndarray) -> np.ndarray:
 def initial_ballbar(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tool ball s (flange frame) and pivots a_k (W) from the nominal model, no guess needed.
 
-    ``|R_j s + t_j - a_k|^2 = d^2`` is linear in s, a_k, w_k = |s|^2 + |a_k|^2 and
+    To pivots, ``|R_j s + t_j - a_k|^2 = d^2`` is linear in s, a_k, w_k = |s|^2 + |a_k|^2 and
     M_k = a_k s^T (the bilinear term a_k . R_j s = <R_j, M_k>); that least-squares solution,
     and a start with the ball at the flange centre whose pivots a sphere fit places, are each
-    refined by nonlinear least squares on (s, a) alone, and the better kept (m)."""
+    refined by nonlinear least squares on (s, a) alone, with the readings between
+    configurations (``|R_j s + t_j - R_b s - t_b| = d``) too, and the better kept (m). With
+    readings between configurations only, the starts are the flange centre and the nominal
+    tool point."""
     from scipy.optimize import least_squares
 
     flange = problem.robot.fk(problem.q_fit, problem.robot.parameter_dict(params))
     j = np.array([o[0] for o in problem.distance_obs])
     k = np.array([o[1] for o in problem.distance_obs])
     d = np.array([o[2] for o in problem.distance_obs])
+    b = np.array([o[3] for o in problem.distance_obs])
     R, t = flange[j, :3, :3], flange[j, :3, 3]
+    R_b, t_b = flange[np.maximum(b, 0), :3, :3], flange[np.maximum(b, 0), :3, 3]
+    to_pivot = k >= 0
     n_pivots = len(problem.pivots)
-    A = np.zeros((len(j), 3 + 13 * n_pivots))
-    A[:, :3] = 2.0 * np.einsum("oji,oj->oi", R, t)
-    rows = np.arange(len(j))
-    A[rows, 3 + 13 * k] = 1.0
-    for axis in range(3):
-        A[rows, 4 + 13 * k + axis] = -2.0 * t[:, axis]
-    for entry in range(9):
-        A[rows, 7 + 13 * k + entry] = -2.0 * R.reshape(-1, 9)[:, entry]
-    linear = np.linalg.lstsq(A, d**2 - np.sum(t * t, axis=1), rcond=None)[0]
-    starts = [
-        (linear[:3], np.array([linear[4 + 13 * p : 7 + 13 * p] for p in range(n_pivots)])),
-        (np.zeros(3), np.array([_sphere_centre(t[k == p], d[k == p]) for p in range(n_pivots)])),
-    ]
+    if n_pivots:
+        starts = _pivot_starts(R[to_pivot], t[to_pivot], k[to_pivot], d[to_pivot], n_pivots)
+    else:
+        starts = [(np.zeros(3), np.zeros((0, 3))), (problem.robot.tool_pose[:3, 3], np.zeros((0, 3)))]
 
     def residual(x: np.ndarray) -> np.ndarray:
         s, pivots = x[:3], x[3:].reshape(-1, 3)
-        return np.linalg.norm(R @ s + t - pivots[k], axis=1) - d
+        end = np.where(to_pivot[:, None], pivots[np.maximum(k, 0)] if n_pivots else 0.0, R_b @ s + t_b)
+        return np.linalg.norm(R @ s + t - end, axis=1) - d
 
     fits = [least_squares(residual, np.concatenate([s, a.reshape(-1)]), method="lm") for s, a in starts]
     best = min(fits, key=lambda fit: fit.cost)
     if not np.all(np.isfinite(best.x)) or np.sqrt(2 * best.cost / len(d)) > 0.05:
+        table = "distances.csv" if n_pivots else "tool_distances.csv"
         raise InputError(
-            problem.dataset.path / "distances.csv",
+            problem.dataset.path / table,
             None,
             "the distances cannot locate the ball and the pivots (typical residual "
             f"{np.sqrt(2 * best.cost / len(d)) * 1e3:.3g} mm with the nominal robot): measure each pivot with "
             "the tool in clearly different positions and orientations",
         )
     return best.x[:3], best.x[3:].reshape(-1, 3)
+
+
+def _pivot_starts(
+    R: np.ndarray, t: np.ndarray, k: np.ndarray, d: np.ndarray, n_pivots: int
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Starts (s, pivots) from the readings to pivots: the linear lift and the sphere fits."""
+    A = np.zeros((len(k), 3 + 13 * n_pivots))
+    A[:, :3] = 2.0 * np.einsum("oji,oj->oi", R, t)
+    rows = np.arange(len(k))
+    A[rows, 3 + 13 * k] = 1.0
+    for axis in range(3):
+        A[rows, 4 + 13 * k + axis] = -2.0 * t[:, axis]
+    for entry in range(9):
+        A[rows, 7 + 13 * k + entry] = -2.0 * R.reshape(-1, 9)[:, entry]
+    linear = np.linalg.lstsq(A, d**2 - np.sum(t * t, axis=1), rcond=None)[0]
+    return [
+        (linear[:3], np.array([linear[4 + 13 * p : 7 + 13 * p] for p in range(n_pivots)])),
+        (np.zeros(3), np.array([_sphere_centre(t[k == p], d[k == p]) for p in range(n_pivots)])),
+    ]
 
 
 def _sphere_centre(points: np.ndarray, radii: np.ndarray) -> np.ndarray:

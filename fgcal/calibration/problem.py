@@ -64,7 +64,8 @@ class Problem:
     touch_points: list[str] = field(default_factory=list)  # names of the fixed points (sockets)
     spacings: list[tuple[int, int, float]] = field(default_factory=list)  # (point, point, distance m)
     pose_obs: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (fit index, measured 4x4 pose)
-    distance_obs: list[tuple[int, int, float]] = field(default_factory=list)  # (fit index, pivot, distance m)
+    # (fit index, pivot or -1, distance m, other configuration's fit index or -1)
+    distance_obs: list[tuple[int, int, float, int]] = field(default_factory=list)
     pivots: list[str] = field(default_factory=list)  # names of a ballbar's fixed pivots
     skipped_images: list[tuple[str, str]] = field(default_factory=list)
     rejected: list[dict] = field(default_factory=list)  # outliers removed: config, kind, point or target, size
@@ -371,21 +372,51 @@ def _build_poses(problem: Problem) -> None:
 
 
 def _build_distances(problem: Problem) -> None:
+    """Readings to pivots (``distances``) and between two configurations (``tool_distances``);
+    a reading between configurations fits when both are in the fitting set."""
     data = problem.dataset
-    table = _measured(problem, "distances")
-    problem.pivots = sorted(set(table.ids["pivot"]))
-    index = {name: i for i, name in enumerate(problem.pivots)}
-    for fit_index, pivot, values in fitting_rows(problem, table, "pivot"):
-        problem.distance_obs.append((fit_index, index[pivot], float(values[0])))
-    # Three for the pivot, three for the ball, and more for the robot.
-    few = _fewest(problem.pivots, [k for _, k, _ in problem.distance_obs], 6)
-    if few is not None:
+    if "distances" not in data.tables and "tool_distances" not in data.tables:
         raise InputError(
-            data.path / "distances.csv",
-            "pivot",
-            f"pivot {few[0]!r} has {few[1]} readings in the fitting set: each pivot needs "
-            "many, in clearly different configurations",
+            data.path / "dataset.yaml", "measured", "the distances formulation needs distances or tool_distances"
         )
+    if "distances" in data.tables:
+        table = data.tables["distances"]
+        problem.pivots = sorted(set(table.ids["pivot"]))
+        index = {name: i for i, name in enumerate(problem.pivots)}
+        for fit_index, pivot, values in fitting_rows(problem, table, "pivot"):
+            problem.distance_obs.append((fit_index, index[pivot], float(values[0]), -1))
+        # Three for the pivot, three for the ball, and more for the robot.
+        few = _fewest(problem.pivots, [o[1] for o in problem.distance_obs], 6)
+        if few is not None:
+            raise InputError(
+                data.path / "distances.csv",
+                "pivot",
+                f"pivot {few[0]!r} has {few[1]} readings in the fitting set: each pivot needs "
+                "many, in clearly different configurations",
+            )
+    if "tool_distances" in data.tables:
+        for a, b, d in between_configurations(problem, data.tables["tool_distances"], problem.fit):
+            problem.distance_obs.append((a, -1, d, b))
+    if len(problem.distance_obs) < 6:
+        raise InputError(
+            data.path / "dataset.yaml",
+            "measured",
+            f"only {len(problem.distance_obs)} distances in the fitting set: too few to calibrate",
+        )
+
+
+def between_configurations(problem: Problem, table: Table, subset: np.ndarray, within: np.ndarray | None = None):
+    """(index of a, index of b, distance) of each reading between configurations a and b (rows
+    of ``table``) that involves ``subset``; indices into ``subset`` followed by ``within``
+    (default nothing more: both ends in the subset)."""
+    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
+    order = [int(c) for c in subset] + ([int(c) for c in within] if within is not None else [])
+    position = {c: i for i, c in enumerate(order)}
+    n_subset = len(subset)
+    for a, b, values in zip(table.ids["config_a"], table.ids["config_b"], table.values, strict=True):
+        ia, ib = position.get(config_pos[a]), position.get(config_pos[b])
+        if ia is not None and ib is not None and (ia < n_subset or ib < n_subset):
+            yield ia, ib, float(values[0])
 
 
 def _measured(problem: Problem, table: str) -> Table:

@@ -145,7 +145,11 @@ def reject_outliers(problem: Problem, stage, values) -> bool:
         "touch": ("touch_points", problem.touch_obs, lambda o: problem.touch_points[o[1]]),
         "static_camera": ("pixels", problem.pixel_obs, lambda o: o[3]),
         "poses": ("tracker_poses", problem.pose_obs, lambda o: "pose"),
-        "distances": ("distances", problem.distance_obs, lambda o: problem.pivots[o[1]]),
+        "distances": (
+            "distances",
+            problem.distance_obs,
+            lambda o: problem.pivots[o[1]] if o[1] >= 0 else "between configurations",
+        ),
     }[problem.config.formulation]
     if problem.config.robust.get(kind) is None:
         return False

@@ -36,7 +36,7 @@ from ..se3 import kabsch, pose, quaternion_rotation, transform_points
 from .batch import BatchKinematics
 from .graph import FIXED_POINTS_KEY, INTRINSICS_KEY, OBJECT_KEY, P_KEY, TOOL_POINTS_KEY, TOOL_POSE_KEY, TRACKER_KEY
 from .initialise import dataset_intrinsics
-from .problem import Problem, fitting_rows, pair_groups
+from .problem import Problem, between_configurations, fitting_rows, pair_groups
 from .state import State
 
 
@@ -213,18 +213,27 @@ def held_out_measurements(problem: Problem, state: State, released: list[str]) -
         )  # fmt: skip
         return measurements, [state.tool_points[0], state.fixed_points.reshape(-1)]
     if config.formulation == "distances":
-        rows = sorted(
-            (i, problem.pivots.index(name), float(v[0]))
-            for i, name, v in fitting_rows(problem, data.tables["distances"], "pivot", test)
-        )
+        # A reading between configurations is held out when either end is; the other end may
+        # be a fitting configuration, so the model spans both sets (held-out ones first).
+        rows = []
+        if "distances" in data.tables:
+            rows += sorted(
+                (i, problem.pivots.index(name), float(v[0]), -1)
+                for i, name, v in fitting_rows(problem, data.tables["distances"], "pivot", test)
+            )
+        if "tool_distances" in data.tables:
+            rows += [(a, -1, d, b) for a, b, d in between_configurations(problem, data.tables["tool_distances"], test,
+                                                                         problem.fit)]  # fmt: skip
         if not rows:
             return None
+        both = BatchKinematics(problem.robot, state.params, released, data.q[np.r_[test, problem.fit]], "flange")
+        with_pivots = len(problem.pivots) > 0
         measurements = Distances(
-            model, key, TOOL_POINTS_KEY, FIXED_POINTS_KEY, len(problem.pivots),
+            both, key, TOOL_POINTS_KEY, FIXED_POINTS_KEY if with_pivots else None, len(problem.pivots),
             np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
-            config.distance_sigma_m,
+            config.distance_sigma_m, others=np.array([r[3] for r in rows]),
         )  # fmt: skip
-        return measurements, [state.tool_points[0], state.fixed_points.reshape(-1)]
+        return measurements, [state.tool_points[0], *([state.fixed_points.reshape(-1)] if with_pivots else [])]
     chain = [gtsam.Pose3(state.tracker_pose), gtsam.Pose3(state.tool_pose)]
     if config.formulation == "poses":
         rows = sorted(

@@ -1,7 +1,9 @@
 """Ballbar cells: a telescoping bar between a ball on the flange and a fixed pivot reads the
 distance between their centres. Each reading puts the ball at a random length within the
 bar's travel and a random direction above the pivot's plane, the flange pointing down within
-``max_tilt`` with a random spin, reached by inverse kinematics on the true robot."""
+``max_tilt`` with a random spin, reached by inverse kinematics on the true robot. Readings
+between configurations (``between_configurations``) put the ball at a random point of a
+sphere, then at a random length in a random direction from there: two configurations each."""
 
 from __future__ import annotations
 
@@ -22,6 +24,8 @@ def ballbar_design(
 ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Configurations (N, n), the pivot of each reading and the true distance (m)."""
     bar = cell.ballbar
+    if not bar.names:
+        return np.zeros((0, cell.robot.n_joints)), [], np.zeros(0)
     order = [k for k in range(len(bar.names)) for _ in range(bar.readings_per_pivot)]
     order = np.array([order[i] for i in design_rng.permutation(len(order))])
     length = design_rng.uniform(*bar.length_m, len(order))
@@ -40,6 +44,53 @@ def ballbar_design(
             f"{bar.names[order[pending[0]]]!r} with the bar's travel puts the ball out of the robot's reach",
         )
     return q, [bar.names[k] for k in order], length
+
+
+def pairs_design(cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator) -> np.ndarray:
+    """Configurations (2 P, n) of the readings between configurations: rows 2i and 2i+1 are
+    the two ends of reading i."""
+    bar = cell.ballbar
+    radius = bar.pairs_radius_m * np.cbrt(design_rng.uniform(0.0, 1.0, bar.pairs))
+    first = bar.pairs_centre + radius[:, None] * _directions(design_rng, bar.pairs)
+    length = design_rng.uniform(*bar.length_m, bar.pairs)
+    second = first + length[:, None] * _directions(design_rng, bar.pairs)
+    positions = np.stack([first, second], axis=1).reshape(-1, 3)
+    q, pending = reach(cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng)
+    if len(pending):
+        raise InputError(
+            cell.source,
+            "ballbar.between_configurations",
+            f"{len(pending)} ball positions unreachable after {ROUNDS} rounds of orientations: the sphere and the "
+            "bar's travel put the ball out of the robot's reach",
+        )
+    return q
+
+
+def _directions(rng: np.random.Generator, count: int) -> np.ndarray:
+    v = rng.normal(size=(count, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def write_pairs_table(
+    out: Path, cell: Cell, config_ids: list[str], true_positions: np.ndarray, rng: np.random.Generator
+) -> dict[str, int]:
+    """tool_distances.csv: rows 2i and 2i+1 of ``true_positions`` (the true ball, W) are one
+    reading's ends; the true distance plus the gauge's noise. The noise goes to truth/."""
+    ends = true_positions.reshape(-1, 2, 3)
+    true = np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
+    noise = rng.normal(0.0, cell.distance_sigma_m, len(true))
+    ids = np.array(config_ids).reshape(-1, 2)
+    write_csv(
+        out / "tool_distances.csv",
+        ["config_a", "config_b", "distance"],
+        [[a, b, float(d + n)] for (a, b), d, n in zip(ids, true, noise, strict=True)],
+    )
+    write_csv(
+        out / "truth" / "tool_distances_noise.csv",
+        ["config_a", "config_b", "distance"],
+        [[a, b, float(n)] for (a, b), n in zip(ids, noise, strict=True)],
+    )
+    return {"tool_distances": len(true)}
 
 
 def write_ballbar_table(

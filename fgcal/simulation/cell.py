@@ -128,6 +128,11 @@ class BallbarSetup:
     length_m: tuple[float, float]  # the bar's travel: shortest and longest reading
     readings_per_pivot: int
     max_tilt_rad: float  # of the flange's z axis from straight down
+    # Readings between the ball at two configurations (a two-ball bar, an interferometer's
+    # travel): how many, and the sphere (centre in W, radius) where their first ends lie.
+    pairs: int = 0
+    pairs_centre: np.ndarray | None = None
+    pairs_radius_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -253,8 +258,17 @@ def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
 
 
 def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
-    bar.check_keys(("ball", "pivots", "length", "readings_per_pivot", "max_tilt"))
-    names, pivots = _named_points(bar, "pivots", to_m, 1, "pivot is needed")
+    bar.check_keys(("ball", "pivots", "length", "readings_per_pivot", "max_tilt", "between_configurations"))
+    pairs, centre, radius = 0, None, 0.0
+    if bar.has("between_configurations"):
+        between = bar.sub("between_configurations")
+        between.check_keys(("readings", "centre", "radius"))
+        pairs = between.integer("readings", minimum=6)
+        centre = between.vector("centre", 3, scale=to_m)
+        radius = between.number("radius", scale=to_m, nonnegative=True)
+    names, pivots = [], []
+    if bar.has("pivots") or not pairs:  # readings between configurations need no pivot
+        names, pivots = _named_points(bar, "pivots", to_m, 1, "pivot is needed")
     length = bar.vector("length", 2, scale=to_m)
     if not 0 < length[0] <= length[1]:
         raise bar.error("length", "expected [shortest, longest] with 0 < shortest <= longest")
@@ -264,10 +278,13 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
     return BallbarSetup(
         ball=bar.vector("ball", 3, scale=to_m),
         names=tuple(names),
-        pivots=np.array(pivots),
+        pivots=np.array(pivots).reshape(-1, 3),
         length_m=(float(length[0]), float(length[1])),
         readings_per_pivot=bar.integer("readings_per_pivot", 40, minimum=6),
         max_tilt_rad=float(tilt),
+        pairs=pairs,
+        pairs_centre=centre,
+        pairs_radius_m=float(radius),
     )
 
 

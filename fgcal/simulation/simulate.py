@@ -14,7 +14,7 @@ import yaml
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
-from .ballbar import ballbar_design, write_ballbar_table
+from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
 from .static_camera import static_camera_design, write_static_camera_tables
@@ -137,6 +137,8 @@ def simulate(
         views = [View(qi, None, ()) for qi in q_touch]
     elif cell.ballbar is not None:
         q_bar, bar_pivots, bar_lengths = ballbar_design(cell, robot.parameter_vector(true_params), design_rng)
+        if cell.ballbar.pairs:  # after the readings to pivots: their configurations stay as they were
+            q_bar = np.vstack([q_bar, pairs_design(cell, robot.parameter_vector(true_params), design_rng)])
         views = [View(qi, None, ()) for qi in q_bar]
     elif cell.static_camera is not None:
         views = static_camera_design(cell, true_params, design_rng)
@@ -157,7 +159,13 @@ def simulate(
         counts = write_touch_tables(out, cell, config_ids, touched, seating, noise_rng)
     elif cell.ballbar is not None:
         _write_configurations(out, cell, q, config_ids)
-        counts = write_ballbar_table(out, cell, config_ids, bar_pivots, bar_lengths, noise_rng)
+        n_pivot = len(bar_pivots)
+        counts = {}
+        if n_pivot:
+            counts = write_ballbar_table(out, cell, config_ids[:n_pivot], bar_pivots, bar_lengths, noise_rng)
+        if cell.ballbar.pairs:
+            ball_W = transform_points(robot.fk(q[n_pivot:], true_params), cell.ballbar.ball)
+            counts |= write_pairs_table(out, cell, config_ids[n_pivot:], ball_W, noise_rng)
     elif cell.static_camera is not None:
         _write_configurations(out, cell, q, config_ids)
         counts = write_static_camera_tables(out, cell, q, config_ids, true_params, noise_rng)
