@@ -199,3 +199,15 @@ def test_static_camera_needs_the_intrinsics(sims, tmp_path):
     (data / "dataset.yaml").write_text(yaml.safe_dump(header))
     with pytest.raises(InputError, match="static_camera formulation needs"):
         calibrate_untouched(CalibrationConfig.defaults(data, formulation="static_camera"))
+
+
+def test_a_validation_set_of_distances_between_configurations(sims, tmp_path):
+    """Both configuration columns of a validation set's readings are renamed with it, so its
+    readings join its own configurations (here a second copy of the session, scored held out)."""
+    validation = _copy(sims, ("tool_distances", 3), tmp_path)
+    config = _config(sims, "tool_distances", 3, validation={"dataset": str(validation)})
+    result = calibrate_untouched(config)
+    n = len(load_dataset(validation).configs)
+    assert len(result.problem.test) == n and len(result.problem.fit) == n
+    predicted = predicted_held_out(result, against_truth=False)["rms"]
+    assert result.validation["after"]["distance"].rms <= 1.5 * predicted

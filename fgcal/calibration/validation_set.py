@@ -22,6 +22,8 @@ PREFIX = "validation/"
 SHARED = ("points", "point_distances")
 # Session checks that belong to the session that measured them.
 SESSION_ONLY = ("tracker_references",)
+# Id columns that name a configuration (a distance between configurations has two).
+CONFIG_COLUMNS = ("config", "config_a", "config_b")
 
 
 def with_validation_set(dataset: Dataset, config) -> tuple[Dataset, np.ndarray]:
@@ -47,7 +49,7 @@ def with_validation_set(dataset: Dataset, config) -> tuple[Dataset, np.ndarray]:
             _check_shared(dataset, other, name, where)
             merged.tables.setdefault(name, table)
             continue
-        ids = {k: (np.array([PREFIX + str(c) for c in v], dtype=object) if k == "config" else v)
+        ids = {k: (np.array([PREFIX + str(c) for c in v], dtype=object) if k in CONFIG_COLUMNS else v)
                for k, v in table.ids.items()}  # fmt: skip
         mine = dataset.tables.get(name)
         if mine is None:
