@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import write_csv
-from ..errors import InputError
 from .cell import Cell
-from .touch import ROUNDS, reach
+from .touch import ROUNDS, reach_all
 
 MIN_ELEVATION_RAD = np.deg2rad(10.0)  # the bar stays clear of the pivot's mounting plate
 
@@ -35,14 +34,11 @@ def ballbar_design(
         [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1
     )
     positions = bar.pivots[order] + length[:, None] * direction
-    q, pending = reach(cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng)
-    if len(pending):
-        raise InputError(
-            cell.source,
-            "ballbar.pivots",
-            f"{len(pending)} ballbar positions unreachable after {ROUNDS} rounds of orientations: pivot "
-            f"{bar.names[order[pending[0]]]!r} with the bar's travel puts the ball out of the robot's reach",
-        )
+    q = reach_all(
+        cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng, "ballbar.pivots",
+        lambda pending: f"{len(pending)} ballbar positions unreachable after {ROUNDS} rounds of orientations: "
+        f"pivot {bar.names[order[pending[0]]]!r} with the bar's travel puts the ball out of the robot's reach",
+    )  # fmt: skip
     return q, [bar.names[k] for k in order], length
 
 
@@ -55,15 +51,11 @@ def pairs_design(cell: Cell, true_params: np.ndarray, design_rng: np.random.Gene
     length = design_rng.uniform(*bar.length_m, bar.pairs)
     second = first + length[:, None] * _directions(design_rng, bar.pairs)
     positions = np.stack([first, second], axis=1).reshape(-1, 3)
-    q, pending = reach(cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng)
-    if len(pending):
-        raise InputError(
-            cell.source,
-            "ballbar.between_configurations",
-            f"{len(pending)} ball positions unreachable after {ROUNDS} rounds of orientations: the sphere and the "
-            "bar's travel put the ball out of the robot's reach",
-        )
-    return q
+    return reach_all(
+        cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng, "ballbar.between_configurations",
+        lambda pending: f"{len(pending)} ball positions unreachable after {ROUNDS} rounds of orientations: the "
+        "sphere and the bar's travel put the ball out of the robot's reach",
+    )  # fmt: skip
 
 
 def _directions(rng: np.random.Generator, count: int) -> np.ndarray:

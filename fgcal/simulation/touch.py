@@ -9,6 +9,7 @@ the real robot would be seated.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +43,11 @@ def touch_design(
     order = [order[i] for i in design_rng.permutation(len(order))]
     noise = noise_rng.normal(0.0, cell.touch_sigma_m, (len(order), 3))
     positions = touch.points[order] + noise
-    q, pending = reach(cell, true_params, positions, touch.probe, touch.max_tilt_rad, design_rng)
-    if len(pending):
-        raise InputError(
-            cell.source,
-            "touch.points",
-            f"{len(pending)} touches unreachable after {ROUNDS} rounds of orientations: point "
-            f"{touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe within max_tilt of "
-            "vertical",
-        )
+    q = reach_all(
+        cell, true_params, positions, touch.probe, touch.max_tilt_rad, design_rng, "touch.points",
+        lambda pending: f"{len(pending)} touches unreachable after {ROUNDS} rounds of orientations: point "
+        f"{touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe within max_tilt of vertical",
+    )  # fmt: skip
     return q, [touch.names[k] for k in order], noise
 
 
@@ -89,6 +86,24 @@ def reach(
         if not len(pending):
             break
     return q, pending
+
+
+def reach_all(
+    cell: Cell,
+    true_params: np.ndarray,
+    positions: np.ndarray,
+    tool_point: np.ndarray,
+    max_tilt_rad: float,
+    rng: np.random.Generator,
+    field: str,
+    unreachable: Callable[[np.ndarray], str],
+) -> np.ndarray:
+    """:func:`reach`, or an error on the cell's ``field`` saying which positions it could not
+    reach (``unreachable(pending indices)``)."""
+    q, pending = reach(cell, true_params, positions, tool_point, max_tilt_rad, rng)
+    if len(pending):
+        raise InputError(cell.source, field, unreachable(pending))
+    return q
 
 
 def write_touch_tables(
