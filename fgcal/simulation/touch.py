@@ -54,17 +54,20 @@ def touch_design(
 ROUNDS = 20  # rounds of new orientations for the positions not reached yet
 
 
-def reach(
+def reach_all(
     cell: Cell,
     true_params: np.ndarray,
     positions: np.ndarray,
     tool_point: np.ndarray,
     max_tilt_rad: float,
     rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray]:
+    field: str,
+    unreachable: Callable[[np.ndarray], str],
+) -> np.ndarray:
     """Configurations (N, n) of the true robot that put ``tool_point`` (flange frame) at each
     of ``positions`` (W), the flange's z axis down within ``max_tilt_rad``, by inverse
-    kinematics from random starts; and the indices of the positions not reached."""
+    kinematics from random starts; or an error on the cell's ``field`` saying which it could
+    not reach (``unreachable(indices of the positions not reached)``)."""
     robot = cell.robot
     q = np.zeros((len(positions), robot.n_joints))
     pending = np.arange(len(positions))
@@ -85,22 +88,6 @@ def reach(
         pending = pending[~solved]
         if not len(pending):
             break
-    return q, pending
-
-
-def reach_all(
-    cell: Cell,
-    true_params: np.ndarray,
-    positions: np.ndarray,
-    tool_point: np.ndarray,
-    max_tilt_rad: float,
-    rng: np.random.Generator,
-    field: str,
-    unreachable: Callable[[np.ndarray], str],
-) -> np.ndarray:
-    """:func:`reach`, or an error on the cell's ``field`` saying which positions it could not
-    reach (``unreachable(pending indices)``)."""
-    q, pending = reach(cell, true_params, positions, tool_point, max_tilt_rad, rng)
     if len(pending):
         raise InputError(cell.source, field, unreachable(pending))
     return q
