@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, load_dataset, write_csv, write_header
 from .errors import InputError
 from .fields import Fields, is_plain_number, read_yaml
-from .robot_io import load_robot, robot_reference
+from .robot_io import referenced_robot, robot_reference
 from .units import Units, parse_units
 
 IMPORT_FORMAT = "fgcal-import/1"
@@ -334,15 +334,9 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     out = Path(out)
     doc = Fields(raw, source)
     doc.check_keys(MAPPING_KEYS)
-    fmt = doc.string("format")
-    if fmt != IMPORT_FORMAT:
-        raise doc.error("format", f"unsupported format {fmt!r} (this fgcal reads {IMPORT_FORMAT})")
+    doc.check_format(IMPORT_FORMAT)
     units = parse_units(doc.raw("units", None), source)
-    robot_ref = doc.string("robot")
-    try:
-        robot = load_robot(robot_reference(base, robot_ref))
-    except InputError as exc:
-        raise InputError(source, "robot", str(exc)) from None
+    robot_ref, robot = referenced_robot(doc, base)
     configurations, configs = _configurations(doc.sub("configurations"), base, units, robot.n_joints)
     tables: dict[str, Imported] = {}
     for name in ("tracker_points", "tracker_references", "tracker_poses", "distances", "tool_distances"):

@@ -44,7 +44,7 @@ from .camera import Camera, parse_camera
 from .errors import InputError
 from .fields import Fields, is_plain_number, read_yaml
 from .robot import Robot
-from .robot_io import load_robot, robot_reference
+from .robot_io import referenced_robot
 from .se3 import pose_from_xyz_rpy
 from .units import Units, parse_units
 
@@ -217,15 +217,9 @@ def load_dataset(path: str | Path) -> Dataset:
     root = header_path.parent
     doc = Fields(read_yaml(header_path), header_path)
     doc.check_keys(HEADER_KEYS)
-    fmt = doc.string("format")
-    if fmt != FORMAT:
-        raise doc.error("format", f"unsupported format {fmt!r} (this fgcal reads {FORMAT})")
+    doc.check_format(FORMAT)
     units = parse_units(doc.raw("units", None), header_path)
-    robot_ref = doc.string("robot")
-    try:
-        robot = load_robot(robot_reference(root, robot_ref))
-    except InputError as exc:
-        raise InputError(header_path, "robot", str(exc)) from None
+    _, robot = referenced_robot(doc, root)
     files = doc.sub("files")
     files.check_keys(("configurations", *TABLES))
     measured = doc.items("measured")

@@ -62,6 +62,12 @@ class Fields:
             if key not in allowed:
                 raise self.error(str(key), f"unknown field (allowed: {', '.join(allowed)})")
 
+    def check_format(self, expected: str) -> None:
+        """The document's ``format`` field names the format this fgcal reads."""
+        fmt = self.string("format")
+        if fmt != expected:
+            raise self.error("format", f"unsupported format {fmt!r} (this fgcal reads {expected})")
+
     def raw(self, key: str, default: Any = _MISSING) -> Any:
         if not self.has(key):
             if default is _MISSING:

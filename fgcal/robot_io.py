@@ -94,6 +94,16 @@ def robot_reference(directory: Path, reference: str) -> str:
     return reference
 
 
+def referenced_robot(fields: Fields, directory: Path) -> tuple[str, Robot]:
+    """The ``robot:`` entry of a document (a dataset header, an import mapping) and the robot
+    it names; a robot file is relative to ``directory``. Errors name the document's field."""
+    reference = fields.string("robot")
+    try:
+        return reference, load_robot(robot_reference(directory, reference))
+    except InputError as exc:
+        raise fields.error("robot", str(exc)) from None
+
+
 def _pose(fields: Fields, key: str, units: Units) -> np.ndarray:
     if not fields.has(key):
         return np.eye(4)
