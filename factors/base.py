@@ -10,9 +10,9 @@ Measurement factors depend directly on the parameter vector P and on auxiliary u
 comes from one shared, vectorised evaluation. A :class:`MeasurementSet` holds the
 measurements of one kind (all point-pair groups, all images, all tracker configurations),
 computes every residual and Jacobian in one vectorised call, caches it on the variables'
-values, and hands out one :class:`MeasurementFactor` per group, image or configuration, whose
-callback only slices the cached result. A trial step of the optimiser therefore costs one
-vectorised evaluation plus a slice per factor, however many factors there are.
+values, and is one :class:`MeasurementFactor` in the graph: one Python callback per
+evaluation of the whole set, however many measurements it holds (a factor per measurement
+would cost a callback each, most of a solve's time in GTSAM's optimiser).
 """
 
 from __future__ import annotations
@@ -40,6 +40,16 @@ _DIMS = {"pose3": 6, "point3": 3, "rot3": 3}
 
 class FactorError(RuntimeError):
     """A factor produced a residual or Jacobian of the wrong shape, or a non-finite value."""
+
+
+class OutsideModelError(ValueError):
+    """The variables are where the measurement model breaks down (a point behind the camera):
+    a trial step went too far, or the starting values are far off."""
+
+
+# What a measurement row costs (whitened) where the model breaks down during a trial step: so
+# large that the optimiser rejects the step and shortens the next one, yet finite.
+BREAKDOWN_RESIDUAL = 1e100
 
 
 class CheckedFactor:
@@ -208,41 +218,35 @@ class Evaluation:
 class MeasurementSet:
     """Measurements of one kind evaluated in one vectorised call (see the module docstring).
 
-    Subclasses set ``self.variables`` ([(key, kind, dim)], shared by all their factors),
-    ``self.sigma`` (R,) per row, ``self.factor_starts`` (first row of each factor) and
+    Subclasses set ``self.variables`` ([(key, kind, dim)]), ``self.sigma`` (R,) per row and
     ``self.unit_starts`` (first row of each robust unit, i.e. each observation), then call
-    ``super().__init__``, and implement :meth:`compute`. A unit never spans two factors.
+    ``super().__init__``, and implement :meth:`compute`.
     """
 
     CACHED = 4  # an optimiser alternates between a few points (current, trial)
+    row_unit = "m"  # of every row's residual, unless row_units says otherwise
 
     variables: list[tuple[int, str, int]]
     sigma: np.ndarray
-    factor_starts: np.ndarray
     unit_starts: np.ndarray
 
     def __init__(self, robust: RobustLoss | None = None) -> None:
         self.variables = [(key, kind, dim if dim is not None else _DIMS[kind]) for key, kind, dim in self.variables]
         self.robust = robust
         self.n_rows = len(self.sigma)
-        self.factor_ends = np.append(self.factor_starts[1:], self.n_rows)
-        if np.any(self.factor_ends <= self.factor_starts):
-            raise ValueError(f"{type(self).__name__}: a factor without rows")
+        if not self.n_rows:
+            raise ValueError(f"{type(self).__name__}: no measurement")
         self._cache: OrderedDict[bytes, dict] = OrderedDict()
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
         """Residuals (and Jacobians) of every row at the variables' values ``inputs``."""
         raise NotImplementedError
 
-    @property
-    def n_factors(self) -> int:
-        return len(self.factor_starts)
-
-    def factors(self) -> list[MeasurementFactor]:
-        """One GTSAM factor per group of rows (a point-pair group, an image, a configuration)."""
+    def factor(self) -> MeasurementFactor:
+        """The set as one GTSAM factor."""
         if not self.variables:
             raise ValueError(f"{type(self).__name__}: no variable to estimate (it can still be evaluated)")
-        return [MeasurementFactor(self, i) for i in range(self.n_factors)]
+        return MeasurementFactor(self)
 
     def read(self, values: gtsam.Values) -> list:
         return [_GETTERS[kind](values, key) for key, kind, _ in self.variables]
@@ -292,30 +296,38 @@ class MeasurementSet:
         """Rows of each robust unit."""
         return np.diff(np.append(self.unit_starts, self.n_rows))
 
+    def row_units(self) -> dict[str, np.ndarray]:
+        """Unit (m, rad, px) -> mask of the rows in that unit."""
+        return {self.row_unit: np.ones(self.n_rows, dtype=bool)}
+
     def raw_residual(self, values: gtsam.Values) -> np.ndarray:
         return self.whitened(self.read(values), False, robust=False).residual * self.sigma
 
-    def slice(self, evaluation: Evaluation, i: int) -> tuple[np.ndarray, list[np.ndarray]]:
-        rows = slice(int(self.factor_starts[i]), int(self.factor_ends[i]))
-        return evaluation.residual[rows], [block[rows] for block in evaluation.blocks]
-
 
 class MeasurementFactor(CheckedFactor):
-    """Factor ``i`` of a :class:`MeasurementSet`: its rows of the set's whitened (and robust)
-    residual ``r_i(P, aux) / sigma``; the set's docstring states r."""
+    """A :class:`MeasurementSet` as one factor: the set's whitened (and robust) residual
+    ``r(P, aux) / sigma``; the set's docstring states r.
 
-    def __init__(self, measurements: MeasurementSet, i: int) -> None:
+    Where the model breaks down (:class:`OutsideModelError`, or a non-finite residual) while the
+    optimiser only costs a trial step, every row costs BREAKDOWN_RESIDUAL: the step is
+    rejected and a shorter one tried. At a linearisation point it is an error."""
+
+    def __init__(self, measurements: MeasurementSet) -> None:
         self.measurements = measurements
-        self.i = i
-        rows = int(measurements.factor_ends[i] - measurements.factor_starts[i])
+        rows = measurements.n_rows
         super().__init__(measurements.variables, gtsam.noiseModel.Unit.Create(rows), np.ones(rows))
 
     def evaluate(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        return self.measurements.slice(self.measurements.whitened(inputs, jacobians), self.i)
+        try:
+            evaluation = self.measurements.whitened(inputs, jacobians)
+        except (OutsideModelError, FactorError):
+            if jacobians:
+                raise
+            return np.full(self.dim, BREAKDOWN_RESIDUAL), []
+        return evaluation.residual, evaluation.blocks
 
     def checked(self, inputs: list, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray]]:
-        # The set checked the whole evaluation (shapes, finiteness; the robust loss keeps
-        # both), and the slices have this factor's rows and the variables' widths.
+        # The set checked its evaluation (shapes, finiteness; the robust loss keeps both).
         return self.evaluate(inputs, jacobians)
 
 

@@ -38,7 +38,7 @@ class PointPairs(MeasurementSet):
     carry every point pair of the group. With independent noise sigma per coordinate the
     rows have covariance sigma^2 I exactly, however many pairs share an observation. The
     unknown common position of the points (the base) cancels. ``R_W_F`` is a constant or,
-    with ``fixture_key``, a Rot3 variable. One factor per group; the robust unit is the group.
+    with ``fixture_key``, a Rot3 variable. The robust unit is the group.
 
     ``groups``: per group, (configuration index of each observation (O,), c (O, 3), p_F (O, 3)).
     """
@@ -68,8 +68,7 @@ class PointPairs(MeasurementSet):
         if fixture_key is not None:
             self.variables.append((fixture_key, "rot3", None))
         self.sigma = np.full(3 * sum(n - 1 for n in sizes), float(sigma_m))
-        self.factor_starts = row_starts([3 * (n - 1) for n in sizes])
-        self.unit_starts = self.factor_starts
+        self.unit_starts = row_starts([3 * (n - 1) for n in sizes])
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:

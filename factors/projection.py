@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..se3 import skew
-from .base import Evaluation, MeasurementSet, RobustLoss, point_jacobian, row_starts
+from .base import Evaluation, MeasurementSet, OutsideModelError, RobustLoss, point_jacobian, row_starts
 from .kinematics import Kinematics, params_variable
 
 
@@ -80,14 +80,6 @@ def project(intrinsics: np.ndarray, p_C: np.ndarray, jacobians: bool = False):
     return pixel, d_point, d_intrinsics
 
 
-def image_starts(configs: np.ndarray) -> np.ndarray:
-    """First observation of each image; an image's observations must be consecutive."""
-    starts = np.flatnonzero(np.r_[True, configs[1:] != configs[:-1]])
-    if len(starts) != len(np.unique(configs)):
-        raise ValueError("the observations of an image must be consecutive")
-    return starts
-
-
 def _pixel_set(
     owner: MeasurementSet,
     kinematics: Kinematics,
@@ -101,8 +93,8 @@ def _pixel_set(
     intrinsics_key: int | None,
 ) -> None:
     """What every set of pixel observations holds: the points (their frame's coordinates), the
-    pixels, the intrinsics as a constant or a variable after P and the Pose3 variables, one
-    factor per image and a pixel as the robust unit."""
+    pixels, the intrinsics as a constant or a variable after P and the Pose3 variables, and a
+    pixel as the robust unit."""
     if (intrinsics is None) == (intrinsics_key is None):
         raise ValueError("give either constant intrinsics or an intrinsics variable key")
     owner.kinematics = kinematics
@@ -117,11 +109,10 @@ def _pixel_set(
     if intrinsics_key is not None:
         owner.variables.append((intrinsics_key, "vector", 9))
     owner.sigma = np.full(2 * len(owner.configs), float(sigma_px))
-    owner.factor_starts = 2 * image_starts(owner.configs)
     owner.unit_starts = row_starts([2] * len(owner.configs))
 
 
-class BehindCameraError(ValueError):
+class BehindCameraError(OutsideModelError):
     """A point projects from behind the camera: the estimate is far off."""
 
 
@@ -136,7 +127,7 @@ def _in_front(p_C: np.ndarray, configs: np.ndarray, what: str, estimate: str) ->
 
 
 class Projections(MeasurementSet):
-    """``r_o = project(K, dist, X(P, q_j)^-1 O p_o) - z_o``  (px), one factor per image j.
+    """``r_o = project(K, dist, X(P, q_j)^-1 O p_o) - z_o``  (px).
 
     A point ``p_o`` known in the object (fixture) frame O is seen at pixel ``z_o`` by the
     camera at configuration j, whose pose X (T_W_C) comes from the kinematics. ``O`` (T_W_O)
@@ -144,8 +135,10 @@ class Projections(MeasurementSet):
     with ``intrinsics_key``, a 9-vector variable. Distortion follows OpenCV exactly, k3
     included (GTSAM's Cal3DS2 has no k3). The robust unit is one pixel observation.
 
-    ``configs`` (O,): configuration index of each observation, grouped by image.
+    ``configs`` (O,): configuration index of each observation.
     """
+
+    row_unit = "px"
 
     def __init__(
         self,
@@ -197,7 +190,7 @@ class Projections(MeasurementSet):
 
 
 class StaticProjections(MeasurementSet):
-    """``r_o = project(K, dist, L X(P, q_j) B p_o) - z_o``  (px), one factor per image j.
+    """``r_o = project(K, dist, L X(P, q_j) B p_o) - z_o``  (px).
 
     Eye-to-hand: a static camera sees a board carried by the robot. The board's point ``p_o``
     (board frame) is seen at pixel ``z_o`` at configuration j, whose flange pose X comes from
@@ -205,6 +198,8 @@ class StaticProjections(MeasurementSet):
     the flange) are Pose3 variables; the intrinsics as in :class:`Projections`. The robust unit
     is one pixel observation.
     """
+
+    row_unit = "px"
 
     def __init__(
         self,

@@ -12,7 +12,7 @@ from .kinematics import Kinematics, params_variable
 
 
 class TouchPoints(MeasurementSet):
-    """``r_o = X(P, q_j) s - a_k``  (m), one factor per touch o.
+    """``r_o = X(P, q_j) s - a_k``  (m), per touch o.
 
     At configuration j the tool point s (flange frame, a 3-vector variable) sits in socket k,
     whose position a_k in W is unknown (all sockets are one vector variable A = (a_0, a_1, ...));
@@ -44,8 +44,7 @@ class TouchPoints(MeasurementSet):
             (sockets_key, "vector", 3 * self.n_sockets),
         ]
         self.sigma = np.full(3 * len(self.configs), float(sigma_m))
-        self.factor_starts = 3 * np.arange(len(self.configs))
-        self.unit_starts = self.factor_starts
+        self.unit_starts = 3 * np.arange(len(self.configs))
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
@@ -71,7 +70,7 @@ class TouchPoints(MeasurementSet):
 
 
 class SocketSpacings(MeasurementSet):
-    """``r_o = |a_k - a_l| - d_o``  (m), one factor per known distance.
+    """``r_o = |a_k - a_l| - d_o``  (m), per known distance o.
 
     The distance d_o between sockets k and l, from the fixture's drawing or a measurement:
     what gives touch-point calibration its scale (without one, every length can grow by the
@@ -96,8 +95,7 @@ class SocketSpacings(MeasurementSet):
         self.n_sockets = int(n_sockets)
         self.variables = [(sockets_key, "vector", 3 * self.n_sockets)]
         self.sigma = np.full(len(self.pairs), float(sigma_m))
-        self.factor_starts = np.arange(len(self.pairs))
-        self.unit_starts = self.factor_starts
+        self.unit_starts = np.arange(len(self.pairs))
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:

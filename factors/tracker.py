@@ -10,34 +10,31 @@ from .base import Evaluation, MeasurementSet, RobustLoss, point_jacobian, row_st
 from .kinematics import Kinematics, params_variable
 
 
-def _grouped(configs: np.ndarray) -> np.ndarray:
-    """First observation of each configuration; the observations of one must be consecutive."""
-    starts = np.flatnonzero(np.r_[True, configs[1:] != configs[:-1]])
-    if len(starts) != len(np.unique(configs)):
-        raise ValueError("the observations of a configuration must be consecutive")
-    return starts
-
-
 class TrackerPoints(MeasurementSet):
-    """``r_o = L (X(P, q_j) s_t) - m_o``  (m), one factor per configuration j.
+    """``r_o = L (X(P, q_j) s_t) - m_o``  (m), per observed point o.
 
-    Tool point s_t (flange frame; all tool points are one vector variable S = (s_0, s_1, ...))
-    measured at m_o in the tracker frame at configuration j, whose flange pose X comes from
-    the kinematics; ``L = T_T_W`` is a Pose3 variable. The robust unit is one point.
+    Tool point s_t (flange or tool frame, whichever the kinematics give; all tool points are one
+    vector S = (s_0, s_1, ...)) measured at m_o in the instrument's frame at configuration j,
+    whose frame pose X comes from the kinematics; ``L = T_T_W``. L and S are variables (keys)
+    or constants (``tracker``, 4x4; ``points``, (k, 3)): with L = I and m = 0 this is where a
+    point fixed on the robot is in W, the model every score against a simulation's truth
+    evaluates. The robust unit is one point.
     """
 
     def __init__(
         self,
         kinematics: Kinematics,
         params_key: int | None,
-        tracker_key: int,
-        points_key: int,
+        tracker_key: int | None,
+        points_key: int | None,
         n_points: int,
         configs: np.ndarray,
         targets: np.ndarray,
         measured_m: np.ndarray,
         sigma_m: float,
         robust: RobustLoss | None = None,
+        tracker: np.ndarray | None = None,
+        points: np.ndarray | None = None,
     ) -> None:
         self.kinematics = kinematics
         self.params_key = params_key
@@ -46,21 +43,26 @@ class TrackerPoints(MeasurementSet):
         self.measured = np.asarray(measured_m, dtype=float).reshape(-1, 3)
         if not len(self.configs) == len(self.targets) == len(self.measured) or not len(self.configs):
             raise ValueError("one configuration, target and point per observation, at least one")
+        if (tracker_key is None) == (tracker is None) or (points_key is None) == (points is None):
+            raise ValueError("the instrument pose and the tool points: each a variable key or a constant")
         self.n_points = int(n_points)
-        self.variables = [
-            *params_variable(params_key, kinematics),
-            (tracker_key, "pose3", None),
-            (points_key, "vector", 3 * self.n_points),
-        ]
+        self.tracker = None if tracker is None else np.asarray(tracker, dtype=float)
+        self.points = None if points is None else np.asarray(points, dtype=float).reshape(-1, 3)
+        self.variables = params_variable(params_key, kinematics)
+        if tracker_key is not None:
+            self.variables.append((tracker_key, "pose3", None))
+        if points_key is not None:
+            self.variables.append((points_key, "vector", 3 * self.n_points))
         self.sigma = np.full(3 * len(self.configs), float(sigma_m))
-        self.factor_starts = 3 * _grouped(self.configs)
         self.unit_starts = row_starts([3] * len(self.configs))
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
-        params = inputs[0] if self.params_key is not None else None
-        T_L = inputs[-2].matrix()
-        s = np.asarray(inputs[-1], dtype=float).reshape(-1, 3)[self.targets]
+        inputs = list(inputs)
+        params = inputs.pop(0) if self.params_key is not None else None
+        T_L = inputs.pop(0).matrix() if self.tracker is None else self.tracker
+        S = np.asarray(inputs.pop(0), dtype=float).reshape(-1, 3) if self.points is None else self.points
+        s = S[self.targets]
         T_X = self.kinematics.poses(params)[self.configs]
         R_X, R_L = T_X[:, :3, :3], T_L[:3, :3]
         p_W = np.einsum("oij,oj->oi", R_X, s) + T_X[:, :3, 3]
@@ -71,17 +73,19 @@ class TrackerPoints(MeasurementSet):
         if params is not None:
             J = self.kinematics.jacobians(params)[self.configs]
             blocks.append(np.matmul(R_L @ point_jacobian(R_X, s), J).reshape(-1, J.shape[2]))
-        blocks.append(point_jacobian(R_L, p_W).reshape(-1, 6))
-        d_points = np.zeros((len(s), 3, 3 * self.n_points))
-        rows = np.arange(len(s))
-        for axis in range(3):
-            d_points[rows, :, 3 * self.targets + axis] = (R_L @ R_X)[:, :, axis]
-        blocks.append(d_points.reshape(-1, 3 * self.n_points))
+        if self.tracker is None:
+            blocks.append(point_jacobian(R_L, p_W).reshape(-1, 6))
+        if self.points is None:
+            d_points = np.zeros((len(s), 3, 3 * self.n_points))
+            rows = np.arange(len(s))
+            for axis in range(3):
+                d_points[rows, :, 3 * self.targets + axis] = (R_L @ R_X)[:, :, axis]
+            blocks.append(d_points.reshape(-1, 3 * self.n_points))
         return Evaluation(residual, blocks)
 
 
 class Distances(MeasurementSet):
-    """``r_o = |X(P, q_j) s - e_o| - d_o``  (m), one factor per measurement, where the other
+    """``r_o = |X(P, q_j) s - e_o| - d_o``  (m), per reading o, where the other
     end ``e_o`` is a fixed pivot ``a_k`` or the same tool point at another configuration,
     ``X(P, q_b) s``.
 
@@ -126,8 +130,7 @@ class Distances(MeasurementSet):
         if pivots_key is not None:
             self.variables.append((pivots_key, "vector", 3 * self.n_pivots))
         self.sigma = np.full(len(self.configs), float(sigma_m))
-        self.factor_starts = np.arange(len(self.configs))
-        self.unit_starts = self.factor_starts
+        self.unit_starts = np.arange(len(self.configs))
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
@@ -170,12 +173,16 @@ class Distances(MeasurementSet):
 
 
 class Poses(MeasurementSet):
-    """``r_o = Log(Z_o^-1 L X(P, q_j) E)``  (rad, m), one factor per configuration j.
+    """``r_o = Log(Z_o^-1 L X(P, q_j) E)``  (rad, m), per measured pose o.
 
     Measured pose Z_o of a tool frame in the tracker frame (a 6D probe, or a camera's pose of
     a target); L = T_T_W and E = T_n_tool are Pose3 variables. Rotation and translation rows
     have their own sigmas; the robust unit is the pose.
     """
+
+    def row_units(self) -> dict[str, np.ndarray]:
+        rotation = np.tile([True] * 3 + [False] * 3, len(self.configs))
+        return {"rad": rotation, "m": ~rotation}
 
     def __init__(
         self,
@@ -201,8 +208,7 @@ class Poses(MeasurementSet):
             (tool_key, "pose3", None),
         ]
         self.sigma = np.tile([sigma_rad] * 3 + [sigma_m] * 3, len(self.configs)).astype(float)
-        self.factor_starts = row_starts([6] * len(self.configs))
-        self.unit_starts = self.factor_starts
+        self.unit_starts = row_starts([6] * len(self.configs))
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -84,24 +85,24 @@ def cmd_online_feed(args: argparse.Namespace) -> int:
     return 0
 
 
-def _score(result) -> None:
+def _score(result):
     """After the calibration: a simulated dataset is scored against its truth (truth/)."""
     from .calibration.run import held_out_summary
     from .calibration.scoring import score_with_truth
 
-    score_with_truth(result)
+    result = score_with_truth(result)
     line = held_out_summary(result)
     if line:
         print(line, flush=True)
+    return result
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibration.config import load_config
-    from .calibration.report import write_report
     from .calibration.run import calibrate
+    from .reports.calibration import write_report
 
-    result = calibrate(load_config(args.config), progress=lambda msg: print(msg, flush=True))
-    _score(result)
+    result = _score(calibrate(load_config(args.config), progress=lambda msg: print(msg, flush=True)))
     started = time.perf_counter()
     write_report(result, args.out, plots=not args.no_plots)
     print(
@@ -112,11 +113,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    import dataclasses
+
     import yaml
 
     from .calibration.config import load_config
-    from .calibration.report import write_report
     from .calibration.run import calibrate
+    from .reports.calibration import write_report
     from .simulation.simulate import simulate
 
     out = Path(args.out)
@@ -136,16 +139,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
         encoding="utf-8",
     )
     print(f"2/3 calibrating ({config_path})")
-    result = calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True))
-    _score(result)
+    result = _score(calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True)))
     if result.truth is not None:
         from .calibration.scoring import compensation_study
 
-        study = result.compensation = compensation_study(result)
+        study = compensation_study(result)
+        result = dataclasses.replace(result, compensation=study)
         print(
-            f"  compensation of {study['n_targets']} random targets, driven through the true robot: "
-            f"{study['uncompensated_rms_m']:.3e} m RMS with the nominal model's joints, "
-            f"{study['compensated_rms_m']:.3e} m with the calibrated model's ({study['improvement']:.0f}x)"
+            f"  compensation of {study.n_targets} random targets, driven through the true robot: "
+            f"{study.uncompensated_rms_m * 1e3:.4g} mm RMS with the nominal model's joints, "
+            f"{study.compensated_rms_m * 1e3:.4g} mm with the calibrated model's ({study.improvement:.0f}x)"
         )
     print("3/3 writing the report")
     write_report(result, out / "report")
@@ -371,7 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="design criterion (default d-optimal)",
     )
     p.add_argument("--candidates", type=int, default=5000, help="candidate configurations (default 5000)")
-    p.add_argument("--formulation", choices=("pairs", "projection", "tracker"), default="pairs")
+    p.add_argument(
+        "--formulation", help="what to plan for (pairs, projection, tracker; default: what the cell measures with)"
+    )
     p.add_argument("--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e")
     p.add_argument("--seed", type=int, default=1, help="seed of the candidates (default 1)")
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
@@ -408,12 +413,16 @@ def main(argv: list[str] | None = None) -> int:
         # threads would stall each other on a busy machine.
         with threadpool_limits(limits=1, user_api="blas"):
             return args.func(args)
-    except FgcalError as exc:
+    except FgcalError as exc:  # the user's input: one line naming the file and field
         print(f"fgcal: error: {exc}", file=sys.stderr)
         return 2
-    except RuntimeError as exc:  # e.g. no reachable viewpoint: a property of the user's cell
-        print(f"fgcal: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print("fgcal: interrupted", file=sys.stderr)
+        return 130
+    except Exception:  # a bug of fgcal's, never dressed as the user's
+        print("fgcal: internal error (please report it with the traceback below)", file=sys.stderr)
+        traceback.print_exc()
+        return 1
 
 
 if __name__ == "__main__":

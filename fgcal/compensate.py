@@ -92,20 +92,24 @@ def compensate(
     targets: np.ndarray,
     hints: np.ndarray | None,
     tcp: np.ndarray | None = None,
+    frame: str = "tool",
 ) -> Compensation:
     """Joints on the calibrated ``robot`` for ``targets`` (N, 3) or (N, 4, 4), and the
-    commands (the ``nominal`` model's TCP pose there). Without hints each target starts from
-    the nominal model's IK solution from zero joints."""
+    commands (the ``nominal`` model's TCP pose there); the TCP ``tcp`` is fixed in ``frame``
+    (tool or flange). Without hints each target starts from the nominal model's IK solution
+    from zero joints."""
     tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
     if hints is None:
-        hints = default_hints(nominal, targets, tcp)
-    solved = robot.ik(targets, hints, tcp=tcp)
-    commands = nominal.fk_tool(solved.q).copy()  # (N, 4, 4)
+        hints = default_hints(nominal, targets, tcp, frame=frame)
+    solved = robot.ik(targets, hints, tcp=tcp, frame=frame)
+    commands = (nominal.fk_tool if frame == "tool" else nominal.fk)(solved.q).copy()  # (N, 4, 4)
     commands[:, :3, 3] += commands[:, :3, :3] @ tcp
     return Compensation(solved.q, commands, solved.residual_m, solved.residual_rad, solved.status)
 
 
-def default_hints(nominal: Robot, targets: np.ndarray, tcp: np.ndarray, starts: int = 8) -> np.ndarray:
+def default_hints(
+    nominal: Robot, targets: np.ndarray, tcp: np.ndarray, starts: int = 8, frame: str = "tool"
+) -> np.ndarray:
     """Without a program's joints: the nominal model's IK from the middle of the joint ranges,
     then from seeded random starts within the limits, keeping the first solution within them."""
     low, high = nominal.limits[:, 0], nominal.limits[:, 1]
@@ -114,7 +118,7 @@ def default_hints(nominal: Robot, targets: np.ndarray, tcp: np.ndarray, starts: 
     settled = np.zeros(len(targets), dtype=bool)
     for k in range(starts):
         start = hints if k == 0 else rng.uniform(low, high, hints.shape)
-        solved = nominal.ik(targets, start, tcp=tcp)
+        solved = nominal.ik(targets, start, tcp=tcp, frame=frame)
         good = ~settled & np.isin(solved.status, ("ok", "near singularity"))
         hints[good] = solved.q[good]
         settled |= good

@@ -41,18 +41,14 @@ def calibrate(config, progress=None):
     CLI does (when the dataset has one)."""
     from fgcal.calibration import run, scoring
 
-    result = run.calibrate(config, progress)
-    scoring.score_with_truth(result)
-    return result
+    return scoring.score_with_truth(run.calibrate(config, progress))
 
 
 def calibrate_dataset(dataset, config, progress=None):
     """fgcal.calibration.run.calibrate_dataset, then scored against the truth (if any)."""
     from fgcal.calibration import run, scoring
 
-    result = run.calibrate_dataset(dataset, config, progress)
-    scoring.score_with_truth(result)
-    return result
+    return scoring.score_with_truth(run.calibrate_dataset(dataset, config, progress))
 
 
 def random_urdf(path: Path, rng: np.random.Generator, n_joints: int = 6, prismatic: int | None = None) -> Path:

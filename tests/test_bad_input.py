@@ -184,7 +184,7 @@ def test_yaml_float_without_dot_is_read_as_the_number(tmp_path):
 
     config = tmp_path / "c.yaml"
     config.write_text("dataset: x\nnoise: {camera_point_sigma: 1e-4}\n", encoding="utf-8")
-    assert load_config(config).camera_point_sigma_m == 1e-4
+    assert load_config(config).noise.camera_point_m == 1e-4
 
 
 def _reject_constant(name: str):
@@ -229,8 +229,8 @@ def test_an_unreachable_cell_fails_fast_naming_the_cell(tmp_path, capsys, alarm)
     ids=["format", "short_xyz", "no_mounting", "unknown_key", "malformed"],
 )
 def test_a_damaged_estimates_file_names_the_field(tmp_path, text, field):
-    from fgcal.calibration.estimates import load_estimates
     from fgcal.errors import InputError
+    from fgcal.reports.estimates import load_estimates
 
     path = tmp_path / "estimates.yaml"
     path.write_text(text, encoding="utf-8")

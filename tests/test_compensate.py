@@ -29,10 +29,10 @@ def test_compensation_on_the_simulated_true_robot(calibrated):
 
     study = compensation_study(calibrated, n_targets=200, seed=0)
     held_out = calibrated.validation["after"]["tool_point"].rms
-    assert study["n_scored"] >= 190, study
-    assert study["compensated_rms_m"] <= 1.5 * held_out, (study, held_out)
-    assert study["uncompensated_rms_m"] >= 100 * study["compensated_rms_m"], study
-    assert study["model_residual_max_m"] < 1e-9
+    assert study.n_scored >= 190, study
+    assert study.compensated_rms_m <= 1.5 * held_out, (study, held_out)
+    assert study.uncompensated_rms_m >= 100 * study.compensated_rms_m, study
+    assert study.model_residual_max_m < 1e-9
 
 
 def test_unreachable_targets_are_flagged_not_fatal(calibrated):

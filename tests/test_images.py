@@ -114,7 +114,7 @@ def test_bad_images_are_skipped_and_reported(rendered, tmp_path):
     assert "cannot read" in reasons[dataset.configs[0]] and "no markers" in reasons[dataset.configs[1]]
     assert "missing" in reasons[dataset.configs[2]]
     result = calibrate(CalibrationConfig.defaults(copied, formulation="projection", pixels_from="images"))
-    assert len(result.problem.skipped_images) == 3
+    assert len(result.problem.detection.skipped) == 3
     assert result.validation["after"]["tool_point"].rms < 1e-4
 
 

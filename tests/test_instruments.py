@@ -17,7 +17,6 @@ import yaml
 from conftest import REPO, calibrate
 
 from fgcal.calibration.config import CalibrationConfig
-from fgcal.calibration.prediction import predicted_held_out
 from fgcal.calibration.run import calibrate as calibrate_untouched
 from fgcal.dataset import load_dataset
 from fgcal.errors import InputError
@@ -62,14 +61,14 @@ def test_each_instrument_calibrates_end_to_end(sims, setup, seed):
     measured = calibrate_untouched(config)  # not scored with the truth: the held-out measurements
     assert measured.fit.consistent
     score = {"poses": "tool_point", "distances": "distance", "static_camera": "reprojection"}[config.formulation]
-    predicted = predicted_held_out(measured, against_truth=False)["rms"]
+    predicted = measured.measured_prediction.rms
     assert measured.validation["after"][score].rms <= 1.5 * predicted
 
     result = calibrate(config)
     assert result.truth is not None
     before = result.validation["before"]["tool_point"].rms
     after = result.validation["after"]["tool_point"].rms
-    assert after <= 1.5 * predicted_held_out(result, against_truth=True)["rms"]
+    assert after <= 1.5 * result.prediction.rms
     assert after * 50 <= before
 
 
@@ -87,13 +86,13 @@ def test_the_static_camera_and_the_board_are_estimated(sims):
     """The camera's pose and the board's mounting are unknowns: they come back with sigmas in
     estimates.yaml, and the camera's position is close to the truth (the base is nominal: W is
     the nominal base frame, whose true pose differs by the base perturbation, up to 5 mm)."""
-    from fgcal.calibration.estimates import estimates_document
+    from fgcal.reports.estimates import estimates_document
 
     result = calibrate(_config(sims, "static_camera", 2))
     doc = estimates_document(result)
     assert set(doc) >= {"static_camera", "tool_frame"} and doc["static_camera"]["sigma"] is not None
-    true_camera = result.truth["static_camera"]["pose"]["xyz"]
-    estimated = np.linalg.inv(result.state.tracker_pose)[:3, 3]
+    true_camera = result.truth.static_camera_pose[:3, 3]
+    estimated = np.linalg.inv(result.state.value("static_camera"))[:3, 3]
     assert np.linalg.norm(estimated - true_camera) < 0.02
 
 
@@ -125,7 +124,7 @@ def test_positioner_with_a_static_camera_calibrates_with_defaults(tmp_path):
     assert {"static_camera", "tool_frame"} <= set(estimates)
 
     measured = calibrate_untouched(CalibrationConfig.defaults(tmp_path / "data", formulation="static_camera"))
-    predicted = predicted_held_out(measured, against_truth=False)["rms"]
+    predicted = measured.measured_prediction.rms
     assert measured.validation["after"]["reprojection"].rms <= 1.5 * predicted
 
 
@@ -209,5 +208,5 @@ def test_a_validation_set_of_distances_between_configurations(sims, tmp_path):
     result = calibrate_untouched(config)
     n = len(load_dataset(validation).configs)
     assert len(result.problem.test) == n and len(result.problem.fit) == n
-    predicted = predicted_held_out(result, against_truth=False)["rms"]
+    predicted = result.measured_prediction.rms
     assert result.validation["after"]["distance"].rms <= 1.5 * predicted

@@ -1,4 +1,6 @@
-"""The package's layout: no import circles between fgcal's modules (lazy imports included)."""
+"""The package's layout: its layers, each importing only its own and lower ones, and no import
+circles between fgcal's modules. Every import counts: lazy ones inside functions and typed ones
+under TYPE_CHECKING alike, so a dependency cannot hide in an annotation."""
 
 from __future__ import annotations
 
@@ -79,3 +81,45 @@ def test_no_import_circles():
         if path.name != "__init__.py"
     }
     assert _cycles(graph) == []
+
+
+# Lowest first. A module belongs to the first layer with a matching prefix; every module must
+# belong to one (a new module states its layer here).
+LAYERS = (
+    ("core", ("fgcal.errors", "fgcal.fields", "fgcal.units", "fgcal.strict_json", "fgcal.parameters", "fgcal.se3")),
+    (
+        "model",
+        ("fgcal.ets", "fgcal.joints", "fgcal.kinematics", "fgcal.robot", "fgcal.robot_io", "fgcal.urdf_io",
+         "fgcal.ik", "fgcal.camera", "fgcal.boards"),
+    ),
+    ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensate")),
+    ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),
+    ("calibration", ("fgcal.calibration",)),
+    ("online and planning", ("fgcal.online", "fgcal.planning")),
+    ("reports and commands", ("fgcal.reports", "fgcal.bench", "fgcal.cli", "fgcal.__main__")),
+)  # fmt: skip
+
+
+def _layer(module: str) -> int:
+    for rank, (_, prefixes) in enumerate(LAYERS):
+        if any(module == p or module.startswith(p + ".") for p in prefixes):
+            return rank
+    raise AssertionError(f"{module} belongs to no layer: add it to LAYERS in tests/test_layout.py")
+
+
+def test_layers_import_only_downward():
+    modules = {name: path for name, path in _modules().items() if name != "fgcal"}
+    upward = []
+    for name, path in modules.items():
+        for target in _imports(name, path, modules):
+            if target != "fgcal" and _layer(target) > _layer(name):
+                upward.append(f"{name} ({LAYERS[_layer(name)][0]}) imports {target} ({LAYERS[_layer(target)][0]})")
+    assert upward == []
+
+
+def test_the_layer_test_sees_typed_imports(tmp_path):
+    """An import under TYPE_CHECKING is an import: the check that fails on it, works."""
+    path = tmp_path / "m.py"
+    path.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fgcal.reports import calibration\n")
+    modules = {**_modules(), "fgcal.calibration.m": path}
+    assert "fgcal.reports.calibration" in _imports("fgcal.calibration.m", path, modules)

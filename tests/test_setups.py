@@ -15,7 +15,6 @@ import yaml
 from conftest import REPO, calibrate
 
 from fgcal.calibration.config import CalibrationConfig
-from fgcal.calibration.prediction import predicted_held_out
 from fgcal.calibration.run import calibrate as calibrate_untouched
 from fgcal.dataset import load_dataset
 from fgcal.errors import InputError
@@ -51,7 +50,7 @@ def test_touch_points_calibrate_a_seven_axis_urdf_arm(touch_sims, seed):
     assert dataset.robot.n_joints == 7 and str(dataset.header["robot"]).endswith(".urdf")
     config = CalibrationConfig.defaults(touch_sims[seed], **TOUCH_CONFIG)
     measured = calibrate_untouched(config)  # not scored with the truth: the held-out touches
-    predicted = predicted_held_out(measured, against_truth=False)["rms"]
+    predicted = measured.measured_prediction.rms
     assert measured.validation["after"]["tool_point"].rms <= 1.5 * predicted
     assert measured.fit.consistent
 
@@ -59,7 +58,7 @@ def test_touch_points_calibrate_a_seven_axis_urdf_arm(touch_sims, seed):
     assert result.truth is not None
     before = result.validation["before"]["tool_point"].rms
     after = result.validation["after"]["tool_point"].rms
-    assert after <= 1.5 * predicted_held_out(result, against_truth=True)["rms"]
+    assert after <= 1.5 * result.prediction.rms
     assert after * 50 <= before
 
 
@@ -165,9 +164,9 @@ def test_positioner_with_far_reflectors_starts_right_with_defaults(tmp_path, see
     simulate(_positioner_cell(tmp_path, 0.0), tmp_path / "data", seed=seed)
     config = CalibrationConfig.defaults(tmp_path / "data", formulation="tracker", noise={"tracker_sigma": 2e-5})
     result = calibrate(config)
-    assert result.stages[0].residual_rms < 1e-3
+    assert result.stages[0].residual_rms["m"] < 1e-3
     before, after = (result.validation[k]["tool_point"].rms for k in ("before", "after"))
-    assert after <= 1.5 * predicted_held_out(result, against_truth=True)["rms"] and after * 20 <= before
+    assert after <= 1.5 * result.prediction.rms and after * 20 <= before
 
 
 def test_data_that_do_not_fit_are_refused_without_writing_a_robot(tmp_path):
@@ -299,9 +298,9 @@ def test_a_separate_validation_set_scores_its_own_test_point(validation_sets, de
     )
     result = calibrate_untouched(config)
     assert len(result.problem.fit) == 100 and len(result.problem.test) == 40
-    assert result.problem.targets == ["t1", "t2", "t3"]
+    assert result.problem.observations.names == ("t1", "t2", "t3")
     before, after = (result.validation[k]["tool_point"].rms for k in ("before", "after"))
-    assert after <= 1.5 * predicted_held_out(result, against_truth=False)["rms"] and after * 20 <= before
+    assert after <= 1.5 * result.measured_prediction.rms and after * 20 <= before
 
 
 def test_a_validation_set_of_another_robot_is_refused(validation_sets, tmp_path):

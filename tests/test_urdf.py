@@ -180,7 +180,6 @@ def test_urdf_robot_simulated_and_calibrated_end_to_end(tmp_path):
     from conftest import SEED_CELL, calibrate
 
     from fgcal.calibration.config import CalibrationConfig
-    from fgcal.calibration.prediction import predicted_held_out
     from fgcal.simulation.simulate import simulate
 
     export_urdf(fgcal.load_robot("kuka_kr125_2"), tmp_path / "kr125.urdf")
@@ -192,7 +191,7 @@ def test_urdf_robot_simulated_and_calibrated_end_to_end(tmp_path):
     result = calibrate(CalibrationConfig.defaults(tmp_path / "sim", formulation="tracker"))
     assert result.truth is not None
     before, after = result.validation["before"]["tool_point"].rms, result.validation["after"]["tool_point"].rms
-    predicted = predicted_held_out(result, against_truth=True)["rms"]
+    predicted = result.prediction.rms
     assert after < before / 100, (before, after)
     assert after <= 1.5 * predicted, (after, predicted)
     assert any(name.startswith(("tx", "rx", "ry")) for name in result.identifiability.identifiable)

@@ -63,16 +63,17 @@ def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
     """Whitened Jacobians of the measurement residuals (no robust loss) w.r.t. the released
     parameters and the auxiliary unknowns, at the stage's values: (rows x m), (rows x n_aux)."""
     aux_offsets, offset = {}, 0
-    for key, (_, dim) in stage.aux.items():
-        aux_offsets[key] = offset
-        offset += dim
+    for name, (key, dim) in stage.dims.items():
+        if name != "P":
+            aux_offsets[key] = offset
+            offset += dim
     rows_p, rows_aux = [], []
     for measurements in stage.measurements:
         evaluation = measurements.whitened(measurements.read(stage.values), True, robust=False)
-        J_p = np.zeros((measurements.n_rows, stage.model.n_released))
+        J_p = np.zeros((measurements.n_rows, stage.kinematics.n_released))
         J_aux = np.zeros((measurements.n_rows, offset))
         for block, (key, _, dim) in zip(evaluation.blocks, measurements.variables, strict=True):
-            if key == stage.params_key:
+            if key == stage.keys.params:
                 J_p += block
             else:
                 J_aux[:, aux_offsets[key] : aux_offsets[key] + dim] += block
@@ -83,7 +84,8 @@ def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
 
 def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
     J_p, J_aux = reduced_jacobian(stage)
-    moments = stage.model.data(stage.model.base[stage.model.index]).moments
+    kinematics = stage.kinematics
+    moments = kinematics.data(kinematics.base[kinematics.index]).moments
     return select(J_p, J_aux, stage.released, moments, min_information)
 
 

@@ -14,38 +14,44 @@ parameters); ``model: auto`` calibrates with it.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import replace
 
 from ..robot import MODELS
+from .config import CalibrationConfig
+from .results import CalibrationResult, ModelRow, primary_score
 
 
-def compare_models(calibrate_one: Callable, config, say: Callable[[str], None]) -> tuple[object, list[dict]]:
+def compare_models(
+    calibrate_one: Callable[[CalibrationConfig], CalibrationResult],
+    config: CalibrationConfig,
+    say: Callable[[str], None],
+) -> tuple[CalibrationResult, tuple[ModelRow, ...]]:
     """Calibrate with each model; returns the result of the one with the lowest BIC and the
-    comparison table (one dict per model, SI)."""
-    results, table = {}, []
+    comparison table (one row per model, SI)."""
+    results, rows = {}, []
     for model in MODELS:
         say(f"model comparison: {model}")
+        started = time.perf_counter()
         result = calibrate_one(replace(config, model=model, compare_models=False))
         results[model] = result
         fit = result.fit
         n = result.problem.n_residuals
         k = len(result.released) + result.state.n_auxiliary
         log_term = n * math.log(max(fit.chi2, 1e-300) / n)
-        scored = result.validation.get("after", {})
-        held_out = next((stats.rms for stats in scored.values() if stats.errors.size), None)
-        table.append(
-            {
-                "model": model,
-                "n_unknowns": k,
-                "chi2_per_dof": fit.chi2_per_dof,
-                "held_out_rms_m": held_out,
-                "aic": log_term + 2 * k,
-                "bic": log_term + k * math.log(n),
-            }
+        scored = primary_score(result.validation, "after")
+        rows.append(
+            ModelRow(
+                model=model,
+                n_unknowns=k,
+                chi2_per_dof=fit.chi2_per_dof,
+                held_out_rms_m=scored[1].rms if scored is not None else None,
+                aic=log_term + 2 * k,
+                bic=log_term + k * math.log(n),
+                time_s=time.perf_counter() - started,
+            )
         )
-    best = min(table, key=lambda row: row["bic"])["model"]
-    for row in table:
-        row["supported"] = row["model"] == best
+    best = min(rows, key=lambda row: row.bic).model
     say(f"model comparison: the data support {best} (lowest BIC)")
-    return results[best], table
+    return results[best], tuple(replace(row, supported=row.model == best) for row in rows)

@@ -1,145 +1,507 @@
-"""The calibration problem: configurations split into fitting and validation sets, the
-candidate parameters, and the measurements of the chosen formulation.
+"""The calibration problem and the formulation protocol.
 
-Pair selection (the seed's relative formulation): the fitting images are split into
-groups of ``pairs.group_images`` images by a seeded random draw; each next image of a group
-is drawn, where possible, from the category the config asks for relative to the previous
-one (default: another object, which the seed found essential). A group's factor carries
-every point pair among its observations through orthonormal contrasts (see
-fgcal.factors.PointPairFactor), so each observation belongs to exactly one factor and the
-factors' noise is independent and exact. With four points per image and G images, a group
-keeps 4G - 1 of its 4G coordinates' worth of information; the lost one is the unobservable
-common position.
+A :class:`Problem` is constant once built: the dataset, the robot with the chosen model, the
+split into fitting and held-out configurations, the candidate parameters, and the fitting
+observations of its :class:`Formulation`. What varies between calibrations of different
+setups (a camera on the flange, a laser tracker, a ballbar, ...) is the formulation: one module
+each in fgcal.calibration.formulations, each implementing the protocol below, and the
+pipeline (fgcal.calibration.run) calls only the protocol.
+
+A formulation knows:
+
+- its observations, typed, built from a dataset and a subset of its configurations;
+- its auxiliary unknowns and their starting values (:meth:`Formulation.initial_state`);
+- its measurement sets, the GTSAM factors (:meth:`Formulation.measurement_sets`), written
+  once and used for the fit, for the held-out score and for the score's prediction;
+- how its held-out score is read off the measurement set, and what a simulation's truth
+  says about its unknowns (:meth:`Formulation.true_state`, :meth:`Formulation.scored`);
+- the gauge of its score, and the likely causes of a first stage that cannot fit.
 """
 
 from __future__ import annotations
 
-import copy
-from collections import Counter
-from dataclasses import dataclass, field
+from abc import ABC, abstractmethod
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import ClassVar
 
+import gtsam
 import numpy as np
 
-from ..camera import solve_pnp
 from ..dataset import Dataset, Table
 from ..errors import InputError
+from ..factors import MeasurementSet, RobustLoss
 from ..parameters import default_compliant_joints, split_name
 from ..robot import Robot
-from ..se3 import pose, quaternion_rotation
-from .config import CalibrationConfig
+from ..truth import Truth
+from .batch import BatchKinematics
+from .settings import MeasurementSettings
+from .state import State
 
-CATEGORIES = ("same_image", "same_side", "same_object", "other_object")
-
-
-@dataclass
-class PairGroup:
-    """Observations of a group of images: fitting-set index of each image, and per
-    observation the image it belongs to, the camera-frame point and the drawing point."""
-
-    images: list[int]
-    owner: np.ndarray  # observation -> position in images
-    c: np.ndarray
-    p_F: np.ndarray
-    labels: list[tuple[str, str]]  # (object, side) of each image
-    names: list[str] = field(default_factory=list)  # point name of each observation
+# -- observations -------------------------------------------------------------------------
 
 
-@dataclass
-class Problem:
-    config: CalibrationConfig
-    dataset: Dataset
-    robot: Robot
-    frame: str
-    fit: np.ndarray  # indices into dataset configurations
-    test: np.ndarray
-    candidates: list[str]
-    pairs: list[PairGroup] = field(default_factory=list)
-    fixture_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
-    tracker_obs: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (fit index, target, m)
-    pixel_obs: list[tuple[int, np.ndarray, np.ndarray, str]] = field(
-        default_factory=list
-    )  # (fit index, p_F, px, point)
-    targets: list[str] = field(default_factory=list)
-    touch_obs: list[tuple[int, int]] = field(default_factory=list)  # (fit index, touch point index)
-    touch_points: list[str] = field(default_factory=list)  # names of the fixed points (sockets)
-    spacings: list[tuple[int, int, float]] = field(default_factory=list)  # (point, point, distance m)
-    pose_obs: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (fit index, measured 4x4 pose)
-    # (fit index, pivot or -1, distance m, other configuration's fit index or -1)
-    distance_obs: list[tuple[int, int, float, int]] = field(default_factory=list)
-    pivots: list[str] = field(default_factory=list)  # names of a ballbar's fixed pivots
-    skipped_images: list[tuple[str, str]] = field(default_factory=list)
-    rejected: list[dict] = field(default_factory=list)  # outliers removed: config, kind, point or target, size
-    detection: dict = field(default_factory=dict)
+@dataclass(frozen=True)
+class Observations:
+    """Measurements of a formulation at a set of configurations: the configurations' ids and
+    joint angles (what the measurement sets' kinematics are evaluated at), and per robust unit
+    the index of its configuration and the name of what it measures (for rejection records).
+    Formulations add their own arrays."""
 
-    @property
-    def q_fit(self) -> np.ndarray:
-        return self.dataset.q[self.fit]
+    config_ids: np.ndarray  # (N,) ids of the configurations the observations index
+    q: np.ndarray  # (N, n) rad
 
     @property
     def n_residuals(self) -> int:
-        if self.config.formulation == "pairs":
-            return sum(3 * (len(p.c) - 1) for p in self.pairs)
-        if self.config.formulation in ("projection", "static_camera"):
-            return 2 * len(self.pixel_obs)
-        if self.config.formulation == "poses":
-            return 6 * len(self.pose_obs)
-        if self.config.formulation == "distances":
-            return len(self.distance_obs)
-        if self.config.formulation == "touch":
-            return 3 * len(self.touch_obs) + len(self.spacings)
-        return 3 * len(self.tracker_obs)
+        raise NotImplementedError
 
-    def pair_categories(self) -> dict[str, int]:
-        """Point pairs of each category carried by the factors (every pair within a group)."""
-        counts: Counter = Counter()
-        for group in self.pairs:
-            sizes = Counter(group.owner.tolist())
-            for a in sizes:
-                counts["same_image"] += sizes[a] * (sizes[a] - 1) // 2
-                for b in sizes:
-                    if a < b:
-                        counts[category(group.labels[a], group.labels[b])] += sizes[a] * sizes[b]
-        return {c: counts.get(c, 0) for c in CATEGORIES}
+    def unit_label(self, unit: int) -> tuple[str, str]:
+        """(configuration id, name of the point, target or pivot) of a robust unit."""
+        raise NotImplementedError
+
+    def select(self, keep: np.ndarray) -> Observations:
+        """The observations whose robust units ``keep`` (a boolean mask) marks."""
+        raise NotImplementedError
 
 
-def category(a: tuple[str, str], b: tuple[str, str]) -> str:
-    """Pair category of two images from their (object, side)."""
-    if a[0] != b[0]:
-        return "other_object"
-    return "same_side" if a[1] == b[1] else "same_object"
+def take(observations: Observations, keep: np.ndarray, names: Sequence[str]) -> dict:
+    """``{name: array[keep]}`` for per-unit arrays of ``observations``: a helper of select."""
+    return {name: getattr(observations, name)[keep] for name in names}
 
 
-def fitting_rows(problem: Problem, table: Table, key: str, subset: np.ndarray | None = None):
-    """(index in the subset, id in column ``key``, values) of each row of ``table`` that belongs
-    to a configuration of ``subset`` (default the fitting set); other rows are left out."""
-    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
-    fit_pos = {int(c): i for i, c in enumerate(problem.fit if subset is None else subset)}
+@dataclass(frozen=True)
+class Rejection:
+    """A measurement removed as a gross error (``held_out``: flagged among the held-out ones
+    and left out of their score); its size in sigmas and in the measurement's unit."""
+
+    config: str
+    kind: str  # the measurement table: tracker_points, pixels, camera_points, ...
+    name: str  # what it measures: a point, a target, a pivot
+    size_sigma: float
+    size: float
+    unit: str  # m or px
+    held_out: bool = False
+    name_key: str = "point"  # report.json's key of the name: point or target
+
+    def as_dict(self) -> dict:
+        out = {"config": self.config, "kind": self.kind, self.name_key: self.name, "size_sigma": self.size_sigma}
+        out[f"size_{self.unit}"] = self.size
+        if self.held_out:
+            out["held_out"] = True
+        return out
+
+
+@dataclass(frozen=True)
+class Detection:
+    """What marker detection found in a dataset's images (pixels_from: images)."""
+
+    images: int
+    corners: int
+    rejected_by_gate: int
+    skipped: tuple[tuple[str, str], ...]  # (configuration id, reason)
+
+    def as_dict(self) -> dict:
+        return {
+            "images": self.images,
+            "skipped": len(self.skipped),
+            "corners": self.corners,
+            "rejected_by_gate": self.rejected_by_gate,
+        }
+
+
+# -- the problem ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One calibration problem; constant: outlier rejection builds a new one (``with_fit``)."""
+
+    formulation: Formulation
+    settings: MeasurementSettings
+    dataset: Dataset
+    robot: Robot  # the dataset's robot with the config's model
+    fit: np.ndarray  # indices into dataset configurations
+    test: np.ndarray
+    candidates: tuple[str, ...]
+    observations: Observations  # of the fitting configurations
+    length_bound_m: float  # sigma of the soft bounds of the joint lengths around nominal
+    max_iterations: int  # of the optimiser, per stage
+    rejected: tuple[Rejection, ...] = ()
+    detection: Detection | None = None
+
+    @property
+    def frame(self) -> str:
+        return self.formulation.frame
+
+    @property
+    def n_residuals(self) -> int:
+        return self.observations.n_residuals
+
+    def with_fit(self, observations: Observations, rejected: Sequence[Rejection]) -> Problem:
+        return replace(self, observations=observations, rejected=(*self.rejected, *rejected))
+
+    def kinematics(self, state: State, released: Sequence[str], q: np.ndarray) -> BatchKinematics:
+        """The formulation's frame at ``q`` as a function of the ``released`` parameters, the
+        others at the state's values."""
+        return BatchKinematics(self.robot, state.params, released, q, self.frame)
+
+
+@dataclass(frozen=True)
+class Keys:
+    """GTSAM keys of a graph's variables: the parameter vector (None when nothing is released)
+    and each auxiliary unknown by name."""
+
+    params: int | None
+    aux: dict[str, int]
+
+    def __getitem__(self, name: str) -> int:
+        return self.aux[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.aux
+
+
+P_KEY = gtsam.symbol("p", 0)
+
+
+def keys_of(state: State, released: bool) -> Keys:
+    """Keys for a state's unknowns: P, then the auxiliary unknowns in their order."""
+    return Keys(P_KEY if released else None, {name: gtsam.symbol("x", i) for i, name in enumerate(state.aux)})
+
+
+def values_of(state: State, keys: Keys, released_values: np.ndarray | None = None) -> gtsam.Values:
+    """A state's unknowns as GTSAM values at ``keys`` (P at ``released_values``)."""
+    values = gtsam.Values()
+    if keys.params is not None:
+        values.insert(keys.params, np.asarray(released_values, dtype=float))
+    for name, aux in state.aux.items():
+        values.insert(keys[name], aux.to_gtsam())
+    return values
+
+
+def read_state(state: State, keys: Keys, values: gtsam.Values, kinematics: BatchKinematics) -> State:
+    """The state whose released parameters and auxiliary unknowns are those of ``values``."""
+    params = kinematics.full(values.atVector(keys.params)) if keys.params is not None else state.params.copy()
+    aux = {name: a.from_values(values, keys[name]) for name, a in state.aux.items()}
+    return State(params, aux)
+
+
+@dataclass(frozen=True)
+class Scored:
+    """What a score against a simulation's truth measures: points s_t fixed in the robot's
+    frame (the formulation's), carried to the score's frame, ``p = L X(q) s_t``.
+
+    ``instrument`` is L (4x4; None: the score is in W); ``points_from`` and ``instrument_from``
+    name the auxiliary unknowns they are (a ``points`` unknown, or a ``pose3`` one whose origin
+    is the point), for the score's prediction; None: constants. ``extra`` are further points
+    scored on their own (name -> point in the frame)."""
+
+    points: np.ndarray  # (k, 3)
+    instrument: np.ndarray | None = None
+    points_from: str | None = None
+    instrument_from: str | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Predicted RMS (m) of a held-out score: from the estimate's uncertainty (parameters and
+    auxiliary unknowns) and, against measurements, their noise."""
+
+    rms: float
+    parameters_rms: float
+    noise_rms: float
+    variance_factor: float
+
+    def as_dict(self) -> dict:
+        return {
+            "rms": self.rms,
+            "parameters_rms": self.parameters_rms,
+            "noise_rms": self.noise_rms,
+            "variance_factor": self.variance_factor,
+        }
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Errors of a held-out score (m, px or rad as the name says) and the configuration
+    (index into the scored observations' config_ids) of each."""
+
+    errors: np.ndarray  # (K,) norms or (K, 3) vectors
+    configs: np.ndarray  # (K,)
+
+
+# -- the formulation protocol -------------------------------------------------------------------
+
+
+class Formulation(ABC):
+    """How one measurement setup enters the calibration (see the module docstring)."""
+
+    name: ClassVar[str]
+    frame: ClassVar[str]  # what the kinematics give the measurements: flange or tool
+    unit: ClassVar[str] = "m"  # of the residuals (m or px), in stage reports
+    kind: ClassVar[str]  # the measurement table, and its robust.* entry
+    rejection_name: ClassVar[str] = "point"  # report.json's key of a rejected measurement's name
+    score: ClassVar[str] = "tool_point"  # the held-out score against measurements
+    score_width: ClassVar[int] = 3  # rows of the main set's residual per scored measurement
+    score_rows: ClassVar[slice] = slice(None)  # of those, the rows the score measures
+    score_vectors: ClassVar[bool] = True  # the score's errors are 3-vectors (RMS per axis too)
+    likely_causes: ClassVar[str]
+    # What fgcal plan models of this setup's measurements at a candidate configuration:
+    # "camera" (a camera on the flange sees a block of the cell's fixture points), "tracker"
+    # (a tracker sees the cell's reflectors on the flange), or None (not planned yet).
+    planning: ClassVar[str | None] = None
+
+    # -- what the setup measures --------------------------------------------------------
+
+    @abstractmethod
+    def sigma(self, settings: MeasurementSettings) -> float:
+        """Declared noise of one residual row of the main set, in ``unit``."""
+
+    @abstractmethod
+    def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
+        """The observations of the fitting configurations; InputError when they cannot
+        calibrate (missing table, too few)."""
+
+    @abstractmethod
+    def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
+        """The held-out observations (None: nothing held out) and the held-out measurements
+        flagged as gross errors at ``state`` (left out of the score)."""
+
+    @abstractmethod
+    def initial_state(self, problem: Problem) -> State:
+        """Starting values: the nominal parameters (or a start from the data where the
+        formulation has one) and the auxiliary unknowns, from the measurements alone."""
+
+    @abstractmethod
+    def measurement_sets(
+        self,
+        problem: Problem,
+        observations: Observations,
+        kinematics: BatchKinematics,
+        keys: Keys,
+        state: State,
+        robust: RobustLoss | None,
+    ) -> list[MeasurementSet]:
+        """The measurement sets of ``observations`` on the variables ``keys`` (the first is
+        the main set: its rows are scored and its robust loss is ``robust``)."""
+
+    def gauge(self, settings: MeasurementSettings) -> str:
+        """What a score against the truth removes first: none, translation or rigid."""
+        return "none"
+
+    def fixture_rotation_unknown(self, settings: MeasurementSettings) -> bool:
+        """Whether the calibration objects' orientation in W is an unknown (fgcal plan's camera
+        model; their position always is)."""
+        return False
+
+    # -- held-out scores and their prediction --------------------------------------------
+
+    def held_out_errors(self, problem: Problem, observations: Observations, state: State) -> dict[str, HeldOut]:
+        """Errors of the held-out measurements at ``state``, read off the main measurement set:
+        per scored measurement, the score rows' norm (or vector) times metric_scale."""
+        main, inputs = main_set(problem, observations, state)
+        residual = main.compute(inputs, False).residual.reshape(-1, self.score_width)[:, self.score_rows]
+        scale = self.metric_scale(problem, main, inputs, state)
+        errors = residual * scale[:, None] if self.score_vectors else np.linalg.norm(residual, axis=1) * scale
+        out = {self.score: HeldOut(errors, self.score_configs(main))}
+        out.update(self.extra_errors(problem, main, inputs, state))
+        return out
+
+    def predicted_held_out(
+        self, problem: Problem, observations: Observations, state: State, covariance: JointCovariance, factor: float
+    ) -> Prediction | None:
+        """Predicted RMS of :meth:`held_out_errors`' main score (held_out_variances)."""
+        parameters, noise = self.held_out_variances(problem, observations, state, covariance, factor)
+        return prediction(parameters, noise, factor)
+
+    def held_out_variances(
+        self, problem: Problem, observations: Observations, state: State, covariance: JointCovariance, factor: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per scored measurement, the variance its error takes from the estimate (the main
+        set's Jacobian, score rows, through the joint covariance of the set's variables) and
+        from the noise of the score rows (scaled by the fit's variance factor ``factor``)."""
+        main, inputs = main_set(problem, observations, state, released=covariance.released)
+        evaluation = main.compute(inputs, True)
+        width = sum(dim for _, _, dim in main.variables)
+        J = np.hstack(evaluation.blocks).reshape(-1, self.score_width, width)[:, self.score_rows]
+        scale = self.metric_scale(problem, main, inputs, state)
+        parameters = through(J, covariance.block_of_keys(main, state)) * scale**2
+        rows_sigma = main.sigma.reshape(-1, self.score_width)[:, self.score_rows]
+        return parameters, factor * np.sum(rows_sigma**2, axis=1) * scale**2
+
+    def metric_scale(self, problem: Problem, main: MeasurementSet, inputs: list, state: State) -> np.ndarray:
+        """Per scored measurement, what turns its residual into metres (pixels: depth over
+        focal length); ones for metric measurements."""
+        return np.ones(main.n_rows // self.score_width)
+
+    def score_configs(self, main: MeasurementSet) -> np.ndarray:
+        """Configuration index of each scored measurement of the main set."""
+        return np.asarray(main.configs)
+
+    def extra_errors(self, problem: Problem, main: MeasurementSet, inputs: list, state: State) -> dict[str, HeldOut]:
+        """Further held-out scores (reprojection in px, orientation in rad)."""
+        return {}
+
+    # -- against a simulation's truth -----------------------------------------------------
+
+    @abstractmethod
+    def scored(self, problem: Problem, state: State) -> Scored:
+        """The points a score against the truth measures, with the state's values."""
+
+    @abstractmethod
+    def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
+        """The simulated true robot (its full model) and the truth's values of the auxiliary
+        unknowns this formulation estimates (where the score needs them)."""
+
+    # -- outliers ----------------------------------------------------------------------------
+
+    def reject(
+        self, problem: Problem, sets: list[MeasurementSet], values: gtsam.Values, scale: float
+    ) -> tuple[Observations, list[Rejection]] | None:
+        """Gross errors among the fitting observations after the last stage, when the config
+        asks for a robust loss on them: a robust unit whose whitened residual RMS exceeds
+        REJECT_SIGMA times the residuals' robust ``scale``. None when nothing is removed, or
+        when more than MAX_REJECTED_FRACTION would go (a model problem, not bad data)."""
+        if problem.settings.robust.get(self.kind) is None:
+            return None
+        main = sets[0]
+        rms = main.unit_rms(values)
+        outlier = rms > REJECT_SIGMA * scale
+        if not outlier.any() or outlier.sum() > MAX_REJECTED_FRACTION * len(outlier):
+            return None
+        sigma = float(main.sigma[-1])  # the declared sigma the set was whitened by (a pose: its position's)
+        records = []
+        for unit in np.flatnonzero(outlier):
+            config, name = problem.observations.unit_label(int(unit))
+            records.append(self.rejection(config, name, float(rms[unit]), float(rms[unit]) * sigma))
+        return problem.observations.select(~outlier), records
+
+    def rejection(self, config: str, name: str, sigmas: float, size: float, held_out: bool = False) -> Rejection:
+        return Rejection(config, self.kind, name, sigmas, size, self.unit, held_out, self.rejection_name)
+
+    # -- what else a calibration hands on ---------------------------------------------------
+
+    def details(self, problem: Problem) -> dict:
+        """What else report.json says about this formulation's data (SI)."""
+        return {}
+
+    def default_tool_point(self, problem: Problem, state: State) -> np.ndarray:
+        """The point (in the formulation's frame) a report scores and a compensation drives."""
+        return self.scored(problem, state).points[0].copy()
+
+
+REJECT_SIGMA = 5.0
+MAX_REJECTED_FRACTION = 0.1
+
+
+# -- shared by the formulations and the pipeline ------------------------------------------------
+
+
+class JointCovariance:
+    """Covariance of the released parameters and the auxiliary unknowns together (SI, tangent
+    spaces for poses), by name (``P`` for the parameter vector)."""
+
+    def __init__(self, offsets: dict[str, tuple[int, int]], matrix: np.ndarray, released: Sequence[str]) -> None:
+        self.offsets = offsets
+        self.matrix = matrix
+        self.released = list(released)
+
+    def block(self, names: Sequence[str]) -> np.ndarray:
+        index = np.concatenate([np.arange(a, a + d) for a, d in (self.offsets[n] for n in names)])
+        return self.matrix[np.ix_(index, index)]
+
+    def sigmas(self, name: str) -> np.ndarray | None:
+        if name not in self.offsets:
+            return None
+        return np.sqrt(np.clip(np.diag(self.block([name])), 0.0, None))
+
+    def scaled(self, factor: float) -> JointCovariance:
+        return JointCovariance(self.offsets, self.matrix * factor, self.released)
+
+    def block_of_keys(self, measurements: MeasurementSet, state: State) -> np.ndarray:
+        """The block of a measurement set's variables, in its order (built by main_set)."""
+        keys = keys_of(state, bool(self.released))
+        by_key = {keys.params: "P", **{key: name for name, key in keys.aux.items()}}
+        return self.block([by_key[key] for key, _, _ in measurements.variables])
+
+
+def main_set(
+    problem: Problem, observations: Observations, state: State, released: Sequence[str] = ()
+) -> tuple[MeasurementSet, list]:
+    """The main measurement set of ``observations`` at ``state`` (P over ``released``, for
+    Jacobians) and its inputs."""
+    kinematics = problem.kinematics(state, released, observations.q)
+    keys = keys_of(state, bool(released))
+    sets = problem.formulation.measurement_sets(problem, observations, kinematics, keys, state, None)
+    values = values_of(state, keys, kinematics.base[kinematics.index])
+    return sets[0], sets[0].read(values)
+
+
+def through(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Trace of J C J^T per item: J (n, k, m), C (m, m)."""
+    return np.einsum("oij,jk,oik->o", J, covariance, J)
+
+
+def prediction(parameters: np.ndarray, noise: np.ndarray, factor: float) -> Prediction | None:
+    """A Prediction from per-item variances from the estimate and from the noise."""
+    if not len(parameters):
+        return None
+    p, n = float(np.mean(parameters)), float(np.mean(noise))
+    return Prediction(float(np.sqrt(p + n)), float(np.sqrt(p)), float(np.sqrt(n)), factor)
+
+
+def rows_of(dataset: Dataset, table: Table, key: str, subset: np.ndarray) -> Iterator[tuple[int, str, np.ndarray]]:
+    """(index in ``subset``, id in column ``key``, values) of each row of ``table`` that belongs
+    to a configuration of ``subset`` (indices into the dataset's configurations)."""
+    config_pos = {c: i for i, c in enumerate(dataset.configs)}
+    subset_pos = {int(c): i for i, c in enumerate(subset)}
     for cid, name, values in zip(table.ids["config"], table.ids[key], table.values, strict=True):
-        index = fit_pos.get(config_pos[cid])
+        index = subset_pos.get(config_pos[cid])
         if index is not None:
-            yield index, name, values
+            yield index, str(name), values
 
 
-def compliant_joints(robot: Robot, config: CalibrationConfig) -> tuple[int, ...]:
+def measured_table(dataset: Dataset, table: str, formulation: str) -> Table:
+    """The dataset's table that the formulation needs, or an error naming it."""
+    if table not in dataset.tables:
+        raise InputError(dataset.path / "dataset.yaml", "measured", f"the {formulation} formulation needs {table}")
+    return dataset.tables[table]
+
+
+def subset_of(dataset: Dataset, subset: np.ndarray) -> dict:
+    """The configuration ids and joint angles of ``subset``: the base of its Observations."""
+    subset = np.asarray(subset, dtype=int)
+    return {"config_ids": np.asarray(dataset.configs, dtype=object)[subset], "q": dataset.q[subset]}
+
+
+def source_of(settings: MeasurementSettings) -> Path:
+    return settings.source
+
+
+# -- candidates and the split ---------------------------------------------------------------
+
+
+def compliant_joints(robot: Robot, joints: tuple[int, ...] | None) -> tuple[int, ...]:
     """The config's compliant joints, or by default the seed's 1-3 that the robot has."""
-    if config.compliant_joints is None:
-        return default_compliant_joints(robot.n_joints)
-    return config.compliant_joints
+    return default_compliant_joints(robot.n_joints) if joints is None else joints
 
 
-def candidate_parameters(robot: Robot, config: CalibrationConfig) -> list[str]:
+def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | None) -> list[str]:
     """Parameters the model could estimate: the model's kinds, compliances of the compliant
     joints, base and tool. Identifiability analysis decides which the data determine."""
     kinds = {"theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"}
-    if config.model in ("DH,s", "DH,s,e"):
+    if model in ("DH,s", "DH,s,e"):
         kinds |= {"sx", "sy"}
+    compliant = compliant_joints(robot, joints)
     names = []
     for name in robot.parameter_names:
         kind, owner = split_name(name)
         if (
             isinstance(owner, str)
             or kind in kinds
-            or (config.model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in compliant_joints(robot, config))
+            or (model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in compliant)
         ):
             names.append(name)
     return names
@@ -150,290 +512,3 @@ def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     order = np.random.default_rng(seed).permutation(n)
     n_test = round(holdout * n)
     return np.sort(order[n_test:]), np.sort(order[:n_test])
-
-
-def build_problem(dataset: Dataset, config: CalibrationConfig, progress=None) -> Problem:
-    robot = dataset.robot.with_model(config.model)
-    for j in compliant_joints(robot, config):
-        if j > robot.n_joints:
-            raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
-    detections = None
-    if config.pixels_from == "images":
-        from ..markers import detect_images
-
-        detections = detect_images(dataset, progress=progress)
-        dataset = copy.copy(dataset)
-        dataset.tables = {**dataset.tables, "pixels": detections.pixels}
-    fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
-    if config.validation_dataset is not None:
-        from .validation_set import with_validation_set
-
-        dataset, validation = with_validation_set(dataset, config)
-        test = np.concatenate([test, validation])
-    problem = Problem(config, dataset, robot, config.frame, fit, test, candidate_parameters(robot, config))
-    if detections is not None:
-        problem.skipped_images = detections.skipped
-        problem.detection = {
-            "images": len(dataset.configs),
-            "skipped": len(detections.skipped),
-            "corners": detections.corners,
-            "rejected_by_gate": detections.rejected,
-        }
-    if config.formulation == "pairs":
-        _build_pairs(problem)
-    elif config.formulation in ("projection", "static_camera"):
-        _build_projection(problem)
-    elif config.formulation == "poses":
-        _build_poses(problem)
-    elif config.formulation == "distances":
-        _build_distances(problem)
-    elif config.formulation == "touch":
-        _build_touch(problem)
-    else:
-        _build_tracker(problem)
-    return problem
-
-
-def _require_pixels(dataset: Dataset, who: str) -> None:
-    if "pixels" not in dataset.tables or dataset.camera is None:
-        raise InputError(
-            dataset.path / "dataset.yaml", "measured", f"{who} the pixels table and the camera intrinsics (camera:)"
-        )
-
-
-def camera_points_from_pixels(dataset: Dataset) -> Table:
-    """3D points in the camera frame from detections: OpenCV solvePnP (IPPE) on each image's
-    points with their drawing coordinates, then ``c = T_C_F p_F``, as the seed does. Images
-    with fewer than four points are skipped."""
-    _require_pixels(dataset, "pairs from pixels need")
-    points = dataset.tables["points"]
-    where = {name: i for i, name in enumerate(points.ids["point"])}
-    table = dataset.tables["pixels"]
-    images: dict[str, list[int]] = {}
-    for row, cid in enumerate(table.ids["config"]):
-        images.setdefault(str(cid), []).append(row)
-    configs, names, values = [], [], []
-    for cid, rows in images.items():
-        if len(rows) < 4:
-            continue
-        p_F = points.values[[where[table.ids["point"][r]] for r in rows]]
-        T_C_F = solve_pnp(p_F, table.values[rows], dataset.camera)
-        if T_C_F is None:
-            continue
-        values.append(p_F @ T_C_F[:3, :3].T + T_C_F[:3, 3])
-        configs += [cid] * len(rows)
-        names += [table.ids["point"][r] for r in rows]
-    return Table(
-        {"config": np.array(configs, dtype=object), "point": np.array(names, dtype=object)},
-        np.vstack(values) if values else np.zeros((0, 3)),
-    )
-
-
-def _build_pairs(problem: Problem) -> None:
-    data, config = problem.dataset, problem.config
-    if config.pair_points_from == "pixels":
-        # The dataset itself is left as loaded; the problem works on its own copy of the tables.
-        data = problem.dataset = copy.copy(data)
-        data.tables = {**data.tables, "camera_points": camera_points_from_pixels(data)}
-    if "camera_points" not in data.tables:
-        raise InputError(
-            data.path / "dataset.yaml",
-            "measured",
-            "the pair formulation needs camera_points (3D points in the camera frame)",
-        )
-    if data.fixture_pose is not None:
-        problem.fixture_rotation = data.fixture_pose[:3, :3]
-    problem.pairs = pair_groups(problem, problem.fit)
-    if len({j for g in problem.pairs for j in g.images}) < 2:
-        raise InputError(
-            data.path / "camera_points.csv",
-            None,
-            "fewer than 2 fitting images with points: the pair formulation needs several",
-        )
-
-
-def pair_groups(problem: Problem, subset: np.ndarray, exclude: set[tuple[str, str]] = frozenset()) -> list[PairGroup]:
-    """The point-pair groups of the images of ``subset`` (configuration indices), as the
-    module docstring describes; image indices are positions in ``subset``. Observations
-    (config id, point) in ``exclude`` (rejected gross errors) are left out."""
-    data, config = problem.dataset, problem.config
-    points = data.tables["points"]
-    where = {name: i for i, name in enumerate(points.ids["point"])}
-    table = data.tables["camera_points"]
-    images: dict[int, list[tuple[int, np.ndarray]]] = {}
-    chosen = problem.fit if subset is None else subset
-    for index, point, xyz in fitting_rows(problem, table, "point", subset):
-        if (str(data.configs[chosen[index]]), str(point)) not in exclude:
-            images.setdefault(index, []).append((where[point], xyz))
-    groups: list[PairGroup] = []
-
-    def label(j: int) -> tuple[str, str]:
-        first = images[j][0][0]
-        return str(points.ids["object"][first]), str(points.ids["side"][first])
-
-    preference = {
-        "other_object": ("other_object", "same_object", "same_side"),
-        "same_object": ("same_object", "other_object", "same_side"),
-        "same_side": ("same_side", "same_object", "other_object"),
-        "any": (),
-    }[config.pair_partner]
-    rng = np.random.default_rng(config.pair_seed)
-    remaining = [int(j) for j in rng.permutation(sorted(images))]
-    size = config.group_images
-    while remaining:
-        group = [remaining.pop(0)]
-        while len(group) < size and remaining:
-            previous = label(group[-1])
-            choice = None
-            for wanted in preference:
-                options = [k for k in remaining if category(previous, label(k)) == wanted]
-                if options:
-                    choice = options[int(rng.integers(len(options)))]
-                    break
-            if choice is None:
-                choice = remaining[int(rng.integers(len(remaining)))]
-            remaining.remove(choice)
-            group.append(choice)
-        observations = [(i, point, xyz) for i, j in enumerate(group) for point, xyz in images[j]]
-        if len(observations) < 2:
-            continue
-        groups.append(
-            PairGroup(
-                images=group,
-                owner=np.array([o[0] for o in observations]),
-                c=np.array([o[2] for o in observations]),
-                p_F=points.values[[o[1] for o in observations]],
-                labels=[label(j) for j in group],
-                names=[str(points.ids["point"][o[1]]) for o in observations],
-            )
-        )
-    return groups
-
-
-def _build_projection(problem: Problem) -> None:
-    data = problem.dataset
-    _require_pixels(data, f"the {problem.config.formulation} formulation needs")
-    points = data.tables["points"]
-    where = {name: i for i, name in enumerate(points.ids["point"])}
-    table = data.tables["pixels"]
-    for index, point, uv in fitting_rows(problem, table, "point"):
-        problem.pixel_obs.append((index, points.values[where[point]], uv, str(point)))
-    if len({o[0] for o in problem.pixel_obs}) < 3:
-        raise InputError(data.path / "pixels.csv", None, "too few fitting images with pixels")
-
-
-def _build_tracker(problem: Problem) -> None:
-    data = problem.dataset
-    table = _measured(problem, "tracker_points")
-    # The targets the fit sees; one measured only at held-out configurations (a test point of a
-    # validation set) is scored through its declared or leave-one-out position.
-    problem.targets = sorted({target for _, target, _ in fitting_rows(problem, table, "target")})
-    target_index = {t: i for i, t in enumerate(problem.targets)}
-    for index, target, xyz in fitting_rows(problem, table, "target"):
-        problem.tracker_obs.append((index, target_index[target], xyz))
-    if len(problem.tracker_obs) < 3 * len(problem.targets) + 2:
-        raise InputError(
-            data.path / "tracker_points.csv",
-            None,
-            f"only {len(problem.tracker_obs)} tracker measurements in the fitting set: too few",
-        )
-
-
-def _build_touch(problem: Problem) -> None:
-    data = problem.dataset
-    table = _measured(problem, "touch_points")
-    problem.touch_points = sorted(set(table.ids["point"]))
-    index = {name: i for i, name in enumerate(problem.touch_points)}
-    for fit_index, point, _ in fitting_rows(problem, table, "point"):
-        problem.touch_obs.append((fit_index, index[point]))
-    # A point touched once only locates itself: it says nothing about the robot.
-    lonely = _fewest(problem.touch_points, [k for _, k in problem.touch_obs], 2)
-    if lonely is not None:
-        raise InputError(
-            data.path / "touch_points.csv",
-            "point",
-            f"point {lonely[0]!r} is touched {lonely[1]} times in the fitting set: "
-            "each point needs several touches in different configurations",
-        )
-    distances = data.tables.get("point_distances")
-    if distances is not None:
-        for a, b, d in zip(distances.ids["point_a"], distances.ids["point_b"], distances.values[:, 0], strict=True):
-            problem.spacings.append((index[a], index[b], float(d)))
-
-
-def _build_poses(problem: Problem) -> None:
-    data = problem.dataset
-    for index, _, values in fitting_rows(problem, _measured(problem, "tracker_poses"), "config"):
-        problem.pose_obs.append((index, pose(quaternion_rotation(values[3:]), values[:3])))
-    if len(problem.pose_obs) < 3:
-        raise InputError(
-            data.path / "tracker_poses.csv", None, f"only {len(problem.pose_obs)} poses in the fitting set: too few"
-        )
-
-
-def _build_distances(problem: Problem) -> None:
-    """Readings to pivots (``distances``) and between two configurations (``tool_distances``);
-    a reading between configurations fits when both are in the fitting set."""
-    data = problem.dataset
-    if "distances" not in data.tables and "tool_distances" not in data.tables:
-        raise InputError(
-            data.path / "dataset.yaml", "measured", "the distances formulation needs distances or tool_distances"
-        )
-    if "distances" in data.tables:
-        table = data.tables["distances"]
-        problem.pivots = sorted(set(table.ids["pivot"]))
-        index = {name: i for i, name in enumerate(problem.pivots)}
-        for fit_index, pivot, values in fitting_rows(problem, table, "pivot"):
-            problem.distance_obs.append((fit_index, index[pivot], float(values[0]), -1))
-        # Three for the pivot, three for the ball, and more for the robot.
-        few = _fewest(problem.pivots, [o[1] for o in problem.distance_obs], 6)
-        if few is not None:
-            raise InputError(
-                data.path / "distances.csv",
-                "pivot",
-                f"pivot {few[0]!r} has {few[1]} readings in the fitting set: each pivot needs "
-                "many, in clearly different configurations",
-            )
-    if "tool_distances" in data.tables:
-        for a, b, d in between_configurations(problem, data.tables["tool_distances"], problem.fit):
-            problem.distance_obs.append((a, -1, d, b))
-    if len(problem.distance_obs) < 6:
-        raise InputError(
-            data.path / "dataset.yaml",
-            "measured",
-            f"only {len(problem.distance_obs)} distances in the fitting set: too few to calibrate",
-        )
-
-
-def between_configurations(problem: Problem, table: Table, subset: np.ndarray, within: np.ndarray | None = None):
-    """(index of a, index of b, distance) of each reading between configurations a and b (rows
-    of ``table``) that involves ``subset``; indices into ``subset`` followed by ``within``
-    (default nothing more: both ends in the subset)."""
-    config_pos = {c: i for i, c in enumerate(problem.dataset.configs)}
-    order = [int(c) for c in subset] + ([int(c) for c in within] if within is not None else [])
-    position = {c: i for i, c in enumerate(order)}
-    n_subset = len(subset)
-    for a, b, values in zip(table.ids["config_a"], table.ids["config_b"], table.values, strict=True):
-        ia, ib = position.get(config_pos[a]), position.get(config_pos[b])
-        if ia is not None and ib is not None and (ia < n_subset or ib < n_subset):
-            yield ia, ib, float(values[0])
-
-
-def _measured(problem: Problem, table: str) -> Table:
-    """The dataset's table that the formulation needs, or an error naming it."""
-    data = problem.dataset
-    if table not in data.tables:
-        raise InputError(
-            data.path / "dataset.yaml", "measured", f"the {problem.config.formulation} formulation needs {table}"
-        )
-    return data.tables[table]
-
-
-def _fewest(names: list[str], indices: list[int], minimum: int) -> tuple[str, int] | None:
-    """The first of ``names`` that ``indices`` (observations' name indices) count fewer than
-    ``minimum`` times, with its count; None when every name has enough."""
-    counts = Counter(indices)
-    for k, name in enumerate(names):
-        if counts.get(k, 0) < minimum:
-            return name, counts.get(k, 0)
-    return None

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dataset import Dataset
-from .graph import chi_median
+from .goodness import chi_median
 
 WINDOW = 11  # readings in the running median that the misreads are measured from
 MISREAD_SIGMA = 5.0  # a reading this many sigmas from the running median is a misread

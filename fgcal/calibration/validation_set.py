@@ -5,7 +5,7 @@ Its configurations and measurement tables are appended to the fitting dataset's,
 prefixed with ``validation/``; the problem then holds them out like any held-out
 configuration and scores them like the fitting data. A tool point measured only in the
 validation set (a test point on the tool that the fit never saw) is declared in the config
-(``validation.tool_points``) or fitted leave-one-out (fgcal.calibration.validation).
+(``validation.tool_points``) or fitted leave-one-out (fgcal.calibration.formulations.tracker).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 
 from ..dataset import Dataset, Table, load_dataset
 from ..errors import InputError
+from .config import CalibrationConfig
 
 PREFIX = "validation/"
 # Tables that describe the cell rather than measure at configurations, and must agree.
@@ -26,7 +27,7 @@ SESSION_ONLY = ("tracker_references",)
 CONFIG_COLUMNS = ("config", "config_a", "config_b")
 
 
-def with_validation_set(dataset: Dataset, config) -> tuple[Dataset, np.ndarray]:
+def with_validation_set(dataset: Dataset, config: CalibrationConfig) -> tuple[Dataset, np.ndarray]:
     """The dataset with the validation set appended, and the indices of its configurations."""
     path = config.validation_dataset
     other = load_dataset(path)

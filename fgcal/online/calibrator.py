@@ -248,8 +248,7 @@ class OnlineCalibrator:
             if cycle is not None:
                 self._cycle_label = cycle
         if kept:
-            (factor,) = measurements.factors()
-            graph.add(factor.factor)
+            graph.add(measurements.factor().factor)
         frozen, removed = self._freeze(row)
         update = gtsam.NonlinearFactorGraph(graph)
         update.push_back(frozen)

@@ -26,8 +26,9 @@ import numpy as np
 
 from .. import kinematics
 from ..calibration.config import CalibrationConfig
+from ..calibration.formulations import formulation as registered
+from ..calibration.gauge import without_gauge
 from ..calibration.identifiability import parameter_scale, select
-from ..calibration.prediction import without_gauge
 from ..calibration.problem import candidate_parameters
 from ..robot import Robot
 from ..se3 import inverse, skew, transform_points
@@ -109,10 +110,11 @@ def build_information(
     """Rows of every candidate on the parameters identifiable from the ``reference``
     candidates (indices: a generous space-filling design, so that the plan's unknowns are
     those the cell can determine)."""
-    names = candidate_parameters(robot, config)
+    names = candidate_parameters(robot, config.model, config.compliant_joints)
     params = robot.parameter_vector()
     data = kinematics.forward(robot, params, cand.q)
-    if config.formulation == "tracker":
+    formulation = registered(config.formulation)
+    if formulation.planning == "tracker":
         J_p, J_aux = _tracker_rows(robot, data, cell, cand, names)
         sigma = cell.tracker_sigma_m
         aux_labels = ["tracker.rx", "tracker.ry", "tracker.rz", "tracker.tx", "tracker.ty", "tracker.tz"]
@@ -121,7 +123,7 @@ def build_information(
         aux_sigma += [PRIOR_SIGMA_AUX["reflector"]] * (3 * len(cell.tracker_targets))
         gauge, point, frame = "none", cell.tracker_targets[0], "flange"
     else:
-        rotation = config.formulation == "projection" or config.fixture_orientation == "estimate"
+        rotation = formulation.fixture_rotation_unknown(config.measurement)
         J_p, J_aux, p_C = _camera_rows(robot, data, cell, cand, names, rotation)
         sigma = cell.camera_point_sigma_m
         aux_labels = (["fixture.rx", "fixture.ry", "fixture.rz"] if rotation else []) + [

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import strict_json
-from ..calibration.config import FORMULATIONS, CalibrationConfig
+from ..calibration.config import CalibrationConfig
+from ..calibration.formulations import REGISTRY
 from ..dataset import write_csv
 from ..errors import InputError
 from ..robot import MODELS
@@ -124,10 +125,50 @@ class Planner:
             )
 
 
+# Formulation -> what fgcal plan models of its measurements (fgcal.calibration.problem.Formulation).
+PLANNED = {name: cls.planning for name, cls in REGISTRY.items() if cls.planning is not None}
+
+
+def instruments(cell: Cell) -> list[str]:
+    """What the cell measures with, as the planner models it: a camera, a tracker."""
+    return [kind for kind, present in (("camera", cell.camera is not None), ("tracker", cell.has_tracker)) if present]
+
+
+def choose_formulation(cell: Cell, formulation: str | None) -> str:
+    """The formulation to plan for: the one asked for, if the planner models it and the cell
+    has its instrument; by default the first formulation the cell's instruments serve."""
+    available = instruments(cell)
+    if formulation is None:
+        for name, kind in PLANNED.items():
+            if kind in available:
+                return name
+        raise InputError(
+            cell.source,
+            None,
+            "fgcal plan models a camera on the flange or a laser tracker, and this cell has neither "
+            "(touch, ballbar and static-camera cells are not planned yet)",
+        )
+    if formulation not in REGISTRY:
+        raise InputError(None, "--formulation", f"unknown formulation {formulation!r} (one of {', '.join(REGISTRY)})")
+    kind = PLANNED.get(formulation)
+    if kind is None:
+        raise InputError(
+            None, "--formulation", f"the {formulation} formulation is not planned yet (planned: {', '.join(PLANNED)})"
+        )
+    if kind not in available:
+        raise InputError(
+            cell.source,
+            kind,
+            f"the {formulation} formulation needs a {kind}, and this cell has "
+            + (" and ".join(available) if available else "neither a camera nor a tracker"),
+        )
+    return formulation
+
+
 def prepare(
     cell_path: str | Path,
     n_candidates: int = 5000,
-    formulation: str = "pairs",
+    formulation: str | None = None,
     model: str = "DH,s,e",
     seed: int = 1,
     reference_size: int = REFERENCE_SIZE,
@@ -137,19 +178,18 @@ def prepare(
     space-filling design of ``reference_size`` determines (a parameter the planned design
     cannot determine keeps its prior, its plausible deviation, in the prediction)."""
     say = progress or (lambda _msg: None)
-    if formulation not in FORMULATIONS:
-        raise InputError(None, "--formulation", f"unknown formulation {formulation!r} (one of {FORMULATIONS})")
     if model not in MODELS:
         raise InputError(None, "--model", f"unknown model {model!r} (one of {MODELS})")
     if n_candidates < 1:
         raise InputError(None, "--candidates", f"must be >= 1, got {n_candidates}")
     cell = load_cell(cell_path)
+    formulation = choose_formulation(cell, formulation)
     robot = cell.robot.with_model(model)
     cell = replace(cell, robot=robot)
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     started = time.process_time()
-    if formulation == "tracker":
+    if PLANNED[formulation] == "tracker":
         cand = joint_space_candidates(cell, n_candidates, rng)
     else:
         cand = camera_candidates(cell, n_candidates, rng, progress=say)
@@ -169,7 +209,7 @@ def plan(
     n: int,
     criterion: str = "d-optimal",
     n_candidates: int = 5000,
-    formulation: str = "pairs",
+    formulation: str | None = None,
     model: str = "DH,s,e",
     seed: int = 1,
     curve_max: int | None = None,
@@ -182,8 +222,8 @@ def plan(
     if criterion not in CRITERIA:
         raise InputError(None, "--criterion", f"unknown criterion {criterion!r} (one of {', '.join(CRITERIA)})")
     if planner is None:
-        say(f"planning {n} configurations of {cell_path} ({formulation}, {model}) by {criterion}")
         planner = prepare(cell_path, n_candidates, formulation, model, seed, max(n, REFERENCE_SIZE), say)
+        say(f"planning {n} configurations of {cell_path} ({planner.formulation}, {model}) by {criterion}")
     planner.check_size(n)
     info, cand, robot = planner.info, planner.candidates, planner.cell.robot
     timing = dict(planner.timing_s)

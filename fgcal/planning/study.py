@@ -16,11 +16,12 @@ import numpy as np
 
 from ..calibration.config import CalibrationConfig
 from ..calibration.run import calibrate
-from ..calibration.scoring import load_truth, truth_errors
+from ..calibration.scoring import truth_errors
 from ..simulation.design import max_min_selection
 from ..simulation.simulate import simulate
+from ..truth import load_truth
 from .candidates import camera_candidates, joint_space_candidates
-from .plan import plan, prepare, write_plan
+from .plan import PLANNED, plan, prepare, write_plan
 
 # The scored point: on the camera's optical axis at the middle of the designs' standoff (m).
 SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
@@ -32,9 +33,10 @@ def _score(dataset: Path, q_eval: np.ndarray, formulation: str) -> float:
     calibrating ``dataset`` with nothing held out."""
     config = CalibrationConfig.defaults(dataset, formulation=formulation, model="DH,s,e", validation={"holdout": 0.0})
     result = calibrate(config)
-    truth = load_truth(dataset)
-    errors = truth_errors(result.problem, result.state, truth, SCORED_POINT_C, q=q_eval)["tool_point"]
-    return float(np.sqrt(np.mean(np.sum(errors**2, axis=1))))
+    # A camera's scored point is the fixed SCORED_POINT_C, whatever the designs measured.
+    points = SCORED_POINT_C[None, :] if result.problem.frame == "tool" else None
+    errors = truth_errors(result.problem, result.state, load_truth(dataset), q=q_eval, points=points)["tool_point"]
+    return float(np.sqrt(np.mean(np.sum(errors.errors**2, axis=1))))
 
 
 def n_reaching(sizes: Sequence[int], rms: Sequence[float], target_m: float) -> float | None:
@@ -59,7 +61,7 @@ def design_study(
     n_eval: int = 200,
     target_m: float = 3e-5,
     with_seed_design: bool = True,
-    formulation: str = "pairs",
+    formulation: str | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict:
     say = progress or (lambda _msg: None)
@@ -68,9 +70,10 @@ def design_study(
     for seed in seeds:
         started = time.perf_counter()
         planner = prepare(cell, seed=seed, formulation=formulation)
+        formulation = planner.formulation
         # Independent evaluation configurations: another candidate stream, thinned max-min.
         eval_rng = np.random.default_rng(10_000 + seed)
-        if formulation == "tracker":
+        if PLANNED[planner.formulation] == "tracker":
             pool = joint_space_candidates(planner.cell, 5 * n_eval, eval_rng)
         else:
             pool = camera_candidates(planner.cell, 5 * n_eval, eval_rng)

@@ -171,6 +171,7 @@ class Cell:
     ballbar: BallbarSetup | None = None
     distance_sigma_m: float = 0.0
     static_camera: StaticCameraSetup | None = None
+    has_tracker: bool = True  # a laser tracker measures the reflectors (tracker_targets)
 
     def points(self) -> list[GridPoint]:
         return [p for side in self.sides for row in side.points for p in row]
@@ -435,6 +436,8 @@ def load_cell(path: str | Path) -> Cell:
         ballbar=ballbar,
         distance_sigma_m=noise.number("distance_sigma", 2e-6 / to_m, to_m, nonnegative=True),
         static_camera=static,
+        # A tracker section declares one; a cell with no other instrument is a tracker cell.
+        has_tracker=doc.has("tracker") or not setups,
         perturbation=Perturbation(
             length_m=pert.number("length", 5e-3 / to_m, to_m, nonnegative=True),
             angle_rad=pert.number("angle", 2e-3 / to_rad, to_rad, nonnegative=True),

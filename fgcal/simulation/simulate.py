@@ -9,11 +9,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
+from ..truth import Truth
 from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
@@ -177,53 +177,27 @@ def simulate(
         boards = _render_images(out, cell, views, q, config_ids, true_params, image_rng, say)
         counts["images"] = len(views)
     _write_header(out, cell, seed, len(views), counts, boards)
-    truth = {
-        "note": "Ground truth of a simulation: for scoring only; no estimation code reads this file.",
-        "seed": seed,
-        "cell": Path(cell.source).name,
-        "design": cell.design.kind,
-        "units": {"length": "m", "angle": "rad", "compliance": "rad/(N m)"},
-        "model": robot.model,  # the truth is scored with this model, whatever model is fitted
-        "parameters": true_params,
-        "camera_mounting_nominal": _pose_doc(robot.tool_pose),
-        "base_pose_nominal": _pose_doc(robot.base_pose),
-        "fixture_pose": _pose_doc(cell.fixture_pose),
-        "tracker_pose": _pose_doc(cell.tracker_pose),
-        "tracker_targets": {f"t{i + 1}": [float(v) for v in t] for i, t in enumerate(cell.tracker_targets)},
-        **(
-            {
-                "touch_probe": [float(v) for v in cell.touch.probe],
-                "touch_points": {
-                    n: [float(v) for v in p] for n, p in zip(cell.touch.names, cell.touch.points, strict=True)
-                },
-            }
-            if cell.touch is not None
-            else {}
+    Truth(
+        seed=seed,
+        cell=Path(cell.source).name,
+        design=cell.design.kind,
+        model=robot.model,  # the truth is scored with this model, whatever model is fitted
+        parameters=true_params,
+        camera_mounting_nominal=robot.tool_pose,
+        base_pose_nominal=robot.base_pose,
+        fixture_pose=cell.fixture_pose,
+        tracker_pose=cell.tracker_pose,
+        tracker_targets={f"t{i + 1}": t for i, t in enumerate(cell.tracker_targets)},
+        touch_probe=cell.touch.probe if cell.touch is not None else None,
+        touch_points=dict(zip(cell.touch.names, cell.touch.points, strict=True)) if cell.touch is not None else {},
+        tracker_probe=cell.tracker_probe,
+        ballbar_ball=cell.ballbar.ball if cell.ballbar is not None else None,
+        ballbar_pivots=(
+            dict(zip(cell.ballbar.names, cell.ballbar.pivots, strict=True)) if cell.ballbar is not None else {}
         ),
-        **({"tracker_probe": _pose_doc(cell.tracker_probe)} if cell.tracker_probe is not None else {}),
-        **(
-            {
-                "ballbar": {
-                    "ball": [float(v) for v in cell.ballbar.ball],
-                    "pivots": {
-                        n: [float(v) for v in p] for n, p in zip(cell.ballbar.names, cell.ballbar.pivots, strict=True)
-                    },
-                }
-            }
-            if cell.ballbar is not None
-            else {}
-        ),
-        **(
-            {
-                "static_camera": {
-                    "pose": _pose_doc(cell.static_camera.pose),
-                    "board_mount": _pose_doc(cell.static_camera.board_mount),
-                }
-            }
-            if cell.static_camera is not None
-            else {}
-        ),
-        "noise_sigma": {
+        static_camera_pose=cell.static_camera.pose if cell.static_camera is not None else None,
+        static_camera_board_mount=cell.static_camera.board_mount if cell.static_camera is not None else None,
+        noise_sigma={
             "camera_point_m": cell.camera_point_sigma_m,
             "pixel_px": cell.pixel_sigma_px,
             "tracker_m": cell.tracker_sigma_m,
@@ -231,11 +205,13 @@ def simulate(
             **({"tracker_angle_rad": cell.tracker_angle_sigma_rad} if cell.tracker_probe is not None else {}),
             **({"distance_m": cell.distance_sigma_m} if cell.ballbar is not None else {}),
         },
-        "deviation_before_calibration_m": {"mean": float(deviation.mean()), "max": float(deviation.max())},
-    }
-    if drift is not None:
-        truth["drift"] = {"parameter": drift.parameter, "change": drift.change, "from_configuration": drift.start}
-    (out / "truth" / "ground_truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
+        deviation_before_calibration_m={"mean": float(deviation.mean()), "max": float(deviation.max())},
+        drift=(
+            {"parameter": drift.parameter, "change": drift.change, "from_configuration": drift.start}
+            if drift is not None
+            else None
+        ),
+    ).write(out)
     return SimulationResult(
         out,
         seed,

@@ -1,4 +1,5 @@
-"""Calibration outputs: calibrated_robot.yaml, report.json, report.md with PNG plots."""
+"""Calibration outputs: calibrated_robot.yaml, estimates.yaml, report.json, report.md with PNG
+plots. Reads a finished CalibrationResult; computes nothing the calibration did not."""
 
 from __future__ import annotations
 
@@ -7,29 +8,26 @@ from pathlib import Path
 import numpy as np
 
 from .. import kinematics, strict_json
+from ..calibration.covariance import correlation
+from ..calibration.goodness import Fit
+from ..calibration.prediction import workspace_map
+from ..calibration.results import SCORES, CalibrationResult, primary_score
 from ..parameters import unit_of
 from ..robot_io import save_robot
-from .config import FLANGE_FORMULATIONS
-from .covariance import correlation
 from .estimates import write_estimates
-from .goodness import Fit
-from .prediction import predicted_held_out, workspace_map
-from .run import CalibrationResult
-from .validation import SCORES, gauge_of, primary_score
 
 
 def report_dict(result: CalibrationResult) -> dict:
     problem, config = result.problem, result.config
+    formulation = problem.formulation
     robot = problem.robot
     nominal = robot.nominal_parameters()
     estimate = robot.parameter_dict(result.state.params)
     sigmas = result.sigmas
     declared = {}
-    if result.covariance_declared is not None:
-        declared = {
-            n: float(np.sqrt(max(result.covariance_declared[i, i], 0.0))) for i, n in enumerate(result.released)
-        }
-    truth = result.truth["parameters"] if result.truth else None
+    if result.covariance_declared is not None and result.released:
+        declared = dict(zip(result.released, map(float, result.covariance_declared.sigmas("P")), strict=True))
+    truth = result.truth.parameters if result.truth is not None else None
     absorbs: dict[str, list[str]] = {}
     for fixed, partners in result.final_identifiability.absorbed_by.items():
         for partner in partners:
@@ -61,46 +59,42 @@ def report_dict(result: CalibrationResult) -> dict:
     validation = {}
     for label, entries in result.validation.items():
         validation[label] = {_score_name(key): value.as_dict() for key, value in entries.items()}
-    predicted = predicted_sigma(result)
+    intrinsics = result.state.aux.get("intrinsics")
+    detection = problem.detection
     return {
         "model": config.model,
-        "formulation": config.formulation,
+        "formulation": formulation.name,
         "robot": robot.name,
         "dataset": str(config.dataset),
         "n_configurations": len(problem.dataset.configs),
         "n_fit_configurations": len(problem.fit),
         "n_validation_configurations": len(problem.test),
         "n_residuals": int(problem.n_residuals),
-        "pair_categories": problem.pair_categories() if config.formulation == "pairs" else None,
+        **formulation.details(problem),
         "schedule": config.schedule,
         "intrinsics": None
-        if result.state.intrinsics is None
-        else dict(
-            zip(
-                ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3"),
-                [float(v) for v in result.state.intrinsics],
-                strict=True,
-            )
-        ),
-        "detection": problem.detection or None,
-        "skipped_images": [{"config": c, "reason": r} for c, r in problem.skipped_images],
-        "rejected_measurements": problem.rejected,
+        if intrinsics is None
+        else dict(zip(intrinsics.labels, [float(v) for v in intrinsics.value], strict=True)),
+        "detection": detection.as_dict() if detection is not None else None,
+        "skipped_images": [{"config": c, "reason": r} for c, r in (detection.skipped if detection else ())],
+        "rejected_measurements": [r.as_dict() for r in (*problem.rejected, *result.flagged)],
         "tracker_references": result.references,
         "stages": [
             {
                 "stage": s.name,
                 "released": s.released,
                 "residual_norm": s.residual_norm,
-                f"residual_rms_{s.unit}": s.residual_rms,
+                **{f"residual_rms_{unit}": value for unit, value in s.residual_rms.items()},
                 "iterations": s.iterations,
                 "time_s": s.time_s,
+                "cpu_s": s.cpu_s,
                 **s.fit.as_dict(),
             }
             for s in result.stages
         ],
         "goodness_of_fit": result.fit.as_dict() if result.fit is not None else None,
-        "model_comparison": result.model_comparison,
-        "compensation": result.compensation,
+        "model_comparison": [row.as_dict() for row in result.model_comparison] if result.model_comparison else None,
+        "compensation": result.compensation.as_dict() if result.compensation is not None else None,
         "parameters": parameters,
         "unidentifiable": sorted(result.final_identifiability.unidentifiable),
         "unidentifiable_reasons": result.final_identifiability.unidentifiable,
@@ -110,19 +104,19 @@ def report_dict(result: CalibrationResult) -> dict:
             "condition_number": result.final_identifiability.condition_number,
             "singular_values": [float(v) for v in result.final_identifiability.singular_values],
         },
-        "correlation": {"names": result.released, "matrix": correlation(result.covariance).tolist()},
+        "correlation": {"names": result.released, "matrix": correlation(result.parameter_covariance).tolist()},
         "strong_correlations": strong_correlations(result),
         "validation": {
             **validation,
-            "scored_point_m": [float(v) for v in result.tool_point] if config.formulation != "tracker" else None,
-            "scored_point_frame": "flange" if config.formulation in FLANGE_FORMULATIONS else "camera",
-            "reference": "ground truth" if result.truth else "held-out measurements",
-            "gauge_removed": gauge_of(problem) if result.truth else "none",
-            "predicted_position_sigma_m": predicted,
+            "scored_point_m": [float(v) for v in result.tool_point],
+            "scored_point_frame": formulation.frame,
+            "reference": "ground truth" if result.truth is not None else "held-out measurements",
+            "gauge_removed": result.gauge,
+            "predicted_position_sigma_m": predicted_sigma(result),
         },
         "estimates_file": "estimates.yaml",  # every estimate besides the robot, with sigmas (estimates.py)
-        "seed": _seed(result),
-        "timing": {"total_s": result.timing["total_s"], "solve_s": result.timing["solve_s"]},
+        "seed": result.truth.seed if result.truth is not None else None,
+        "timing": dict(result.timing),
     }
 
 
@@ -142,7 +136,7 @@ _STATS = ("mean", "rms", "p50", "p95", "max")
 
 def strong_correlations(result: CalibrationResult) -> list[dict]:
     """Pairs of estimated parameters with |r| above STRONG_CORRELATION, strongest first."""
-    r = correlation(result.covariance)
+    r = correlation(result.parameter_covariance)
     pairs = [
         {"a": result.released[i], "b": result.released[j], "r": float(r[i, j])}
         for i in range(len(r))
@@ -176,6 +170,24 @@ def _workspace_panel(ax, region: dict | None) -> None:
     )
 
 
+def _region(result: CalibrationResult) -> dict | None:
+    """The workspace map (fgcal.calibration.prediction.workspace_map) with, where the held-out
+    score has errors at every held-out configuration, their RMS per configuration (m)."""
+    problem = result.problem
+    q = problem.dataset.q[problem.test]
+    region = workspace_map(problem, result.state, result.covariance, q)
+    if region is None:
+        return None
+    scored = primary_score(result.validation, "after")
+    region["measured_m"] = None
+    if scored is not None and scored[1].configs is not None:
+        errors, configs = scored[1].errors, scored[1].configs
+        per_config = [errors[configs == c] for c in range(len(q))]
+        if all(len(e) for e in per_config):
+            region["measured_m"] = np.array([np.sqrt(np.mean(e**2)) for e in per_config])
+    return region
+
+
 def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
     """For each estimated compliance, the largest displacement (m) it causes at the scored
     point over the fitting configurations: what the value means at the tool."""
@@ -183,21 +195,21 @@ def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
     names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
     if not names:
         return {}
-    frame = result.config.frame
-    point = result.state.tool_points[0] if result.config.formulation == "tracker" else result.tool_point
-    data = kinematics.forward(problem.robot, result.state.params, problem.q_fit)
-    J = kinematics.jacobian(problem.robot, data, names, frame=frame, point=point)  # (N, 3, k)
+    data = kinematics.forward(problem.robot, result.state.params, problem.observations.q)
+    J = kinematics.jacobian(problem.robot, data, names, frame=problem.frame, point=result.tool_point)  # (N, 3, k)
     values = np.array([result.state.params[problem.robot.parameter_names.index(n)] for n in names])
     return {n: float(np.linalg.norm(J[:, :, i] * values[i], axis=1).max()) for i, n in enumerate(names)}
 
 
-def predicted_sigma(result: CalibrationResult) -> dict:
-    """The predicted RMS of what the held-out score measures (validation.predicted_held_out),
-    and a warning when the measured score exceeds it by more than PREDICTION_TOLERANCE."""
-    predicted = predicted_held_out(result, against_truth=result.truth is not None)
+def predicted_sigma(result: CalibrationResult) -> dict | None:
+    """The predicted RMS of what the held-out score measures, and a warning when the measured
+    score exceeds it by more than PREDICTION_TOLERANCE."""
+    if result.prediction is None:
+        return None
+    predicted = result.prediction.as_dict()
     scored = primary_score(result.validation, "after")
     after = scored[1] if scored is not None else None
-    if predicted and after is not None:
+    if after is not None:
         predicted["measured_over_predicted"] = after.rms / predicted["rms"]
         if after.rms > PREDICTION_TOLERANCE * predicted["rms"]:
             predicted["warning"] = (
@@ -209,10 +221,6 @@ def predicted_sigma(result: CalibrationResult) -> dict:
 
 
 PREDICTION_TOLERANCE = 1.5
-
-
-def _seed(result: CalibrationResult) -> int | None:
-    return int(result.truth["seed"]) if result.truth else None
 
 
 def write_report(result: CalibrationResult, out: str | Path, plots: bool = True) -> dict:
@@ -252,7 +260,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         fig = Figure(figsize=(14, 4.6))
         ax, region = fig.subplots(1, 2, width_ratios=[1.7, 1])
         fig.subplots_adjust(left=0.05, right=0.98, bottom=0.12, top=0.88, wspace=0.22)
-        _workspace_panel(region, workspace_map(result))
+        _workspace_panel(region, _region(result))
         every = np.concatenate([before.errors, after.errors]) * 1e3
         low, high = np.log10(max(every.min(), 1e-9)), np.log10(every.max())
         bins = np.logspace(low - 0.05, high + 0.05, 60)
@@ -281,7 +289,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         fig.savefig(out / "errors.png", dpi=100, pil_kwargs={"compress_level": 1})
         plots["errors"] = "errors.png"
     if result.released:
-        corr = correlation(result.covariance)
+        corr = correlation(result.parameter_covariance)
         n = len(result.released)
         fig = Figure(figsize=(8.5, 8))
         ax = fig.subplots()
@@ -464,8 +472,12 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for s in doc["stages"]:
-        rms = s.get("residual_rms_m", s.get("residual_rms_px"))
-        rms_text = f"{rms * 1e3:.4g} mm" if "residual_rms_m" in s else f"{rms:.4g} px"
+        rms_text = ", ".join(
+            f"{s[key] * scale:.4g} {unit}"
+            for key, scale, unit in (("residual_rms_m", 1e3, "mm"), ("residual_rms_rad", 1e3, "mrad"),
+                                     ("residual_rms_px", 1.0, "px"))
+            if key in s
+        )  # fmt: skip
         lines.append(
             f"| {s['stage']} | {len(s['released'])}: {', '.join(s['released'])} | {rms_text} | "
             f"{s['chi2']:.4g} / {s['dof']} = {s['chi2_per_dof']:.3g} | {s['chi2_p_value']:.2g} | "

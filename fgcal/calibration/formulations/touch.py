@@ -1,0 +1,195 @@
+"""Touch points: a probe on the flange seated in fixed sockets at many configurations, and known
+distances between sockets for the scale (fgcal.factors.TouchPoints, SocketSpacings). Unknowns
+besides P: the probe s (flange frame) and the sockets a_k (W). Scored against the truth by the
+probe in W, the rigid motion removed (W is where the nominal base puts the robot)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...dataset import Dataset
+from ...errors import InputError
+from ...factors import MeasurementSet, RobustLoss, SocketSpacings, TouchPoints
+from ...robot import Robot
+from ...truth import Truth
+from ..batch import BatchKinematics
+from ..problem import (
+    Formulation,
+    Keys,
+    Observations,
+    Problem,
+    Rejection,
+    Scored,
+    measured_table,
+    rows_of,
+    subset_of,
+    take,
+)
+from ..settings import MeasurementSettings
+from ..state import Auxiliary, State
+
+
+@dataclass(frozen=True)
+class TouchObservations(Observations):
+    configs: np.ndarray  # (O,) per touch: index into config_ids
+    sockets: np.ndarray  # (O,) index into names
+    names: tuple[str, ...]  # the sockets
+    spacings: np.ndarray  # (S, 2) socket indices with a known distance
+    spacing_m: np.ndarray  # (S,)
+
+    @property
+    def n_residuals(self) -> int:
+        return 3 * len(self.configs) + len(self.spacing_m)
+
+    def unit_label(self, unit: int) -> tuple[str, str]:
+        return str(self.config_ids[self.configs[unit]]), self.names[self.sockets[unit]]
+
+    def select(self, keep: np.ndarray) -> TouchObservations:
+        return TouchObservations(
+            self.config_ids, self.q, **take(self, keep, ("configs", "sockets")), names=self.names,
+            spacings=self.spacings, spacing_m=self.spacing_m,
+        )  # fmt: skip
+
+
+class Touch(Formulation):
+    name = "touch"
+    frame = "flange"
+    kind = "touch_points"
+    likely_causes = (
+        "touch rows naming the wrong point, joint angles in other units than units: declares, or another robot than "
+        "the one that moved"
+    )
+
+    def sigma(self, settings: MeasurementSettings) -> float:
+        return settings.noise.touch_m
+
+    def gauge(self, settings: MeasurementSettings) -> str:
+        return "rigid"
+
+    def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
+        table = measured_table(dataset, "touch_points", self.name)
+        # The sockets the fit touches (one only a validation set touches is not estimated).
+        names = tuple(sorted({name for _, name, _ in rows_of(dataset, table, "point", fit)}))
+        observations = _observations(dataset, fit, names)
+        if not len(observations.configs):
+            raise InputError(dataset.path / "touch_points.csv", None, "no touch in the fitting set")
+        # A point touched once only locates itself: it says nothing about the robot.
+        counts = Counter(observations.sockets.tolist())
+        for k, name in enumerate(names):
+            if counts.get(k, 0) < 2:
+                raise InputError(
+                    dataset.path / "touch_points.csv",
+                    "point",
+                    f"point {name!r} is touched {counts.get(k, 0)} times in the fitting set: "
+                    "each point needs several touches in different configurations",
+                )
+        return observations
+
+    def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
+        observations = _observations(problem.dataset, problem.test, problem.observations.names, spacings=False)
+        return (observations if len(observations.configs) else None), []
+
+    def initial_state(self, problem: Problem) -> State:
+        params = problem.robot.parameter_vector()
+        probe, sockets = initial_touch(problem, params)
+        names = problem.observations.names
+        return State(
+            params,
+            {
+                "tool_points": Auxiliary("points", probe[None, :], ("probe",)),
+                "touch_points": Auxiliary("points", sockets, names),
+            },
+        )
+
+    def measurement_sets(
+        self,
+        problem: Problem,
+        observations: Observations,
+        kinematics: BatchKinematics,
+        keys: Keys,
+        state: State,
+        robust: RobustLoss | None,
+    ) -> list[MeasurementSet]:
+        noise = problem.settings.noise
+        n_sockets = len(state.value("touch_points"))
+        sets: list[MeasurementSet] = [
+            TouchPoints(
+                kinematics,
+                keys.params,
+                keys["tool_points"],
+                keys["touch_points"],
+                n_sockets,
+                observations.configs,
+                observations.sockets,
+                noise.touch_m,
+                robust=robust,
+            )
+        ]
+        if len(observations.spacing_m):
+            sets.append(
+                SocketSpacings(
+                    keys["touch_points"], n_sockets, observations.spacings, observations.spacing_m, noise.spacing_m
+                )
+            )
+        return sets
+
+    def scored(self, problem: Problem, state: State) -> Scored:
+        return Scored(state.value("tool_points"), points_from="tool_points")
+
+    def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
+        robot = problem.dataset.robot.with_model(truth.model)
+        names = problem.observations.names
+        aux = {
+            "tool_points": Auxiliary("points", np.asarray(truth.touch_probe)[None, :], ("probe",)),
+            "touch_points": Auxiliary("points", np.array([truth.touch_points[n] for n in names]), names),
+        }
+        return robot, State(robot.parameter_vector(truth.parameters), aux)
+
+
+def _observations(dataset: Dataset, subset: np.ndarray, names: tuple[str, ...], spacings: bool = True):
+    """The touches of ``subset`` on the sockets ``names`` (others left out), and the known
+    spacings between them."""
+    index = {name: i for i, name in enumerate(names)}
+    rows = [(i, index[name]) for i, name, _ in rows_of(dataset, dataset.tables["touch_points"], "point", subset)
+            if name in index]  # fmt: skip
+    pairs, distances = [], []
+    table = dataset.tables.get("point_distances")
+    if spacings and table is not None:
+        for a, b, d in zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True):
+            if a in index and b in index:
+                pairs.append((index[a], index[b]))
+                distances.append(float(d))
+    return TouchObservations(
+        **subset_of(dataset, subset),
+        configs=np.array([r[0] for r in rows], dtype=int),
+        sockets=np.array([r[1] for r in rows], dtype=int),
+        names=names,
+        spacings=np.array(pairs, dtype=int).reshape(-1, 2),
+        spacing_m=np.array(distances, dtype=float),
+    )
+
+
+def initial_touch(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Touch probe s (flange frame) and touch points a_k (W) from the nominal model, no guess
+    needed: ``R_j s - a_k = -p_j`` is linear in both, solved by least squares (m)."""
+    observations = problem.observations
+    flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params))
+    n_points = len(observations.names)
+    n_touches = len(observations.configs)
+    A = np.zeros((3 * n_touches, 3 + 3 * n_points))
+    b = np.zeros(3 * n_touches)
+    for row, (j, k) in enumerate(zip(observations.configs, observations.sockets, strict=True)):
+        A[3 * row : 3 * row + 3, :3] = flange[j, :3, :3]
+        A[3 * row : 3 * row + 3, 3 + 3 * k : 6 + 3 * k] = -np.eye(3)
+        b[3 * row : 3 * row + 3] = -flange[j, :3, 3]
+    solution, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+    if rank < A.shape[1]:
+        raise InputError(
+            problem.dataset.path / "touch_points.csv",
+            None,
+            "the touches cannot locate the probe: touch each point with the tool in clearly different orientations",
+        )
+    return solution[:3], solution[3:].reshape(n_points, 3)

@@ -1,0 +1,329 @@
+"""The classical formulation (SPEC section 4, eq. 1): a laser tracker measures reflectors on the
+tool, ``m = L X(P, q) s_t``. Unknowns besides P: the tracker's pose L = T_T_W and the
+reflectors s_t (flange frame). Scored in the tracker's frame, which the data fix: no gauge.
+
+A separate validation set may measure a reflector the fit never saw (a test point): it is
+scored at its declared position on the flange (config ``validation.tool_points``), carried by
+the best rigid motion of the declared fitting reflectors onto their estimates, or else at its
+leave-one-out position (the mean of its other measurements carried back to the flange).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...dataset import Dataset
+from ...errors import InputError
+from ...factors import MeasurementSet, RobustLoss, TrackerPoints, point_jacobian
+from ...robot import Robot
+from ...se3 import inverse, kabsch, transform_points
+from ...truth import Truth
+from ..batch import BatchKinematics
+from ..problem import (
+    Formulation,
+    HeldOut,
+    JointCovariance,
+    Keys,
+    Observations,
+    Problem,
+    Rejection,
+    Scored,
+    measured_table,
+    rows_of,
+    subset_of,
+    take,
+)
+from ..settings import MeasurementSettings
+from ..state import Auxiliary, State
+
+
+@dataclass(frozen=True)
+class TrackerObservations(Observations):
+    configs: np.ndarray  # (O,) per point: index into config_ids
+    targets: np.ndarray  # (O,) index into names
+    measured: np.ndarray  # (O, 3) m, tracker frame
+    names: tuple[str, ...]  # the reflectors the fit estimates
+    # Reflectors only a validation set measured: (name, configurations, measured points).
+    test_points: tuple[tuple[str, np.ndarray, np.ndarray], ...] = ()
+
+    @property
+    def n_residuals(self) -> int:
+        return 3 * len(self.configs)
+
+    def unit_label(self, unit: int) -> tuple[str, str]:
+        return str(self.config_ids[self.configs[unit]]), self.names[self.targets[unit]]
+
+    def select(self, keep: np.ndarray) -> TrackerObservations:
+        return TrackerObservations(
+            self.config_ids, self.q, **take(self, keep, ("configs", "targets", "measured")), names=self.names
+        )
+
+
+class Tracker(Formulation):
+    name = "tracker"
+    frame = "flange"
+    kind = "tracker_points"
+    rejection_name = "target"
+    likely_causes = (
+        "the tracker points do not belong to their configurations (rows shifted, configuration ids mismatched), "
+        "reflector names swapped between targets, joint angles or lengths in other units than units: declares, or "
+        "another robot than the one that moved"
+    )
+    planning = "tracker"
+
+    def sigma(self, settings: MeasurementSettings) -> float:
+        return settings.noise.tracker_m
+
+    def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
+        rows = list(rows_of(dataset, measured_table(dataset, "tracker_points", self.name), "target", fit))
+        # The reflectors the fit sees; one measured only at held-out configurations (a test point
+        # of a validation set) is scored through its declared or leave-one-out position.
+        names = tuple(sorted({name for _, name, _ in rows}))
+        observations = _observations(dataset, fit, rows, names)
+        if len(rows) < 3 * len(names) + 2:
+            raise InputError(
+                dataset.path / "tracker_points.csv",
+                None,
+                f"only {len(rows)} tracker measurements in the fitting set: too few",
+            )
+        return observations
+
+    def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
+        dataset = problem.dataset
+        rows = list(rows_of(dataset, dataset.tables["tracker_points"], "target", problem.test))
+        if not rows:
+            return None, []
+        names = problem.observations.names
+        known = [row for row in rows if row[1] in names]
+        observations = _observations(dataset, problem.test, known, names)
+        test_points = []
+        for target in sorted({name for _, name, _ in rows} - set(names)):
+            mine = [(i, xyz) for i, name, xyz in rows if name == target]
+            test_points.append((target, np.array([i for i, _ in mine]), np.array([xyz for _, xyz in mine])))
+        return TrackerObservations(**{**observations.__dict__, "test_points": tuple(test_points)}), []
+
+    def initial_state(self, problem: Problem) -> State:
+        observations = problem.observations
+        T_L, points = initial_tracker(problem.robot, problem.robot.parameter_vector(), observations)
+        return State(
+            problem.robot.parameter_vector(),
+            {"tracker": Auxiliary("pose3", T_L), "tool_points": Auxiliary("points", points, observations.names)},
+        )
+
+    def measurement_sets(
+        self,
+        problem: Problem,
+        observations: Observations,
+        kinematics: BatchKinematics,
+        keys: Keys,
+        state: State,
+        robust: RobustLoss | None,
+    ) -> list[MeasurementSet]:
+        return [
+            TrackerPoints(
+                kinematics,
+                keys.params,
+                keys["tracker"],
+                keys["tool_points"],
+                len(state.value("tool_points")),
+                observations.configs,
+                observations.targets,
+                observations.measured,
+                problem.settings.noise.tracker_m,
+                robust=robust,
+            )
+        ]
+
+    def held_out_errors(self, problem: Problem, observations: Observations, state: State) -> dict[str, HeldOut]:
+        errors, configs = [], []
+        if len(observations.configs):
+            known = super().held_out_errors(problem, observations, state)["tool_point"]
+            errors.append(known.errors)
+            configs.append(known.configs)
+        for target, at, measured in observations.test_points:
+            errors.append(_test_point_errors(problem, state, target, observations.q[at], measured))
+            configs.append(at)
+        if not errors:
+            return {}
+        return {"tool_point": HeldOut(np.concatenate(errors), np.concatenate(configs))}
+
+    def held_out_variances(
+        self, problem: Problem, observations: Observations, state: State, covariance: JointCovariance, factor: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        parameters, noise = [], []
+        if len(observations.configs):
+            p, n = super().held_out_variances(problem, observations, state, covariance, factor)
+            parameters.append(p)
+            noise.append(n)
+        for p, n in _test_point_variances(problem, observations, state, covariance, factor):
+            parameters.append(p)
+            noise.append(n)
+        if not parameters:
+            return np.zeros(0), np.zeros(0)
+        return np.concatenate(parameters), np.concatenate(noise)
+
+    def scored(self, problem: Problem, state: State) -> Scored:
+        return Scored(state.value("tool_points"), state.value("tracker"), "tool_points", "tracker")
+
+    def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
+        robot = problem.dataset.robot.with_model(truth.model)
+        names = problem.observations.names
+        aux = {
+            "tracker": Auxiliary("pose3", inverse(truth.tracker_pose)),
+            "tool_points": Auxiliary("points", np.array([truth.tracker_targets[n] for n in names]), names),
+        }
+        return robot, State(robot.parameter_vector(truth.parameters), aux)
+
+
+def _observations(dataset: Dataset, subset: np.ndarray, rows: list, names: tuple[str, ...]) -> TrackerObservations:
+    index = {name: i for i, name in enumerate(names)}
+    return TrackerObservations(
+        **subset_of(dataset, subset),
+        configs=np.array([r[0] for r in rows], dtype=int),
+        targets=np.array([index[r[1]] for r in rows], dtype=int),
+        measured=np.array([r[2] for r in rows], dtype=float).reshape(-1, 3),
+        names=names,
+    )
+
+
+# -- starting values ------------------------------------------------------------------------
+
+
+def initial_tracker(
+    robot: Robot, params: np.ndarray, observations: TrackerObservations, rounds: int = 15
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tracker pose T_T_W and tool points from the nominal model, no guess needed:
+    alternate a Kabsch fit of the tracker pose with a linear fit of the tool points and the
+    tracker's position, from several starting orientations of the tracker (the 24 rotations
+    of a cube, and the Kabsch fit of the flange origins), keeping the best fit. One start is
+    not enough: when the flange origin barely moves (a positioner's table centre on its
+    axes) the flange origins say nothing about the tracker's orientation, and the alternation
+    from a wrong one settles in a false minimum half a metre off."""
+    flange = robot.fk(observations.q, robot.parameter_dict(params))
+    j, t, measured = observations.configs, observations.targets, observations.measured
+    n_targets = len(observations.names)
+    R_j, p_j = flange[j, :3, :3], flange[j, :3, 3]
+
+    def fit_points(R_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # m - R_L p_j = R_L R_j s_t + t_L: linear in the tool points and t_L.
+        A = np.zeros((len(j), 3, 3 * n_targets + 3))
+        for target in range(n_targets):
+            rows = t == target
+            A[rows, :, 3 * target : 3 * target + 3] = R_L @ R_j[rows]
+        A[:, :, -3:] = np.eye(3)
+        b = measured - p_j @ R_L.T
+        solution = np.linalg.lstsq(A.reshape(-1, A.shape[2]), b.reshape(-1), rcond=None)[0]
+        return solution[:-3].reshape(n_targets, 3), solution[-3:]
+
+    def refine(R_L: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        for _ in range(rounds):
+            points, t_L = fit_points(R_L)
+            R_L, t_L = kabsch(transform_points(flange[j], points[t]), measured)
+        points, t_L = fit_points(R_L)
+        world = np.einsum("oij,oj->oi", R_j, points[t]) + p_j
+        cost = float(np.sum((world @ R_L.T + t_L - measured) ** 2))
+        return cost, R_L, t_L, points
+
+    starts = [kabsch(p_j, measured)[0], *cube_rotations()]
+    _, R_L, t_L, points = min((refine(R) for R in starts), key=lambda fit: fit[0])
+    T_L = np.eye(4)
+    T_L[:3, :3], T_L[:3, 3] = R_L, t_L
+    return T_L, points
+
+
+def cube_rotations() -> list[np.ndarray]:
+    """The 24 proper rotations that map the coordinate axes onto themselves."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            R = np.zeros((3, 3))
+            R[np.arange(3), perm] = signs
+            if np.linalg.det(R) > 0:
+                out.append(R)
+    return out
+
+
+# -- test points of a validation set --------------------------------------------------------------
+
+
+def declared_test_point(problem: Problem, state: State, target: str) -> np.ndarray | None:
+    """A declared test point in the calibrated flange frame, or None. Declared positions are
+    in the tool's drawing; when three or more fitting targets are declared too, the drawing is
+    carried onto their estimates by the best rigid motion (the calibrated flange frame is an
+    effective one: the last joint's errors move it, and the fitted targets with it), else the
+    declared position is taken as it is."""
+    declared = problem.settings.validation_tool_points
+    if target not in declared:
+        return None
+    names = problem.observations.names
+    anchors = [t for t in names if t in declared]
+    point = np.array(declared[target], dtype=float)
+    if len(anchors) < 3:
+        return point
+    R, t = kabsch(
+        np.array([declared[a] for a in anchors]), state.value("tool_points")[[names.index(a) for a in anchors]]
+    )
+    return R @ point + t
+
+
+def _test_point_errors(problem: Problem, state: State, target: str, q: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Error vectors (m, tracker frame) at a tool point the fit never saw, measured at ``q``:
+    at its declared position, else at its leave-one-out position (its position is then not
+    scored, only how the robot moves it)."""
+    T_T_n = state.value("tracker") @ problem.robot.fk(q, problem.robot.parameter_dict(state.params))
+    declared = declared_test_point(problem, state, target)
+    if declared is not None:
+        return transform_points(T_T_n, declared) - measured
+    if len(q) < 2:
+        raise InputError(
+            problem.settings.source,
+            "validation.tool_points",
+            f"test point {target!r} is measured once in the validation set: declare its position on the flange, "
+            "or measure it at several configurations (it is fitted leave-one-out)",
+        )
+    back = back_projections(T_T_n, measured)
+    loo = (back.sum(axis=0) - back) / (len(q) - 1)
+    return np.einsum("oij,oj->oi", T_T_n[:, :3, :3], loo) + T_T_n[:, :3, 3] - measured
+
+
+def _test_point_variances(
+    problem: Problem, observations: TrackerObservations, state: State, covariance: JointCovariance, factor: float
+):
+    """Per test point, the variance each of its held-out errors takes from P and the tracker
+    pose, and its noise variance. Declared: the error's Jacobian A_j at the declared point.
+    Leave-one-out: ``A_j - R_j mean_{i != j}(R_i^T A_i)`` (the refitted point follows the
+    others), and the noise 3 sigma^2 (1 + 1/(n - 1))."""
+    if not observations.test_points:
+        return
+    model = problem.kinematics(state, covariance.released, observations.q)
+    p_values = model.base[model.index]
+    T_X, J_P = model.poses(p_values), model.jacobians(p_values)
+    T_L = state.value("tracker")
+    block = covariance.block(["P", "tracker"])
+    sigma2 = 3.0 * factor * problem.settings.noise.tracker_m**2
+    for target, at, measured in observations.test_points:
+        declared = declared_test_point(problem, state, target)
+        # Where the point is on the flange: declared, or as the measurements put it (for A_j only).
+        s = declared if declared is not None else back_projections(T_L @ T_X[at], measured).mean(axis=0)
+        R_X = T_X[at, :3, :3]
+        p_W = np.einsum("oij,j->oi", R_X, s) + T_X[at, :3, 3]
+        A = np.concatenate(
+            [T_L[:3, :3] @ point_jacobian(R_X, np.broadcast_to(s, (len(at), 3))) @ J_P[at],
+             np.broadcast_to(point_jacobian(T_L[:3, :3], p_W), (len(at), 3, 6))],
+            axis=2,
+        )  # fmt: skip
+        if declared is not None:
+            yield np.einsum("oij,jk,oik->o", A, block, A), np.full(len(at), sigma2)
+            continue
+        R = T_L[:3, :3] @ R_X
+        back = np.einsum("oji,ojk->oik", R, A)  # R_i^T A_i
+        loo = A - np.einsum("oij,ojk->oik", R, (back.sum(axis=0) - back) / (len(at) - 1))
+        yield np.einsum("oij,jk,oik->o", loo, block, loo), np.full(len(at), sigma2 * (1 + 1 / (len(at) - 1)))
+
+
+def back_projections(T_T_n: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Measured points (tracker frame) carried back into the flange frame of each pose T_T_n."""
+    return np.einsum("oji,oj->oi", T_T_n[:, :3, :3], measured - T_T_n[:, :3, 3])

@@ -1,0 +1,134 @@
+"""What a calibration config says about the measurements: their noise, robust losses and the
+options of the formulations that read them (docs/calibration.md). Parsed here, below the
+formulations that use them; the pipeline's own settings are in fgcal.calibration.config."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..fields import Fields
+from ..units import Units
+
+PARTNERS = ("other_object", "same_object", "same_side", "any")
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Declared standard deviations of the measurements (SI), per coordinate."""
+
+    camera_point_m: float = 1e-4  # a point measured in the camera frame
+    tracker_m: float = 1e-5  # a tracker point
+    pixel_px: float = 0.1  # a detected image point
+    touch_m: float = 2e-5  # where a touch puts the tool point, about its socket
+    spacing_m: float = 1e-5  # a known distance between touch points
+    pose_m: float = 2e-5  # a measured pose's position (6D probe, a board's pose)
+    pose_rad: float = 1e-4  # a measured pose's orientation, about each axis
+    distance_m: float = 5e-6  # a ballbar's (1D gauge's) reading
+
+
+# Config key (noise.*) of each Noise field, and whether it is a length, an angle or pixels.
+NOISE_KEYS = {
+    "camera_point_m": ("camera_point_sigma", "length"),
+    "tracker_m": ("tracker_sigma", "length"),
+    "pixel_px": ("pixel_sigma_px", "pixel"),
+    "touch_m": ("touch_sigma", "length"),
+    "spacing_m": ("spacing_sigma", "length"),
+    "pose_m": ("pose_sigma", "length"),
+    "pose_rad": ("pose_angle_sigma", "angle"),
+    "distance_m": ("distance_sigma", "length"),
+}
+
+# robust.* entry of each measurement kind and its default loss (threshold in robust sigmas).
+# Cauchy for pixels: the influence of a gross false detection fades (Huber's stays k sigma).
+ROBUST_DEFAULTS: dict[str, tuple[str, float] | None] = {
+    "camera_points": None,
+    "tracker_points": ("huber", 3.0),
+    "touch_points": ("huber", 3.0),
+    "tracker_poses": ("huber", 3.0),
+    "distances": ("huber", 3.0),
+    "pixels": ("cauchy", 3.0),
+}
+
+
+@dataclass(frozen=True)
+class PairSettings:
+    """How the relative formulation groups its images (fgcal.calibration.formulations.pairs)."""
+
+    partner: str = "other_object"
+    seed: int = 0
+    group_images: int = 4
+    points_from: str = "camera_points"  # or "pixels" (PnP per image)
+
+
+@dataclass(frozen=True)
+class MeasurementSettings:
+    """Everything a formulation reads from the config; ``source`` names the config in errors."""
+
+    source: Path = Path("<defaults>")
+    noise: Noise = field(default_factory=Noise)
+    robust: Mapping[str, tuple[str, float] | None] = field(default_factory=lambda: dict(ROBUST_DEFAULTS))
+    fixture_orientation: str = "known"  # pairs: the fixture's orientation in W known or estimated
+    pairs: PairSettings = field(default_factory=PairSettings)
+    # Camera intrinsics: None = fixed at the dataset's values; otherwise the prior sigmas (fx, fy,
+    # cx, cy in px; k1, k2, p1, p2, k3) around them, from an earlier calibration.
+    intrinsics_prior_sigmas: tuple[float, ...] | None = None
+    # Tool points measured only by a separate validation set, declared on the flange (m).
+    validation_tool_points: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
+
+
+def parse_noise(doc: Fields, units: Units) -> Noise:
+    section = doc.sub("noise", {})
+    section.check_keys([key for key, _ in NOISE_KEYS.values()])
+    defaults = Noise()
+    values = {}
+    for name, (key, kind) in NOISE_KEYS.items():
+        scale = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}[kind]
+        values[name] = section.number(key, getattr(defaults, name) / scale, scale, positive=True)
+    return Noise(**values)
+
+
+def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
+    section = doc.sub("robust", {})
+    section.check_keys(list(ROBUST_DEFAULTS))
+    out = {}
+    for key, default in ROBUST_DEFAULTS.items():
+        raw = section.raw(key, list(default) if default is not None else None)
+        if raw is None or raw == "none":
+            out[key] = None
+            continue
+        if not (isinstance(raw, list) and len(raw) == 2 and raw[0] in ("huber", "cauchy")):
+            raise section.error(key, f"expected [huber|cauchy, threshold in sigmas] or none, got {raw!r}")
+        threshold = Fields({"k": raw[1]}, section.source, section.path(key)).number("k", positive=True)
+        out[key] = (str(raw[0]), threshold)
+    return out
+
+
+def parse_pairs(doc: Fields) -> PairSettings:
+    section = doc.sub("pairs", {})
+    section.check_keys(("partner", "seed", "group_images", "points_from"))
+    return PairSettings(
+        partner=section.string("partner", "other_object", PARTNERS),
+        seed=section.integer("seed", 0),
+        group_images=section.integer("group_images", 4, minimum=1),
+        points_from=section.string("points_from", "camera_points", ("camera_points", "pixels")),
+    )
+
+
+def parse_intrinsics(doc: Fields) -> tuple[float, ...] | None:
+    """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``."""
+    section = doc.sub("intrinsics", {})
+    section.check_keys(("estimate", "prior_sigma"))
+    estimate = section.raw("estimate", False)
+    if not isinstance(estimate, bool):
+        raise section.error("estimate", f"expected true or false, got {estimate!r}")
+    if not estimate:
+        return None
+    prior = section.sub("prior_sigma", {})
+    prior.check_keys(("focal_px", "centre_px", "radial", "tangential"))
+    focal = prior.number("focal_px", 5.0, positive=True)
+    centre = prior.number("centre_px", 5.0, positive=True)
+    radial = prior.number("radial", 0.01, positive=True)
+    tangential = prior.number("tangential", 0.001, positive=True)
+    return (focal, focal, centre, centre, radial, radial, tangential, tangential, radial)
