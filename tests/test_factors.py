@@ -316,3 +316,23 @@ def test_chi_median_matches_scipy():
 
     k = np.arange(1, 60)
     np.testing.assert_allclose(chi_median(k), np.sqrt(2.0 * gammaincinv(k / 2.0, 0.5)), rtol=2e-4)
+
+
+def test_a_trial_step_behind_the_camera_costs_so_much_it_is_rejected():
+    """Where a measurement model breaks down (a point behind the camera), costing a trial step
+    gives BREAKDOWN_RESIDUAL per row, which the optimiser rejects; linearising there is an
+    error (BehindCameraError), never a crash or a silently used Jacobian."""
+    from fgcal.factors import BehindCameraError
+    from fgcal.factors.base import BREAKDOWN_RESIDUAL
+
+    values = gtsam.Values()
+    model = _kinematics(values)
+    camera = gtsam.Pose3(model.poses(values.atVector(P_KEY))[1])
+    values.insert(2, camera.compose(gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, -0.5]))))  # behind it
+    intrinsics = np.array([1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05])
+    factor = Projections(
+        model, P_KEY, 2, np.array([1, 1]), RNG.normal(0, 0.05, (2, 3)), np.full((2, 2), 500.0), 0.5, intrinsics
+    ).factor()
+    np.testing.assert_array_equal(factor.factor.unwhitenedError(values), np.full(4, BREAKDOWN_RESIDUAL))
+    with pytest.raises(BehindCameraError):
+        factor.factor.linearize(values)

@@ -92,11 +92,6 @@ class GrowingKinematics:
         params[self.index] = released_values
         return params
 
-    def pose_at(self, released_values: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """The frame's pose (4, 4) at one configuration, no Jacobian, not cached."""
-        data = kinematics.forward(self.robot, self.full(released_values), np.atleast_2d(q))
-        return kinematics.frame_pose(self.robot, data, self.frame)[0]
-
     def poses(self, released_values: np.ndarray) -> _Row:
         return _Row(self, np.asarray(released_values, dtype=float), "pose")
 
