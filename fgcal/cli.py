@@ -177,10 +177,23 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     if tcp is not None and not np.all(np.isfinite(tcp)):
         print("fgcal: error: --tcp must be three finite numbers (m)", file=sys.stderr)
         return 2
-    result = compensate(robot, nominal, targets.as_ik_targets(), targets.hints, tcp)
+    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
+        print("fgcal: error: --tolerance-um must be a positive number of micrometres", file=sys.stderr)
+        return 2
+    result = compensate(
+        robot, nominal, targets.as_ik_targets(), targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6
+    )
     write_compensation(args.out, targets.names, result, targets.rotations is not None)
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     print(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    reached = result.status != "unreachable"
+    if reached.any():
+        print(f"  reached in the calibrated model to {result.residual_m[reached].max() * 1e6:.3g} um at worst")
+    if (~reached).any():
+        print(
+            f"  {int((~reached).sum())} unreachable: the nearest the calibrated model gets is "
+            f"{result.residual_m[~reached].min() * 1e3:.4g} mm to {result.residual_m[~reached].max() * 1e3:.4g} mm away"
+        )
     return 0
 
 
@@ -333,6 +346,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
     p.add_argument("--payload-mass", type=float, help="payload (kg) for the deflection (default the robot file's)")
     p.add_argument("--payload-com", type=float, nargs=3, help="payload centre of mass in the flange frame (m)")
+    p.add_argument(
+        "--tolerance-um", type=float, default=1.0, help="how close counts as reached, um (default 1; angles 1 urad)"
+    )
     p.set_defaults(func=cmd_compensate)
 
     p = sub.add_parser("online", help="online recalibration: fold measurement files from an inbox into the estimate")

@@ -22,6 +22,7 @@ import numpy as np
 
 from .dataset import parse_numbers, read_csv, write_csv
 from .errors import InputError
+from .ik import TOL_M, TOL_RAD
 from .robot import Robot
 from .robot_io import bundled_robots, load_robot
 from .se3 import pose, so3_exp, so3_log
@@ -93,37 +94,49 @@ def compensate(
     hints: np.ndarray | None,
     tcp: np.ndarray | None = None,
     frame: str = "tool",
+    tol_m: float = TOL_M,
+    tol_rad: float = TOL_RAD,
 ) -> Compensation:
     """Joints on the calibrated ``robot`` for ``targets`` (N, 3) or (N, 4, 4), and the
     commands (the ``nominal`` model's TCP pose there); the TCP ``tcp`` is fixed in ``frame``
-    (tool or flange). Without hints each target starts from the nominal model's IK solution
-    from zero joints."""
+    (tool or flange). A target counts as reached within ``tol_m`` (m) and ``tol_rad``. Without
+    hints each target starts from default_hints."""
     tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
     if hints is None:
         hints = default_hints(nominal, targets, tcp, frame=frame)
-    solved = robot.ik(targets, hints, tcp=tcp, frame=frame)
+    solved = robot.ik(targets, hints, tcp=tcp, frame=frame, tol_m=tol_m, tol_rad=tol_rad)
     commands = (nominal.fk_tool if frame == "tool" else nominal.fk)(solved.q).copy()  # (N, 4, 4)
     commands[:, :3, 3] += commands[:, :3, :3] @ tcp
     return Compensation(solved.q, commands, solved.residual_m, solved.residual_rad, solved.status)
 
 
+SOLVED = ("ok", "near singularity")
+
+
 def default_hints(
-    nominal: Robot, targets: np.ndarray, tcp: np.ndarray, starts: int = 8, frame: str = "tool"
+    nominal: Robot, targets: np.ndarray, tcp: np.ndarray, starts: int = 8, frame: str = "tool", first: int = 4
 ) -> np.ndarray:
-    """Without a program's joints: the nominal model's IK from the middle of the joint ranges,
-    then from seeded random starts within the limits, keeping the first solution within them."""
+    """Without a program's joints: the nominal model's IK from the middle of the joint ranges
+    and from seeded random starts, each step kept within the limits. Of the solutions, the
+    one nearest the middle of the ranges (in fractions of each range) is kept: ``first``
+    starts for every target, then further ones, up to ``starts``, for targets still without
+    one (those keep the middle of the ranges: the calibrated model's IK then says why)."""
     low, high = nominal.limits[:, 0], nominal.limits[:, 1]
+    middle = 0.5 * (low + high)
+    span = np.maximum(high - low, 1e-9)
     rng = np.random.default_rng(0)
-    hints = np.tile(0.5 * (low + high), (len(targets), 1))
-    settled = np.zeros(len(targets), dtype=bool)
+    hints = np.tile(middle, (len(targets), 1))
+    distance = np.full(len(targets), np.inf)
     for k in range(starts):
-        start = hints if k == 0 else rng.uniform(low, high, hints.shape)
-        solved = nominal.ik(targets, start, tcp=tcp, frame=frame)
-        good = ~settled & np.isin(solved.status, ("ok", "near singularity"))
-        hints[good] = solved.q[good]
-        settled |= good
-        if settled.all():
+        todo = np.arange(len(targets)) if k < first else np.flatnonzero(~np.isfinite(distance))
+        if not len(todo):
             break
+        start = hints[todo] if k == 0 else rng.uniform(low, high, (len(todo), len(low)))
+        solved = nominal.ik(targets[todo], start, tcp=tcp, frame=frame, clamp=True)
+        far = np.linalg.norm((solved.q - middle) / span, axis=1)
+        better = np.isin(solved.status, SOLVED) & (far < distance[todo])
+        hints[todo[better]] = solved.q[better]
+        distance[todo[better]] = far[better]
     return hints
 
 

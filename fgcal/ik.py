@@ -8,7 +8,8 @@ each step also pulls the joints toward the hint in the Jacobian's null space, so
 answer is the smallest joint change from the hint that reaches the target, on the hint's
 branch. Each answer has a status:
 
-- ``ok``: reached within tolerance, within the joint limits (after shifts of 2 pi);
+- ``ok``: reached within the tolerance (``tol_m``, default 1 um; ``tol_rad``, 1 urad), within
+  the joint limits (after shifts of 2 pi);
 - ``unreachable``: the iterations ended farther than the tolerance (out of reach, or a
   hint on the wrong side of a singularity);
 - ``outside joint limits``: reached, but only outside the limits;
@@ -28,6 +29,9 @@ from .se3 import skew, so3_log
 SINGULAR_TOL = 1e-3  # smallest singular value of the TCP Jacobian, m/rad
 DAMPING = 1e-9  # Levenberg damping of the steps (squared singular values)
 MAX_STEP_RAD = 0.5  # joint change per iteration, so that far hints do not jump across the workspace
+TOL_M, TOL_RAD = 1e-6, 1e-6  # what counts as reached (1 um, 1 urad)
+CONVERGED_M, CONVERGED_RAD = 1e-11, 1e-11  # where the iterations stop: far below any tolerance
+POLISH = 8  # Gauss-Newton steps without the pull toward the hint, to finish a position target
 
 
 @dataclass
@@ -61,6 +65,19 @@ def _errors(T: np.ndarray, targets: np.ndarray, pose: bool) -> np.ndarray:
     return np.concatenate([rotation, translation], axis=1)
 
 
+def _step(A: np.ndarray, error: np.ndarray, toward_hint: np.ndarray | None) -> np.ndarray:
+    """Damped Gauss-Newton steps (N, n) for Jacobians A (N, r, n) and errors (N, r), with the
+    pull ``toward_hint`` (N, n) in the null space where the rows leave one (positions)."""
+    At = np.swapaxes(A, 1, 2)
+    # Damped pseudo-inverse: A^T (A A^T + lambda I)^-1
+    pinv = At @ np.linalg.inv(A @ At + DAMPING * np.eye(A.shape[1]))
+    step = np.einsum("nij,nj->ni", pinv, error)
+    if toward_hint is not None and A.shape[1] < A.shape[2]:
+        null = np.eye(A.shape[2]) - pinv @ A
+        step += np.einsum("nij,nj->ni", null, toward_hint)
+    return step
+
+
 def wrap_into_limits(limits: np.ndarray, q: np.ndarray, prismatic: np.ndarray | None = None) -> np.ndarray:
     """Shift angles by multiples of 2 pi toward the joint range (joints may exceed +-pi);
     prismatic joints (mask, m) are left as they are."""
@@ -81,47 +98,61 @@ def inverse_kinematics(
     q_hint: np.ndarray,
     frame: str = "tool",
     tcp: np.ndarray | None = None,
-    tol_m: float = 1e-10,
-    tol_rad: float = 1e-10,
+    tol_m: float = TOL_M,
+    tol_rad: float = TOL_RAD,
     iterations: int = 200,
     singular_tol: float = SINGULAR_TOL,
+    clamp: bool = False,
 ) -> IKResult:
     """Joint angles (N, n) putting the TCP on ``targets``: positions (N, 3) or poses (N, 4, 4)
-    in W, starting from ``q_hint`` (N, n); see the module docstring."""
+    in W, starting from ``q_hint`` (N, n); see the module docstring. The iterations go on to
+    CONVERGED_M (CONVERGED_RAD); ``tol_m`` and ``tol_rad`` say what counts as reached. A
+    position target's iterations pull toward the hint in the null space, which leaves them a
+    few nanometres off where the pull and the error balance: a few steps without the pull
+    finish them (a joint change of that order). With ``clamp`` every step is cut back into
+    the joint limits: the search stays among the solutions within them (a start for targets
+    without a program's joints)."""
     targets = np.asarray(targets, dtype=float)
     pose = targets.ndim == 3
     q = np.array(q_hint, dtype=float, copy=True)
     hint = q.copy()
     tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
     rows = slice(0, 6) if pose else slice(3, 6)
-    n = robot.n_joints
-    for _ in range(iterations):
-        T, J = _tcp_state(robot, params, q, frame, tcp)
-        error = _errors(T, targets, pose)
-        done = np.linalg.norm(error[:, -3:], axis=1) < tol_m
-        if pose:
-            done &= np.linalg.norm(error[:, :3], axis=1) < tol_rad
-        if done.all():
+    active = np.arange(len(q))  # the targets still iterating: only they are evaluated
+    for k in range(iterations + POLISH):
+        if not len(active):
             break
-        A = J[:, rows]  # (N, r, n)
-        At = np.swapaxes(A, 1, 2)
-        # Damped pseudo-inverse: A^T (A A^T + lambda I)^-1
-        pinv = At @ np.linalg.inv(A @ At + DAMPING * np.eye(A.shape[1]))
-        step = np.einsum("nij,nj->ni", pinv, error)
-        if A.shape[1] < n:  # redundant: toward the hint in the null space
-            null = np.eye(n) - pinv @ A
-            step += np.einsum("nij,nj->ni", null, hint - q)
+        pull = k < iterations
+        T, J = _tcp_state(robot, params, q[active], frame, tcp)
+        error = _errors(T, targets[active], pose)
+        done = np.linalg.norm(error[:, -3:], axis=1) < CONVERGED_M
+        if pose:
+            done &= np.linalg.norm(error[:, :3], axis=1) < CONVERGED_RAD
+        keep = ~done
+        active, A, error = active[keep], J[keep][:, rows], error[keep]  # A: (N, r, n)
+        if not len(active):
+            break
+        step = _step(A, error, hint[active] - q[active] if pull else None)
+        if clamp:
+            # A joint at a limit that the step would push beyond it stays there, and the others
+            # take up its share (the arm is redundant for a position): an active set.
+            at_low, at_high = q[active] <= robot.limits[:, 0], q[active] >= robot.limits[:, 1]
+            blocked = (at_low & (step < 0)) | (at_high & (step > 0))
+            if blocked.any():
+                step = _step(A * ~blocked[:, None, :], error, hint[active] - q[active] if pull else None)
+                step[blocked] = 0.0
         norm = np.linalg.norm(step, axis=1, keepdims=True)
-        step *= np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))
-        q = np.where(done[:, None], q, q + step)
+        q[active] += step * np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))
+        if clamp:
+            q[active] = np.clip(q[active], robot.limits[:, 0], robot.limits[:, 1])
     T, J = _tcp_state(robot, params, q, frame, tcp)
     error = _errors(T, targets, pose)
     residual_m = np.linalg.norm(error[:, -3:], axis=1)
     residual_rad = np.linalg.norm(error[:, :3], axis=1) if pose else None
     q = wrap_into_limits(robot.limits, q, robot.prismatic)
-    reached = residual_m <= 10 * tol_m  # the loop stops below tol; 10x for the final re-evaluation
+    reached = residual_m <= tol_m
     if pose:
-        reached &= residual_rad <= 10 * tol_rad
+        reached &= residual_rad <= tol_rad
     within = np.all((q >= robot.limits[:, 0]) & (q <= robot.limits[:, 1]), axis=1)
     smallest = np.linalg.svd(J[:, rows], compute_uv=False)[:, -1]
     status = np.where(
