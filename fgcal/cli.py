@@ -13,17 +13,34 @@ import numpy as np
 from .errors import FgcalError
 
 
-def _bundled_cell(path: str) -> Path:
-    """A cell path as given, or a bundled cell name such as ``kr125_seed``."""
-    candidate = Path(path)
-    if candidate.exists() or candidate.suffix in (".yaml", ".yml"):
-        return candidate
+def bundled_cells() -> list[str]:
     from .robot_io import robots_dir
 
-    return robots_dir().parent / "cells" / f"{path}.yaml"
+    return sorted(p.stem for p in (robots_dir().parent / "cells").glob("*.yaml"))
+
+
+def _bundled_cell(path: str) -> Path:
+    """A cell file as given (a path ending in .yaml), or a bundled cell's name such as
+    ``kr125_seed``: a name without the suffix is a bundled cell, whatever local folder is
+    called the same."""
+    from .errors import InputError
+    from .robot_io import robots_dir
+
+    candidate = Path(path)
+    if candidate.suffix in (".yaml", ".yml"):
+        return candidate
+    bundled = robots_dir().parent / "cells" / f"{path}.yaml"
+    if bundled.exists():
+        return bundled
+    if candidate.is_file():
+        return candidate
+    raise InputError(path, None, f"no such cell file or bundled cell (bundled: {', '.join(bundled_cells())})")
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from .calibration.suggest import write_suggested_config
+    from .dataset import load_dataset
+    from .simulation.cell import load_cell
     from .simulation.simulate import simulate
 
     result = simulate(
@@ -38,6 +55,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         configurations=args.configurations,
     )
     print(result.summary())
+    config = write_suggested_config(load_cell(_bundled_cell(args.cell)), load_dataset(args.out))
+    print(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
     return 0
 
 
@@ -281,15 +300,28 @@ def cmd_robots(args: argparse.Namespace) -> int:
 
 
 def cmd_fk(args: argparse.Namespace) -> int:
+    from .errors import InputError
     from .robot_io import load_robot
 
     robot = load_robot(args.robot, args.tip)
     q = np.array(args.q, dtype=float)
+    if len(q) != robot.n_joints:
+        raise InputError(None, "q", f"{robot.name} has {robot.n_joints} joints: {robot.n_joints} values, got {len(q)}")
     if args.deg:
-        q = np.deg2rad(q)
+        q = np.where(robot.prismatic, q, np.deg2rad(q))
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    outside = np.flatnonzero((q < low - 1e-12) | (q > high + 1e-12))
+    if len(outside):
+        i = outside[0]
+        unit = "m" if robot.prismatic[i] else "rad"
+        hint = " (degrees need --deg)" if not args.deg and not robot.prismatic[i] else ""
+        raise InputError(
+            None, f"q{i + 1}", f"{args.q[i]:g} is {q[i]:.4g} {unit}, outside the joint's limits "
+            f"[{low[i]:.4g}, {high[i]:.4g}] {unit}{hint}",
+        )  # fmt: skip
     T = robot.fk_tool(q) if args.tool else robot.fk(q)
     np.set_printoptions(precision=6, suppress=True)
-    print(f"T_W_{'C' if args.tool else 'n'} (m):\n{T}")
+    print(f"T_W_{'C' if args.tool else 'n'} (m) of {robot.name}:\n{np.round(T, 12) + 0.0}")  # no -0.
     return 0
 
 
@@ -407,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("robots", help="list the bundled robot descriptions")
     p.set_defaults(func=cmd_robots)
 
-    p = sub.add_parser("fk", help="forward kinematics of a robot at one configuration (nominal model)")
+    p = sub.add_parser("fk", help="forward kinematics of a robot (bundled, or a robot file) at one configuration")
     p.add_argument("robot", help="bundled robot name, robot YAML file or URDF")
     p.add_argument("--tip", help="tip link of a URDF (default tool0, else its only leaf)")
     p.add_argument("q", nargs="+", type=float, help="joint angles (rad, or deg with --deg)")

@@ -382,9 +382,11 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     return counts
 
 
-def _relative_robot(reference: str, base: Path, out: Path) -> str:
+def _relative_robot(reference, base: Path, out: Path):
     """The robot entry as seen from the dataset: a robot file's path relative to ``out``."""
     resolved = robot_reference(base, reference)
+    if isinstance(resolved, dict):
+        return {**resolved, "file": os.path.relpath(resolved["file"], out.resolve())}
     if resolved == reference:
         return reference
     return os.path.relpath(resolved, out.resolve())

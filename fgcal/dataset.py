@@ -11,6 +11,7 @@ Header fields (documented in docs/formats.md)::
     payload: {mass, com}           # kg; com in the flange frame (gravity moments need it)
     fixture: {xyz, rpy}            # nominal T_W_F of the calibration objects (drawing)
     tracker: {targets: [names]}    # when a tracker was used
+    noise: {tracker_sigma: 1.5e-5, ...}  # the instrument's stated noise (a calibration config's noise keys)
     source: free text (simulation seed, converter, instrument)
 
 Tables (first row is the header; ``config`` refers to ``configurations.csv``):
@@ -43,6 +44,7 @@ from .boards import DICTIONARY, SideBoard
 from .camera import Camera, parse_camera
 from .errors import InputError
 from .fields import Fields, is_plain_number, read_yaml
+from .noise import parse_noise
 from .robot import Robot
 from .robot_io import referenced_robot
 from .se3 import pose_from_xyz_rpy
@@ -61,6 +63,7 @@ HEADER_KEYS = (
     "images",
     "markers",
     "tracker",
+    "noise",
     "source",
     "notes",
 )
@@ -119,6 +122,7 @@ class Dataset:
     images_dir: Path | None = None  # camera images, one per configuration: <config>.png
     boards: list = field(default_factory=list)  # fgcal.markers.SideBoard of each marked side
     header: dict = field(default_factory=dict)
+    noise: dict[str, float] = field(default_factory=dict)  # the instrument's stated sigmas (fgcal.noise), SI
 
     def points_F(self) -> dict[str, np.ndarray]:
         """Calibration points by name, in the fixture frame (m)."""
@@ -249,7 +253,7 @@ def load_dataset(path: str | Path) -> Dataset:
     if len(set(configs)) != len(configs):
         raise InputError(config_path, "config", "duplicate configuration ids")
 
-    dataset = Dataset(root, robot, configs, q, header=dict(doc.data))
+    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=parse_noise(doc, units))
     known = set(configs)
     for name in TABLES:
         if not files.has(name):

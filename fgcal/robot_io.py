@@ -86,20 +86,38 @@ def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
 ROBOT_FILE_SUFFIXES = (".yaml", ".yml", ".urdf")
 
 
-def robot_reference(directory: Path, reference: str) -> str:
-    """A ``robot:`` entry of a cell or dataset file: a bundled robot's name as it is, a
-    robot file (YAML or URDF) as its absolute path, relative to ``directory``."""
-    if Path(reference).suffix.lower() in ROBOT_FILE_SUFFIXES:
-        return str((directory / reference).resolve())
-    return reference
+def robot_reference(directory: Path, raw: object, source: str | Path | None = None, field: str = "robot"):
+    """A ``robot:`` entry of a cell, dataset or mapping file, its robot file made absolute
+    (relative to ``directory``): a bundled robot's name, a robot file (YAML or URDF), or
+    ``{file: ARM.urdf, tip: LINK}`` for a URDF's chain to a named tip link."""
+    if isinstance(raw, str):
+        return str((directory / raw).resolve()) if Path(raw).suffix.lower() in ROBOT_FILE_SUFFIXES else raw
+    if isinstance(raw, dict):
+        entry = Fields(raw, source or "<robot>", field)
+        entry.check_keys(("file", "tip"))
+        file = entry.string("file")
+        if Path(file).suffix.lower() != ".urdf":
+            raise entry.error("file", f"a tip link names a link of a URDF file, got {file!r}")
+        return {"file": str((directory / file).resolve()), "tip": entry.string("tip")}
+    raise InputError(
+        source, field, f"expected a bundled robot's name, a robot file or {{file: ARM.urdf, tip: LINK}}, got {raw!r}"
+    )
 
 
-def referenced_robot(fields: Fields, directory: Path) -> tuple[str, Robot]:
+def load_referenced(reference) -> Robot:
+    """The robot a resolved ``robot:`` entry (robot_reference) names."""
+    if isinstance(reference, dict):
+        return load_robot(reference["file"], reference["tip"])
+    return load_robot(reference)
+
+
+def referenced_robot(fields: Fields, directory: Path) -> tuple[object, Robot]:
     """The ``robot:`` entry of a document (a dataset header, an import mapping) and the robot
     it names; a robot file is relative to ``directory``. Errors name the document's field."""
-    reference = fields.string("robot")
+    raw = fields.raw("robot")
+    reference = robot_reference(directory, raw, fields.source, fields.path("robot"))
     try:
-        return reference, load_robot(robot_reference(directory, reference))
+        return raw, load_referenced(reference)
     except InputError as exc:
         raise fields.error("robot", str(exc)) from None
 

@@ -328,8 +328,12 @@ def export_urdf(robot: Robot, path: str | Path) -> tuple[Path, Path]:
     path = Path(path)
     if path.suffix.lower() != ".urdf":
         raise InputError(path, None, "the URDF file name must end in .urdf")
-    if not path.parent.is_dir():
-        raise InputError(path, None, f"no such directory {path.parent}")
+    if path.is_dir():
+        raise InputError(path, None, "is a directory: give the URDF file's name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, None, f"cannot create its folder: {exc.strerror}") from None
     sidecar = path.with_name(f"{path.stem}.compliance.yaml")
     path.write_text(urdf_document(robot, sidecar.name), encoding="utf-8")
     sidecar.write_text(yaml.safe_dump(compliance_document(robot, path.name), sort_keys=False), encoding="utf-8")

@@ -37,3 +37,48 @@ def test_robots_lists_library(capsys):
 def test_console_entry_point(argv):
     result = subprocess.run([sys.executable, "-m", "fgcal.cli", *argv], capture_output=True, text=True, check=False)
     assert result.returncode == 0 and "usage" in result.stdout
+
+
+def test_an_internal_error_is_a_traceback_and_exit_1_not_a_user_error(monkeypatch, capsys):
+    """Issue 21: a bug (here a RuntimeError, as GTSAM raises, in a command) is never dressed as
+    the user's: 'internal error', the traceback, exit status 1."""
+    import fgcal.cli
+
+    def broken(_args):
+        raise RuntimeError("Indeterminate linear system detected while working near variable p0")
+
+    monkeypatch.setattr(fgcal.cli, "cmd_robots", broken)
+    assert main(["robots"]) == 1
+    err = capsys.readouterr().err
+    assert "internal error" in err and "Traceback" in err and "Indeterminate" in err
+
+
+def test_fk_reads_degrees_only_when_told(capsys):
+    """Issue 22, item 12: 90 without --deg is 90 rad: refused, naming the joint and --deg;
+    the pose printed has no negative zeros."""
+    assert main(["fk", "abb_irb120", "90", "0", "0", "0", "0", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "q1" in err and "--deg" in err and "\n" not in err.strip()
+    assert main(["fk", "abb_irb120", "90", "0", "0", "0", "0", "0", "--deg"]) == 0
+    printed = capsys.readouterr().out
+    assert "-0." not in printed and "ABB IRB 120" in printed
+
+
+def test_a_local_folder_does_not_hide_a_bundled_cell(tmp_path, monkeypatch, capsys):
+    """Issue 22, item 12: a folder named kr125_seed in the working directory does not hide the
+    bundled cell; an unknown cell name lists the bundled cells."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "kr125_seed").mkdir()
+    assert main(["simulate", "kr125_seed", "--out", "o", "--design", "space_filling", "--n", "5"]) == 0
+    capsys.readouterr()
+    assert main(["simulate", "no_such_cell", "--out", "o2"]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_cell" in err and "kr125_seed" in err and "irb120_tracker" in err
+
+
+def test_export_creates_its_folder(tmp_path, capsys):
+    """Issue 22, item 12: fgcal export makes the folder it writes into."""
+    assert main(["export", "abb_irb120", "--urdf", str(tmp_path / "new" / "dir" / "irb120.urdf")]) == 0
+    assert (tmp_path / "new" / "dir" / "irb120.urdf").exists()
+    assert (tmp_path / "new" / "dir" / "irb120.compliance.yaml").exists()
+    assert main(["export", "abb_irb120", "--urdf", str(tmp_path / "new")]) == 2

@@ -86,7 +86,8 @@ def test_no_import_circles():
 # Lowest first. A module belongs to the first layer with a matching prefix; every module must
 # belong to one (a new module states its layer here).
 LAYERS = (
-    ("core", ("fgcal.errors", "fgcal.fields", "fgcal.units", "fgcal.strict_json", "fgcal.parameters", "fgcal.se3")),
+    ("core", ("fgcal.errors", "fgcal.fields", "fgcal.units", "fgcal.strict_json", "fgcal.parameters", "fgcal.se3",
+              "fgcal.noise")),
     (
         "model",
         ("fgcal.ets", "fgcal.joints", "fgcal.kinematics", "fgcal.robot", "fgcal.robot_io", "fgcal.urdf_io",

@@ -305,6 +305,10 @@ def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_pa
     command += ["--setup", str(small_case / "setup.yaml"), "--once"]
     rng = np.random.default_rng(13)
     log = state / LOG
+
+    def logged_count() -> int:
+        return log.read_bytes().count(b"\n") if log.exists() else 0
+
     kills, damaged_records, damaged_checkpoints, refed = 0, 0, 0, 0
     expected = list(names)
     for _ in range(80):
@@ -316,7 +320,12 @@ def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_pa
             (state / "checkpoint.json").write_bytes(b'{"n_records": "x"')
             damaged_checkpoints += 1
         process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
-        time.sleep(rng.uniform(0.3, 2.0))  # start-up (imports, replay) takes about a second
+        # Kill once the log has grown by a few records (however slow the machine), a random
+        # moment later: in the append, the move, the solve or the outputs.
+        target = logged_count() + int(rng.integers(1, 4))
+        while process.poll() is None and logged_count() < target:
+            time.sleep(0.005)
+        time.sleep(rng.uniform(0.0, 0.05))
         if process.poll() is None:
             process.send_signal(signal.SIGKILL)
             process.wait()

@@ -14,6 +14,7 @@ import pytest
 import yaml
 from conftest import REPO
 
+import fgcal
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.formulations import REGISTRY
 from fgcal.calibration.results import primary_score
@@ -105,6 +106,14 @@ def test_each_formulation_through_the_whole_pipeline(fast_cells, name, tmp_path)
     assert report["validation"]["after"]["position_error_m"]["rms"] == pytest.approx(truth_after, rel=1e-12)
     assert report["validation"]["predicted_position_sigma_m"]["rms"] == pytest.approx(scored.prediction.rms)
     assert "## Held-out error" in (tmp_path / "report.md").read_text()
+    # The calibrated robot file carries the tool the calibration estimated on the flange (a
+    # probe, a ball, a 6D probe's frame; issue 22, item 9), or its own calibrated tool.
+    robot, params = scored.problem.robot, scored.parameters
+    q = scored.problem.dataset.q[:4]
+    tool = formulation.tool_frame(scored.state)
+    expected = robot.fk_tool(q, params) if tool is None else robot.fk(q, params) @ tool
+    np.testing.assert_allclose(fgcal.load_robot(tmp_path / "calibrated_robot.yaml").fk_tool(q), expected, atol=1e-12)
+    assert (tool is not None) == (name in ("touch", "distances", "poses"))
 
 
 def test_the_default_solve_equals_an_independent_gauss_newton(fast_cells):

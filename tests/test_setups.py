@@ -131,6 +131,33 @@ def test_a_point_touched_once_is_refused(touch_sims, tmp_path):
         calibrate_untouched(config)
 
 
+def test_sockets_only_a_validation_set_touches_are_scored_leave_one_out(touch_sims, tmp_path):
+    """Issue 22, item 7: a validation session of the same arm touching two sockets the fit never
+    touched (and one it did). Before, it was refused, naming the fitting set's touch_points.csv;
+    now each new socket is scored at each touch against where its other touches put it, and
+    the held-out error is within 1.5x of its prediction and 20x below the nominal model's."""
+    cell = yaml.safe_load(TOUCH_CELL.read_text())
+    cell["robot"] = str(TOUCH_CELL.parent / cell["robot"])
+    cell["touch"]["points"] = [
+        {"name": "v1", "xyz": [600, -100, 180]},
+        {"name": "v2", "xyz": [500, 200, 250]},
+        {"name": "s1", "xyz": [550, -250, 150]},
+    ]
+    cell["touch"]["touches_per_point"] = 8
+    cell["touch"]["known_distances"] = False
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    simulate(tmp_path / "cell.yaml", tmp_path / "validation", seed=1)  # seed 1: the fit's true robot
+    config = CalibrationConfig.defaults(
+        touch_sims[1], **{**TOUCH_CONFIG, "validation": {"dataset": str(tmp_path / "validation")}}
+    )
+    result = calibrate_untouched(config)
+    assert result.problem.observations.names == ("s1", "s2", "s3", "s4", "s5")
+    assert [name for name, _ in result.test_observations.test_points] == ["v1", "v2"]
+    before, after = (result.validation[k]["tool_point"] for k in ("before", "after"))
+    assert len(after.errors) == 24
+    assert after.rms <= 1.5 * result.prediction.rms and after.rms * 20 <= before.rms, (after.rms, result.prediction)
+
+
 def _positioner_cell(tmp_path: Path, table_height_mm: float) -> Path:
     """A two-axis positioner (bundled) measured by a tracker with three reflectors 1 m from the
     table centre; ``table_height_mm`` puts the table centre above the tilt axis (0: on it)."""
@@ -301,6 +328,37 @@ def test_a_separate_validation_set_scores_its_own_test_point(validation_sets, de
     assert result.problem.observations.names == ("t1", "t2", "t3")
     before, after = (result.validation[k]["tool_point"].rms for k in ("before", "after"))
     assert after <= 1.5 * result.measured_prediction.rms and after * 20 <= before
+
+
+def test_several_validation_sets_are_scored_each(validation_sets, tmp_path):
+    """Issue 22, item 10: validation.dataset takes a list; the report says which sets it scored
+    (with the fitting dataset's own held-out configurations), each one's figures, and how its
+    test points were scored."""
+    from fgcal.dataset import write_csv
+    from fgcal.reports.calibration import write_report
+
+    q = np.random.default_rng(7).uniform(-1.0, 1.0, (20, 6))
+    write_csv(tmp_path / "q.csv", ["config", *[f"q{i}" for i in range(1, 7)]],
+              [[f"w{i}", *map(float, r)] for i, r in enumerate(q)])  # fmt: skip
+    simulate(validation_sets / "test_cell.yaml", tmp_path / "test2", seed=1, configurations=tmp_path / "q.csv")
+    for name in ("tracker_points.csv", "dataset.yaml"):
+        path = tmp_path / "test2" / name
+        path.write_text(path.read_text().replace(",t1,", ",test1,").replace("- t1", "- test1"))
+    sets = [str(validation_sets / "test"), str(tmp_path / "test2")]
+    config = CalibrationConfig.defaults(
+        validation_sets / "fit", formulation="tracker", noise={"tracker_sigma": 1.5e-5},
+        validation={"dataset": sets, "holdout": 0.2},
+    )  # fmt: skip
+    result = calibrate_untouched(config)
+    assert len(result.problem.test) == 20 + 40 + 20
+    doc = write_report(result, tmp_path / "report", plots=False)
+    scored = doc["validation"]["sets"]
+    assert [entry["dataset"] for entry in scored] == ["held out of the fitting dataset", *sets]
+    assert [entry["n_configurations"] for entry in scored] == [20, 40, 20]
+    assert all(entry["scores"]["position_error_m"]["rms"] < 1e-4 for entry in scored)
+    assert doc["validation"]["test_points"] == {"test1": "leave-one-out"}
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert all(path in text for path in sets) and "test1 (leave-one-out)" in text
 
 
 def test_a_validation_set_of_another_robot_is_refused(validation_sets, tmp_path):

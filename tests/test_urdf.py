@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 import yourdfpy
-from conftest import random_parameters, random_urdf
+from conftest import REPO, random_parameters, random_urdf
 
 import fgcal
 from fgcal import kinematics
@@ -195,3 +195,31 @@ def test_urdf_robot_simulated_and_calibrated_end_to_end(tmp_path):
     assert after < before / 100, (before, after)
     assert after <= 1.5 * predicted, (after, predicted)
     assert any(name.startswith(("tx", "rx", "ry")) for name in result.identifiability.identifiable)
+
+
+def test_a_cell_and_its_dataset_name_the_urdfs_tip_link(tmp_path, capsys):
+    """Issue 22, item 8: a URDF with several leaf links and no tool0 is refused by name alone;
+    ``robot: {file: arm.urdf, tip: LINK}`` names the tip in a cell, and the simulated dataset's
+    header carries it, so the dataset loads the same chain."""
+    from fgcal.dataset import load_dataset
+    from fgcal.simulation.cell import load_cell
+
+    text = random_urdf(tmp_path / "src.urdf", np.random.default_rng(3), 6).read_text()
+    (tmp_path / "arm.urdf").write_text(text.replace('<link name="tool0"/>', "").split('<joint name="tool0_joint"')[0]
+                                       + "</robot>")  # fmt: skip
+    with pytest.raises(fgcal.InputError, match="name the tip"):
+        fgcal.load_robot(tmp_path / "arm.urdf")
+    cell = yaml.safe_load((REPO / "datasets" / "cells" / "irb120_tracker.yaml").read_text())
+    cell["robot"] = {"file": "arm.urdf", "tip": "flange"}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    assert load_cell(tmp_path / "cell.yaml").robot.n_joints == 6
+    assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "data"), "--n", "20"]) == 0
+    header = yaml.safe_load((tmp_path / "data" / "dataset.yaml").read_text())
+    assert header["robot"]["tip"] == "flange" and header["robot"]["file"].endswith("arm.urdf")
+    dataset = load_dataset(tmp_path / "data")
+    q = dataset.q[:3]
+    np.testing.assert_allclose(dataset.robot.fk(q), fgcal.load_robot(tmp_path / "arm.urdf", tip="flange").fk(q))
+    cell["robot"] = {"file": "arm.urdf", "tip": "ghost"}
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "other")]) == 2
+    assert "no link 'ghost'" in capsys.readouterr().err

@@ -7,11 +7,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..fields import Fields, read_yaml
+from ..noise import parse_noise
 from ..parameters import JOINT_KINDS, ORIGIN_CORRECTION_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 from .formulations import NAMES
-from .settings import MeasurementSettings, parse_intrinsics, parse_noise, parse_pairs, parse_robust
+from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
 KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
@@ -64,9 +65,9 @@ class CalibrationConfig:
     pixels_from: str = "table"
     # DH, DH,s and DH,s,e are all fitted and compared (always with model: auto).
     compare_models: bool = False
-    # A separate validation set (a dataset directory): its configurations are the held-out ones
-    # (with the fitting set's own holdout, 0 by default then).
-    validation_dataset: Path | None = None
+    # Separate validation sets (dataset directories): their configurations are held out (with
+    # the fitting set's own holdout, 0 by default then).
+    validation_datasets: tuple[Path, ...] = ()
     notes: dict = field(default_factory=dict)
 
     @property
@@ -104,6 +105,20 @@ def _stages(doc: Fields) -> tuple[str, tuple[tuple[str, ...], ...]]:
     return "custom", tuple(stages)
 
 
+def _validation_datasets(validation: Fields, base: Path) -> tuple[Path, ...]:
+    """``validation.dataset``: one directory, or a list of them (relative to the config)."""
+    raw = validation.raw("dataset", None)
+    if raw is None:
+        return ()
+    entries = raw if isinstance(raw, list) else [raw]
+    if not entries or not all(isinstance(e, str) and e for e in entries):
+        raise validation.error("dataset", f"expected a dataset directory or a list of them, got {raw!r}")
+    paths = tuple(base / e for e in entries)
+    if len({p.resolve() for p in paths}) != len(paths):
+        raise validation.error("dataset", "a validation set is listed twice")
+    return paths
+
+
 def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> CalibrationConfig:
     doc = Fields(raw, source)
     doc.check_keys(CONFIG_KEYS)
@@ -119,21 +134,23 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     bounds.check_keys(("length",))
     validation = doc.sub("validation", {})
     validation.check_keys(("holdout", "seed", "dataset", "tool_points"))
-    validation_dataset = base / validation.string("dataset") if validation.has("dataset") else None
+    validation_datasets = _validation_datasets(validation, base)
     declared_points = validation.sub("tool_points", {})
     validation_tool_points = {
         str(name): tuple(declared_points.vector(str(name), 3, scale=units.to_m)) for name in declared_points.data
     }
-    holdout = validation.number("holdout", 0.0 if validation_dataset is not None else 0.25)
+    holdout = validation.number("holdout", 0.0 if validation_datasets else 0.25)
     if not 0.0 <= holdout < 0.9:
         raise validation.error("holdout", f"fraction of configurations held out must be in [0, 0.9), got {holdout}")
     ident = doc.sub("identifiability", {})
     ident.check_keys(("min_information",))
     solver = doc.sub("solver", {})
     solver.check_keys(("max_iterations",))
+    stated = parse_noise(doc, units)
     measurement = MeasurementSettings(
         source=source,
-        noise=parse_noise(doc, units),
+        noise=Noise.stated(stated),
+        noise_stated=stated,
         robust=parse_robust(doc),
         fixture_orientation=doc.string("fixture_orientation", "known", ("known", "estimate")),
         pairs=parse_pairs(doc),
@@ -156,7 +173,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),
-        validation_dataset=validation_dataset,
+        validation_datasets=validation_datasets,
     )
 
 

@@ -129,6 +129,8 @@ class Problem:
     max_iterations: int  # of the optimiser, per stage
     rejected: tuple[Rejection, ...] = ()
     detection: Detection | None = None
+    # Separate validation sets: (directory, indices of their configurations in the dataset).
+    validation_sets: tuple[tuple[str, np.ndarray], ...] = ()
 
     @property
     def frame(self) -> str:
@@ -248,10 +250,12 @@ class Formulation(ABC):
     score_rows: ClassVar[slice] = slice(None)  # of those, the rows the score measures
     score_vectors: ClassVar[bool] = True  # the score's errors are 3-vectors (RMS per axis too)
     likely_causes: ClassVar[str]
-    # What fgcal plan models of this setup's measurements at a candidate configuration:
-    # "camera" (a camera on the flange sees a block of the cell's fixture points), "tracker"
-    # (a tracker sees the cell's reflectors on the flange), or None (not planned yet).
-    planning: ClassVar[str | None] = None
+    # What measures (fgcal.simulation.cell.INSTRUMENTS): "camera" (on the flange, seeing the
+    # cell's calibration objects), "tracker" (reflectors on the flange), "tracker_probe" (a 6D
+    # probe), "touch", "ballbar", "static_camera". fgcal simulate suggests, for a cell's first
+    # instrument, the first registered formulation that reads it; fgcal plan models the camera
+    # and the tracker.
+    instrument: ClassVar[str]
 
     # -- what the setup measures --------------------------------------------------------
 
@@ -386,6 +390,17 @@ class Formulation(ABC):
     def details(self, problem: Problem) -> dict:
         """What else report.json says about this formulation's data (SI)."""
         return {}
+
+    def test_point_modes(self, problem: Problem, observations: Observations) -> dict[str, str]:
+        """How each test point (a point only the held-out configurations measure) is scored:
+        ``declared`` (at its drawing's position) or ``leave-one-out``."""
+        return {}
+
+    def tool_frame(self, state: State) -> np.ndarray | None:
+        """The tool the calibration estimated on the flange, T_n_tool (a touch probe, a ball, a 6D
+        probe's frame), which the calibrated robot file carries as its tool; None: the robot's
+        own tool (the camera mounting is among the parameters, tool.*)."""
+        return None
 
     def default_tool_point(self, problem: Problem, state: State) -> np.ndarray:
         """The point (in the formulation's frame) a report scores and a compensation drives."""

@@ -21,9 +21,10 @@ from .models import compare_models
 from .problem import Detection, Problem, candidate_parameters, compliant_joints, split
 from .references import reference_check
 from .results import SCORES, CalibrationResult, StageReport, primary_score, stats
+from .settings import Noise
 from .solve import solve_stage, stage_parameters
 from .state import State
-from .validation_set import with_validation_set
+from .validation_set import with_validation_sets
 
 Say = Callable[[str], None]
 
@@ -44,22 +45,29 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         detections = detect_images(dataset, progress=say)
         dataset = dataclasses.replace(dataset, tables={**dataset.tables, "pixels": detections.pixels})
         detection = Detection(len(dataset.configs), detections.corners, detections.rejected, tuple(detections.skipped))
+    # The noise in effect: fgcal's defaults, what the instrument states (the dataset), what the
+    # config states, the later winning.
+    settings = dataclasses.replace(
+        config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
+    )
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
-    if config.validation_dataset is not None:
-        dataset, validation = with_validation_set(dataset, config)
-        test = np.concatenate([test, validation])
+    validation_sets: list[tuple[str, np.ndarray]] = []
+    if config.validation_datasets:
+        dataset, validation_sets = with_validation_sets(dataset, config)
+        test = np.concatenate([test, *(indices for _, indices in validation_sets)])
     return Problem(
         formulation=formulation,
-        settings=config.measurement,
+        settings=settings,
         dataset=dataset,
         robot=robot,
         fit=fit,
         test=test,
         candidates=tuple(candidate_parameters(robot, config.model, config.compliant_joints)),
-        observations=formulation.fit_observations(dataset, config.measurement, fit),
+        observations=formulation.fit_observations(dataset, settings, fit),
         length_bound_m=config.length_bound_m,
         max_iterations=config.max_iterations,
         detection=detection,
+        validation_sets=tuple(validation_sets),
     )
 
 

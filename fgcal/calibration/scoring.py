@@ -59,9 +59,9 @@ def score_with_truth(result: CalibrationResult) -> CalibrationResult:
     truth = load_truth(problem.dataset.path)
     if truth is None:
         return result
-    if result.config.validation_dataset is not None:
+    for path in result.config.validation_datasets:
         # A validation set is scored against the truth only when it measured the same true robot.
-        other = load_truth(result.config.validation_dataset)
+        other = load_truth(path)
         if other is None or other.parameters != truth.parameters:
             return result
     validation = {

@@ -9,36 +9,34 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..fields import Fields
-from ..units import Units
+from ..noise import NOISE
 
 PARTNERS = ("other_object", "same_object", "same_side", "any")
 
 
 @dataclass(frozen=True)
 class Noise:
-    """Declared standard deviations of the measurements (SI), per coordinate."""
+    """Declared standard deviations of the measurements (SI), per coordinate
+    (fgcal.noise.NOISE says what each is); by default fgcal's, else what the dataset's
+    instrument states, else what the config states."""
 
-    camera_point_m: float = 1e-4  # a point measured in the camera frame
-    tracker_m: float = 1e-5  # a tracker point
-    pixel_px: float = 0.1  # a detected image point
-    touch_m: float = 2e-5  # where a touch puts the tool point, about its socket
-    spacing_m: float = 1e-5  # a known distance between touch points
-    pose_m: float = 2e-5  # a measured pose's position (6D probe, a board's pose)
-    pose_rad: float = 1e-4  # a measured pose's orientation, about each axis
-    distance_m: float = 5e-6  # a ballbar's (1D gauge's) reading
+    camera_point_m: float = NOISE["camera_point_m"][2]
+    tracker_m: float = NOISE["tracker_m"][2]
+    pixel_px: float = NOISE["pixel_px"][2]
+    touch_m: float = NOISE["touch_m"][2]
+    spacing_m: float = NOISE["spacing_m"][2]
+    pose_m: float = NOISE["pose_m"][2]
+    pose_rad: float = NOISE["pose_rad"][2]
+    distance_m: float = NOISE["distance_m"][2]
 
+    @staticmethod
+    def stated(*statements: dict[str, float]) -> Noise:
+        """fgcal's defaults overridden by each statement in turn (later ones win)."""
+        values: dict[str, float] = {}
+        for statement in statements:
+            values.update(statement)
+        return Noise(**values)
 
-# Config key (noise.*) of each Noise field, and whether it is a length, an angle or pixels.
-NOISE_KEYS = {
-    "camera_point_m": ("camera_point_sigma", "length"),
-    "tracker_m": ("tracker_sigma", "length"),
-    "pixel_px": ("pixel_sigma_px", "pixel"),
-    "touch_m": ("touch_sigma", "length"),
-    "spacing_m": ("spacing_sigma", "length"),
-    "pose_m": ("pose_sigma", "length"),
-    "pose_rad": ("pose_angle_sigma", "angle"),
-    "distance_m": ("distance_sigma", "length"),
-}
 
 # robust.* entry of each measurement kind and its default loss (threshold in robust sigmas).
 # Cauchy for pixels: the influence of a gross false detection fades (Huber's stays k sigma).
@@ -67,7 +65,8 @@ class MeasurementSettings:
     """Everything a formulation reads from the config; ``source`` names the config in errors."""
 
     source: Path = Path("<defaults>")
-    noise: Noise = field(default_factory=Noise)
+    noise: Noise = field(default_factory=Noise)  # in effect: defaults, the dataset's, the config's
+    noise_stated: Mapping[str, float] = field(default_factory=dict)  # what the config states (SI)
     robust: Mapping[str, tuple[str, float] | None] = field(default_factory=lambda: dict(ROBUST_DEFAULTS))
     fixture_orientation: str = "known"  # pairs: the fixture's orientation in W known or estimated
     pairs: PairSettings = field(default_factory=PairSettings)
@@ -76,17 +75,6 @@ class MeasurementSettings:
     intrinsics_prior_sigmas: tuple[float, ...] | None = None
     # Tool points measured only by a separate validation set, declared on the flange (m).
     validation_tool_points: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
-
-
-def parse_noise(doc: Fields, units: Units) -> Noise:
-    section = doc.sub("noise", {})
-    section.check_keys([key for key, _ in NOISE_KEYS.values()])
-    defaults = Noise()
-    values = {}
-    for name, (key, kind) in NOISE_KEYS.items():
-        scale = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}[kind]
-        values[name] = section.number(key, getattr(defaults, name) / scale, scale, positive=True)
-    return Noise(**values)
 
 
 def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:

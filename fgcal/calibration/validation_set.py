@@ -1,8 +1,10 @@
-"""A separate validation set: another dataset of the same robot and instrument whose
-configurations are all held out (``validation: {dataset: DIR}`` in the config).
+"""Separate validation sets: other datasets of the same robot and instrument whose
+configurations are all held out (``validation: {dataset: DIR}`` or ``{dataset: [DIR, ...]}``
+in the config).
 
-Its configurations and measurement tables are appended to the fitting dataset's, their ids
-prefixed with ``validation/``; the problem then holds them out like any held-out
+Their configurations and measurement tables are appended to the fitting dataset's, their ids
+prefixed with ``validation/`` (``validation1/``, ``validation2/``, ... when there are several);
+the problem then holds them out like any held-out
 configuration and scores them like the fitting data. A tool point measured only in the
 validation set (a test point on the tool that the fit never saw) is declared in the config
 (``validation.tool_points``) or fitted leave-one-out (fgcal.calibration.formulations.tracker).
@@ -27,9 +29,24 @@ SESSION_ONLY = ("tracker_references",)
 CONFIG_COLUMNS = ("config", "config_a", "config_b")
 
 
-def with_validation_set(dataset: Dataset, config: CalibrationConfig) -> tuple[Dataset, np.ndarray]:
-    """The dataset with the validation set appended, and the indices of its configurations."""
-    path = config.validation_dataset
+def prefix(k: int, count: int) -> str:
+    """The configuration-id prefix of validation set ``k`` of ``count``."""
+    return PREFIX if count == 1 else f"validation{k + 1}/"
+
+
+def with_validation_sets(dataset: Dataset, config: CalibrationConfig) -> tuple[Dataset, list[tuple[str, np.ndarray]]]:
+    """The dataset with every validation set appended, and per set its directory and the
+    indices of its configurations."""
+    sets = []
+    for k, path in enumerate(config.validation_datasets):
+        start = len(dataset.configs)
+        dataset = with_validation_set(dataset, path, config, prefix(k, len(config.validation_datasets)))
+        sets.append((str(path), np.arange(start, len(dataset.configs))))
+    return dataset, sets
+
+
+def with_validation_set(dataset: Dataset, path, config: CalibrationConfig, id_prefix: str = PREFIX) -> Dataset:
+    """The dataset with the validation set at ``path`` appended, its ids prefixed."""
     other = load_dataset(path)
     where = config.path
     if other.robot.name != dataset.robot.name or other.robot.n_joints != dataset.robot.n_joints:
@@ -40,7 +57,7 @@ def with_validation_set(dataset: Dataset, config: CalibrationConfig) -> tuple[Da
             f"{dataset.robot.name} ({dataset.robot.n_joints} joints): a validation set measures the same robot",
         )
     merged = copy.copy(dataset)
-    merged.configs = np.concatenate([dataset.configs, [PREFIX + str(c) for c in other.configs]]).astype(object)
+    merged.configs = np.concatenate([dataset.configs, [id_prefix + str(c) for c in other.configs]]).astype(object)
     merged.q = np.vstack([dataset.q, other.q])
     merged.tables = dict(dataset.tables)
     for name, table in other.tables.items():
@@ -50,7 +67,7 @@ def with_validation_set(dataset: Dataset, config: CalibrationConfig) -> tuple[Da
             _check_shared(dataset, other, name, where)
             merged.tables.setdefault(name, table)
             continue
-        ids = {k: (np.array([PREFIX + str(c) for c in v], dtype=object) if k in CONFIG_COLUMNS else v)
+        ids = {k: (np.array([id_prefix + str(c) for c in v], dtype=object) if k in CONFIG_COLUMNS else v)
                for k, v in table.ids.items()}  # fmt: skip
         mine = dataset.tables.get(name)
         if mine is None:
@@ -60,7 +77,7 @@ def with_validation_set(dataset: Dataset, config: CalibrationConfig) -> tuple[Da
                 {k: np.concatenate([mine.ids[k], ids[k]]).astype(object) for k in mine.ids},
                 np.vstack([mine.values, table.values]),
             )
-    return merged, np.arange(len(dataset.configs), len(merged.configs))
+    return merged
 
 
 def _check_shared(dataset: Dataset, other: Dataset, name: str, where) -> None:

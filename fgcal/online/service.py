@@ -27,7 +27,7 @@ from ..dataset import load_dataset
 from ..errors import InputError
 from ..fields import Fields, read_yaml
 from ..parameters import unit_of
-from ..robot_io import load_robot, save_robot
+from ..robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .measurement import Measurement, parse_measurement, read_measurement
 from .report import write_final_report
@@ -50,9 +50,7 @@ def load_config(path: Path) -> dict:
     fields_.check_keys(["dataset", "robot", "released", "settings", "target_accuracy_m"])
     config: dict = {"dataset": str((path.parent / fields_.string("dataset")).resolve())}
     if fields_.has("robot"):
-        robot = fields_.string("robot")
-        candidate = path.parent / robot
-        config["robot"] = str(candidate.resolve()) if candidate.exists() else robot
+        config["robot"] = robot_reference(path.parent, fields_.raw("robot"), path, "robot")
     if fields_.has("released"):
         released = fields_.items("released")
         if not all(isinstance(n, str) for n in released):
@@ -128,7 +126,7 @@ class OnlineService:
         dataset = load_dataset(self.config["dataset"])
         if dataset.camera is None or "points" not in dataset.tables:
             raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
-        robot = load_robot(self.config["robot"]) if "robot" in self.config else dataset.robot
+        robot = load_referenced(self.config["robot"]) if "robot" in self.config else dataset.robot
         points = dataset.points_F()
         settings = _settings(self.config, config_path)
 

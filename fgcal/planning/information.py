@@ -114,7 +114,7 @@ def build_information(
     params = robot.parameter_vector()
     data = kinematics.forward(robot, params, cand.q)
     formulation = registered(config.formulation)
-    if formulation.planning == "tracker":
+    if formulation.instrument == "tracker":
         J_p, J_aux = _tracker_rows(robot, data, cell, cand, names)
         sigma = cell.tracker_sigma_m
         aux_labels = ["tracker.rx", "tracker.ry", "tracker.rz", "tracker.tx", "tracker.ty", "tracker.tz"]

@@ -125,23 +125,20 @@ class Planner:
             )
 
 
-# Formulation -> what fgcal plan models of its measurements (fgcal.calibration.problem.Formulation).
-PLANNED = {name: cls.planning for name, cls in REGISTRY.items() if cls.planning is not None}
-
-
-def instruments(cell: Cell) -> list[str]:
-    """What the cell measures with, as the planner models it: a camera, a tracker."""
-    return [kind for kind, present in (("camera", cell.camera is not None), ("tracker", cell.has_tracker)) if present]
+# The instruments whose measurements fgcal plan models, and the formulations reading them.
+PLANNED_INSTRUMENTS = ("camera", "tracker")
+PLANNED = {name: cls.instrument for name, cls in REGISTRY.items() if cls.instrument in PLANNED_INSTRUMENTS}
 
 
 def choose_formulation(cell: Cell, formulation: str | None) -> str:
     """The formulation to plan for: the one asked for, if the planner models it and the cell
     has its instrument; by default the first formulation the cell's instruments serve."""
-    available = instruments(cell)
+    available = [kind for kind in cell.instruments if kind in PLANNED_INSTRUMENTS]
     if formulation is None:
-        for name, kind in PLANNED.items():
-            if kind in available:
-                return name
+        for kind in available:
+            for name, reads in PLANNED.items():
+                if reads == kind:
+                    return name
         raise InputError(
             cell.source,
             None,

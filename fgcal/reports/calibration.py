@@ -11,8 +11,9 @@ from .. import kinematics, strict_json
 from ..calibration.covariance import correlation
 from ..calibration.goodness import Fit
 from ..calibration.prediction import workspace_map
-from ..calibration.results import SCORES, CalibrationResult, primary_score
+from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
 from ..parameters import unit_of
+from ..robot import Robot
 from ..robot_io import save_robot
 from .estimates import write_estimates
 
@@ -113,11 +114,41 @@ def report_dict(result: CalibrationResult) -> dict:
             "reference": "ground truth" if result.truth is not None else "held-out measurements",
             "gauge_removed": result.gauge,
             "predicted_position_sigma_m": predicted_sigma(result),
+            "sets": validation_sets(result),
+            "test_points": (
+                formulation.test_point_modes(problem, result.test_observations)
+                if result.test_observations is not None
+                else {}
+            ),
         },
         "estimates_file": "estimates.yaml",  # every estimate besides the robot, with sigmas (estimates.py)
         "seed": result.truth.seed if result.truth is not None else None,
         "timing": dict(result.timing),
     }
+
+
+def validation_sets(result: CalibrationResult) -> list[dict] | None:
+    """With separate validation sets: per set (and for the fitting dataset's own held-out
+    configurations) its directory, its configurations and its part of each held-out score after
+    calibration; None without them."""
+    problem = result.problem
+    if not problem.validation_sets:
+        return None
+    ids = problem.dataset.configs[problem.test]
+    own = np.setdiff1d(problem.test, np.concatenate([indices for _, indices in problem.validation_sets]))
+    groups = [("held out of the fitting dataset", own)] + [(path, indices) for path, indices in problem.validation_sets]
+    out = []
+    for name, indices in groups:
+        members = set(problem.dataset.configs[indices])
+        entry = {"dataset": name, "n_configurations": len(indices), "scores": {}}
+        for key, stat in result.validation.get("after", {}).items():
+            if stat.configs is None:
+                continue
+            inside = np.array([c < len(ids) and ids[c] in members for c in stat.configs], dtype=bool)
+            if inside.any():
+                entry["scores"][_score_name(key)] = stats(stat.errors[inside]).as_dict()
+        out.append(entry)
+    return out
 
 
 def _score_name(key: str) -> str:
@@ -230,16 +261,29 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
     out.mkdir(parents=True, exist_ok=True)
     doc = report_dict(result)
     (out / "report.json").write_text(strict_json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    robot, params = calibrated_robot(result)
     save_robot(
         out / "calibrated_robot.yaml",
-        result.problem.robot,
-        result.problem.robot.parameter_dict(result.state.params),
+        robot,
+        params,
         notes=f"calibrated by fgcal ({doc['model']}, {doc['formulation']} formulation)",
     )
     write_estimates(result, out / "estimates.yaml")
     figures = _plots(result, out) if plots else {}
     (out / "report.md").write_text(_markdown(doc, figures), encoding="utf-8")
     return doc
+
+
+def calibrated_robot(result: CalibrationResult) -> tuple[Robot, dict[str, float]]:
+    """The robot and parameters calibrated_robot.yaml holds: the estimate, carrying the tool
+    the calibration estimated on the flange (a probe, a ball) where it did."""
+    robot = result.problem.robot
+    params = robot.parameter_dict(result.state.params)
+    tool = result.problem.formulation.tool_frame(result.state)
+    if tool is None:
+        return robot, params
+    # Such a formulation never sees tool.*: it stays nominal, and the tool is the estimate.
+    return robot.with_tool(tool), {k: (0.0 if k.startswith("tool.") else v) for k, v in params.items()}
 
 
 def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
@@ -413,6 +457,17 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             ]
             if "warning" in p:
                 lines += ["", f"**Warning:** {p['warning']}."]
+        if val.get("sets"):
+            lines += ["", "Held-out sets after calibration (RMS, mm):", ""]
+            for entry in val["sets"]:
+                scores = ", ".join(
+                    f"{name.replace('_', ' ')} {stat['rms'] * 1e3:.4g}" for name, stat in entry["scores"].items()
+                    if name.endswith("_m")
+                )  # fmt: skip
+                lines.append(f"- {entry['dataset']} ({entry['n_configurations']} configurations): {scores or '-'}")
+        if val.get("test_points"):
+            modes = ", ".join(f"{name} ({mode})" for name, mode in val["test_points"].items())
+            lines += ["", f"Test points, measured only at held-out configurations: {modes}."]
         if "errors" in plots:
             lines += ["", f"![errors]({plots['errors']})"]
     if doc["rejected_measurements"]:
@@ -455,14 +510,14 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             f"The same data fitted with each model (information criteria with the noise level estimated from the "
             f"data). The data support **{supported}** (lowest BIC); this report is of that fit.",
             "",
-            "| model | unknowns | chi2/dof | held-out RMS (mm) | AIC | BIC |",
-            "|---|---|---|---|---|---|",
+            "| model | unknowns | chi2/dof | held-out RMS (mm) | AIC | BIC | time (s) |",
+            "|---|---|---|---|---|---|---|",
         ]
         for row in doc["model_comparison"]:
             held = "-" if row["held_out_rms_m"] is None else f"{row['held_out_rms_m'] * 1e3:.4g}"
             lines.append(
                 f"| {row['model']}{' (supported)' if row['supported'] else ''} | {row['n_unknowns']} | "
-                f"{row['chi2_per_dof']:.3g} | {held} | {row['aic']:.1f} | {row['bic']:.1f} |"
+                f"{row['chi2_per_dof']:.3g} | {held} | {row['aic']:.1f} | {row['bic']:.1f} | {row['time_s']:.2f} |"
             )
     lines += [
         "",

@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..fields import Fields, read_yaml
 from ..parameters import default_compliant_joints
 from ..robot import Robot
-from ..robot_io import load_robot, robot_reference
+from ..robot_io import load_referenced, robot_reference
 from ..se3 import pose_from_xyz_rpy, transform_points
 from ..units import parse_units
 
@@ -147,11 +147,16 @@ class StaticCameraSetup:
     max_view_angle_rad: float  # between the board's normal and the line of sight
 
 
+# What can measure in a cell, the more specific first: a 6D probe is a tracker's too, and a
+# camera cell has a tracker besides.
+INSTRUMENTS = ("static_camera", "touch", "ballbar", "tracker_probe", "camera", "tracker")
+
+
 @dataclass(frozen=True)
 class Cell:
     name: str
     source: str
-    robot_reference: str  # bundled robot name, or the robot file's absolute path
+    robot_reference: str | dict  # bundled robot name, the robot file's absolute path, or {file, tip}
     robot: Robot  # carrying the nominal camera mounting and payload
     fixture_pose: np.ndarray  # T_W_F
     sides: list[Side]
@@ -172,6 +177,19 @@ class Cell:
     distance_sigma_m: float = 0.0
     static_camera: StaticCameraSetup | None = None
     has_tracker: bool = True  # a laser tracker measures the reflectors (tracker_targets)
+
+    @property
+    def instruments(self) -> list[str]:
+        """What measures in this cell (INSTRUMENTS), the one the cell is built for first."""
+        present = {
+            "static_camera": self.static_camera is not None,
+            "touch": self.touch is not None,
+            "ballbar": self.ballbar is not None,
+            "tracker_probe": self.tracker_probe is not None,
+            "camera": self.camera is not None,
+            "tracker": self.has_tracker,
+        }
+        return [name for name in INSTRUMENTS if present[name]]
 
     def points(self) -> list[GridPoint]:
         return [p for side in self.sides for row in side.points for p in row]
@@ -320,9 +338,9 @@ def load_cell(path: str | Path) -> Cell:
     doc.check_keys(CELL_KEYS)
     units = parse_units(doc.raw("units", None), path)
     to_m, to_rad = units.to_m, units.to_rad
-    robot_ref = robot_reference(path.parent, doc.string("robot"))
+    robot_ref = robot_reference(path.parent, doc.raw("robot"), path)
     try:
-        robot = load_robot(robot_ref)
+        robot = load_referenced(robot_ref)
     except InputError as exc:
         raise InputError(path, "robot", str(exc)) from None
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
+from ..noise import noise_document
 from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
 from ..truth import Truth
 from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
@@ -333,10 +334,32 @@ def _render_images(
     return boards
 
 
+def stated_noise(cell: Cell, measured: list[str]) -> dict[str, float]:
+    """The sigmas the simulated instruments state for the tables measured (SI, fgcal.noise's
+    fields): what a real instrument's specification would declare; here, exactly the noise
+    drawn."""
+    sources = {
+        "camera_points": {"camera_point_m": cell.camera_point_sigma_m},
+        "pixels": {"pixel_px": cell.pixel_sigma_px},
+        "tracker_points": {"tracker_m": cell.tracker_sigma_m},
+        "tracker_poses": {"pose_m": cell.tracker_sigma_m, "pose_rad": cell.tracker_angle_sigma_rad},
+        "touch_points": {"touch_m": cell.touch_sigma_m},
+        "point_distances": {"spacing_m": cell.spacing_sigma_m},
+        "distances": {"distance_m": cell.distance_sigma_m},
+        "tool_distances": {"distance_m": cell.distance_sigma_m},
+    }
+    out: dict[str, float] = {}
+    for table in measured:
+        out.update(sources.get(table, {}))
+    # A noise-free simulation states nothing: no weight can come from a zero sigma.
+    return {field: sigma for field, sigma in out.items() if sigma > 0}
+
+
 def _write_header(
     out: Path, cell: Cell, seed: int, n_configurations: int, counts: dict[str, int], boards: list | None = None
 ) -> None:
     robot = cell.robot
+    noise = noise_document(stated_noise(cell, list(counts)))
     camera = cell.camera is not None  # a tracker cell has its tracker points only
     camera_files = {"points": "points.csv", "camera_points": "camera_points.csv", "pixels": "pixels.csv"}
     camera_noise = f"camera points {cell.camera_point_sigma_m} m, pixels {cell.pixel_sigma_px} px, " if camera else ""
@@ -346,11 +369,11 @@ def _write_header(
     )
     if cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None:
         if cell.touch is not None:
-            noise = f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m"
+            noise_text = f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m"
         elif cell.ballbar is not None:
-            noise = f"ballbar {cell.distance_sigma_m} m"
+            noise_text = f"ballbar {cell.distance_sigma_m} m"
         else:
-            noise = f"pixels {cell.pixel_sigma_px} px (a static camera watching a board on the flange)"
+            noise_text = f"pixels {cell.pixel_sigma_px} px (a static camera watching a board on the flange)"
         files = {k: f"{k}.csv" for k in counts}
         write_header(
             out,
@@ -366,7 +389,8 @@ def _write_header(
                 },
                 **({"camera": cell.static_camera.camera.to_document()} if cell.static_camera is not None else {}),
                 "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
-                "source": source + noise,
+                "noise": noise,
+                "source": source + noise_text,
             },
         )
         return
@@ -397,6 +421,7 @@ def _write_header(
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         **({"fixture": _pose_doc(cell.fixture_pose)} if camera else {}),
         "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
+        "noise": noise,
         "source": source + f"{camera_noise}tracker {cell.tracker_sigma_m} m",
     }
     write_header(out, header)

@@ -14,6 +14,7 @@ from ...dataset import Dataset
 from ...errors import InputError
 from ...factors import Distances, MeasurementSet, RobustLoss
 from ...robot import Robot
+from ...se3 import pose
 from ...truth import Truth
 from ..batch import BatchKinematics
 from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, rows_of, subset_of, take
@@ -56,6 +57,7 @@ class DistanceReadings(Formulation):
         "readings that do not belong to their configurations or pivots, a ballbar's deviation from its nominal length "
         "instead of its full length, joint angles or lengths in other units than units: declares"
     )
+    instrument = "ballbar"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.distance_m
@@ -128,6 +130,9 @@ class DistanceReadings(Formulation):
                 others=observations.others,
             )
         ]
+
+    def tool_frame(self, state: State) -> np.ndarray | None:
+        return pose(np.eye(3), state.value("tool_points")[0])  # the ball's centre
 
     def scored(self, problem: Problem, state: State) -> Scored:
         return Scored(state.value("tool_points"), points_from="tool_points")

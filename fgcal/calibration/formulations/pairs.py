@@ -98,7 +98,7 @@ class Pairs(Formulation):
         "camera points in another unit or frame, point names that do not match the drawing, a wrong camera mounting "
         "or fixture pose, or joint angles in other units than units: declares"
     )
-    planning = "camera"
+    instrument = "camera"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.camera_point_m

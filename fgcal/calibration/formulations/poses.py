@@ -61,6 +61,7 @@ class MeasuredPoses(Formulation):
         "qy, qz or inverted poses (the instrument in the probe's frame), joint angles or lengths in other units than "
         "units: declares, or another robot than the one that moved"
     )
+    instrument = "tracker_probe"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         # A pose's whitened residual is counted in position sigmas.
@@ -123,6 +124,9 @@ class MeasuredPoses(Formulation):
             "tool_point": HeldOut(predicted[:, :3, 3] - measured[:, :3, 3], observations.configs),
             "orientation_rad": HeldOut(angles, observations.configs),
         }
+
+    def tool_frame(self, state: State) -> np.ndarray | None:
+        return state.value("tool_frame").copy()  # the 6D probe's frame
 
     def scored(self, problem: Problem, state: State) -> Scored:
         # The probe's origin, in the tracker's frame.

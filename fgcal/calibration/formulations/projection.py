@@ -42,7 +42,7 @@ class Projection(Formulation):
         "pixels matched to the wrong points, wrong intrinsics, a camera mounting far from the dataset's, or joint "
         "angles in other units than units: declares"
     )
-    planning = "camera"
+    instrument = "camera"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.pixel_px

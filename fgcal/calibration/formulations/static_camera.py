@@ -42,6 +42,7 @@ class StaticCamera(Formulation):
         "pixels matched to the wrong board points, wrong intrinsics, images that do not belong to their "
         "configurations, or joint angles in other units than units: declares"
     )
+    instrument = "static_camera"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.pixel_px

@@ -5,6 +5,7 @@ probe in W, the rigid motion removed (W is where the nominal base puts the robot
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from dataclasses import dataclass
 
@@ -14,10 +15,14 @@ from ...dataset import Dataset
 from ...errors import InputError
 from ...factors import MeasurementSet, RobustLoss, SocketSpacings, TouchPoints
 from ...robot import Robot
+from ...se3 import pose, transform_points
 from ...truth import Truth
 from ..batch import BatchKinematics
+from ..prediction import scored_jacobian
 from ..problem import (
     Formulation,
+    HeldOut,
+    JointCovariance,
     Keys,
     Observations,
     Problem,
@@ -39,6 +44,8 @@ class TouchObservations(Observations):
     names: tuple[str, ...]  # the sockets
     spacings: np.ndarray  # (S, 2) socket indices with a known distance
     spacing_m: np.ndarray  # (S,)
+    # Sockets only held-out configurations touch (a validation set's): (name, configurations).
+    test_points: tuple[tuple[str, np.ndarray], ...] = ()
 
     @property
     def n_residuals(self) -> int:
@@ -62,6 +69,7 @@ class Touch(Formulation):
         "touch rows naming the wrong point, joint angles in other units than units: declares, or another robot than "
         "the one that moved"
     )
+    instrument = "touch"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.touch_m
@@ -89,8 +97,24 @@ class Touch(Formulation):
         return observations
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
-        observations = _observations(problem.dataset, problem.test, problem.observations.names, spacings=False)
-        return (observations if len(observations.configs) else None), []
+        dataset, names = problem.dataset, problem.observations.names
+        observations = _observations(dataset, problem.test, names, spacings=False)
+        others: dict[str, list[int]] = {}
+        for i, name, _ in rows_of(dataset, dataset.tables["touch_points"], "point", problem.test):
+            if name not in names:
+                others.setdefault(name, []).append(i)
+        for name, configs in others.items():
+            if len(configs) < 2:
+                raise InputError(
+                    problem.settings.source,
+                    "validation",
+                    f"socket {name!r} is touched once, at held-out configuration "
+                    f"{observations.config_ids[configs[0]]}, and never in the fitting set: touch it at several "
+                    "configurations to score it (at each touch, against its position from the others)",
+                )
+        test_points = tuple((name, np.array(configs)) for name, configs in sorted(others.items()))
+        observations = dataclasses.replace(observations, test_points=test_points)
+        return (observations if len(observations.configs) or test_points else None), []
 
     def initial_state(self, problem: Problem) -> State:
         params = problem.robot.parameter_vector()
@@ -135,6 +159,51 @@ class Touch(Formulation):
                 )
             )
         return sets
+
+    def held_out_errors(self, problem: Problem, observations: Observations, state: State) -> dict[str, HeldOut]:
+        """At each held-out touch, the probe against its socket's estimate; at a touch of a
+        socket the fit never saw, against the socket where the socket's other held-out
+        touches put it (leave one out: how the robot moves the probe, not where the socket is)."""
+        errors, configs = [], []
+        if len(observations.configs):
+            known = super().held_out_errors(problem, observations, state)["tool_point"]
+            errors.append(known.errors)
+            configs.append(known.configs)
+        for _, at in observations.test_points:
+            probe = transform_points(problem.robot.fk(observations.q[at], problem.robot.parameter_dict(state.params)),
+                                     state.value("tool_points")[0])  # fmt: skip
+            errors.append(probe - (probe.sum(axis=0) - probe) / (len(at) - 1))
+            configs.append(at)
+        return {"tool_point": HeldOut(np.concatenate(errors), np.concatenate(configs))} if errors else {}
+
+    def held_out_variances(
+        self, problem: Problem, observations: Observations, state: State, covariance: JointCovariance, factor: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Known sockets as the main set says; a leave-one-out touch's error A_j - mean_{i != j} A_i
+        through P and the probe (A: the probe's position's Jacobian), its noise
+        3 sigma^2 (1 + 1/(n - 1))."""
+        parameters, noise = [], []
+        if len(observations.configs):
+            p, n = super().held_out_variances(problem, observations, state, covariance, factor)
+            parameters.append(p)
+            noise.append(n)
+        if observations.test_points:
+            scored = self.scored(problem, state)
+            sigma2 = 3.0 * factor * problem.settings.noise.touch_m**2
+            for _, at in observations.test_points:
+                J, names = scored_jacobian(problem, state, scored, covariance.released, observations.q[at])
+                loo = J - (J.sum(axis=0) - J) / (len(at) - 1)
+                parameters.append(np.einsum("oij,jk,oik->o", loo, covariance.block(names), loo))
+                noise.append(np.full(len(at), sigma2 * (1 + 1 / (len(at) - 1))))
+        if not parameters:
+            return np.zeros(0), np.zeros(0)
+        return np.concatenate(parameters), np.concatenate(noise)
+
+    def test_point_modes(self, problem: Problem, observations: Observations) -> dict[str, str]:
+        return {name: "leave-one-out" for name, _ in observations.test_points}
+
+    def tool_frame(self, state: State) -> np.ndarray | None:
+        return pose(np.eye(3), state.value("tool_points")[0])  # the probe's centre
 
     def scored(self, problem: Problem, state: State) -> Scored:
         return Scored(state.value("tool_points"), points_from="tool_points")

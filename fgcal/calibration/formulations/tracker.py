@@ -72,7 +72,7 @@ class Tracker(Formulation):
         "reflector names swapped between targets, joint angles or lengths in other units than units: declares, or "
         "another robot than the one that moved"
     )
-    planning = "tracker"
+    instrument = "tracker"
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.tracker_m
@@ -164,6 +164,10 @@ class Tracker(Formulation):
         if not parameters:
             return np.zeros(0), np.zeros(0)
         return np.concatenate(parameters), np.concatenate(noise)
+
+    def test_point_modes(self, problem: Problem, observations: Observations) -> dict[str, str]:
+        declared = problem.settings.validation_tool_points
+        return {name: "declared" if name in declared else "leave-one-out" for name, _, _ in observations.test_points}
 
     def scored(self, problem: Problem, state: State) -> Scored:
         return Scored(state.value("tool_points"), state.value("tracker"), "tool_points", "tracker")

@@ -1,0 +1,47 @@
+"""The calibration config that a simulated cell's dataset suggests, written beside it by
+``fgcal simulate`` (``calibration.yaml``): the formulation that reads the cell's own
+instrument, the extended model, the compliant joints of the cell's true robot, and the noise
+its instruments state (the dataset's)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from ..dataset import Dataset
+from ..errors import InputError
+from ..noise import noise_document
+from ..simulation.cell import Cell
+from .formulations import REGISTRY
+
+
+def suggested_formulation(cell: Cell) -> str:
+    """The first registered formulation that reads the cell's first instrument (its own)."""
+    for instrument in cell.instruments:
+        for name, cls in REGISTRY.items():
+            if cls.instrument == instrument:
+                return name
+    raise InputError(cell.source, None, "the cell has no instrument a formulation reads")
+
+
+def suggested_config(cell: Cell, dataset: Dataset) -> dict:
+    joints = [j for j in cell.perturbation.compliant_joints if j <= dataset.robot.n_joints]
+    return {
+        "dataset": ".",
+        "formulation": suggested_formulation(cell),
+        "model": "DH,s,e",
+        "compliant_joints": joints,
+        "noise": noise_document(dataset.noise),
+    }
+
+
+def write_suggested_config(cell: Cell, dataset: Dataset) -> Path:
+    """``calibration.yaml`` in the dataset's directory (its path)."""
+    path = Path(dataset.path) / "calibration.yaml"
+    note = (
+        f"# Suggested by fgcal simulate for {Path(cell.source).name}: the formulation of the cell's instrument, the\n"
+        "# compliant joints of its true robot and the noise its instruments state. docs/calibration.md\n"
+    )
+    path.write_text(note + yaml.safe_dump(suggested_config(cell, dataset), sort_keys=False), encoding="utf-8")
+    return path

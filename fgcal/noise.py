@@ -1,0 +1,42 @@
+"""The declared noise of measurements: one vocabulary for a dataset's header (what the
+instrument states) and a calibration config (what the user states; it wins), in the file's
+units, SI inside."""
+
+from __future__ import annotations
+
+from .fields import Fields
+from .units import Units
+
+# Field (SI) -> (file key, kind of unit, fgcal's default when nobody states it).
+NOISE = {
+    "camera_point_m": ("camera_point_sigma", "length", 1e-4),  # a point measured in the camera frame
+    "tracker_m": ("tracker_sigma", "length", 1e-5),  # a tracker point, per coordinate
+    "pixel_px": ("pixel_sigma_px", "pixel", 0.1),  # a detected image point, per coordinate
+    "touch_m": ("touch_sigma", "length", 2e-5),  # where a touch puts the tool point, about its socket
+    "spacing_m": ("spacing_sigma", "length", 1e-5),  # a known distance between touch points
+    "pose_m": ("pose_sigma", "length", 2e-5),  # a measured pose's position, per coordinate
+    "pose_rad": ("pose_angle_sigma", "angle", 1e-4),  # a measured pose's orientation, about each axis
+    "distance_m": ("distance_sigma", "length", 5e-6),  # a ballbar's (1D gauge's) reading
+}
+KEYS = tuple(key for key, _, _ in NOISE.values())
+
+
+def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, float]:
+    """The sigmas a document's ``noise`` section states (SI, by field); the rest unstated."""
+    section = doc.sub(key, {})
+    section.check_keys(KEYS)
+    scales = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}
+    return {
+        field: section.number(name, scale=scales[kind], positive=True)
+        for field, (name, kind, _) in NOISE.items()
+        if section.has(name)
+    }
+
+
+def noise_document(stated: dict[str, float]) -> dict[str, float]:
+    """Stated sigmas (SI, by field) as a ``noise`` section in SI units (m, rad, px)."""
+    return {NOISE[field][0]: float(value) for field, value in stated.items()}
+
+
+def defaults() -> dict[str, float]:
+    return {field: default for field, (_, _, default) in NOISE.items()}
