@@ -36,6 +36,30 @@ def seed_sim(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def bundled_sim(tmp_path_factory):
+    """A bundled cell simulated once per session, by name and seed, with the calibration.yaml
+    fgcal simulate writes beside it: ``bundled_sim("irb120_ballbar", 2)`` is the dataset's
+    directory. Tests must not change it (copy it first)."""
+    from fgcal.calibration.suggest import write_suggested_config
+    from fgcal.dataset import load_dataset
+    from fgcal.simulation.cell import load_cell
+    from fgcal.simulation.simulate import simulate
+
+    cache: dict[tuple[str, int], Path] = {}
+
+    def get(cell: str, seed: int = 1) -> Path:
+        if (cell, seed) not in cache:
+            path = REPO / "datasets" / "cells" / f"{cell}.yaml"
+            out = tmp_path_factory.mktemp(f"{cell}_{seed}")
+            simulate(path, out, seed=seed)
+            write_suggested_config(load_cell(path), load_dataset(out))
+            cache[cell, seed] = out
+        return cache[cell, seed]
+
+    return get
+
+
 def calibrate(config, progress=None):
     """fgcal.calibration.run.calibrate, then scored against the simulation's truth as the
     CLI does (when the dataset has one)."""

@@ -35,13 +35,8 @@ SETUPS = {
 
 
 @pytest.fixture(scope="module")
-def sims(tmp_path_factory) -> dict[tuple[str, int], Path]:
-    out = {}
-    for setup, (_, cell, _) in SETUPS.items():
-        for seed in (2, 3):
-            out[setup, seed] = tmp_path_factory.mktemp(f"{setup}_{seed}")
-            simulate(cell, out[setup, seed], seed=seed)
-    return out
+def sims(bundled_sim) -> dict[tuple[str, int], Path]:
+    return {(setup, seed): bundled_sim(cell.stem, seed) for setup, (_, cell, _) in SETUPS.items() for seed in (2, 3)}
 
 
 def _config(sims, setup: str, seed: int, **overrides) -> CalibrationConfig:

@@ -31,12 +31,8 @@ TOUCH_CONFIG = {
 
 
 @pytest.fixture(scope="module")
-def touch_sims(tmp_path_factory) -> dict[int, Path]:
-    out = {}
-    for seed in (1, 2):
-        out[seed] = tmp_path_factory.mktemp(f"touch_{seed}")
-        simulate(TOUCH_CELL, out[seed], seed=seed)
-    return out
+def touch_sims(bundled_sim) -> dict[int, Path]:
+    return {seed: bundled_sim(TOUCH_CELL.stem, seed) for seed in (1, 2)}
 
 
 @pytest.mark.parametrize("seed", [1, 2])
