@@ -218,3 +218,27 @@ def test_tracker_cell_simulates_plans_and_calibrates(tmp_path):
     before, after = result.validation["before"]["tool_point"].rms, result.validation["after"]["tool_point"].rms
     assert after < before / 20, (before, after)
     assert main(["simulate", str(TRACKER_CELL), "--design", "seed", "--out", str(tmp_path / "b")]) == 2
+
+
+@pytest.mark.parametrize(
+    ("cell", "formulation", "status", "planned"),
+    [
+        ("irb120_tracker", None, 0, "tracker"),  # crashed without --formulation
+        ("kr125_seed", None, 0, "pairs"),
+        ("seven_axis_touch", None, 2, "neither"),  # crashed: a touch cell has no camera nor tracker
+        ("irb120_ballbar", "tracker", 2, "needs a tracker"),  # planned for a tracker the cell has not
+        ("irb120_tracker", "pairs", 2, "needs a camera"),
+        ("kr125_seed", "touch", 2, "not planned yet"),
+        ("kr125_seed", "sonar", 2, "unknown formulation"),
+    ],
+)
+def test_plan_chooses_what_the_cell_measures_with(tmp_path, capsys, cell, formulation, status, planned):
+    """Issue 22, item 3: without --formulation fgcal plan plans for the cell's instrument; a
+    formulation the cell cannot measure, or that the planner does not model, is a clear error."""
+    argv = ["plan", cell, "--n", "8", "--out", str(tmp_path / "p"), "--candidates", "100", "--no-plots"]
+    assert main([*argv, *(["--formulation", formulation] if formulation else [])]) == status
+    out, err = capsys.readouterr()
+    if status == 0:
+        assert json.loads((tmp_path / "p" / "plan.json").read_text())["formulation"] == planned
+    else:
+        assert planned in err and "Traceback" not in err, err
