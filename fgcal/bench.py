@@ -44,6 +44,7 @@ from .calibration.solve import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, solve_sta
 from .calibration.state import State
 from .dataset import load_dataset
 from .factors.point_pair import helmert
+from .outputs import output_dir, write_text
 from .parameters import is_joint_length
 from .robot_io import robots_dir
 from .se3 import skew, so3_exp, so3_log
@@ -389,9 +390,9 @@ def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], 
 
     import yaml
 
-    config_path = out / "faro_calibrate.yaml"
-    out.mkdir(parents=True, exist_ok=True)
-    config_path.write_text(yaml.safe_dump({"dataset": str(dataset_dir.resolve()), **FARO_CONFIG}), encoding="utf-8")
+    config_path = write_text(
+        output_dir(out) / "faro_calibrate.yaml", yaml.safe_dump({"dataset": str(dataset_dir.resolve()), **FARO_CONFIG})
+    )
     dataset = load_dataset(dataset_dir)
     dh_config = CalibrationConfig.defaults(dataset_dir, **FARO_CONFIG, model="DH")
     problem = build_problem(dataset, dh_config)

@@ -75,7 +75,11 @@ def _parse_drift(text: str | None):
 
 
 def cmd_online(args: argparse.Namespace) -> int:
+    from .errors import InputError
     from .online.service import OnlineService
+
+    if not (np.isfinite(args.poll) and 0 <= args.poll <= 3600):
+        raise InputError(None, "--poll", f"seconds between looks at the inbox, 0 to 3600, got {args.poll:g}")
 
     service = OnlineService(args.state, args.inbox, args.setup, say=lambda msg: print(msg, flush=True))
     try:
@@ -138,10 +142,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     from .calibration.config import load_config
     from .calibration.run import calibrate
+    from .outputs import output_dir, write_text
     from .reports.calibration import write_report
     from .simulation.simulate import simulate
 
-    out = Path(args.out)
+    out = output_dir(args.out)
     print(f"1/3 simulating the seed cell: space-filling design of {args.n} configurations, seed {args.seed}")
     sim = simulate(
         _bundled_cell("kr125_seed"),
@@ -152,10 +157,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
         progress=lambda msg: print(msg, flush=True),
     )
     print(sim.summary())
-    config_path = out / "calibration.yaml"
-    config_path.write_text(
+    config_path = write_text(
+        out / "calibration.yaml",
         yaml.safe_dump({"dataset": "data", "formulation": args.formulation, "model": "DH,s,e"}, sort_keys=False),
-        encoding="utf-8",
     )
     print(f"2/3 calibrating ({config_path})")
     result = _score(calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True)))

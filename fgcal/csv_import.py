@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, load_dataset, write_csv, write_header
 from .errors import InputError
 from .fields import Fields, is_plain_number, read_yaml
+from .outputs import output_dir
 from .robot_io import referenced_robot, robot_reference
 from .units import Units, parse_units
 
@@ -355,7 +356,7 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
         raise InputError(source, None, "no measurement table (tracker_points, tracker_poses, distances, ...)")
     if "tracker_references" in tables and "tracker_points" not in tables:
         raise doc.error("tracker_references", "references check a tracker's stability: tracker_points are needed too")
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)
     write_csv(out / "configurations.csv", configurations.header, configurations.rows)
     counts = {"configurations": len(configurations.rows)}
     for name, imported in tables.items():

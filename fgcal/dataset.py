@@ -33,6 +33,7 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 from __future__ import annotations
 
 import csv
+import io
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +46,7 @@ from .camera import Camera, parse_camera
 from .errors import InputError
 from .fields import Fields, is_plain_number, read_yaml
 from .noise import parse_noise
+from .outputs import write_text
 from .robot import Robot
 from .robot_io import referenced_robot
 from .se3 import pose_from_xyz_rpy
@@ -140,11 +142,12 @@ def format_float(value: float) -> str:
 
 
 def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]]) -> None:
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh, lineterminator="\n")
-        writer.writerow(header)
-        for row in rows:
-            writer.writerow([format_float(v) if isinstance(v, (float, np.floating)) else v for v in row])
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([format_float(v) if isinstance(v, (float, np.floating)) else v for v in row])
+    write_text(path, buffer.getvalue())
 
 
 def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
@@ -398,4 +401,4 @@ def _pose(fields: Fields, units: Units) -> np.ndarray:
 
 
 def write_header(path: Path, header: dict) -> None:
-    (path / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False), encoding="utf-8")
+    write_text(Path(path) / "dataset.yaml", yaml.safe_dump(header, sort_keys=False))

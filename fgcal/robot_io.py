@@ -29,6 +29,7 @@ import yaml
 from .errors import InputError
 from .fields import Fields, read_yaml
 from .joints import DHJoint, OriginJoint
+from .outputs import write_text
 from .parameters import LENGTH_KINDS, parameter_names, split_name
 from .robot import Robot
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
@@ -263,4 +264,4 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
 
 
 def save_robot(path: str | Path, robot: Robot, params: dict[str, float] | None = None, notes: str = "") -> None:
-    Path(path).write_text(yaml.safe_dump(robot_document(robot, params, notes), sort_keys=False), encoding="utf-8")
+    write_text(path, yaml.safe_dump(robot_document(robot, params, notes), sort_keys=False))

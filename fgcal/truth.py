@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from .fields import Fields, read_yaml
+from .outputs import subfolder, write_text
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 
 FILE = Path("truth") / "ground_truth.yaml"
@@ -87,9 +88,8 @@ class Truth:
         return doc
 
     def write(self, dataset_dir: str | Path) -> None:
-        path = Path(dataset_dir) / FILE
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(yaml.safe_dump(self.to_document(), sort_keys=False), encoding="utf-8")
+        folder = subfolder(Path(dataset_dir), FILE.parent.name)
+        write_text(folder / FILE.name, yaml.safe_dump(self.to_document(), sort_keys=False))
 
 
 def load_truth(dataset_dir: str | Path) -> Truth | None:

@@ -25,6 +25,7 @@ import numpy as np
 from . import kinematics
 from .errors import InputError
 from .joints import OriginJoint
+from .outputs import output_dir, write_text
 from .robot import Robot
 from .se3 import inverse, rpy_from_rotation
 
@@ -329,12 +330,9 @@ def export_urdf(robot: Robot, path: str | Path) -> tuple[Path, Path]:
     if path.suffix.lower() != ".urdf":
         raise InputError(path, None, "the URDF file name must end in .urdf")
     if path.is_dir():
-        raise InputError(path, None, "is a directory: give the URDF file's name")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(path, None, f"cannot create its folder: {exc.strerror}") from None
+        raise InputError(path, None, "is a folder: give the URDF file's name")
+    output_dir(path.parent, None)
     sidecar = path.with_name(f"{path.stem}.compliance.yaml")
-    path.write_text(urdf_document(robot, sidecar.name), encoding="utf-8")
-    sidecar.write_text(yaml.safe_dump(compliance_document(robot, path.name), sort_keys=False), encoding="utf-8")
+    write_text(path, urdf_document(robot, sidecar.name))
+    write_text(sidecar, yaml.safe_dump(compliance_document(robot, path.name), sort_keys=False))
     return path, sidecar

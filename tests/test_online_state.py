@@ -293,14 +293,21 @@ def _damage_a_record(log, rng) -> str | None:
     return name
 
 
-def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_path):
-    """Issue 13's scripted crash test: 20 SIGKILLs at random moments; between them, at random,
-    a complete log record or the checkpoint is damaged. After each, the next process starts
-    cleanly (the state is usable), and at the end every acknowledged measurement is logged
-    exactly once."""
+def test_twenty_five_sigkills_on_a_shared_inbox_with_links_and_fifos(small_case, tmp_path):
+    """Issues 13 and 23, the scripted crash test: 25 SIGKILLs at random moments; between them, at
+    random, a complete log record or the checkpoint is damaged, or an append is torn, and the
+    inbox gets symbolic links (to a measurement outside it, and to a FIFO outside it, which
+    would block whoever opened it) and FIFOs of its own. After each kill the next process starts
+    cleanly; at the end every acknowledged measurement is logged exactly once, nothing outside
+    the inbox was read (its measurement never logged, no run blocked on its FIFO), and the
+    estimate equals an uninterrupted run's over the same measurements."""
     inbox, state = tmp_path / "inbox", tmp_path / "state"
     feed_dataset(small_case / "data", inbox)
     names = sorted(p.name for p in inbox.glob("*.json"))
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    shutil.copy(inbox / names[0], outside / "stranger.json")
+    os.mkfifo(outside / "pipe.json")
     command = [sys.executable, "-m", "fgcal.cli", "online", "--state", str(state), "--inbox", str(inbox)]
     command += ["--setup", str(small_case / "setup.yaml"), "--once"]
     rng = np.random.default_rng(13)
@@ -309,16 +316,25 @@ def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_pa
     def logged_count() -> int:
         return log.read_bytes().count(b"\n") if log.exists() else 0
 
-    kills, damaged_records, damaged_checkpoints, refed = 0, 0, 0, 0
+    kills, damaged_records, damaged_checkpoints, torn, planted, refed = 0, 0, 0, 0, 0, 0
     expected = list(names)
-    for _ in range(80):
-        if kills == 20:
+    for _ in range(100):
+        if kills == 25:
             break
         if rng.uniform() < 0.3 and _damage_a_record(log, rng):
             damaged_records += 1
-        if rng.uniform() < 0.2 and (state / "checkpoint.json").exists():
+        if rng.uniform() < 0.3 and (state / "checkpoint.json").exists():
             (state / "checkpoint.json").write_bytes(b'{"n_records": "x"')
             damaged_checkpoints += 1
+        if rng.uniform() < 0.2 and log.exists():  # a crash in the middle of an append
+            with open(log, "ab") as handle:
+                handle.write(encode_record({"name": "torn", "joints": []})[: int(rng.integers(3, 30))])
+            torn += 1
+        if rng.uniform() < 0.3:
+            planted += 1
+            os.symlink(outside / "stranger.json", inbox / f"link{planted:02d}.json")
+            os.symlink(outside / "pipe.json", inbox / f"pipelink{planted:02d}.json")
+            os.mkfifo(inbox / f"fifo{planted:02d}.json")
         process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
         # Kill once the log has grown by a few records (however slow the machine), a random
         # moment later: in the append, the move, the solve or the outputs.
@@ -332,7 +348,7 @@ def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_pa
             kills += 1
         else:
             assert process.returncode == 0, process.stderr.read().decode()  # usable: a clean run
-        if not list(inbox.glob("*.json")):  # all processed: the same images again, as new files
+        if not list(inbox.glob("[0-9r]*.json")):  # all processed: the same images again, as new files
             refed += 1
             for name in names[:10]:
                 copy = f"r{refed:02d}_{name}"
@@ -340,14 +356,28 @@ def test_twenty_sigkills_with_damaged_records_and_checkpoints(small_case, tmp_pa
                 expected.append(copy)
     finished = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert finished.returncode == 0, finished.stderr
-    print(f"{kills} SIGKILLs, {damaged_records} damaged records, {damaged_checkpoints} damaged checkpoints")
-    assert kills == 20, kills
-    assert damaged_records >= 3 and damaged_checkpoints >= 1, (damaged_records, damaged_checkpoints)
+    print(f"{kills} SIGKILLs, {damaged_records} damaged records, {damaged_checkpoints} damaged checkpoints, "
+          f"{torn} torn appends, {planted} rounds of links and FIFOs")  # fmt: skip
+    assert kills == 25, kills
+    assert damaged_records >= 3 and damaged_checkpoints >= 1 and torn >= 1 and planted >= 3
     with StateDir(state) as locked:
         logged = [r["name"] for r in locked.read_log().records]
-    assert sorted(logged) == sorted(expected)  # every acknowledged measurement, once
-    assert not list(inbox.glob("*.json"))
+    assert sorted(logged) == sorted(expected)  # every acknowledged measurement, once; no stranger
+    assert not list(inbox.glob("*.json")) and (outside / "stranger.json").exists()
+    rejected = {p.name for p in (state / "rejected").glob("*.json")}
+    assert {f"link{k:02d}.json" for k in range(1, planted + 1)} <= rejected
+    assert {f"fifo{k:02d}.json" for k in range(1, planted + 1)} <= rejected
     assert json.loads((state / "report.json").read_text())["n_images"] == len(expected)
+    # The uninterrupted run over the same measurement files, in the same order.
+    again = tmp_path / "inbox_again"
+    again.mkdir()
+    for name in expected:
+        shutil.copy(state / "processed" / name, again / name)
+    service = OnlineService(tmp_path / "state_again", again, small_case / "setup.yaml")
+    service.run(once=True)
+    service.close()
+    (estimate, sigma), (reference, _) = _estimate(state), _estimate(tmp_path / "state_again")
+    assert np.all(np.abs(estimate - reference) <= 1e-6 * sigma)
 
 
 def test_a_measurement_whose_fold_fails_is_quarantined_and_never_blocks_a_replay(small_case, tmp_path, monkeypatch):

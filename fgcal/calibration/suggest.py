@@ -12,6 +12,7 @@ import yaml
 from ..dataset import Dataset
 from ..errors import InputError
 from ..noise import noise_document
+from ..outputs import write_text
 from ..simulation.cell import Cell
 from .formulations import REGISTRY
 
@@ -43,5 +44,5 @@ def write_suggested_config(cell: Cell, dataset: Dataset) -> Path:
         f"# Suggested by fgcal simulate for {Path(cell.source).name}: the formulation of the cell's instrument, the\n"
         "# compliant joints of its true robot and the noise its instruments state. docs/calibration.md\n"
     )
-    path.write_text(note + yaml.safe_dump(suggested_config(cell, dataset), sort_keys=False), encoding="utf-8")
+    write_text(path, note + yaml.safe_dump(suggested_config(cell, dataset), sort_keys=False))
     return path

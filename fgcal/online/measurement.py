@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import InputError
 from ..fields import Fields
 from ..units import parse_units
+from .inbox import read_regular
 
 FORMAT = "fgcal-measurement/1"
 
@@ -66,18 +67,19 @@ def parse_measurement(data: object, name: str, source: str | Path, n_joints: int
 MAX_BYTES = 1 << 20  # an image's joints and pixels take a few kB
 
 
-def read_measurement(path: Path, n_joints: int) -> Measurement:
+def read_measurement(path: Path, n_joints: int, name: str | None = None, source: Path | None = None) -> Measurement:
+    """The measurement in ``path`` (a regular file: read without following a link or blocking),
+    named ``name`` (default the file's) and reported as ``source`` (default ``path``)."""
+    source = path if source is None else source
     try:
-        if path.stat().st_size > MAX_BYTES:
-            raise InputError(path, None, f"larger than {MAX_BYTES} bytes: not a measurement file")
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError(path, None, f"cannot read: {error}") from None
+        data = json.loads(read_regular(path, MAX_BYTES).decode("utf-8"))
     except json.JSONDecodeError as error:
-        raise InputError(path, None, f"not valid JSON: {error}") from None
+        raise InputError(source, None, f"not valid JSON: {error}") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(source, None, f"cannot read: {error}") from None
     except RecursionError:
-        raise InputError(path, None, "JSON nested too deeply") from None
-    return parse_measurement(data, path.name, path, n_joints)
+        raise InputError(source, None, "JSON nested too deeply") from None
+    return parse_measurement(data, path.name if name is None else name, source, n_joints)
 
 
 def write_measurement(inbox: str | Path, measurement: Measurement) -> Path:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..outputs import save_figure, write_text
+
 
 def read_history(state: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
     """(released names, image numbers, predicted RMS accuracy (m), sigmas (images x names))."""
@@ -46,7 +48,7 @@ def plot_sigmas(state: Path, report: dict) -> Path | None:
     bottom.legend(fontsize=8)
     fig.tight_layout()
     path = state / "sigmas.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -93,4 +95,4 @@ def write_final_report(state: Path, report: dict) -> None:
             lines.append(f"| {alarm['image']} | {alarm['name']} | {flagged}{f'; {more} more' if more else ''} |")
     if plot is not None:
         lines += ["", f"![sigmas]({plot.name})"]
-    (state / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(state / "report.md", "\n".join(lines) + "\n")

@@ -11,6 +11,7 @@ a restart after a crash continues with every acknowledged measurement.
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
 import time
 from collections import deque
@@ -26,12 +27,14 @@ from ..calibration.covariance import position_covariance
 from ..dataset import load_dataset
 from ..errors import InputError
 from ..fields import Fields, read_yaml
+from ..outputs import subfolder, write_bytes, write_text
 from ..parameters import unit_of
 from ..robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
+from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement
 from .report import write_final_report
-from .state import StateDir, encode_record, write_atomic
+from .state import StateDir, encode_record, open_for_writing, write_atomic
 
 CONFIG = "config.yaml"
 QUARANTINE = "quarantined"  # key of a log record that marks a measurement as not to be folded in
@@ -113,6 +116,10 @@ class OnlineService:
         self.inbox = inbox
         if not self.inbox.is_dir():
             raise InputError(self.inbox, None, "inbox directory does not exist")
+        state, box = self.state.path.resolve(), self.inbox.resolve()
+        if box == state or box.is_relative_to(state):
+            raise InputError(self.inbox, "--inbox", f"is the state directory or inside it ({self.state.path}): "
+                             "measurements come from elsewhere")  # fmt: skip
         config_path = self.state.path / CONFIG
         if setup is not None:
             self.config = load_config(Path(setup))
@@ -146,9 +153,12 @@ class OnlineService:
         self.target_m = float(self.config["target_accuracy_m"])
         self.latencies: deque[float] = deque(maxlen=10000)  # bounded: the last 10000 updates
         self._history_handle = None
-        (self.state.path / "processed").mkdir(exist_ok=True)
-        (self.state.path / "rejected").mkdir(exist_ok=True)
+        self._left: set[str] = set()  # inbox folders named like measurements, reported once
+        self.processed = subfolder(self.state.path, "processed")
+        self.rejected = subfolder(self.state.path, "rejected")
         self._replay()
+        for name in recover_claims(self.inbox):
+            self.say(f"took back {name}: claimed by a process that stopped before it was logged")
 
     def _begin(self) -> None:
         """Everything a replay rebuilds: the estimate's companions and history.csv."""
@@ -161,7 +171,7 @@ class OnlineService:
         self.quarantined: dict[str, str] = {}  # name -> why folding it in failed
         if self._history_handle is not None:
             self._history_handle.close()
-        self._history_handle = open(self.state.path / "history.csv", "w", encoding="utf-8")  # noqa: SIM115 (kept open for the run)
+        self._history_handle = open_for_writing(self.state.path / "history.csv")
         self._history_handle.write(
             "image,name,cycle,update_ms,predicted_rms_m,alarms,"
             + ",".join(f"sigma_{n}" for n in self.calibrator.released)
@@ -231,9 +241,8 @@ class OnlineService:
                 records.insert(position, recovered[i])
                 message = f"damaged log record recovered from processed/{recovered[i]['name']}"
             else:
-                quarantine.mkdir(exist_ok=True)
-                kept = quarantine / f"log-record-{position + i + 1}.bin"
-                kept.write_bytes(raw)
+                kept = write_bytes(subfolder(quarantine.parent, quarantine.name) / f"log-record-{position + i + 1}.bin",
+                                   raw)  # fmt: skip
                 message = f"damaged log record with no measurement file to recover it from: quarantined in {kept}"
             self.say(f"warning: {message}")
             self.problems.append(message)
@@ -317,46 +326,75 @@ class OnlineService:
         return {"rms_m": float(np.sqrt(np.mean(radial**2))), "max_m": float(radial.max()), "n_configurations": len(q)}
 
     def process_inbox(self) -> int:
-        """Process every complete file in the inbox; returns how many were new."""
+        """Process every complete measurement file in the inbox (fgcal.online.inbox says which);
+        returns how many were new."""
         count = 0
-        for path in sorted(self.inbox.glob("*.json")):
+        for entry in entries(self.inbox):
+            if entry.problem is not None:
+                self._reject_entry(entry)
+                continue
+            claimed = claim(self.inbox, entry)
+            if claimed is None:  # another process took it
+                continue
+            source = self.inbox / entry.name
             try:
-                measurement = read_measurement(path, self.calibrator.robot.n_joints)
+                measurement = read_measurement(claimed, self.calibrator.robot.n_joints, entry.name, source)
                 unknown = [n for n, _ in measurement.pixels if n not in self.calibrator.points_F]
                 if unknown:
-                    raise InputError(path, f"pixels.{unknown[0]}", "unknown calibration point")
-                if path.name in self.logged:
-                    if _digest(measurement.to_record()) == self.logged[path.name]:
+                    raise InputError(source, f"pixels.{unknown[0]}", "unknown calibration point")
+                if entry.name in self.logged:
+                    if _digest(measurement.to_record()) == self.logged[entry.name]:
                         # Acknowledged just before a crash, not yet moved aside.
-                        shutil.move(str(path), self.state.path / "processed" / path.name)
+                        shutil.move(str(claimed), self.processed / entry.name)
                         continue
                     raise InputError(
-                        path, None, "an earlier, different measurement has this name: names must be unique"
+                        source, None, "an earlier, different measurement has this name: names must be unique"
                     )
             except InputError as error:
-                if not path.exists():  # taken away by its writer meanwhile
-                    continue
-                self.say(f"rejected {path.name}: {error}")
-                shutil.move(str(path), self.state.path / "rejected" / path.name)
-                (self.state.path / "rejected" / f"{path.name}.error.txt").write_text(str(error) + "\n")
+                self.say(f"rejected {entry.name}: {error}")
+                shutil.move(str(claimed), self.rejected / entry.name)
+                write_text(self.rejected / f"{entry.name}.error.txt", str(error) + "\n")
                 continue
             record = measurement.to_record()
             try:
                 self.state.append(record)
-            except OSError as error:  # e.g. a full disk: not acknowledged, so left in the inbox
+            except OSError as error:  # e.g. a full disk: not acknowledged, so back in the inbox
+                os.replace(claimed, source)
                 raise InputError(
                     self.state.path / "measurements.log",
                     None,
-                    f"cannot append {path.name}: {error}; it stays in the inbox",
+                    f"cannot append {entry.name}: {error}; it stays in the inbox",
                 ) from None
             self.logged[measurement.name] = _digest(record)
-            shutil.move(str(path), self.state.path / "processed" / path.name)
+            shutil.move(str(claimed), self.processed / entry.name)
             self._fold(measurement)
             count += 1
             if self.calibrator.n_images % CHECKPOINT_EVERY == 0:
                 self._checkpoint()
             self._write_outputs()
         return count
+
+    def _reject_entry(self, entry: Entry) -> None:
+        """An inbox entry that is no measurement file (a link, a FIFO, an odd name) moved to
+        rejected/ under a safe name, with the reason; a link or FIFO that cannot be moved there
+        (another filesystem) is removed from the inbox instead, a folder left where it is."""
+        name = safe_name(entry.name)
+        reason = f"{entry.problem}"
+        try:
+            os.rename(entry.path, self.rejected / name)
+        except FileNotFoundError:
+            return  # taken by another process
+        except OSError:
+            if entry.path.is_dir() and not entry.path.is_symlink():
+                if entry.name in self._left:
+                    return
+                self._left.add(entry.name)
+                reason += "; left in the inbox"
+            else:
+                entry.path.unlink(missing_ok=True)
+                reason += "; removed from the inbox (it could not be moved)"
+        self.say(f"rejected {name}: {reason}")
+        write_text(self.rejected / f"{name}.error.txt", f"{reason}\n")
 
     def _checkpoint(self) -> None:
         cal = self.calibrator

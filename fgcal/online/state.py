@@ -77,9 +77,36 @@ def checkpoint_problem(data: object, released: list[str]) -> str | None:
     return None
 
 
+# The state directory's own files: each must be a regular file, never a link or a folder.
+FILES = (
+    "lock",
+    LOG,
+    CHECKPOINT,
+    "config.yaml",
+    "report.json",
+    "report.md",
+    "calibrated_robot.yaml",
+    "history.csv",
+    "sigmas.png",
+)
+
+
+def _open_flags(flags: int) -> int:
+    return flags | os.O_NOFOLLOW  # a link planted where a state file goes is never followed
+
+
+def open_for_writing(path: Path, append: bool = False, binary: bool = False):
+    """A state file opened for writing (truncated, or appended to), never through a link."""
+    flags = os.O_WRONLY | os.O_CREAT | (os.O_APPEND if append else os.O_TRUNC)
+    descriptor = os.open(path, _open_flags(flags), 0o644)
+    return os.fdopen(descriptor, "ab" if binary else "w", **({} if binary else {"encoding": "utf-8"}))
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     temporary = path.with_name(f".{path.name}.tmp")
-    with open(temporary, "wb") as handle:
+    if temporary.is_symlink():
+        temporary.unlink()
+    with open_for_writing(temporary, binary=True) as handle:
         handle.write(data)
         handle.flush()
         os.fsync(handle.fileno())
@@ -100,14 +127,25 @@ class StateDir:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.path.mkdir(parents=True, exist_ok=True)
+        if self.path.exists() and not self.path.is_dir():
+            raise InputError(self.path, "--state", "is a file: the state is a folder")
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise InputError(self.path, "--state", f"cannot create the folder: {error.strerror}") from None
+        for name in FILES:
+            entry = self.path / name
+            if entry.is_symlink() or (entry.exists() and not entry.is_file()):
+                kind = "a symbolic link" if entry.is_symlink() else "a folder or a special file"
+                raise InputError(entry, None, f"is {kind} where fgcal keeps its state file: move it away")
         self._lock_handle = None
         self._log_handle = None
 
     # -- lock -------------------------------------------------------------------------------
 
     def lock(self) -> None:
-        handle = open(self.path / "lock", "a+")  # noqa: SIM115 (held while the lock is)
+        descriptor = os.open(self.path / "lock", _open_flags(os.O_RDWR | os.O_CREAT), 0o644)
+        handle = os.fdopen(descriptor, "a+")
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -187,7 +225,7 @@ class StateDir:
         if self._lock_handle is None:
             raise RuntimeError("append needs the state directory's lock")
         if self._log_handle is None:
-            self._log_handle = open(self.path / LOG, "ab")  # noqa: SIM115 (appended to for the run)
+            self._log_handle = open_for_writing(self.path / LOG, append=True, binary=True)
         self._log_handle.write(encode_record(record))
         self._log_handle.flush()
         os.fsync(self._log_handle.fileno())

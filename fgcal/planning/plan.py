@@ -21,6 +21,7 @@ from ..calibration.config import CalibrationConfig
 from ..calibration.formulations import REGISTRY
 from ..dataset import write_csv
 from ..errors import InputError
+from ..outputs import output_dir, save_figure, write_text
 from ..robot import MODELS
 from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
@@ -258,8 +259,7 @@ def plan(
 
 
 def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> list[str]:
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out_dir)
     cand, chosen = result.candidates, result.chosen
     n_joints = cand.q.shape[1]
     header = ["config", *[f"q{i}" for i in range(1, n_joints + 1)]]
@@ -268,8 +268,8 @@ def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> li
         header.append("block")
         rows = [[*row, cand.blocks[c]] for row, c in zip(rows, chosen, strict=True)]
     write_csv(out / "configurations.csv", header, rows)
-    (out / "plan.json").write_text(strict_json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
-    (out / "plan.md").write_text(_markdown(result, plot), encoding="utf-8")
+    write_text(out / "plan.json", strict_json.dumps(result.to_json(), indent=2) + "\n")
+    write_text(out / "plan.md", _markdown(result, plot))
     written = ["configurations.csv", "plan.json", "plan.md"]
     if plot:
         _plot(result, out / "predicted_accuracy.png")
@@ -352,4 +352,4 @@ def _plot(result: PlanResult, path: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)

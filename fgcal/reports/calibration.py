@@ -12,6 +12,7 @@ from ..calibration.covariance import correlation
 from ..calibration.goodness import Fit
 from ..calibration.prediction import workspace_map
 from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
+from ..outputs import output_dir, save_figure, write_text
 from ..parameters import unit_of
 from ..robot import Robot
 from ..robot_io import save_robot
@@ -257,10 +258,9 @@ PREDICTION_TOLERANCE = 1.5
 def write_report(result: CalibrationResult, out: str | Path, plots: bool = True) -> dict:
     """Write calibrated_robot.yaml, report.json and report.md (with PNG plots unless
     ``plots`` is false) into ``out``; returns the report as a dict."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)
     doc = report_dict(result)
-    (out / "report.json").write_text(strict_json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    write_text(out / "report.json", strict_json.dumps(doc, indent=2) + "\n")
     robot, params = calibrated_robot(result)
     save_robot(
         out / "calibrated_robot.yaml",
@@ -270,7 +270,7 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
     )
     write_estimates(result, out / "estimates.yaml")
     figures = _plots(result, out) if plots else {}
-    (out / "report.md").write_text(_markdown(doc, figures), encoding="utf-8")
+    write_text(out / "report.md", _markdown(doc, figures))
     return doc
 
 
@@ -330,7 +330,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         cumulative.set_ylim(0, 1.02)
         ax.legend(loc="upper left")
         ax.set_title("Before and after calibration (bars: histogram; lines: cumulative)", y=1.0)
-        fig.savefig(out / "errors.png", dpi=100, pil_kwargs={"compress_level": 1})
+        save_figure(fig, out / "errors.png", dpi=100, pil_kwargs={"compress_level": 1})
         plots["errors"] = "errors.png"
     if result.released:
         corr = correlation(result.parameter_covariance)
@@ -347,7 +347,7 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
             ax.text(i, n - 0.4, name, rotation=90, fontsize=7, ha="center", va="top")
             ax.text(-0.7, i, name, fontsize=7, ha="right", va="center")
         ax.set_title("Correlation of the estimated parameters (blue -1, grey 0, red +1)", y=1.0)
-        fig.savefig(out / "correlation.png", dpi=100, pil_kwargs={"compress_level": 1})
+        save_figure(fig, out / "correlation.png", dpi=100, pil_kwargs={"compress_level": 1})
         plots["correlation"] = "correlation.png"
     return plots
 

@@ -29,6 +29,7 @@ import yaml
 from ..calibration.results import CalibrationResult
 from ..calibration.state import Auxiliary
 from ..fields import Fields, read_yaml
+from ..outputs import write_text
 from ..se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation
 
 FORMAT = "fgcal-estimates/1"
@@ -86,7 +87,7 @@ def estimates_document(result: CalibrationResult) -> dict:
 
 
 def write_estimates(result: CalibrationResult, path: str | Path) -> None:
-    Path(path).write_text(yaml.safe_dump(estimates_document(result), sort_keys=False), encoding="utf-8")
+    write_text(path, yaml.safe_dump(estimates_document(result), sort_keys=False))
 
 
 def load_estimates(path: str | Path) -> dict:

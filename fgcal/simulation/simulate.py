@@ -13,6 +13,7 @@ import numpy as np
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..noise import noise_document
+from ..outputs import output_dir, subfolder, write_bytes
 from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
 from ..truth import Truth
 from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
@@ -153,8 +154,8 @@ def simulate(
     config_ids = [f"c{i:04d}" for i in range(len(views))]
     say(f"  {len(views)} configurations; measuring")
 
-    out = Path(out_dir)
-    (out / "truth").mkdir(parents=True, exist_ok=True)
+    out = output_dir(out_dir)
+    subfolder(out, "truth")
     if cell.touch is not None:
         _write_configurations(out, cell, q, config_ids)
         counts = write_touch_tables(out, cell, config_ids, touched, seating, noise_rng)
@@ -324,11 +325,11 @@ def _render_images(
     by_side = {b.name: b for b in boards}
     renderer = Renderer(cell.camera)
     T_W_C = cell.robot.fk_tool(q, true_params)
-    (out / "images").mkdir(exist_ok=True)
+    images = subfolder(out, "images")
     for i, (cid, view) in enumerate(zip(config_ids, views, strict=True)):
         board = by_side[f"{view.side.obj}{view.side.side}"]
         image = renderer.render(board, board_pose_in_camera(T_W_C[i], cell.fixture_pose, board), rng)
-        cv2.imwrite(str(out / "images" / f"{cid}.png"), image)
+        write_bytes(images / f"{cid}.png", cv2.imencode(".png", image)[1].tobytes())
         if (i + 1) % 50 == 0:
             say(f"  rendered {i + 1}/{len(views)} images")
     return boards

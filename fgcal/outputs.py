@@ -1,0 +1,80 @@
+"""Where fgcal writes, and how: the one place that enforces it (docs/formats.md, "What fgcal
+reads and writes").
+
+A command writes only into the folder or file its command line names (``--out``, ``--urdf``,
+``--state``), creating the folder and its parents. Inside it, nothing is written through a
+symbolic link, to a file or to a folder: a link left where an output goes (by another tool, or
+planted) would carry the write out of the folder. A folder the command line names may itself
+be a link (the user named it).
+"""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+from pathlib import Path
+
+from .errors import InputError
+
+
+def output_dir(path: str | Path, field: str | None = "--out") -> Path:
+    """The folder ``path`` (named on the command line), created with its parents; an error when
+    it is a file."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(path, field, "is a file: name a folder to write into")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, field, f"cannot create the folder: {exc.strerror}") from None
+    return path
+
+
+def subfolder(parent: Path, name: str) -> Path:
+    """A folder inside an output folder, created; never a link."""
+    path = Path(parent) / name
+    if path.is_symlink():
+        raise InputError(path, None, "is a symbolic link: fgcal does not write through links")
+    if path.exists() and not path.is_dir():
+        raise InputError(path, None, "is a file where fgcal writes a folder")
+    path.mkdir(exist_ok=True)
+    return path
+
+
+def output_file(path: str | Path, field: str | None = None) -> Path:
+    """A file a command writes, checked before a writer it does not control (savefig,
+    cv2.imwrite) opens it: not a link, not a folder, and its folder there."""
+    path = Path(path)
+    if path.is_symlink():
+        raise InputError(path, field, "is a symbolic link: fgcal does not write through links")
+    if path.is_dir():
+        raise InputError(path, field, "is a folder: name the file to write")
+    if not path.parent.is_dir():
+        raise InputError(path, field, f"no such folder {path.parent}")
+    return path
+
+
+def write_bytes(path: str | Path, data: bytes, field: str | None = None) -> Path:
+    """Write a file, never through a symbolic link (O_NOFOLLOW) and never over a folder."""
+    path = output_file(path, field)
+    try:
+        descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputError(path, field, "is a symbolic link: fgcal does not write through links") from None
+        raise InputError(path, field, f"cannot write: {exc.strerror}") from None
+    with os.fdopen(descriptor, "wb") as handle:
+        handle.write(data)
+    return path
+
+
+def write_text(path: str | Path, text: str, field: str | None = None) -> Path:
+    return write_bytes(path, text.encode("utf-8"), field)
+
+
+def save_figure(figure, path: str | Path, **options) -> Path:
+    """A matplotlib figure saved as PNG through write_bytes."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", **options)
+    return write_bytes(path, buffer.getvalue())
