@@ -44,7 +44,12 @@ class FactorError(RuntimeError):
 
 class OutsideModelError(ValueError):
     """The variables are where the measurement model breaks down (a point behind the camera):
-    a trial step went too far, or the starting values are far off."""
+    a trial step went too far, or the starting values are far off. ``configuration``: the index,
+    among the measurement set's configurations, of the one where it broke down (if known)."""
+
+    def __init__(self, message: str, configuration: int | None = None) -> None:
+        super().__init__(message)
+        self.configuration = configuration
 
 
 # What a measurement row costs (whitened) where the model breaks down during a trial step: so

@@ -121,8 +121,8 @@ def _in_front(p_C: np.ndarray, configs: np.ndarray, what: str, estimate: str) ->
     if np.any(p_C[:, 2] <= 1e-6):
         worst = int(np.argmin(p_C[:, 2]))
         raise BehindCameraError(
-            f"{what} behind the camera (depth {p_C[worst, 2]:.3g} m at configuration {configs[worst]}): "
-            f"{estimate} is far off"
+            f"{what} behind the camera (depth {p_C[worst, 2]:.3g} m): {estimate} is far off",
+            configuration=int(configs[worst]),
         )
 
 

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -69,17 +72,16 @@ def _parse_drift(text: str | None):
     try:
         name, rest = text.split("=", 1)
         value, start = rest.split("@", 1)
-        return Drift(name.strip(), float(value), int(start))
+        drift = Drift(name.strip(), float(value), int(start))
     except ValueError:
         raise InputError(None, "--drift", f"expected NAME=CHANGE@CONFIGURATION (SI units), got {text!r}") from None
+    if not (np.isfinite(drift.change) and abs(drift.change) <= 1.0):
+        raise InputError(None, "--drift", f"the change is a step of at most 1 (m or rad), got {drift.change:g}")
+    return drift
 
 
 def cmd_online(args: argparse.Namespace) -> int:
-    from .errors import InputError
     from .online.service import OnlineService
-
-    if not (np.isfinite(args.poll) and 0 <= args.poll <= 3600):
-        raise InputError(None, "--poll", f"seconds between looks at the inbox, 0 to 3600, got {args.poll:g}")
 
     service = OnlineService(args.state, args.inbox, args.setup, say=lambda msg: print(msg, flush=True))
     try:
@@ -181,31 +183,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_compensate(args: argparse.Namespace) -> int:
     from .compensate import compensate, nominal_of, read_targets, write_compensation
+    from .errors import InputError
+    from .outputs import output_file
     from .robot_io import load_robot
+
+    output_file(args.out, "--out")  # before the work, not after it
 
     robot = load_robot(args.robot)
     if args.payload_mass is not None or args.payload_com is not None:
         mass = robot.payload_mass if args.payload_mass is None else args.payload_mass
         com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
-        if not (np.isfinite(mass) and mass >= 0 and np.all(np.isfinite(com))):
-            print("fgcal: error: --payload-mass and --payload-com must be finite, the mass >= 0", file=sys.stderr)
-            return 2
         robot = robot.with_tool(robot.tool_pose, float(mass), com)
     nominal = nominal_of(robot, args.nominal)
     if nominal.n_joints != robot.n_joints:
-        print(f"fgcal: error: --nominal: {nominal.n_joints} joints, the robot has {robot.n_joints}", file=sys.stderr)
-        return 2
+        raise InputError(None, "--nominal", f"{nominal.n_joints} joints, the robot has {robot.n_joints}")
     targets = read_targets(args.targets, robot.n_joints)
     tcp = None if args.tcp is None else np.array(args.tcp)
-    if tcp is not None and not np.all(np.isfinite(tcp)):
-        print("fgcal: error: --tcp must be three finite numbers (m)", file=sys.stderr)
-        return 2
-    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
-        print("fgcal: error: --tolerance-um must be a positive number of micrometres", file=sys.stderr)
-        return 2
     result = compensate(
-        robot, nominal, targets.as_ik_targets(), targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6
-    )
+        robot, nominal, targets.as_ik_targets(), targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6,
+        progress=lambda msg: print(msg, flush=True),
+    )  # fmt: skip
     write_compensation(args.out, targets.names, result, targets.rotations is not None)
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     print(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
@@ -225,9 +222,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
     sizes = tuple(args.sizes)
-    if any(n < 20 for n in sizes) or args.repeats < 1:
-        print("fgcal: error: --sizes are at least 20 configurations and --repeats at least 1", file=sys.stderr)
-        return 2
     # With --json, stdout carries the JSON object alone; the progress goes to stderr.
     say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if args.json else (lambda msg: print(msg, flush=True))
     faro = Path(args.faro) if args.faro else None
@@ -329,16 +323,67 @@ def cmd_fk(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line, like every other error: ``fgcal: error: ...``, exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"fgcal: error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def _integer(low: int, high: int, what: str) -> Callable[[str], int]:
+    """An argparse type: a whole number of ``what`` from ``low`` to ``high``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{low} to {high} {what}, got {value}")
+        return value
+
+    return parse
+
+
+def _real(low: float, high: float, unit: str, *, above_low: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number in [low, high] (``above_low``: in (low, high])."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number ({unit}), got {text!r}") from None
+        inside = (value > low if above_low else value >= low) and value <= high
+        if not (np.isfinite(value) and inside):
+            bracket = "(" if above_low else "["
+            raise argparse.ArgumentTypeError(f"a number in {bracket}{low:g}, {high:g}] {unit}, got {text}")
+        return value
+
+    return parse
+
+
+SEED = _integer(0, 2**32 - 1, "(the random seed)")
+LENGTH_M = _real(-10.0, 10.0, "m")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fgcal", description="Robot calibration with factor graphs (GTSAM).")
+    from .planning import MAX_CANDIDATES
+    from .simulation import MAX_CONFIGURATIONS
+
+    configurations = _integer(1, MAX_CONFIGURATIONS, "configurations")
+    parser = _Parser(prog="fgcal", description="Robot calibration with factor graphs (GTSAM).")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate a calibration cell: true robot, configurations, measurements")
     p.add_argument("cell", help="cell YAML file, or a bundled cell name (kr125_seed)")
     p.add_argument("--out", required=True, help="output dataset directory")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1); same seed, same files")
+    p.add_argument("--seed", type=SEED, default=1, help="random seed (default 1); same seed, same files")
     p.add_argument("--design", choices=("seed", "space_filling"), help="override the cell's design kind")
-    p.add_argument("--n", type=int, help="number of configurations of a space-filling design")
+    p.add_argument(
+        "--n",
+        type=configurations,
+        help=f"number of configurations of a space-filling design (1 to {MAX_CONFIGURATIONS})",
+    )
     p.add_argument(
         "--configurations", help="CSV of configurations (config, q1..qn, block) to simulate exactly, e.g. fgcal plan's"
     )
@@ -356,8 +401,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="simulate the seed cell, calibrate it and write the report")
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
-    p.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
-    p.add_argument("--n", type=int, default=300, help="configurations of the space-filling design (default 300)")
+    p.add_argument("--seed", type=SEED, default=1, help="simulation seed (default 1)")
+    p.add_argument(
+        "--n", type=configurations, default=300, help="configurations of the space-filling design (default 300)"
+    )
     p.add_argument("--formulation", choices=("pairs", "tracker"), default="pairs")
     p.set_defaults(func=cmd_demo)
 
@@ -365,11 +412,20 @@ def build_parser() -> argparse.ArgumentParser:
         "bench", help="time fgcal's solve against a NumPy Gauss-Newton and scipy, and online latency (docs/cli.md)"
     )
     p.add_argument("--out", default="out/bench", help="where the simulated cases are kept between runs")
-    p.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
+    p.add_argument("--seed", type=SEED, default=1, help="simulation seed (default 1)")
     p.add_argument(
-        "--sizes", type=int, nargs="+", default=[300, 1000], help="configurations per case (default 300 1000)"
+        "--sizes",
+        type=_integer(20, 20000, "configurations"),
+        nargs="+",
+        default=[300, 1000],
+        help="configurations per case (default 300 1000)",
     )
-    p.add_argument("--repeats", type=int, default=3, help="interleaved rounds; the best of each is kept (default 3)")
+    p.add_argument(
+        "--repeats",
+        type=_integer(1, 100, "rounds"),
+        default=3,
+        help="interleaved rounds; the best of each is kept (default 3)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object (SI units) on stdout")
     p.add_argument("--faro", help="a dataset from fgcal convert-faro: time the whole calibrate command on it too")
     p.set_defaults(func=cmd_bench)
@@ -378,12 +434,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="the calibrated robot (calibrated_robot.yaml) or a bundled name")
     p.add_argument("targets", help="CSV: target, x, y, z (m, W) [, rx, ry, rz (rad)] [, q1..qn hints (rad)]")
     p.add_argument("--out", required=True, help="output CSV (docs/cli.md)")
-    p.add_argument("--tcp", type=float, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
+    p.add_argument("--tcp", type=LENGTH_M, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
     p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
-    p.add_argument("--payload-mass", type=float, help="payload (kg) for the deflection (default the robot file's)")
-    p.add_argument("--payload-com", type=float, nargs=3, help="payload centre of mass in the flange frame (m)")
     p.add_argument(
-        "--tolerance-um", type=float, default=1.0, help="how close counts as reached, um (default 1; angles 1 urad)"
+        "--payload-mass",
+        type=_real(0.0, 10000.0, "kg"),
+        help="payload (kg) for the deflection (default the robot file's)",
+    )
+    p.add_argument("--payload-com", type=LENGTH_M, nargs=3, help="payload centre of mass in the flange frame (m)")
+    p.add_argument(
+        "--tolerance-um",
+        type=_real(0.0, 1e6, "um", above_low=True),
+        default=1.0,
+        help="how close counts as reached, um (default 1; angles 1 urad)",
     )
     p.set_defaults(func=cmd_compensate)
 
@@ -392,15 +455,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--inbox", required=True, help="directory where measurement files appear (docs/online.md)")
     p.add_argument("--setup", help="setup YAML for a new state directory (dataset with robot, camera, points)")
     p.add_argument("--once", action="store_true", help="process what is in the inbox, then exit")
-    p.add_argument("--poll", type=float, default=1.0, help="seconds between looks at the inbox (default 1)")
+    p.add_argument(
+        "--poll", type=_real(0.0, 3600.0, "s"), default=1.0, help="seconds between looks at the inbox (default 1)"
+    )
     p.set_defaults(func=cmd_online)
 
     p = sub.add_parser("online-feed", help="write a dataset's images as measurement files into an inbox")
     p.add_argument("dataset", help="dataset directory with pixels")
     p.add_argument("--inbox", required=True)
-    p.add_argument("--first", type=int, default=0, help="first configuration (default 0)")
-    p.add_argument("--n", type=int, help="number of images (default all)")
-    p.add_argument("--cycle-size", type=int, help="images per work cycle (default: no cycles)")
+    p.add_argument(
+        "--first", type=_integer(0, 10**9, "configurations"), default=0, help="first configuration (default 0)"
+    )
+    p.add_argument("--n", type=_integer(1, 10**9, "images"), help="number of images (default all)")
+    p.add_argument("--cycle-size", type=_integer(1, 10**9, "images"), help="images per work cycle (default: no cycles)")
     p.set_defaults(func=cmd_online_feed)
 
     p = sub.add_parser("convert-faro", help="convert the IRB 120 / FARO tracker text files to an fgcal dataset")
@@ -417,7 +484,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plan", help="choose the measurement configurations of a cell (docs/planning.md)")
     p.add_argument("cell", help="cell YAML file, or a bundled cell name (kr125_seed)")
-    p.add_argument("--n", type=int, required=True, help="number of configurations to plan")
+    p.add_argument(
+        "--n",
+        type=_integer(1, MAX_CANDIDATES, "configurations"),
+        required=True,
+        help="number of configurations to plan",
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument(
         "--criterion",
@@ -425,12 +497,17 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("d-optimal", "position", "o1", "o2", "o3", "o4", "o5"),
         help="design criterion (default d-optimal)",
     )
-    p.add_argument("--candidates", type=int, default=5000, help="candidate configurations (default 5000)")
+    p.add_argument(
+        "--candidates",
+        type=_integer(1, MAX_CANDIDATES, "candidates"),
+        default=5000,
+        help=f"candidate configurations (default 5000, at most {MAX_CANDIDATES})",
+    )
     p.add_argument(
         "--formulation", help="what to plan for (pairs, projection, tracker; default: what the cell measures with)"
     )
     p.add_argument("--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e")
-    p.add_argument("--seed", type=int, default=1, help="seed of the candidates (default 1)")
+    p.add_argument("--seed", type=SEED, default=1, help="seed of the candidates (default 1)")
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
     p.set_defaults(func=cmd_plan)
 
@@ -446,7 +523,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fk", help="forward kinematics of a robot (bundled, or a robot file) at one configuration")
     p.add_argument("robot", help="bundled robot name, robot YAML file or URDF")
     p.add_argument("--tip", help="tip link of a URDF (default tool0, else its only leaf)")
-    p.add_argument("q", nargs="+", type=float, help="joint angles (rad, or deg with --deg)")
+    p.add_argument("q", nargs="+", type=_real(-1e6, 1e6, "rad, deg or m"), help="joint angles (rad, or deg with --deg)")
     p.add_argument("--deg", action="store_true", help="joint angles in degrees")
     p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")
     p.set_defaults(func=cmd_fk)
@@ -454,10 +531,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if getattr(args, "n", None) is not None and args.n < 1:
-        print("fgcal: error: --n must be >= 1", file=sys.stderr)
-        return 2
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage error already printed
+        return exc.code if isinstance(exc.code, int) else 2
     from threadpoolctl import threadpool_limits
 
     try:
@@ -471,6 +548,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("fgcal: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away (| head): stop quietly, as a shell tool does
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (the interpreter's last flush must not fail)
+        return 141
     except Exception:  # a bug of fgcal's, never dressed as the user's
         print("fgcal: internal error (please report it with the traceback below)", file=sys.stderr)
         traceback.print_exc()

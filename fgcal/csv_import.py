@@ -12,7 +12,6 @@ angles become quaternions and a table's own units are converted to the mapping's
 from __future__ import annotations
 
 import csv
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,9 +21,9 @@ from scipy.spatial.transform import Rotation
 
 from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, load_dataset, write_csv, write_header
 from .errors import InputError
-from .fields import Fields, is_plain_number, read_yaml
+from .fields import Fields, check_name, is_plain_number, read_file_text, read_yaml
 from .outputs import output_dir
-from .robot_io import referenced_robot, robot_reference
+from .robot_io import embed_robot, referenced_robot, robot_reference
 from .units import Units, parse_units
 
 IMPORT_FORMAT = "fgcal-import/1"
@@ -90,6 +89,10 @@ class SourceTable:
     def text(self, row: int, column: int) -> str:
         return self.rows[row][column].strip()
 
+    def name(self, row: int, column: int) -> str:
+        """An id cell (a configuration, a target, a pivot): text without control characters."""
+        return check_name(self.text(row, column), self.path, f"line {self.lines[row]}, column {self.columns[column]}")
+
     def missing(self, row: int, columns: list[int]) -> bool:
         return all(self.text(row, c) in self.not_found for c in columns)
 
@@ -125,14 +128,11 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
     path = (base / fields.string("file")).resolve()
     encoding = fields.string("encoding", "utf-8-sig")
     try:
-        with open(path, newline="", encoding=encoding) as fh:
-            lines = fh.read().splitlines()
-    except FileNotFoundError:
-        raise fields.error("file", f"file not found: {path}") from None
+        lines = read_file_text(path, encoding).splitlines()
     except LookupError:
         raise fields.error("encoding", f"unknown encoding {encoding!r}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise fields.error("file", f"cannot read {path}: {exc}") from None
+    except InputError as exc:
+        raise fields.error("file", f"{path}: {exc.message}") from None
     skip = fields.integer("skip_rows", 0, minimum=0)
     numbered = [(i + 1, line) for i, line in enumerate(lines) if i >= skip and line.strip()]
     if not numbered:
@@ -142,7 +142,11 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
     if delimiter is None:
         cells = [line.split() for _, line in numbered]
     else:
-        cells = list(csv.reader([line for _, line in numbered], delimiter=delimiter))
+        reader = csv.reader([line for _, line in numbered], delimiter=delimiter)
+        try:
+            cells = list(reader)
+        except csv.Error as exc:
+            raise InputError(path, f"line {numbered[reader.line_num - 1][0]}", f"not CSV: {exc}") from None
     header = fields.raw("header", True)
     if not isinstance(header, bool):
         raise fields.error("header", f"expected true or false, got {header!r}")
@@ -188,7 +192,7 @@ def _configurations(fields: Fields, base: Path, units: Units, n_joints: int) -> 
     scale = own.to_rad / units.to_rad
     rows, seen = [], {}
     for r in range(len(source.rows)):
-        config = source.text(r, id_column) if id_column is not None else f"c{r:04d}"
+        config = source.name(r, id_column) if id_column is not None else f"c{r:04d}"
         if not config:
             raise InputError(source.path, f"line {source.lines[r]}, column {source.columns[id_column]}", "empty id")
         if config in seen:
@@ -208,7 +212,7 @@ def _id(fields: Fields, source: SourceTable, key: str) -> tuple[int | None, str 
     name = fields.raw(f"{key}_name")
     if not isinstance(name, (str, int)) or isinstance(name, bool) or not str(name).strip():
         raise fields.error(f"{key}_name", f"expected a name, got {name!r}")
-    return None, str(name).strip()
+    return None, check_name(str(name).strip(), fields.source, fields.path(f"{key}_name"))
 
 
 def _columns(fields: Fields, source: SourceTable, key: str, count: int) -> list[int]:
@@ -271,7 +275,7 @@ def _measurements(
     imported = Imported([*joins, *ids], [])
     for r in range(len(source.rows)):
         where = f"line {source.lines[r]}"
-        row: list[object] = [source.text(r, c) for c in config_columns] if config_columns else [config_ids[r]]
+        row: list[object] = [source.name(r, c) for c in config_columns] if config_columns else [config_ids[r]]
         for config, column in zip(row, config_columns, strict=False):
             if config not in configs:
                 raise InputError(
@@ -282,7 +286,7 @@ def _measurements(
             continue
         for k in ids:
             column, fixed = id_sources[k]
-            row.append(fixed if column is None else source.text(r, column))
+            row.append(fixed if column is None else source.name(r, column))
             if not row[-1]:
                 raise InputError(source.path, f"{where}, column {source.columns[column]}", f"empty {k} name")
         values = [source.number(r, c, "length", own.to_m) * length_scale for c in value_columns]
@@ -365,7 +369,7 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
         counts[f"{name}_dropped_not_found"] = imported.dropped
     header: dict = {
         "format": FORMAT,
-        "robot": _relative_robot(robot_ref, base, out),
+        "robot": embed_robot(robot_reference(base, robot_ref), out),
         "units": {"length": units.length, "angle": units.angle},
         "measured": [name for name in tables],
         "files": {"configurations": "configurations.csv", **{name: f"{name}.csv" for name in tables}},
@@ -381,13 +385,3 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     write_header(out, header)
     load_dataset(out)  # the result must read back: it then holds every check a dataset has
     return counts
-
-
-def _relative_robot(reference, base: Path, out: Path):
-    """The robot entry as seen from the dataset: a robot file's path relative to ``out``."""
-    resolved = robot_reference(base, reference)
-    if isinstance(resolved, dict):
-        return {**resolved, "file": os.path.relpath(resolved["file"], out.resolve())}
-    if resolved == reference:
-        return reference
-    return os.path.relpath(resolved, out.resolve())

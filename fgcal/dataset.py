@@ -44,7 +44,7 @@ import yaml
 from .boards import DICTIONARY, SideBoard
 from .camera import Camera, parse_camera
 from .errors import InputError
-from .fields import Fields, is_plain_number, read_yaml
+from .fields import Fields, check_name, is_plain_number, read_file_text, read_yaml
 from .noise import parse_noise
 from .outputs import write_text
 from .robot import Robot
@@ -119,7 +119,7 @@ class Dataset:
     q: np.ndarray  # (N, n) joint angles, rad
     tables: dict[str, Table] = field(default_factory=dict)
     camera: Camera | None = None
-    camera_mounting: np.ndarray | None = None  # nominal T_n_C
+    camera_mounting: np.ndarray | None = None  # nominal T_n_C of a camera on the flange, as given
     fixture_pose: np.ndarray | None = None  # nominal T_W_F
     images_dir: Path | None = None  # camera images, one per configuration: <config>.png
     boards: list = field(default_factory=list)  # fgcal.markers.SideBoard of each marked side
@@ -151,14 +151,15 @@ def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]
 
 
 def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    if not Path(path).exists():
+        raise InputError(path, None, "file not found (listed in dataset.yaml files)")
+    # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
+    text = read_file_text(path, "utf-8-sig")
+    reader = csv.reader(io.StringIO(text, newline=""))
     try:
-        # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found (listed in dataset.yaml files)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, None, f"cannot read file: {exc}") from None
+        rows = list(reader)
+    except csv.Error as exc:
+        raise InputError(path, f"line {reader.line_num}", f"not CSV: {exc}") from None
     if not rows:
         raise InputError(path, None, "empty file: a header row is required")
     header = [h.strip() for h in rows[0]]
@@ -204,8 +205,36 @@ def _table(path: Path, name: str, units: Units) -> Table:
     for j, (column, kind) in enumerate(zip(value_cols, kinds, strict=True)):
         to_si = units.to_m if kind == "length" else 1.0
         values[:, j] = parse_numbers(path, header, body, [column], kind, to_si)[:, 0]
-    ids = {c: np.array([row[header.index(c)].strip() for row in body], dtype=object) for c in id_cols}
+    ids = {
+        c: np.array(
+            [check_name(row[header.index(c)].strip(), path, f"line {line}, column {c}")
+             for line, row in enumerate(body, start=2)],
+            dtype=object,
+        )
+        for c in id_cols
+    }  # fmt: skip
+    _refuse_duplicates(path, name, ids)
     return Table(ids, values)
+
+
+# The id columns that name one measurement (a point of the drawing is named by its point alone);
+# a distance between a and b is the distance between b and a.
+KEY_COLUMNS = {"points": ("point",)}
+UNORDERED = ("point_distances", "tool_distances")
+
+
+def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
+    """A measurement given twice would count twice: refused, naming both lines."""
+    columns = KEY_COLUMNS.get(name, tuple(ids))
+    seen: dict[tuple, int] = {}
+    for line, key in enumerate(zip(*(ids[c] for c in columns), strict=True), start=2):
+        key = tuple(sorted(key)) if name in UNORDERED else key
+        if key in seen:
+            raise InputError(
+                path, f"lines {seen[key]} and {line}", f"{', '.join(columns)} {' '.join(map(repr, key))} given twice: "
+                "each measurement once (repeated readings at one pose: give each its own configuration)",
+            )  # fmt: skip
+        seen[key] = line
 
 
 def _inside(root: Path, files: Fields, name: str) -> Path:
@@ -226,7 +255,7 @@ def load_dataset(path: str | Path) -> Dataset:
     doc.check_keys(HEADER_KEYS)
     doc.check_format(FORMAT)
     units = parse_units(doc.raw("units", None), header_path)
-    _, robot = referenced_robot(doc, root)
+    _, robot = referenced_robot(doc, root, inside=root)
     files = doc.sub("files")
     files.check_keys(("configurations", *TABLES))
     measured = doc.items("measured")
@@ -310,10 +339,10 @@ def load_dataset(path: str | Path) -> Dataset:
         cam = doc.sub("camera")
         cam.check_keys(("image_size", "intrinsics", "distortion", "mounting"))
         dataset.camera = parse_camera(cam)
-        mount = cam.sub("mounting", {})
-        dataset.camera_mounting = _pose(mount, units)
-        # The camera is the robot's tool: its mounting is the nominal T_n_C.
-        dataset.robot = dataset.robot.with_tool(dataset.camera_mounting)
+        # The camera is the robot's tool: its mounting is the nominal T_n_C. Without one, the
+        # camera may be fixed in the cell (static_camera) and the tool stays at the flange.
+        dataset.camera_mounting = _pose(cam.sub("mounting"), units) if cam.has("mounting") else None
+        dataset.robot = dataset.robot.with_tool(_pose(cam.sub("mounting", {}), units))
     if doc.has("payload"):
         payload = doc.sub("payload")
         payload.check_keys(("mass", "com"))
@@ -325,7 +354,7 @@ def load_dataset(path: str | Path) -> Dataset:
     if doc.has("fixture"):
         dataset.fixture_pose = _pose(doc.sub("fixture"), units)
     if doc.has("images"):
-        dataset.images_dir = root / doc.string("images")
+        dataset.images_dir = _inside(root, doc, "images")
         if not dataset.images_dir.is_dir():
             raise doc.error("images", f"no such directory: {dataset.images_dir}")
         dataset.boards = _boards(doc.sub("markers"), units)
@@ -338,7 +367,6 @@ def _check_distances(dataset: Dataset, path: Path) -> None:
         raise InputError(path, None, "distances between touch points need the touch_points table")
     touched = set(dataset.tables["touch_points"].ids["point"])
     table = dataset.tables["point_distances"]
-    seen = set()
     for line, (a, b, d) in enumerate(
         zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True), start=2
     ):
@@ -349,24 +377,16 @@ def _check_distances(dataset: Dataset, path: Path) -> None:
             raise InputError(path, f"line {line}", f"a distance joins two different points, got {a!r} twice")
         if not d > 0:
             raise InputError(path, f"line {line}, column distance", f"must be > 0, got {d}")
-        if frozenset((a, b)) in seen:
-            raise InputError(path, f"line {line}", f"the distance {a}-{b} is given twice")
-        seen.add(frozenset((a, b)))
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:
-    """Unit quaternions (normalised here), one pose per configuration."""
+    """Unit quaternions (normalised here)."""
     table = dataset.tables["tracker_poses"]
     norms = np.linalg.norm(table.values[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
     if len(bad):
         raise InputError(path, f"line {bad[0] + 2}, columns qw-qz", f"not a unit quaternion (norm {norms[bad[0]]:.6g})")
-    table.values[:, 3:] /= norms[:, None]
-    seen: set[str] = set()
-    for line, config in enumerate(table.ids["config"], start=2):
-        if config in seen:
-            raise InputError(path, f"line {line}, column config", f"configuration {config!r} has two poses")
-        seen.add(config)
+    table.values[:, 3:] /= norms[:, None]  # one pose per configuration: _refuse_duplicates
 
 
 def _boards(markers: Fields, units: Units) -> list:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import stat
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,15 +17,35 @@ from .errors import InputError
 _MISSING = object()
 
 
+MAX_FILE_BYTES = 1 << 28  # 256 MB: no file fgcal reads is larger; /dev/zero would never end
+
+
+def read_file_text(path: str | Path, encoding: str = "utf-8", limit: int = MAX_FILE_BYTES) -> str:
+    """A regular file's text; a missing, special (a FIFO, a device) or huge file, or one that is
+    not text in ``encoding``, is an :class:`InputError` (LookupError for an unknown encoding)."""
+    path = Path(path)
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read file: {exc.strerror}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise InputError(path, None, "not a regular file (a folder, a FIFO or a device)")
+    if info.st_size > limit:
+        raise InputError(path, None, f"larger than {limit >> 20} MB: not a file fgcal reads")
+    try:
+        return path.read_text(encoding=encoding)
+    except UnicodeDecodeError as exc:
+        raise InputError(path, None, f"not {encoding} text: {exc.reason} at byte {exc.start}") from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read file: {exc}") from None
+
+
 def read_yaml(path: str | Path) -> Any:
     """``yaml.safe_load`` a file; unreadable or malformed files raise :class:`InputError`."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, None, f"cannot read file: {exc}") from None
+    text = read_file_text(path)
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -107,12 +128,14 @@ class Fields:
             raise self.error(key, f"must be >= 0, got {value!r}")
         return number * scale
 
-    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None) -> int:
+    def integer(self, key: str, default: Any = _MISSING, minimum: int | None = None, maximum: int | None = None) -> int:
         value = self.raw(key, default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(key, f"expected an integer, got {value!r}")
         if minimum is not None and value < minimum:
             raise self.error(key, f"must be >= {minimum}, got {value}")
+        if maximum is not None and value > maximum:
+            raise self.error(key, f"must be <= {maximum}, got {value}")
         return value
 
     def vector(self, key: str, length: int, default: Any = _MISSING, scale: float = 1.0) -> np.ndarray:
@@ -132,6 +155,13 @@ _PLAIN_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0
 def is_plain_number(text: str) -> bool:
     """ASCII decimal notation only (``float`` also takes ``1_000``, full-width digits, nan)."""
     return _PLAIN_NUMBER.fullmatch(text) is not None
+
+
+def check_name(text: str, source: str | Path, field: str) -> str:
+    """A name (a point, a target, a configuration id): printable text, no control characters."""
+    if any(ord(c) < 32 or ord(c) == 127 for c in text):
+        raise InputError(source, field, f"a name with a control character: {text!r}")
+    return text
 
 
 def to_float(value: Any, source: str | Path, field: str) -> float:

@@ -32,6 +32,7 @@ MAX_STEP_RAD = 0.5  # joint change per iteration, so that far hints do not jump 
 TOL_M, TOL_RAD = 1e-6, 1e-6  # what counts as reached (1 um, 1 urad)
 CONVERGED_M, CONVERGED_RAD = 1e-11, 1e-11  # where the iterations stop: far below any tolerance
 POLISH = 8  # Gauss-Newton steps without the pull toward the hint, to finish a position target
+STALL = 20  # iterations without a 1 % smaller error after which a target is given up (stuck)
 
 
 @dataclass
@@ -119,27 +120,43 @@ def inverse_kinematics(
     tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
     rows = slice(0, 6) if pose else slice(3, 6)
     active = np.arange(len(q))  # the targets still iterating: only they are evaluated
+    best = np.full(len(q), np.inf)  # each target's smallest error so far, and when it last improved
+    improved_at = np.zeros(len(q), dtype=int)
+    pulling = np.ones(len(q), dtype=bool)  # still pulled toward its hint (positions)
     for k in range(iterations + POLISH):
         if not len(active):
             break
-        pull = k < iterations
+        if k == iterations:
+            pulling[:] = False
         T, J = _tcp_state(robot, params, q[active], frame, tcp)
         error = _errors(T, targets[active], pose)
         done = np.linalg.norm(error[:, -3:], axis=1) < CONVERGED_M
         if pose:
             done &= np.linalg.norm(error[:, :3], axis=1) < CONVERGED_RAD
-        keep = ~done
+        size = np.linalg.norm(error, axis=1)
+        improved = size < 0.99 * best[active]
+        improved_at[active[improved]] = k
+        best[active] = np.minimum(best[active], size)
+        # At a limit, or in a far local minimum (a clamped search has its own cap, iterations:
+        # its active set may crawl along a limit for a while before it frees a joint). A target
+        # the pull holds off is let go of the pull first, to finish it.
+        stuck = (k - improved_at[active] > STALL) & (not clamp)
+        release = stuck & pulling[active]
+        pulling[active[release]] = False
+        improved_at[active[release]] = k
+        keep = ~done & (~stuck | release)
         active, A, error = active[keep], J[keep][:, rows], error[keep]  # A: (N, r, n)
         if not len(active):
             break
-        step = _step(A, error, hint[active] - q[active] if pull else None)
+        toward = (hint[active] - q[active]) * pulling[active, None]
+        step = _step(A, error, toward)
         if clamp:
             # A joint at a limit that the step would push beyond it stays there, and the others
             # take up its share (the arm is redundant for a position): an active set.
             at_low, at_high = q[active] <= robot.limits[:, 0], q[active] >= robot.limits[:, 1]
             blocked = (at_low & (step < 0)) | (at_high & (step > 0))
             if blocked.any():
-                step = _step(A * ~blocked[:, None, :], error, hint[active] - q[active] if pull else None)
+                step = _step(A * ~blocked[:, None, :], error, toward)
                 step[blocked] = 0.0
         norm = np.linalg.norm(step, axis=1, keepdims=True)
         q[active] += step * np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))

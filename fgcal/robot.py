@@ -158,6 +158,27 @@ class Robot:
         """Tool (or camera) pose ``T_W_C`` = ``T_W_n T_n_C``, like :meth:`fk`."""
         return self._frame(q, params, "tool")
 
+    def reach_m(self, params: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+        """The base origin in W (m) and a sure bound on how far the flange gets from it (m):
+        the sum of the chain's largest translations over the joint ranges (rotations keep
+        lengths). A point farther than this plus the tool's length is out of reach.
+        ``params``: the full parameter vector (default nominal)."""
+        chain = self.chain
+        p = self.parameter_vector() if params is None else np.asarray(params, dtype=float)
+        data = kinematics.forward(self, p, np.zeros((1, self.n_joints)))
+        base_origin = kinematics.frame_pose(self, data, "base")[0, :3, 3]
+        total = 0.0
+        for element in chain.elements[chain.base_end : chain.flange]:
+            if element.is_rotation or element.axis == "Rvec":
+                continue
+            value = element.const + (p[element.param] if element.param is not None else 0.0)
+            if element.joint is None:
+                total += abs(value)
+            else:
+                low, high = self.limits[element.joint]
+                total += max(abs(value + element.sign * low), abs(value + element.sign * high))
+        return base_origin, total
+
     def jacobian(
         self,
         q: np.ndarray,

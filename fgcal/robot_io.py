@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from .errors import InputError
-from .fields import Fields, read_yaml
+from .fields import Fields, read_file_text, read_yaml
 from .joints import DHJoint, OriginJoint
 from .outputs import write_text
 from .parameters import LENGTH_KINDS, parameter_names, split_name
@@ -87,22 +87,49 @@ def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
 ROBOT_FILE_SUFFIXES = (".yaml", ".yml", ".urdf")
 
 
-def robot_reference(directory: Path, raw: object, source: str | Path | None = None, field: str = "robot"):
+def robot_reference(
+    directory: Path, raw: object, source: str | Path | None = None, field: str = "robot", inside: Path | None = None
+):
     """A ``robot:`` entry of a cell, dataset or mapping file, its robot file made absolute
     (relative to ``directory``): a bundled robot's name, a robot file (YAML or URDF), or
-    ``{file: ARM.urdf, tip: LINK}`` for a URDF's chain to a named tip link."""
+    ``{file: ARM.urdf, tip: LINK}`` for a URDF's chain to a named tip link. With ``inside``
+    (a dataset's folder), a robot file must lie in that folder."""
+
+    def resolved(file: str) -> str:
+        path = (directory / file).resolve()
+        if inside is not None and not path.is_relative_to(inside.resolve()):
+            raise InputError(
+                source, field, f"{file!r} is outside the dataset folder {inside}: a dataset's robot file is "
+                "kept in the dataset (or name a bundled robot)",
+            )  # fmt: skip
+        return str(path)
+
     if isinstance(raw, str):
-        return str((directory / raw).resolve()) if Path(raw).suffix.lower() in ROBOT_FILE_SUFFIXES else raw
+        return resolved(raw) if Path(raw).suffix.lower() in ROBOT_FILE_SUFFIXES else raw
     if isinstance(raw, dict):
         entry = Fields(raw, source or "<robot>", field)
         entry.check_keys(("file", "tip"))
         file = entry.string("file")
         if Path(file).suffix.lower() != ".urdf":
             raise entry.error("file", f"a tip link names a link of a URDF file, got {file!r}")
-        return {"file": str((directory / file).resolve()), "tip": entry.string("tip")}
+        return {"file": resolved(file), "tip": entry.string("tip")}
     raise InputError(
         source, field, f"expected a bundled robot's name, a robot file or {{file: ARM.urdf, tip: LINK}}, got {raw!r}"
     )
+
+
+def embed_robot(reference, out: Path):
+    """The ``robot:`` entry of a dataset written to ``out`` for a resolved reference
+    (robot_reference): a bundled name as it is; a robot file copied into the dataset (a
+    dataset reads nothing outside its folder), as robot.yaml or robot.urdf."""
+    file = reference["file"] if isinstance(reference, dict) else reference
+    if not Path(file).is_absolute():  # a bundled robot's name
+        return reference
+    name = "robot" + Path(file).suffix.lower()
+    target = out / name
+    if Path(file).resolve() != target.resolve():
+        write_text(target, read_file_text(file))
+    return {**reference, "file": name} if isinstance(reference, dict) else name
 
 
 def load_referenced(reference) -> Robot:
@@ -112,11 +139,12 @@ def load_referenced(reference) -> Robot:
     return load_robot(reference)
 
 
-def referenced_robot(fields: Fields, directory: Path) -> tuple[object, Robot]:
+def referenced_robot(fields: Fields, directory: Path, inside: Path | None = None) -> tuple[object, Robot]:
     """The ``robot:`` entry of a document (a dataset header, an import mapping) and the robot
-    it names; a robot file is relative to ``directory``. Errors name the document's field."""
+    it names; a robot file is relative to ``directory`` (and in ``inside``, if given). Errors
+    name the document's field."""
     raw = fields.raw("robot")
-    reference = robot_reference(directory, raw, fields.source, fields.path("robot"))
+    reference = robot_reference(directory, raw, fields.source, fields.path("robot"), inside)
     try:
         return raw, load_referenced(reference)
     except InputError as exc:

@@ -24,6 +24,7 @@ import numpy as np
 
 from . import kinematics
 from .errors import InputError
+from .fields import read_file_text
 from .joints import OriginJoint
 from .outputs import output_dir, write_text
 from .robot import Robot
@@ -38,14 +39,14 @@ def _parse(path: Path):
     import yourdfpy
     from lxml import etree
 
-    if not path.is_file():
-        raise InputError(path, None, "file not found")
+    text = read_file_text(path)  # a regular file of a sane size (not a FIFO, not /dev/zero)
     # yourdfpy recovers from broken XML silently: check well-formedness first, without
     # entities or network access.
     try:
-        etree.parse(str(path), etree.XMLParser(resolve_entities=False, no_network=True))
-    except (etree.XMLSyntaxError, OSError) as exc:
+        root = etree.fromstring(text.encode("utf-8"), etree.XMLParser(resolve_entities=False, no_network=True))
+    except (etree.XMLSyntaxError, ValueError) as exc:
         raise InputError(path, None, f"malformed XML: {exc}") from None
+    _validate(path, root)
     try:
         return yourdfpy.URDF.load(
             str(path),
@@ -56,6 +57,78 @@ def _parse(path: Path):
         ).robot
     except Exception as exc:  # yourdfpy raises many kinds on a bad document
         raise InputError(path, None, f"not a valid URDF: {type(exc).__name__}: {exc}") from None
+
+
+# What a number of a URDF may be: an origin within 1 km, an angle within 100 rad, a joint's
+# limits within 1000 (rad or m). Anything beyond is a typo or a sentinel, not a robot.
+MAX_TRANSLATION_M, MAX_ANGLE_RAD, MAX_LIMIT = 1e3, 100.0, 1e3
+
+
+def _numbers(path: Path, where: str, text: str | None, count: int, bound: float) -> None:
+    if text is None:
+        return
+    parts = text.split()
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if len(parts) != count or len(values) != count or not all(np.isfinite(v) and abs(v) <= bound for v in values):
+        raise InputError(
+            path, where, f"expected {count} finite number{'s' if count > 1 else ''} within {bound:g}, got {text!r}"
+        )
+
+
+def _validate(path: Path, root) -> None:
+    """Checks yourdfpy does not make: a <robot> document, unique link and joint names, joints
+    between links that exist, origins, axes and limits of the right length and size."""
+    if root.tag != "robot":
+        raise InputError(path, None, f"not a URDF: the document is <{root.tag}>, not <robot>")
+    for kind in ("link", "joint"):
+        names = [element.get("name") for element in root.findall(kind)]
+        if any(not name for name in names):
+            raise InputError(path, kind, f"a <{kind}> without a name")
+        repeated = sorted({name for name in names if names.count(name) > 1})
+        if repeated:
+            raise InputError(path, f"{kind} {repeated[0]}", f"two <{kind}> elements are named {repeated[0]!r}")
+    links = {element.get("name") for element in root.findall("link")}
+    for joint in root.findall("joint"):
+        name = joint.get("name")
+        for end in ("parent", "child"):
+            element = joint.find(end)
+            if element is None or element.get("link") not in links:
+                got = None if element is None else element.get("link")
+                raise InputError(path, f"joint {name}.{end}", f"no link {got!r}")
+        origin = joint.find("origin")
+        if origin is not None:
+            _numbers(path, f"joint {name}.origin.xyz", origin.get("xyz"), 3, MAX_TRANSLATION_M)
+            _numbers(path, f"joint {name}.origin.rpy", origin.get("rpy"), 3, MAX_ANGLE_RAD)
+        axis = joint.find("axis")
+        if axis is not None:
+            _numbers(path, f"joint {name}.axis", axis.get("xyz"), 3, 1e6)
+        limit = joint.find("limit")
+        if limit is not None:
+            for key in ("lower", "upper"):
+                _numbers(path, f"joint {name}.limit.{key}", limit.get(key), 1, MAX_LIMIT)
+    parent_of: dict[str, str] = {}
+    for joint in root.findall("joint"):
+        child = joint.find("child").get("link")
+        if child in parent_of:
+            raise InputError(path, f"joint {joint.get('name')}.child", f"link {child!r} is the child of two joints")
+        parent_of[child] = joint.find("parent").get("link")
+    rooted: set[str] = set()  # links whose way up ends at a root
+    for start in parent_of:  # a tree: walking up from any link ends at the root
+        walked: set[str] = set()
+        link = start
+        while link in parent_of and link not in rooted:
+            if link in walked:
+                raise InputError(path, f"link {start}", "the joints form a loop: a URDF is a tree")
+            walked.add(link)
+            link = parent_of[link]
+        rooted |= walked
+    for link in root.findall("link"):
+        for origin in link.iter("origin"):
+            _numbers(path, f"link {link.get('name')}.origin.xyz", origin.get("xyz"), 3, MAX_TRANSLATION_M)
+            _numbers(path, f"link {link.get('name')}.origin.rpy", origin.get("rpy"), 3, MAX_ANGLE_RAD)
 
 
 def _finite_pose(path: Path, where: str, pose: np.ndarray | None) -> np.ndarray:
@@ -118,24 +191,24 @@ def _lumped_inertials(path: Path, model, chain: list) -> tuple[np.ndarray, np.nd
     mass = np.zeros(len(moving) + 1)  # entry 0: links that never move
     first_moment = np.zeros((len(moving) + 1, 3))
 
-    def visit(link_name: str, body: int, T_body_link: np.ndarray) -> None:
+    # Depth first with a stack of its own: a tree thousands of links deep is no recursion limit.
+    stack = [(chain[0].parent, 0, np.eye(4))]
+    while stack:
+        link_name, body, T_body_link = stack.pop()
         inertial = links[link_name].inertial
         if inertial is not None and inertial.mass is not None:
             m = float(inertial.mass)
-            if not np.isfinite(m) or m < 0:
-                raise InputError(path, f"link {link_name}.inertial.mass", f"must be finite and >= 0, got {m}")
+            if not np.isfinite(m) or m < 0 or m > 1e6:
+                raise InputError(path, f"link {link_name}.inertial.mass", f"must be finite, 0 to 1e6 kg, got {m}")
             com = _finite_pose(path, f"link {link_name}.inertial.origin", inertial.origin)[:3, 3]
             mass[body] += m
             first_moment[body] += m * (T_body_link[:3, :3] @ com + T_body_link[:3, 3])
         for joint in children.get(link_name, []):
             origin = _finite_pose(path, f"joint {joint.name}.origin", joint.origin)
             if joint.name in moving:
-                visit(joint.child, moving.index(joint.name) + 1, np.eye(4))
+                stack.append((joint.child, moving.index(joint.name) + 1, np.eye(4)))
             else:  # fixed, or a joint off the chain held at zero
-                visit(joint.child, body, T_body_link @ origin)
-
-    root = chain[0].parent
-    visit(root, 0, np.eye(4))
+                stack.append((joint.child, body, T_body_link @ origin))
     coms = np.divide(first_moment, mass[:, None], out=np.zeros_like(first_moment), where=mass[:, None] > 0)
     return mass[1:], coms[1:]
 

@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from conftest import SEED_CELL
@@ -191,3 +193,82 @@ def test_dataset_header_fuzz(dataset_dir, header, tmp_path_factory, data):
     (folder / "dataset.yaml").write_text(yaml.safe_dump(doc), encoding="utf-8")
     with contextlib.suppress(InputError):
         load_dataset(folder)
+
+
+# The URDF reader: the surfaces test's small URDF with one to four attribute values replaced by
+# anything (escaped for XML), or an element dropped.
+URDF_TEMPLATE = (
+    "<robot name='r'><link name='base'/>"
+    "<link name='l1'><inertial><mass value='2'/><origin xyz='0 0 0.1' rpy='0 0 0'/></inertial></link>"
+    "<link name='tool0'/>"
+    "<joint name='j1' type='revolute'><parent link='base'/><child link='l1'/><origin xyz='0 0 0.3' rpy='0 0 0'/>"
+    "<axis xyz='0 0 1'/><limit lower='-3' upper='3' effort='1' velocity='1'/></joint>"
+    "<joint name='t' type='fixed'><parent link='l1'/><child link='tool0'/><origin xyz='0.1 0 0'/></joint></robot>"
+)
+_ATTRIBUTES = [m.span(1) for m in re.finditer(r"='([^']*)'", URDF_TEMPLATE)]
+_ELEMENTS = [m.span() for m in re.finditer(r"<(origin|axis|limit|inertial|parent|child|mass)[^>]*/>", URDF_TEMPLATE)]
+urdf_values = st.one_of(
+    st.sampled_from(["", "nan", "inf", "-1e300", "1e300", "0 0", "0 0 0 0", "1 2 three", "base", "l1", "tool0",
+                     "ghost", "prismatic", "continuous", "floating", "planar", "-0", "1e-320"]),
+    st.text(max_size=12),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=5).map(lambda v: " ".join(map(repr, v))),
+)  # fmt: skip
+
+
+@FUZZ
+@given(
+    changes=st.lists(st.tuples(st.sampled_from(_ATTRIBUTES), urdf_values), min_size=1, max_size=4),
+    dropped=st.lists(st.sampled_from(_ELEMENTS), max_size=2),
+    tip=st.sampled_from([None, "tool0", "l1", "base", "ghost"]),
+)
+def test_urdf_fuzz(tmp_path_factory, changes, dropped, tip):
+    from xml.sax.saxutils import escape
+
+    from fgcal.robot_io import load_robot
+
+    edits = {span: escape(value, {"'": "&apos;"}) for span, value in changes} | {span: "" for span in dropped}
+    text = URDF_TEMPLATE
+    for (start, end), value in sorted(edits.items(), reverse=True):  # from the end: spans stay valid
+        if not any(s < start < e for s, e in edits if (s, e) != (start, end)):  # no edit inside another
+            text = text[:start] + value + text[end:]
+    path = tmp_path_factory.mktemp("fuzz_urdf") / "arm.urdf"
+    path.write_text(text, encoding="utf-8")
+    with contextlib.suppress(InputError):
+        robot = load_robot(path, tip)
+        robot.fk(np.clip(np.zeros(robot.n_joints), robot.limits[:, 0], robot.limits[:, 1]))
+
+
+# The importer's mapping: a valid mapping of two exports with one to three places changed.
+MAPPING = {
+    "format": "fgcal-import/1", "robot": "abb_irb120", "units": {"length": "mm", "angle": "deg"},
+    "configurations": {"file": "controller.csv", "config": "pose", "joints": ["A1", "A2", "A3", "A4", "A5", "A6"],
+                       "skip_rows": 0, "delimiter": ",", "decimal": "."},
+    "tracker_points": {"file": "tracker.csv", "config": "pose", "target": "name", "xyz": ["x", "y", "z"],
+                       "not_found": [""], "units": {"length": "mm"}},
+    "payload": {"mass": 0.5, "com": [0, 0, 30]}, "source": "fuzz",
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def exports(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("fuzz_exports")
+    rng = np.random.default_rng(1)
+    lines = ["pose,A1,A2,A3,A4,A5,A6"] + [
+        ",".join([f"P{i}", *(repr(float(v)) for v in rng.uniform(-40, 40, 6))]) for i in range(8)
+    ]
+    (folder / "controller.csv").write_text("\n".join(lines) + "\n")
+    lines = ["pose,name,x,y,z"] + [
+        ",".join([f"P{i}", "t1", *(repr(float(v)) for v in rng.uniform(-900, 900, 3))]) for i in range(8)
+    ]
+    (folder / "tracker.csv").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+@FUZZ
+@given(doc=st.one_of(documents, mutated(MAPPING)))
+def test_import_mapping_fuzz(exports, tmp_path_factory, doc):
+    from fgcal.csv_import import import_mapping
+
+    out = tmp_path_factory.mktemp("fuzz_imported")
+    with contextlib.suppress(InputError):
+        import_mapping(doc, exports / "mapping.yaml", exports, out / "dataset", "fuzz")

@@ -148,7 +148,7 @@ def _copy(sims, key, tmp_path: Path) -> Path:
     [
         (("poses", 2), "tracker_poses.csv", lambda rows: [rows[0], _last(rows[1], "0.3"), *rows[2:]], "line 2",
          "not a unit quaternion"),
-        (("poses", 2), "tracker_poses.csv", lambda rows: rows[:2] + rows[1:], "line 3", "has two poses"),
+        (("poses", 2), "tracker_poses.csv", lambda rows: rows[:2] + rows[1:], "lines 2 and 3", "given twice"),
         (("distances", 2), "distances.csv", lambda rows: [rows[0], _last(rows[1], "-0.2"), *rows[2:]], "line 2",
          "must be > 0"),
         (("tool_distances", 2), "tool_distances.csv", lambda rows: [rows[0], _last(rows[1], "0"), *rows[2:]],

@@ -215,7 +215,7 @@ def test_a_cell_and_its_dataset_name_the_urdfs_tip_link(tmp_path, capsys):
     assert load_cell(tmp_path / "cell.yaml").robot.n_joints == 6
     assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "data"), "--n", "20"]) == 0
     header = yaml.safe_load((tmp_path / "data" / "dataset.yaml").read_text())
-    assert header["robot"]["tip"] == "flange" and header["robot"]["file"].endswith("arm.urdf")
+    assert header["robot"] == {"file": "robot.urdf", "tip": "flange"}  # copied into the dataset
     dataset = load_dataset(tmp_path / "data")
     q = dataset.q[:3]
     np.testing.assert_allclose(dataset.robot.fk(q), fgcal.load_robot(tmp_path / "arm.urdf", tip="flange").fk(q))
@@ -223,3 +223,23 @@ def test_a_cell_and_its_dataset_name_the_urdfs_tip_link(tmp_path, capsys):
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
     assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "other")]) == 2
     assert "no link 'ghost'" in capsys.readouterr().err
+
+
+def test_a_deep_urdf_is_read_without_recursion(tmp_path):
+    """Three thousand fixed adapters before one revolute joint (deeper than Python's recursion
+    limit, which a recursive walk hit): read, and its FK adds the adapters up."""
+    n = 3000
+    links = "".join(f"<link name='l{i}'><inertial><mass value='0.001'/></inertial></link>" for i in range(n + 1))
+    joints = "".join(
+        f"<joint name='f{i}' type='fixed'><parent link='l{i}'/><child link='l{i + 1}'/><origin xyz='0.0001 0 0'/>"
+        "</joint>"
+        for i in range(n)
+    )
+    arm = (
+        f"<robot name='deep'>{links}<link name='tool0'/>{joints}<joint name='j' type='revolute'>"
+        f"<parent link='l{n}'/><child link='tool0'/><axis xyz='0 0 1'/>"
+        "<limit lower='-3' upper='3' effort='1' velocity='1'/></joint></robot>"
+    )
+    (tmp_path / "deep.urdf").write_text(arm)
+    robot = fgcal.load_robot(tmp_path / "deep.urdf")
+    np.testing.assert_allclose(robot.fk(np.array([0.5]))[:3, 3], [n * 1e-4, 0, 0], atol=1e-9)

@@ -6,19 +6,21 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
 from ..dataset import Dataset, load_dataset
 from ..errors import InputError
+from ..factors import OutsideModelError
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
 from .graph import StageGraph, build_graph, robust_scale
 from .identifiability import Identifiability, analyse
 from .models import compare_models
-from .problem import Detection, Problem, candidate_parameters, compliant_joints, split
+from .problem import Detection, Observations, Problem, candidate_parameters, compliant_joints, split
 from .references import reference_check
 from .results import SCORES, CalibrationResult, StageReport, primary_score, stats
 from .settings import Noise
@@ -116,6 +118,26 @@ def _check_first_stage(problem: Problem, report: StageReport, stage: StageGraph,
 REJECTION_ROUNDS = 3
 
 
+@contextmanager
+def _breakdowns_named(dataset: Dataset, observations: Callable[[], Observations | None], when: str) -> Iterator[None]:
+    """Where a measurement model breaks down (a point behind the camera) on the user's data:
+    an error naming the configuration, whose measurements do not match its joint values."""
+    try:
+        yield
+    except OutsideModelError as exc:
+        current = observations()
+        if exc.configuration is None or current is None:
+            raise InputError(dataset.path, None, f"{exc} ({when})") from None
+        config = current.config_ids[exc.configuration]
+        fixed = dataset.camera is not None and dataset.camera_mounting is None
+        raise InputError(
+            dataset.path / "configurations.csv", f"configuration {config}", f"{exc} ({when}): the measurements "
+            f"of {config} do not match its joint values (a joint in other units or a wrong row?)"
+            + ("; dataset.yaml gives no camera.mounting: a camera fixed in the cell is the static_camera "
+               "formulation's" if fixed else ""),
+        ) from None  # fmt: skip
+
+
 def calibrate(config: CalibrationConfig, progress: Say | None = None) -> CalibrationResult:
     """Load the config's dataset and calibrate (see :func:`calibrate_dataset`)."""
     return calibrate_dataset(load_dataset(config.dataset), config, progress)
@@ -147,59 +169,60 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         )
         for cid, reason in d.skipped:
             say(f"    skipped {cid}: {reason}")
-    state = formulation.initial_state(problem)
-    _check_enough(problem, state)
-    t = time.perf_counter()
-    identifiability = analyse(build_graph(problem, problem.candidates, state), config.min_information)
-    say(
-        f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
-        f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"
-    )
-    # The mounting components the data cannot determine stay at the nominal mounting, not at
-    # the hand-eye guess: the guess is noisy, and a fixed value is no estimate.
-    names = problem.robot.parameter_names
-    params = state.params.copy()
-    nominal = problem.robot.parameter_vector()
-    for name in identifiability.unidentifiable:
-        if name.startswith("tool."):
-            params[names.index(name)] = nominal[names.index(name)]
-    state = state.with_params(params)
-    stages: list[StageReport] = []
-    solve_started = time.perf_counter()
-    if state.n_auxiliary:
-        state, report, first_stage, first_values = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
-        stages.append(report)
-        _check_first_stage(problem, report, first_stage, first_values)
-    before = state
-    final_ident = identifiability
-    last_stage = last_values = None
-    for i, kinds in enumerate(config.stages, start=1):
-        released = stage_parameters(kinds, identifiability.identifiable)
-        if not released:
-            say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
-            continue
-        state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
-        stages.append(report)
-        if len(stages) == 1:
-            _check_first_stage(problem, report, last_stage, last_values)
-    for _ in range(REJECTION_ROUNDS):  # again while the refit shows more: a biased fit hides some
-        if last_stage is None:
-            break
-        outcome = formulation.reject(
-            problem, last_stage.measurements, last_values, robust_scale(last_stage.measurements, last_values)
+    with _breakdowns_named(dataset, lambda: problem.observations, "at the starting values or during the fit"):
+        state = formulation.initial_state(problem)
+        _check_enough(problem, state)
+        t = time.perf_counter()
+        identifiability = analyse(build_graph(problem, problem.candidates, state), config.min_information)
+        say(
+            f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
+            f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"
         )
-        if outcome is None:
-            break
-        problem = problem.with_fit(*outcome)
-        say(f"  rejected {len(problem.rejected)} measurements beyond 5 sigma in all; solving the last stage again")
-        state, report, last_stage, last_values = solve_stage(
-            problem, f"{len(config.stages)} (after rejection)", last_stage.released, state, say
-        )
-        stages.append(report)
-    if last_stage is not None:
-        state, last_stage, last_values, final_ident = _identifiable_at_solution(
-            problem, identifiability, state, last_stage, last_values, stages, config.min_information, say
-        )
+        # The mounting components the data cannot determine stay at the nominal mounting, not at
+        # the hand-eye guess: the guess is noisy, and a fixed value is no estimate.
+        names = problem.robot.parameter_names
+        params = state.params.copy()
+        nominal = problem.robot.parameter_vector()
+        for name in identifiability.unidentifiable:
+            if name.startswith("tool."):
+                params[names.index(name)] = nominal[names.index(name)]
+        state = state.with_params(params)
+        stages: list[StageReport] = []
+        solve_started = time.perf_counter()
+        if state.n_auxiliary:
+            state, report, first_stage, first_values = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
+            stages.append(report)
+            _check_first_stage(problem, report, first_stage, first_values)
+        before = state
+        final_ident = identifiability
+        last_stage = last_values = None
+        for i, kinds in enumerate(config.stages, start=1):
+            released = stage_parameters(kinds, identifiability.identifiable)
+            if not released:
+                say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
+                continue
+            state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
+            stages.append(report)
+            if len(stages) == 1:
+                _check_first_stage(problem, report, last_stage, last_values)
+        for _ in range(REJECTION_ROUNDS):  # again while the refit shows more: a biased fit hides some
+            if last_stage is None:
+                break
+            outcome = formulation.reject(
+                problem, last_stage.measurements, last_values, robust_scale(last_stage.measurements, last_values)
+            )
+            if outcome is None:
+                break
+            problem = problem.with_fit(*outcome)
+            say(f"  rejected {len(problem.rejected)} measurements beyond 5 sigma in all; solving the last stage again")
+            state, report, last_stage, last_values = solve_stage(
+                problem, f"{len(config.stages)} (after rejection)", last_stage.released, state, say
+            )
+            stages.append(report)
+        if last_stage is not None:
+            state, last_stage, last_values, final_ident = _identifiable_at_solution(
+                problem, identifiability, state, last_stage, last_values, stages, config.min_information, say
+            )
     solve_time = time.perf_counter() - solve_started
     declared = joint_covariance(last_stage, last_values) if last_stage is not None else None
     released = list(last_stage.released) if last_stage is not None else []
@@ -211,7 +234,8 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     test_observations, flagged = formulation.test_observations(problem, state)
     measured = {}
     for label, st in (("before", before), ("after", state)):
-        errors = formulation.held_out_errors(problem, test_observations, st) if test_observations is not None else {}
+        with _breakdowns_named(dataset, lambda: test_observations, f"held out, {label} the calibration"):
+            errors = {} if test_observations is None else formulation.held_out_errors(problem, test_observations, st)
         measured[label] = {k: stats(v.errors, v.configs) for k, v in errors.items()}
     prediction = None
     if test_observations is not None and covariance is not None and released:

@@ -5,3 +5,7 @@ candidate on the identifiable parameters and the auxiliary unknowns) -> exchange
 design: greedy then Fedorov exchange with rank-r updates) -> indices (observability
 indices O1..O5) -> plan (the command: files, report, plot).
 """
+
+# Candidates fgcal plan considers at most: their information rows take about 10 kB each, and a
+# camera cell's candidates cost an inverse kinematics each.
+MAX_CANDIDATES = 50000

@@ -25,6 +25,7 @@ from ..outputs import output_dir, save_figure, write_text
 from ..robot import MODELS
 from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
+from . import MAX_CANDIDATES
 from .candidates import Candidates, camera_candidates, joint_space_candidates
 from .exchange import CRITERIA, information_of, plan_design, predicted_sigma
 from .indices import observability
@@ -178,8 +179,8 @@ def prepare(
     say = progress or (lambda _msg: None)
     if model not in MODELS:
         raise InputError(None, "--model", f"unknown model {model!r} (one of {MODELS})")
-    if n_candidates < 1:
-        raise InputError(None, "--candidates", f"must be >= 1, got {n_candidates}")
+    if not 1 <= n_candidates <= MAX_CANDIDATES:
+        raise InputError(None, "--candidates", f"1 to {MAX_CANDIDATES} candidates, got {n_candidates}")
     cell = load_cell(cell_path)
     formulation = choose_formulation(cell, formulation)
     robot = cell.robot.with_model(model)
@@ -220,6 +221,8 @@ def plan(
     if criterion not in CRITERIA:
         raise InputError(None, "--criterion", f"unknown criterion {criterion!r} (one of {', '.join(CRITERIA)})")
     if planner is None:
+        if not 1 <= n <= n_candidates:  # before the candidates are drawn: they take a while
+            raise InputError(None, "--n", f"plan 1 to {n_candidates} (the candidates) configurations, got {n}")
         planner = prepare(cell_path, n_candidates, formulation, model, seed, max(n, REFERENCE_SIZE), say)
         say(f"planning {n} configurations of {cell_path} ({planner.formulation}, {model}) by {criterion}")
     planner.check_size(n)

@@ -7,19 +7,20 @@ sphere, then at a random length in a random direction from there: two configurat
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from ..dataset import write_csv
 from .cell import Cell
-from .touch import ROUNDS, reach_all
+from .touch import reach_all
 
 MIN_ELEVATION_RAD = np.deg2rad(10.0)  # the bar stays clear of the pivot's mounting plate
 
 
 def ballbar_design(
-    cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator
+    cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator, progress: Callable[[str], None] | None = None
 ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Configurations (N, n), the pivot of each reading and the true distance (m)."""
     bar = cell.ballbar
@@ -36,13 +37,15 @@ def ballbar_design(
     positions = bar.pivots[order] + length[:, None] * direction
     q = reach_all(
         cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng, "ballbar.pivots",
-        lambda pending: f"{len(pending)} ballbar positions unreachable after {ROUNDS} rounds of orientations: "
-        f"pivot {bar.names[order[pending[0]]]!r} with the bar's travel puts the ball out of the robot's reach",
+        lambda pending: f"pivot {bar.names[order[pending[0]]]!r} with the bar's travel puts the ball out of the "
+        "robot's reach", progress,
     )  # fmt: skip
     return q, [bar.names[k] for k in order], length
 
 
-def pairs_design(cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator) -> np.ndarray:
+def pairs_design(
+    cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator, progress: Callable[[str], None] | None = None
+) -> np.ndarray:
     """Configurations (2 P, n) of the readings between configurations: rows 2i and 2i+1 are
     the two ends of reading i."""
     bar = cell.ballbar
@@ -53,8 +56,7 @@ def pairs_design(cell: Cell, true_params: np.ndarray, design_rng: np.random.Gene
     positions = np.stack([first, second], axis=1).reshape(-1, 3)
     return reach_all(
         cell, true_params, positions, bar.ball, bar.max_tilt_rad, design_rng, "ballbar.between_configurations",
-        lambda pending: f"{len(pending)} ball positions unreachable after {ROUNDS} rounds of orientations: the "
-        "sphere and the bar's travel put the ball out of the robot's reach",
+        lambda pending: "the sphere and the bar's travel put the ball out of the robot's reach", progress,
     )  # fmt: skip
 
 

@@ -17,6 +17,7 @@ from ..robot import Robot
 from ..robot_io import load_referenced, robot_reference
 from ..se3 import pose_from_xyz_rpy, transform_points
 from ..units import parse_units
+from . import MAX_CONFIGURATIONS
 
 SIDES = ("+x", "-x", "+y", "-y", "+z", "-z")
 CELL_KEYS = (
@@ -270,7 +271,7 @@ def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
         probe=touch.vector("probe", 3, scale=to_m),
         names=tuple(names),
         points=np.array(points),
-        touches_per_point=touch.integer("touches_per_point", 12, minimum=3),
+        touches_per_point=touch.integer("touches_per_point", 12, minimum=3, maximum=1000),
         max_tilt_rad=float(tilt),
         known_distances=known,
     )
@@ -282,7 +283,7 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
     if bar.has("between_configurations"):
         between = bar.sub("between_configurations")
         between.check_keys(("readings", "centre", "radius"))
-        pairs = between.integer("readings", minimum=6)
+        pairs = between.integer("readings", minimum=6, maximum=MAX_CONFIGURATIONS // 2)
         centre = between.vector("centre", 3, scale=to_m)
         radius = between.number("radius", scale=to_m, nonnegative=True)
     names, pivots = [], []
@@ -299,7 +300,7 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
         names=tuple(names),
         pivots=np.array(pivots).reshape(-1, 3),
         length_m=(float(length[0]), float(length[1])),
-        readings_per_pivot=bar.integer("readings_per_pivot", 40, minimum=6),
+        readings_per_pivot=bar.integer("readings_per_pivot", 40, minimum=6, maximum=1000),
         max_tilt_rad=float(tilt),
         pairs=pairs,
         pairs_centre=centre,
@@ -380,6 +381,8 @@ def load_cell(path: str | Path) -> Cell:
         Fields({"t": t}, path, tracker.path(f"targets[{i}]")).vector("t", 3, scale=to_m)
         for i, t in enumerate(raw_targets)
     ]
+    if not targets:
+        raise tracker.error("targets", "at least one reflector on the flange (the tracker has nothing to measure)")
 
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
@@ -470,9 +473,9 @@ def load_cell(path: str | Path) -> Cell:
         ),
         design=Design(
             kind=design_kind,
-            n_configurations=design.integer("n_configurations", 300, minimum=1),
-            blocks_per_side=design.integer("blocks_per_side", 3, minimum=1),
-            views_per_block=design.integer("views_per_block", 2, minimum=1),
+            n_configurations=design.integer("n_configurations", 300, minimum=1, maximum=MAX_CONFIGURATIONS),
+            blocks_per_side=design.integer("blocks_per_side", 3, minimum=1, maximum=1000),
+            views_per_block=design.integer("views_per_block", 2, minimum=1, maximum=1000),
             standoff_m=(float(standoff[0]), float(standoff[1])),
             max_view_angle_rad=design.number("max_view_angle", 30.0 * np.pi / 180 / to_rad, to_rad, positive=True),
         ),

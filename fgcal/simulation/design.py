@@ -12,6 +12,7 @@ all four points.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,9 +89,10 @@ def solve_views(
     iterations: int = 80,
     tol: float = 1e-9,
     freeze_converged: bool = False,
+    solved: Callable[[int, int], None] | None = None,
 ) -> list[View]:
     """IK for one random viewpoint per request (``iterations``, ``tol``: of the IK); keep
-    the reachable, visible ones."""
+    the reachable, visible ones. ``solved(done, total)`` hears of the IK starts solved."""
     robot: Robot = cell.robot
     nominal = robot.parameter_vector()
     if not requests:
@@ -107,6 +109,8 @@ def solve_views(
         q[chunk], ok[chunk] = solve_ik(
             robot, nominal, T_rep[chunk], q0[chunk], iterations=iterations, tol=tol, freeze_converged=freeze_converged
         )
+        if solved is not None:
+            solved(min(first + IK_CHUNK, len(q0)), len(q0))
     # The first converged start of each request; one forward-kinematics pass for them all.
     first: dict[int, int] = {}
     for j in np.flatnonzero(ok):
@@ -194,14 +198,31 @@ def space_filling_design(
     n_wanted = cell.design.n_configurations
     pool: list[View] = []
     rounds = 0
+    started = last = round_started = time.monotonic()
+
+    def solved(done: int, total: int) -> None:  # a line every 10 s, with an estimate
+        nonlocal last
+        now = time.monotonic()
+        if progress and now - last > 10 and done < total:
+            last = now
+            left = (now - round_started) / done * (total - done)
+            progress(f"  space-filling design: round {rounds}, {done} of {total} IK starts ({now - started:.0f} s, "
+                     f"about {left:.0f} s left in this round)")  # fmt: skip
+
     while len(pool) < oversample * n_wanted and rounds < 30:
         rounds += 1
         requests = random_block_requests(cell, max(64, oversample * n_wanted - len(pool)), rng)
-        pool += solve_views(cell, requests, true_camera, rng)
+        round_started = time.monotonic()
+        pool += solve_views(cell, requests, true_camera, rng, solved=solved)
         if not pool and rounds >= NOTHING_REACHABLE_ROUNDS:
             raise _unreachable(cell, rounds, len(requests))
         if progress:
-            progress(f"  space-filling design: {len(pool)} candidate configurations")
+            elapsed = time.monotonic() - started
+            left = elapsed * max(0, oversample * n_wanted - len(pool)) / max(len(pool), 1)
+            progress(
+                f"  space-filling design: {len(pool)} of {oversample * n_wanted} candidate configurations "
+                f"({elapsed:.0f} s" + (f", about {left:.0f} s left)" if len(pool) < oversample * n_wanted else ")")
+            )
     if len(pool) < n_wanted:
         raise InputError(
             cell.source,
@@ -246,13 +267,24 @@ def _unreachable(cell: Cell, rounds: int, per_round: int) -> InputError:
 
 def max_min_selection(q: np.ndarray, limits: np.ndarray, count: int, rng: np.random.Generator) -> list[int]:
     """Greedy farthest-point selection of ``count`` rows of q, normalised by joint range."""
-    x = q / (limits[:, 1] - limits[:, 0])
-    chosen = [int(rng.integers(len(x)))]
-    dist = np.linalg.norm(x - x[chosen[0]], axis=1)
+    # Columns of the transposed pool: one contiguous pass per joint, squared distances (the
+    # same order as distances), about 20x faster than a norm over rows; the same choice.
+    x = np.ascontiguousarray((q / (limits[:, 1] - limits[:, 0])).T)
+    chosen = [int(rng.integers(x.shape[1]))]
+    scratch = np.empty(x.shape[1])
+
+    def squared_distance(i: int) -> np.ndarray:
+        total = np.zeros(x.shape[1])
+        for column in x:
+            np.subtract(column, column[i], out=scratch)
+            total += scratch * scratch
+        return total
+
+    dist = squared_distance(chosen[0])
     for _ in range(count - 1):
         nxt = int(np.argmax(dist))
         chosen.append(nxt)
-        dist = np.minimum(dist, np.linalg.norm(x - x[nxt], axis=1))
+        np.minimum(dist, squared_distance(nxt), out=dist)
     return chosen
 
 

@@ -14,6 +14,7 @@ from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..noise import noise_document
 from ..outputs import output_dir, subfolder, write_bytes
+from ..robot_io import embed_robot
 from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
 from ..truth import Truth
 from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
@@ -111,6 +112,11 @@ def simulate(
         raise InputError(cell.source, "static_camera", "a static-camera cell draws its own design: no file or drift")
     if cell.camera is None and cell.design.kind == "seed":
         raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
+    if drift is not None and cell.camera is None:
+        raise InputError(
+            None, "--drift", "the drift steps a true parameter under the camera's measurements, and this cell has no "
+            "camera",
+        )  # fmt: skip
     if render and cell.camera is None:
         raise InputError(cell.source, "camera", "--render needs a camera: this is a tracker cell")
     robot = cell.robot
@@ -135,12 +141,12 @@ def simulate(
                 f"({', '.join(unseen[:5])}{', ...' if len(unseen) > 5 else ''})"
             )
     elif cell.touch is not None:
-        q_touch, touched, seating = touch_design(cell, robot.parameter_vector(true_params), design_rng, noise_rng)
+        q_touch, touched, seating = touch_design(cell, robot.parameter_vector(true_params), design_rng, noise_rng, say)
         views = [View(qi, None, ()) for qi in q_touch]
     elif cell.ballbar is not None:
-        q_bar, bar_pivots, bar_lengths = ballbar_design(cell, robot.parameter_vector(true_params), design_rng)
+        q_bar, bar_pivots, bar_lengths = ballbar_design(cell, robot.parameter_vector(true_params), design_rng, say)
         if cell.ballbar.pairs:  # after the readings to pivots: their configurations stay as they were
-            q_bar = np.vstack([q_bar, pairs_design(cell, robot.parameter_vector(true_params), design_rng)])
+            q_bar = np.vstack([q_bar, pairs_design(cell, robot.parameter_vector(true_params), design_rng, say)])
         views = [View(qi, None, ()) for qi in q_bar]
     elif cell.static_camera is not None:
         views = static_camera_design(cell, true_params, design_rng)
@@ -151,6 +157,11 @@ def simulate(
     else:
         views = space_filling_design(cell, true_camera, design_rng, progress=say)
     q = np.array([v.q for v in views])
+    if drift is not None and not 0 <= drift.start < len(views):
+        raise InputError(
+            None, "--drift", f"starts at configuration {drift.start}, and the design has {len(views)} (0 to "
+            f"{len(views) - 1})",
+        )  # fmt: skip
     config_ids = [f"c{i:04d}" for i in range(len(views))]
     say(f"  {len(views)} configurations; measuring")
 
@@ -380,7 +391,7 @@ def _write_header(
             out,
             {
                 "format": FORMAT,
-                "robot": cell.robot_reference,
+                "robot": embed_robot(cell.robot_reference, out),
                 "units": {"length": "m", "angle": "rad"},
                 "measured": list(counts),
                 "files": {
@@ -397,7 +408,7 @@ def _write_header(
         return
     header = {
         "format": FORMAT,
-        "robot": cell.robot_reference,
+        "robot": embed_robot(cell.robot_reference, out),
         "units": {"length": "m", "angle": "rad"},
         "measured": [k for k in counts if k != "images"],
         "files": {

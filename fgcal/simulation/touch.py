@@ -9,6 +9,7 @@ the real robot would be seated.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -34,7 +35,11 @@ def approach_rotation(max_tilt_rad: float, rng: np.random.Generator) -> np.ndarr
 
 
 def touch_design(
-    cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator, noise_rng: np.random.Generator
+    cell: Cell,
+    true_params: np.ndarray,
+    design_rng: np.random.Generator,
+    noise_rng: np.random.Generator,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Configurations (N, n) of the touches, the point each touches, and its seating noise (N, 3)
     (m): ``touches_per_point`` touches of every point, in a shuffled order."""
@@ -45,13 +50,18 @@ def touch_design(
     positions = touch.points[order] + noise
     q = reach_all(
         cell, true_params, positions, touch.probe, touch.max_tilt_rad, design_rng, "touch.points",
-        lambda pending: f"{len(pending)} touches unreachable after {ROUNDS} rounds of orientations: point "
-        f"{touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe within max_tilt of vertical",
+        lambda pending: f"point {touch.names[order[pending[0]]]!r} is out of the robot's reach with the probe "
+        "within max_tilt of vertical", progress,
     )  # fmt: skip
     return q, [touch.names[k] for k in order], noise
 
 
 ROUNDS = 20  # rounds of new orientations for the positions not reached yet
+NOTHING_REACHED_ROUNDS = 2  # rounds without a single position reached after which the design stops
+# Rounds after which a design with more than half its positions unreached stops (the bundled
+# cells have a few percent left after one round; their last hard positions may take ten more).
+MOSTLY_UNREACHED_ROUNDS = 3
+PROGRESS_S = 5.0  # seconds between progress lines
 
 
 def reach_all(
@@ -63,15 +73,25 @@ def reach_all(
     rng: np.random.Generator,
     field: str,
     unreachable: Callable[[np.ndarray], str],
+    progress: Callable[[str], None] | None = None,
 ) -> np.ndarray:
     """Configurations (N, n) of the true robot that put ``tool_point`` (flange frame) at each
     of ``positions`` (W), the flange's z axis down within ``max_tilt_rad``, by inverse
     kinematics from random starts; or an error on the cell's ``field`` saying which it could
-    not reach (``unreachable(indices of the positions not reached)``)."""
+    not reach (``unreachable(indices of the positions not reached)`` says why)."""
     robot = cell.robot
+    base_origin, reach = robot.reach_m(true_params)
+    beyond = np.flatnonzero(np.linalg.norm(positions - base_origin, axis=1) > reach + np.linalg.norm(tool_point))
+    if len(beyond):  # no search: the arm is not that long
+        raise InputError(
+            cell.source, field, f"{len(beyond)} positions farther from the base than the arm's "
+            f"{(reach + np.linalg.norm(tool_point)) * 1e3:.0f} mm reach: {unreachable(beyond)}",
+        )  # fmt: skip
     q = np.zeros((len(positions), robot.n_joints))
     pending = np.arange(len(positions))
-    for _ in range(ROUNDS):
+    rounds, started = 0, time.monotonic()
+    said = started
+    for rounds in range(1, ROUNDS + 1):
         R = np.array([approach_rotation(max_tilt_rad, rng) for _ in pending])
         targets = np.array([pose(R_i, positions[i] - R_i @ tool_point) for i, R_i in zip(pending, R, strict=True)])
         low, high = robot.limits[:, 0], robot.limits[:, 1]
@@ -86,10 +106,21 @@ def reach_all(
             q[pending[rows]] = q_try[ok]
             solved[rows] = True
         pending = pending[~solved]
-        if not len(pending):
-            break
+        if not len(pending) or (rounds >= NOTHING_REACHED_ROUNDS and len(pending) == len(positions)):
+            break  # all reached, or none: more rounds would not help
+        if rounds >= MOSTLY_UNREACHED_ROUNDS and len(pending) > len(positions) / 2:
+            break  # half the design out of reach is the geometry, not the luck of the draws
+        if progress is not None and time.monotonic() - said >= PROGRESS_S:
+            said = time.monotonic()
+            progress(
+                f"  reaching {len(positions)} positions: {len(pending)} left after round {rounds} of at most "
+                f"{ROUNDS} ({time.monotonic() - started:.0f} s)"
+            )
     if len(pending):
-        raise InputError(cell.source, field, unreachable(pending))
+        raise InputError(
+            cell.source, field, f"{len(pending)} positions unreachable after {rounds} rounds of orientations: "
+            f"{unreachable(pending)}",
+        )  # fmt: skip
     return q
 
 

@@ -33,7 +33,7 @@ from ...robot import Robot
 from ...truth import Truth
 from ..batch import BatchKinematics
 from ..goodness import chi_median
-from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, rows_of, subset_of
+from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, measured_table, rows_of, subset_of
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
 from .common import require_pixels
@@ -314,9 +314,9 @@ def pair_observations(
     """The point-pair groups of the images of ``subset`` (configuration indices), as the
     module docstring describes; image indices are positions in ``subset``. Observations
     (config id, point) in ``exclude`` (rejected gross errors) are left out."""
-    points = dataset.tables["points"]
-    where = {name: i for i, name in enumerate(points.ids["point"])}
     table = camera_points_table(dataset, settings)
+    points = measured_table(dataset, "points", "pair")
+    where = {name: i for i, name in enumerate(points.ids["point"])}
     images: dict[int, list[tuple[int, np.ndarray]]] = {}
     for index, point, xyz in rows_of(dataset, table, "point", subset):
         if (str(dataset.configs[subset[index]]), point) not in exclude:

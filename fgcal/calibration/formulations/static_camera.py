@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...dataset import Dataset
+from ...errors import InputError
 from ...factors import MeasurementSet, RobustLoss, StaticProjections
 from ...robot import Robot
 from ...se3 import inverse
@@ -51,6 +52,11 @@ class StaticCamera(Formulation):
         return "rigid"
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
+        if dataset.camera_mounting is not None:
+            raise InputError(
+                dataset.path / "dataset.yaml", "camera.mounting", "this camera is mounted on the flange: the "
+                f"{self.name} formulation is for a camera fixed in the cell watching a board on the flange",
+            )  # fmt: skip
         return fit_pixels(dataset, fit, self.name)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
