@@ -4,6 +4,12 @@ Public API: :func:`load_robot` returns a :class:`Robot`; see docs/api.md.
 """
 
 import os
+import pkgutil
+
+# Run from a source checkout's root, this folder comes first on sys.path and hides the installed
+# package, whose fgcal.factors and fgcal.datasets are the top-level factors/ and datasets/
+# folders mapped in at install (pyproject.toml): look for the subpackages there too.
+__path__ = pkgutil.extend_path(__path__, __name__)
 
 # fgcal's dense algebra is small (tens of columns), where BLAS threads cost more than they
 # give. OpenBLAS reads this once, when NumPy, SciPy or OpenCV load it, and only that stops

@@ -398,7 +398,17 @@ def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], 
     problem = build_problem(dataset, dh_config)
     stage = build_graph(problem, problem.candidates, problem.formulation.initial_state(problem))
     released = [n for n in analyse(stage, dh_config.min_information).identifiable if "." not in n]
-    command = [sys.executable, "-m", "fgcal.cli", "calibrate", str(config_path), "--out", str(out / "faro_report")]
+    # -P: from a source checkout's root, the current folder must not hide the installed package.
+    command = [
+        sys.executable,
+        "-P",
+        "-m",
+        "fgcal.cli",
+        "calibrate",
+        str(config_path),
+        "--out",
+        str(out / "faro_report"),
+    ]
     wall = {"fgcal_calibrate_command": [], "scipy_dh_fit": [], "calibrate_dataset": []}
     report_share = []  # the command's report time (its last line) over its wall time
     fgcal_config = CalibrationConfig.defaults(dataset_dir, **FARO_CONFIG)

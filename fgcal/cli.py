@@ -183,7 +183,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_compensate(args: argparse.Namespace) -> int:
     from .compensate import compensate, nominal_of, read_targets, write_compensation
-    from .errors import InputError
     from .outputs import output_file
     from .robot_io import load_robot
 
@@ -195,8 +194,6 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
         robot = robot.with_tool(robot.tool_pose, float(mass), com)
     nominal = nominal_of(robot, args.nominal)
-    if nominal.n_joints != robot.n_joints:
-        raise InputError(None, "--nominal", f"{nominal.n_joints} joints, the robot has {robot.n_joints}")
     targets = read_targets(args.targets, robot.n_joints)
     tcp = None if args.tcp is None else np.array(args.tcp)
     result = compensate(
@@ -283,8 +280,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     robot = load_robot(args.robot, args.tip)
     urdf, sidecar = export_urdf(robot, args.urdf)
-    print(f"wrote {urdf} ({robot.name}, {robot.n_joints} joints: world, base_link, link_1..link_{robot.n_joints}, ")
-    print(f"      flange, tool0) and {sidecar} (joint compliances, which URDF cannot express)")
+    print(f"wrote {urdf} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
+    print("  express); links: world, base_link, link_1..link_n, flange, tool0")
     return 0
 
 
@@ -405,7 +402,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--n", type=configurations, default=300, help="configurations of the space-filling design (default 300)"
     )
-    p.add_argument("--formulation", choices=("pairs", "tracker"), default="pairs")
+    p.add_argument(
+        "--formulation", choices=("pairs", "tracker"), default="pairs", help="what to calibrate from (default pairs)"
+    )
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser(
@@ -433,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compensate", help="corrected commands: joints and nominal-model targets reaching TARGETS")
     p.add_argument("robot", help="the calibrated robot (calibrated_robot.yaml) or a bundled name")
     p.add_argument("targets", help="CSV: target, x, y, z (m, W) [, rx, ry, rz (rad)] [, q1..qn hints (rad)]")
-    p.add_argument("--out", required=True, help="output CSV (docs/cli.md)")
+    p.add_argument("--out", required=True, help="output CSV (columns: docs/using.md)")
     p.add_argument("--tcp", type=LENGTH_M, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
     p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
     p.add_argument(
@@ -462,7 +461,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("online-feed", help="write a dataset's images as measurement files into an inbox")
     p.add_argument("dataset", help="dataset directory with pixels")
-    p.add_argument("--inbox", required=True)
+    p.add_argument("--inbox", required=True, help="the inbox folder fgcal online watches (created)")
     p.add_argument(
         "--first", type=_integer(0, 10**9, "configurations"), default=0, help="first configuration (default 0)"
     )
@@ -488,7 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--n",
         type=_integer(1, MAX_CANDIDATES, "configurations"),
         required=True,
-        help="number of configurations to plan",
+        help="number of configurations to plan (at most --candidates)",
     )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument(
@@ -506,7 +505,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--formulation", help="what to plan for (pairs, projection, tracker; default: what the cell measures with)"
     )
-    p.add_argument("--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e")
+    p.add_argument(
+        "--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e", metavar="MODEL",
+        help="kinematic model whose parameters the plan determines: DH, DH,s or DH,s,e (default DH,s,e)",
+    )  # fmt: skip
     p.add_argument("--seed", type=SEED, default=1, help="seed of the candidates (default 1)")
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
     p.set_defaults(func=cmd_plan)

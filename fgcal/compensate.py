@@ -77,11 +77,24 @@ def read_targets(path: str | Path, n_joints: int) -> Targets:
     return Targets(names, positions, rotations, hints)
 
 
+# A calibration moves the flange by millimetres: a nominal model this far from the calibrated
+# robot is another robot.
+SAME_ROBOT_M = 0.05
+
+
 def nominal_of(robot: Robot, nominal: str | Path | None) -> Robot:
     """The controller's nominal model: ``nominal`` if given, else the bundled robot of the
     same name (with the calibrated robot's tool and payload)."""
     if nominal is not None:
-        return load_robot(nominal)
+        given = load_robot(nominal)
+        gap = robot.flange_gap_m(given)
+        if gap > SAME_ROBOT_M:
+            raise InputError(
+                None, "--nominal", f"{nominal} is not a nominal model of {robot.name}: "
+                + (f"their flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap)
+                   else f"it has {given.n_joints} joints, the robot {robot.n_joints}"),
+            )  # fmt: skip
+        return given
     for name in bundled_robots():
         candidate = load_robot(name)
         if candidate.name == robot.name:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, load_dataset, write_csv, write_header
+from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, UNORDERED, load_dataset, write_csv, write_header
 from .errors import InputError
 from .fields import Fields, check_name, is_plain_number, read_file_text, read_yaml
 from .outputs import output_dir
@@ -152,6 +152,9 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
         raise fields.error("header", f"expected true or false, got {header!r}")
     if header:
         columns = [c.strip() for c in cells[0]]
+        repeated = sorted({c for c in columns if c and columns.count(c) > 1})
+        if repeated:
+            raise InputError(path, f"line {numbered[0][0]}", f"the header names column {repeated[0]!r} twice")
         rows, line_numbers = cells[1:], [n for n, _ in numbered[1:]]
     else:
         columns = [str(i) for i in range(1, len(cells[0]) + 1)]
@@ -187,7 +190,7 @@ def _configurations(fields: Fields, base: Path, units: Units, n_joints: int) -> 
     joints = fields.items("joints")
     if len(joints) != n_joints:
         raise fields.error("joints", f"the robot has {n_joints} joints: name {n_joints} columns, got {len(joints)}")
-    joint_columns = [source.index(fields, f"joints[{i}]", c) for i, c in enumerate(joints)]
+    joint_columns = _columns(fields, source, "joints", n_joints)
     id_column = source.index(fields, "config", fields.raw("config")) if fields.has("config") else None
     scale = own.to_rad / units.to_rad
     rows, seen = [], {}
@@ -219,7 +222,11 @@ def _columns(fields: Fields, source: SourceTable, key: str, count: int) -> list[
     names = fields.items(key)
     if len(names) != count:
         raise fields.error(key, f"expected {count} columns, got {len(names)}")
-    return [source.index(fields, f"{key}[{i}]", c) for i, c in enumerate(names)]
+    indices = [source.index(fields, f"{key}[{i}]", c) for i, c in enumerate(names)]
+    for i, index in enumerate(indices):
+        if index in indices[:i]:
+            raise fields.error(f"{key}[{i}]", f"column {names[i]!r} is already {key}[{indices.index(index)}]")
+    return indices
 
 
 def _rotation(fields: Fields, source: SourceTable) -> tuple[list[int], str | None]:
@@ -273,6 +280,7 @@ def _measurements(
         raise fields.error("zeros_mean_not_found", f"expected true or false, got {zeros!r}")
     config_ids = list(configs)
     imported = Imported([*joins, *ids], [])
+    first_line: dict[tuple, int] = {}  # each measurement once (as a dataset's tables require)
     for r in range(len(source.rows)):
         where = f"line {source.lines[r]}"
         row: list[object] = [source.name(r, c) for c in config_columns] if config_columns else [config_ids[r]]
@@ -297,6 +305,13 @@ def _measurements(
         if zeros and not any(values):
             imported.dropped += 1
             continue
+        key = tuple(sorted(row)) if name in UNORDERED else tuple(row)
+        if key in first_line:
+            raise InputError(
+                source.path, f"lines {first_line[key]} and {source.lines[r]}", f"{', '.join(imported.header)} "
+                f"{' '.join(map(repr, key))} given twice: each measurement once",
+            )  # fmt: skip
+        first_line[key] = source.lines[r]
         imported.rows.append(row + values)
     if name in ("distances", "tool_distances"):
         imported.header.append("distance")

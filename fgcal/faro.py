@@ -55,7 +55,7 @@ def faro_mapping(src: Path, robot: str = "abb_irb120") -> dict:
 def convert_faro(src: str | Path, out: str | Path, robot: str = "abb_irb120") -> dict[str, int]:
     """Write the dataset; returns row counts (and dropped rows) for the summary."""
     src = Path(src)
-    if not (src / "measured_joints.txt").is_file():
+    if not (src / "measured_joints.txt").exists():
         raise InputError(src / "measured_joints.txt", None, "file not found")
     mapping = faro_mapping(src, robot)
     if not mapping["tracker_points"]:

@@ -19,6 +19,11 @@ NOISE = {
     "distance_m": ("distance_sigma", "length", 5e-6),  # a ballbar's (1D gauge's) reading
 }
 KEYS = tuple(key for key, _, _ in NOISE.values())
+# A sigma outside these (SI) is a typo: the best interferometer reads to 1 nm, and below about
+# 1e-12 the whitened residuals overflow; above, the measurements would say nothing.
+SMALLEST = {"length": 1e-10, "angle": 1e-10, "pixel": 1e-4}
+LARGEST = {"length": 1.0, "angle": 1.0, "pixel": 1e3}
+UNIT = {"length": "m", "angle": "rad", "pixel": "px"}
 
 
 def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, float]:
@@ -26,11 +31,17 @@ def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, floa
     section = doc.sub(key, {})
     section.check_keys(KEYS)
     scales = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}
-    return {
-        field: section.number(name, scale=scales[kind], positive=True)
-        for field, (name, kind, _) in NOISE.items()
-        if section.has(name)
-    }
+    stated = {}
+    for field, (name, kind, _) in NOISE.items():
+        if section.has(name):
+            sigma = section.number(name, scale=scales[kind], positive=True)
+            if not SMALLEST[kind] <= sigma <= LARGEST[kind]:
+                raise section.error(
+                    name, f"{sigma:.3g} {UNIT[kind]} is no instrument's noise (from {SMALLEST[kind]:g} to "
+                    f"{LARGEST[kind]:g} {UNIT[kind]})",
+                )  # fmt: skip
+            stated[field] = sigma
+    return stated
 
 
 def noise_document(stated: dict[str, float]) -> dict[str, float]:

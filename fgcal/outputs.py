@@ -55,8 +55,9 @@ def output_file(path: str | Path, field: str | None = None) -> Path:
     return path
 
 
-def write_bytes(path: str | Path, data: bytes, field: str | None = None) -> Path:
-    """Write a file, never through a symbolic link (O_NOFOLLOW) and never over a folder."""
+def write_bytes(path: str | Path, data: bytes, field: str | None = None, sync: bool = False) -> Path:
+    """Write a file, never through a symbolic link (O_NOFOLLOW) and never over a folder;
+    ``sync``: on the disk before returning (a file another process takes)."""
     path = output_file(path, field)
     try:
         descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644)
@@ -66,11 +67,14 @@ def write_bytes(path: str | Path, data: bytes, field: str | None = None) -> Path
         raise InputError(path, field, f"cannot write: {exc.strerror}") from None
     with os.fdopen(descriptor, "wb") as handle:
         handle.write(data)
+        if sync:
+            handle.flush()
+            os.fsync(handle.fileno())
     return path
 
 
-def write_text(path: str | Path, text: str, field: str | None = None) -> Path:
-    return write_bytes(path, text.encode("utf-8"), field)
+def write_text(path: str | Path, text: str, field: str | None = None, sync: bool = False) -> Path:
+    return write_bytes(path, text.encode("utf-8"), field, sync)
 
 
 def save_figure(figure, path: str | Path, **options) -> Path:

@@ -158,6 +158,17 @@ class Robot:
         """Tool (or camera) pose ``T_W_C`` = ``T_W_n T_n_C``, like :meth:`fk`."""
         return self._frame(q, params, "tool")
 
+    def flange_gap_m(self, other: Robot, count: int = 32) -> float:
+        """The largest flange-position difference (m) between this robot and ``other`` over
+        ``count`` seeded configurations within both ranges: a calibration moves the flange by
+        millimetres, another robot by a metre (a check that two models are one robot)."""
+        if other.n_joints != self.n_joints:
+            return float("inf")
+        low = np.maximum(np.maximum(self.limits[:, 0], other.limits[:, 0]), -np.pi)
+        high = np.minimum(np.minimum(self.limits[:, 1], other.limits[:, 1]), np.pi)
+        q = np.random.default_rng(0).uniform(low, np.maximum(low, high), (count, self.n_joints))
+        return float(np.linalg.norm(self.fk(q)[:, :3, 3] - other.fk(q)[:, :3, 3], axis=1).max())
+
     def reach_m(self, params: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """The base origin in W (m) and a sure bound on how far the flange gets from it (m):
         the sum of the chain's largest translations over the joint ranges (rotations keep

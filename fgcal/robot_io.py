@@ -93,11 +93,12 @@ def robot_reference(
     """A ``robot:`` entry of a cell, dataset or mapping file, its robot file made absolute
     (relative to ``directory``): a bundled robot's name, a robot file (YAML or URDF), or
     ``{file: ARM.urdf, tip: LINK}`` for a URDF's chain to a named tip link. With ``inside``
-    (a dataset's folder), a robot file must lie in that folder."""
+    (a dataset's folder), a robot file must lie in that folder or the bundled library."""
 
     def resolved(file: str) -> str:
         path = (directory / file).resolve()
-        if inside is not None and not path.is_relative_to(inside.resolve()):
+        library = path.is_relative_to(robots_dir().resolve())  # the bundled library may always be read
+        if inside is not None and not path.is_relative_to(inside.resolve()) and not library:
             raise InputError(
                 source, field, f"{file!r} is outside the dataset folder {inside}: a dataset's robot file is "
                 "kept in the dataset (or name a bundled robot)",
@@ -125,6 +126,7 @@ def embed_robot(reference, out: Path):
     file = reference["file"] if isinstance(reference, dict) else reference
     if not Path(file).is_absolute():  # a bundled robot's name
         return reference
+
     name = "robot" + Path(file).suffix.lower()
     target = out / name
     if Path(file).resolve() != target.resolve():

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .errors import InputError
 from .fields import Fields, read_yaml
 from .outputs import subfolder, write_text
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
@@ -150,3 +151,15 @@ def _pose(section: Fields) -> np.ndarray:
 
 def _points(section: Fields) -> dict[str, np.ndarray]:
     return {str(name): section.vector(str(name), 3) for name in section.data}
+
+
+def named_points(points: dict[str, np.ndarray], names, what: str) -> np.ndarray:
+    """The true positions (K, 3) of ``names`` (points, targets, pivots) in the simulation's
+    truth; a name the simulation never made (a renamed row) is the dataset's error."""
+    missing = [name for name in names if name not in points]
+    if missing:
+        raise InputError(
+            FILE, what, f"the dataset names {missing[0]!r}, which the simulation did not make ({', '.join(points)}): "
+            "the tables were edited after fgcal simulate wrote them",
+        )  # fmt: skip
+    return np.array([points[name] for name in names])

@@ -26,7 +26,7 @@ from . import kinematics
 from .errors import InputError
 from .fields import read_file_text
 from .joints import OriginJoint
-from .outputs import output_dir, write_text
+from .outputs import output_dir, output_file, write_text
 from .robot import Robot
 from .se3 import inverse, rpy_from_rotation
 
@@ -406,6 +406,7 @@ def export_urdf(robot: Robot, path: str | Path) -> tuple[Path, Path]:
         raise InputError(path, None, "is a folder: give the URDF file's name")
     output_dir(path.parent, None)
     sidecar = path.with_name(f"{path.stem}.compliance.yaml")
+    output_file(sidecar)  # both outputs checked before either is written
     write_text(path, urdf_document(robot, sidecar.name))
     write_text(sidecar, yaml.safe_dump(compliance_document(robot, path.name), sort_keys=False))
     return path, sidecar

@@ -455,6 +455,16 @@ MEASUREMENT_FILES = [
     ("measurement_deeply_nested", b"[" * 100000 + b"]" * 100000, "nested too deeply"),
     ("measurement_too_large", b" " * (2 << 20) + b"{}", "larger than"),
     ("measurement_cycle_negative", json.dumps({**GOOD, "cycle": -1, "pixels": {"P": [1, 2]}}).encode(), "cycle"),
+    (
+        "measurement_joint_as_text",
+        json.dumps({**GOOD, "joints": ["0.1", 0, 0, 0, 0, 0], "pixels": {"P": [1, 2]}}).encode(),
+        "joints[0]",
+    ),
+    (
+        "measurement_joint_outside_limits",
+        json.dumps({**GOOD, "joints": [0, 0, 0, 0, 100, 0], "pixels": {"P": [1, 2]}}).encode(),
+        "outside the joint's limits",
+    ),
     ("measurement_unknown_key", json.dumps({**GOOD, "exposure": 3, "pixels": {"P": [1, 2]}}).encode(), "exposure"),
 ]
 

@@ -270,6 +270,70 @@ def _state_is_a_file(root: Path) -> list[str]:
     return _online()(root)
 
 
+def _config_text(more: str):
+    """The calibration config with more lines."""
+
+    def apply(root: Path) -> list[str]:
+        (root / "calibration.yaml").write_text("dataset: data\n" + more)
+        return ["calibrate", "calibration.yaml", "--out", "out", "--no-plots"]
+
+    return apply
+
+
+def _on_a_line(lines: list[str]) -> list[str]:
+    """Every drawing point moved onto the fixture's x axis."""
+    rows = list(csv.reader(lines))
+    y, z = rows[0].index("y"), rows[0].index("z")
+    for row in rows[1:]:
+        row[y] = row[z] = "0"
+    return [",".join(row) for row in rows]
+
+
+def _renamed_target(root: Path) -> list[str]:
+    """A tracker row's target renamed, the header's list of targets gone: the fit takes it as a
+    fourth reflector, and the score against the simulation's truth cannot."""
+    path = root / "data" / "dataset.yaml"
+    doc = yaml.safe_load(path.read_text())
+    del doc["tracker"]
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    table = root / "data" / "tracker_points.csv"
+    lines = table.read_text().splitlines()
+    cells = lines[1].split(",")
+    cells[1] = "T9"
+    lines[1] = ",".join(cells)
+    table.write_text("\n".join(lines) + "\n")
+    (root / "calibration.yaml").write_text("dataset: data\nformulation: tracker\n")
+    return ["calibrate", "calibration.yaml", "--out", "out", "--no-plots"]
+
+
+def _fixed_camera_online(root: Path) -> list[str]:
+    """A dataset whose camera has no mounting (fixed in the cell), given to fgcal online."""
+    path = root / "data" / "dataset.yaml"
+    doc = yaml.safe_load(path.read_text())
+    del doc["camera"]["mounting"]
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return _online()(root)
+
+
+def _online_setup(text: str):
+    def apply(root: Path) -> list[str]:
+        (root / "setup.yaml").write_text(text)
+        (root / "inbox").mkdir(exist_ok=True)
+        return ["online", "--state", "state", "--inbox", "inbox", "--setup", "setup.yaml", "--once"]
+
+    return apply
+
+
+def _faro_dev_zero(root: Path) -> None:
+    (root / "faro").mkdir()
+    os.symlink("/dev/zero", root / "faro" / "measured_joints.txt")
+    (root / "faro" / "measured_SMR_1.txt").write_text("1 2 3\n")
+
+
+def _seven_joint_file(root: Path) -> None:
+    _write(root / "seven.csv", ["config", *[f"q{i}" for i in range(1, 8)]], [["c0", 0, 0, 0, 0, 0, 0, 0]])
+
+
 PLAN = ["plan", "kr125_seed", "--out", "plan", "--no-plots"]
 DUPLICATE_ROW = 3  # a measurement row given again at the end of its table
 
@@ -337,7 +401,12 @@ CASES = [
     ("import_nan_joint", _export_line("controller.csv", 2, 3, "nan"), "controller.csv", "line 2"),
     ("import_duplicate_reading", _import_then(lambda root: (root / "tracker.csv").write_text(
      (root / "tracker.csv").read_text() + (root / "tracker.csv").read_text().splitlines()[2] + "\n")),
-     "tracker_points.csv", "given twice"),
+     "tracker.csv", "lines 3 and 8"),
+    ("import_joint_column_twice", _mapping(_set("configurations.joints", ["A1", "A1", "A3", "A4", "A5", "A6"])),
+     "mapping.yaml", "configurations.joints[1]"),
+    ("import_header_column_twice", _import_then(lambda root: (root / "tracker.csv").write_text(
+     (root / "tracker.csv").read_text().replace("pose,name,x,y,z", "pose,name,x,x,z", 1))), "tracker.csv",
+     "'x' twice"),
     ("import_mapping_fifo", _fifo("pipe.yaml", lambda name: ["import-csv", name, "--out", "imported"]),
      "pipe.yaml", "not a regular file"),
     # fgcal compensate
@@ -361,6 +430,8 @@ CASES = [
     ("compensate_payload_com_huge", _targets(None, "--payload-com", "0", "0", "1e9"), "fgcal compensate",
      "--payload-com"),
     ("compensate_nominal_other_arm", _targets(None, "--nominal", "seven_axis"), "--nominal", "joints"),
+    ("compensate_nominal_of_another_robot", _targets(None, "--nominal", "kuka_kr125_2"), "--nominal",
+     "is not a nominal model"),
     ("compensate_unknown_robot", _targets(None, robot="robot9000"), "robot9000", "no such robot"),
     ("compensate_targets_fifo", _fifo("t.csv", lambda name: ["compensate", "abb_irb120", name, "--out", "c.csv"]),
      "t.csv", "not a regular file"),
@@ -406,6 +477,8 @@ CASES = [
      "theta2=0.001@5000"), "--drift", "starts at configuration 5000"),
     ("simulate_render_tracker_cell", _argv("simulate", "irb120_tracker", "--out", "sim", "--render"), "irb120_tracker",
      "camera"),
+    ("simulate_configurations_of_seven_joints", _prepare_then(_seven_joint_file, ["simulate", "irb120_tracker",
+     "--out", "sim", "--configurations", "seven.csv"]), "seven.csv", "column q7"),
     ("simulate_unknown_cell", _argv("simulate", "no_such_cell", "--out", "sim"), "no_such_cell", "bundled"),
     ("simulate_out_is_a_file", _argv("simulate", "irb120_tracker", "--out", "robot.yaml"), "robot.yaml", "is a file"),
     # fgcal calibrate: degenerate and duplicated data, formulations the data cannot serve,
@@ -428,8 +501,8 @@ CASES = [
      "given twice"),
     ("calibrate_robot_outside_dataset", _header(_set("robot", "../robot.yaml")), "dataset.yaml",
      "outside the dataset folder"),
-    ("calibrate_robot_absolute_outside", _header(_set("robot", str(IRB120))), "dataset.yaml",
-     "outside the dataset folder"),
+    ("calibrate_robot_absolute_outside", lambda root: _header(_set("robot", str(root / "robot.yaml")))(root),
+     "dataset.yaml", "outside the dataset folder"),
     ("calibrate_robot_urdf_outside", _header(_set("robot", {"file": "../good.urdf", "tip": "tool0"})),
      "dataset.yaml", "outside the dataset folder"),
     ("calibrate_images_outside", _header(_set("images", "..")), "dataset.yaml", "outside the dataset directory"),
@@ -439,12 +512,32 @@ CASES = [
      "not a regular file"),
     ("calibrate_out_is_a_file", _argv("calibrate", "calibration.yaml", "--out", "robot.yaml", "--no-plots"),
      "robot.yaml", "is a file"),
+    ("calibrate_validation_seed_negative", _config_text("validation: {holdout: 0.25, seed: -1}\n"),
+     "calibration.yaml", "validation.seed"),
+    ("calibrate_pairs_seed_negative", _config_text("pairs: {seed: -5}\n"), "calibration.yaml", "pairs.seed"),
+    ("calibrate_pairs_seed_huge", _config_text("pairs: {seed: 99999999999999999999}\n"), "calibration.yaml",
+     "pairs.seed"),
+    ("calibrate_no_stages", _config_text("schedule: custom\nstages: []\n"), "calibration.yaml", "stages"),
+    ("calibrate_noise_tiny", _config_text("noise: {tracker_sigma: 1.0e-300}\n"), "calibration.yaml",
+     "noise.tracker_sigma"),
+    ("calibrate_validation_is_the_fitting_set", _config_text("validation: {dataset: data}\n"), "calibration.yaml",
+     "is the fitting set"),
+    ("calibrate_unknown_test_point", _config_text("formulation: tracker\nvalidation: {tool_points: {zz: [0, 0, 1]}}\n"),
+     "calibration.yaml", "validation.tool_points.zz"),
+    ("calibrate_collinear_points", _table("points.csv", _on_a_line, "dataset: data\nformulation: projection\n"),
+     "points.csv", "one line"),
+    ("calibrate_renamed_target_scored", _renamed_target, "ground_truth.yaml", "'T9'"),
     # fgcal export
     ("export_to_a_folder", _prepare_then(lambda root: (root / "x.urdf").mkdir(),
      ["export", "abb_irb120", "--urdf", "x.urdf"]), "x.urdf", "folder"),
     ("export_not_urdf", _argv("export", "abb_irb120", "--urdf", "x.txt"), "x.txt", "must end in .urdf"),
     ("export_through_a_link", _prepare_then(lambda root: os.symlink(root / "robot.yaml", root / "x.urdf"),
      ["export", "abb_irb120", "--urdf", "x.urdf"]), "x.urdf", "symbolic link"),
+    ("export_sidecar_is_a_link", _prepare_then(lambda root: os.symlink(root / "robot.yaml",
+     root / "x.compliance.yaml"), ["export", "abb_irb120", "--urdf", "x.urdf"]), "x.compliance.yaml",
+     "symbolic link"),
+    ("convert_faro_joints_are_dev_zero", _prepare_then(_faro_dev_zero, ["convert-faro", "faro", "--out", "f"]),
+     "/dev/zero", "not a regular file"),
     ("export_unknown_robot", _argv("export", "robot9000", "--urdf", "x.urdf"), "robot9000", "no such robot"),
     ("export_ghost_tip", _argv("export", "good.urdf", "--tip", "ghost", "--urdf", "x.urdf"), "good.urdf",
      "no link 'ghost'"),
@@ -454,10 +547,16 @@ CASES = [
     ("online_inbox_is_the_state", _online(inbox="state", state="state"), "inbox", "state"),
     ("online_inbox_inside_the_state", _online(inbox="state/inbox"), "inbox", "state"),
     ("online_state_is_a_file", _state_is_a_file, "state", ""),
+    ("online_starting_model_of_another_robot", _online_setup("dataset: data\nrobot: abb_irb120\n"), "setup.yaml",
+     "is not the dataset's"),
+    ("online_camera_fixed_in_the_cell", _fixed_camera_online, "dataset.yaml", "camera.mounting"),
     ("online_setup_missing", _argv("online", "--state", "s", "--inbox", "data", "--setup", "nowhere.yaml", "--once"),
      "nowhere.yaml", "file not found"),
     ("feed_first_negative", _argv("online-feed", "data", "--inbox", "in", "--first", "-1"), "fgcal online-feed",
      "--first"),
+    ("feed_into_a_file", _argv("online-feed", "data", "--inbox", "robot.yaml"), "robot.yaml", "is a file"),
+    ("feed_first_beyond_the_images", _argv("online-feed", "data", "--inbox", "in", "--first", "1000"), "--first",
+     "images"),
     ("feed_n_zero", _argv("online-feed", "data", "--inbox", "in", "--n", "0"), "fgcal online-feed", "--n"),
     ("feed_cycle_zero", _argv("online-feed", "data", "--inbox", "in", "--cycle-size", "0"), "fgcal online-feed",
      "--cycle-size"),
@@ -483,11 +582,14 @@ def test_surfaces(source, tmp_path, capsys, monkeypatch, alarm, damage, file, fi
     shutil.copytree(source, root, symlinks=True)
     monkeypatch.chdir(root)
     argv = damage(root)
+    before = {p for p in root.rglob("*") if p.name != "dataset.yaml"}
     status = main(argv)
     error = capsys.readouterr().err.strip()
     assert status == 2, error
     assert error.startswith("fgcal: error: ") and "\n" not in error and "Traceback" not in error, error
     assert file in error and field in error, error
+    if argv[0] == "export":  # refused before either file is written
+        assert {p for p in root.rglob("*") if p.name != "dataset.yaml"} == before
 
 
 def test_the_corpora_hold_two_hundred_cases():

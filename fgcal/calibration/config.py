@@ -102,6 +102,8 @@ def _stages(doc: Fields) -> tuple[str, tuple[tuple[str, ...], ...]]:
             if kind not in KINDS:
                 raise doc.error(f"stages[{i}]", f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})")
         stages.append(tuple(stage))
+    if not stages:
+        raise doc.error("stages", "at least one stage: with none, nothing is estimated")
     return "custom", tuple(stages)
 
 
@@ -169,7 +171,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         length_bound_m=bounds.number("length", 0.01 / units.to_m, units.to_m, positive=True),
         measurement=measurement,
         holdout=holdout,
-        split_seed=validation.integer("seed", 0),
+        split_seed=validation.integer("seed", 0, minimum=0, maximum=2**32 - 1),
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),

@@ -116,6 +116,17 @@ def select(
                 break
             basis = np.hstack([basis, (residual[:, best] / norms[best])[:, None]])
             selected.append(members.pop(best))
+    # Each column may be determined alone and a direction of several still not: the common scale
+    # of all lengths and touched points when nothing measures a length. While the weakest
+    # direction of the selected set is below min_information, the parameter that weighs most in
+    # it (the lowest in priority among those weighing at least half the most) is dropped.
+    while selected:
+        _, singular, Vt = np.linalg.svd(scaled[:, selected], full_matrices=False)
+        if singular[-1] >= min_information:
+            break
+        weights = np.abs(Vt[-1])
+        heavy = [k for k in range(len(selected)) if weights[k] >= 0.5 * weights.max()]
+        rejected.append(selected.pop(heavy[-1]))
     unidentifiable: dict[str, str] = {}
     absorbed_by: dict[str, list[str]] = {}
     kept = scaled[:, selected]

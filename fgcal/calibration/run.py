@@ -53,10 +53,8 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
     )
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
-    validation_sets: list[tuple[str, np.ndarray]] = []
-    if config.validation_datasets:
-        dataset, validation_sets = with_validation_sets(dataset, config)
-        test = np.concatenate([test, *(indices for _, indices in validation_sets)])
+    dataset, validation_sets = with_validation_sets(dataset, config)
+    test = np.concatenate([test, *(indices for _, indices in validation_sets)]).astype(int)
     return Problem(
         formulation=formulation,
         settings=settings,

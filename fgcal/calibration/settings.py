@@ -98,7 +98,7 @@ def parse_pairs(doc: Fields) -> PairSettings:
     section.check_keys(("partner", "seed", "group_images", "points_from"))
     return PairSettings(
         partner=section.string("partner", "other_object", PARTNERS),
-        seed=section.integer("seed", 0),
+        seed=section.integer("seed", 0, minimum=0, maximum=2**32 - 1),
         group_images=section.integer("group_images", 4, minimum=1),
         points_from=section.string("points_from", "camera_points", ("camera_points", "pixels")),
     )

@@ -13,6 +13,7 @@ validation set (a test point on the tool that the fit never saw) is declared in 
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import numpy as np
 
@@ -42,13 +43,24 @@ def with_validation_sets(dataset: Dataset, config: CalibrationConfig) -> tuple[D
         start = len(dataset.configs)
         dataset = with_validation_set(dataset, path, config, prefix(k, len(config.validation_datasets)))
         sets.append((str(path), np.arange(start, len(dataset.configs))))
+    named = {
+        str(name) for t in dataset.tables.values() for k, v in t.ids.items() if k not in CONFIG_COLUMNS for name in v
+    }
+    for name in config.measurement.validation_tool_points:
+        if name not in named:
+            raise InputError(
+                config.path, f"validation.tool_points.{name}", "no table of the data or its validation sets measures "
+                "a point of this name",
+            )  # fmt: skip
     return dataset, sets
 
 
 def with_validation_set(dataset: Dataset, path, config: CalibrationConfig, id_prefix: str = PREFIX) -> Dataset:
     """The dataset with the validation set at ``path`` appended, its ids prefixed."""
-    other = load_dataset(path)
     where = config.path
+    if Path(path).resolve() == Path(dataset.path).resolve():
+        raise InputError(where, "validation.dataset", f"{path} is the fitting set: a validation set is another session")
+    other = load_dataset(path)
     if other.robot.name != dataset.robot.name or other.robot.n_joints != dataset.robot.n_joints:
         raise InputError(
             where,
@@ -56,6 +68,12 @@ def with_validation_set(dataset: Dataset, path, config: CalibrationConfig, id_pr
             f"{path} measures {other.robot.name} ({other.robot.n_joints} joints), the fitting set "
             f"{dataset.robot.name} ({dataset.robot.n_joints} joints): a validation set measures the same robot",
         )
+    common = {n for n in other.tables if n not in SHARED} & {n for n in dataset.tables if n not in SHARED}
+    if not common:
+        raise InputError(
+            where, "validation.dataset", f"{path} measures {', '.join(sorted(other.tables)) or 'nothing'}, the fitting "
+            f"set {', '.join(sorted(dataset.tables))}: nothing to compare",
+        )  # fmt: skip
     merged = copy.copy(dataset)
     merged.configs = np.concatenate([dataset.configs, [id_prefix + str(c) for c in other.configs]]).astype(object)
     merged.q = np.vstack([dataset.q, other.q])

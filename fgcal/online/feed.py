@@ -35,7 +35,10 @@ def feed_dataset(
 ) -> int:
     if cycle_size is not None and cycle_size < 1:
         raise InputError(None, "--cycle-size", f"must be >= 1, got {cycle_size}")
-    measurements = dataset_measurements(dataset_dir, cycle_size)[first:]
+    every = dataset_measurements(dataset_dir, cycle_size)
+    if first >= len(every):
+        raise InputError(None, "--first", f"the dataset has {len(every)} images (0 to {len(every) - 1}), got {first}")
+    measurements = every[first:]
     if n is not None:
         measurements = measurements[:n]
     for measurement in measurements:

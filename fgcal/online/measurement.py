@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fields import Fields
+from ..outputs import output_dir, write_text
 from ..units import parse_units
 from .inbox import read_regular
 
@@ -47,7 +48,11 @@ class Measurement:
         }
 
 
-def parse_measurement(data: object, name: str, source: str | Path, n_joints: int) -> Measurement:
+def parse_measurement(
+    data: object, name: str, source: str | Path, n_joints: int, limits: np.ndarray | None = None
+) -> Measurement:
+    """A measurement document; JSON numbers only (a number in quotes is refused), and with
+    ``limits`` (n, 2; rad or m) joint values within them."""
     fields = Fields(data, source)
     fields.check_keys(["format", "name", "cycle", "units", "joints", "pixels"])
     if fields.string("format", FORMAT) != FORMAT:
@@ -56,6 +61,16 @@ def parse_measurement(data: object, name: str, source: str | Path, n_joints: int
     q = fields.vector("joints", n_joints, scale=units.to_rad) if isinstance(fields.raw("joints"), list) else None
     if q is None:
         raise fields.error("joints", "expected a list of joint angles")
+    for i, value in enumerate(fields.raw("joints")):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise fields.error(f"joints[{i}]", f"expected a number, got {value!r}")
+    if limits is not None:
+        outside = np.flatnonzero((q < limits[:, 0] - 1e-9) | (q > limits[:, 1] + 1e-9))
+        if len(outside):
+            i = outside[0]
+            raise fields.error(
+                f"joints[{i}]", f"{q[i]:.6g} rad is outside the joint's limits [{limits[i, 0]:.4g}, {limits[i, 1]:.4g}]"
+            )
     raw_pixels = fields.sub("pixels")
     pixels = tuple((str(point), raw_pixels.vector(str(point), 2)) for point in raw_pixels.data)
     if not pixels:
@@ -67,7 +82,9 @@ def parse_measurement(data: object, name: str, source: str | Path, n_joints: int
 MAX_BYTES = 1 << 20  # an image's joints and pixels take a few kB
 
 
-def read_measurement(path: Path, n_joints: int, name: str | None = None, source: Path | None = None) -> Measurement:
+def read_measurement(
+    path: Path, n_joints: int, name: str | None = None, source: Path | None = None, limits: np.ndarray | None = None
+) -> Measurement:
     """The measurement in ``path`` (a regular file: read without following a link or blocking),
     named ``name`` (default the file's) and reported as ``source`` (default ``path``)."""
     source = path if source is None else source
@@ -79,20 +96,16 @@ def read_measurement(path: Path, n_joints: int, name: str | None = None, source:
         raise InputError(source, None, f"cannot read: {error}") from None
     except RecursionError:
         raise InputError(source, None, "JSON nested too deeply") from None
-    return parse_measurement(data, path.name if name is None else name, source, n_joints)
+    return parse_measurement(data, path.name if name is None else name, source, n_joints, limits)
 
 
 def write_measurement(inbox: str | Path, measurement: Measurement) -> Path:
     """Drop a measurement into an inbox with the atomic-rename protocol."""
-    inbox = Path(inbox)
-    inbox.mkdir(parents=True, exist_ok=True)
+    inbox = output_dir(inbox, "--inbox")
     final = inbox / measurement.name
     temporary = inbox / f".{measurement.name}.tmp"
     record = measurement.to_record()
     record.pop("name")
-    with open(temporary, "w", encoding="utf-8") as handle:
-        json.dump(record, handle)
-        handle.flush()
-        os.fsync(handle.fileno())
+    write_text(temporary, json.dumps(record), sync=True)
     os.replace(temporary, final)
     return final

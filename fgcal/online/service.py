@@ -24,6 +24,7 @@ import yaml
 
 from .. import strict_json
 from ..calibration.covariance import position_covariance
+from ..compensate import SAME_ROBOT_M
 from ..dataset import load_dataset
 from ..errors import InputError
 from ..fields import Fields, read_yaml
@@ -133,7 +134,20 @@ class OnlineService:
         dataset = load_dataset(self.config["dataset"])
         if dataset.camera is None or "points" not in dataset.tables:
             raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
-        robot = load_referenced(self.config["robot"]) if "robot" in self.config else dataset.robot
+        if dataset.camera_mounting is None:
+            raise InputError(
+                Path(self.config["dataset"]) / "dataset.yaml", "camera.mounting", "online calibration takes a camera "
+                "on the flange, and this dataset's camera has no mounting (a camera fixed in the cell?)",
+            )  # fmt: skip
+        robot = dataset.robot
+        if "robot" in self.config:
+            robot = load_referenced(self.config["robot"])
+            gap = robot.flange_gap_m(dataset.robot)
+            if gap > SAME_ROBOT_M:
+                raise InputError(
+                    setup or config_path, "robot", f"{robot.name} is not the dataset's {dataset.robot.name}: their "
+                    + (f"flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap) else "joint counts differ"),
+                )  # fmt: skip
         points = dataset.points_F()
         settings = _settings(self.config, config_path)
 
@@ -227,11 +241,12 @@ class OnlineService:
         if not contents.damaged:
             return contents.records
         names = {r.get("name") for r in contents.records}
+        robot = self.calibrator.robot
         recovered = []
         for path in sorted((self.state.path / "processed").glob("*.json")):
             if path.name not in names:
                 try:
-                    recovered.append(read_measurement(path, self.calibrator.robot.n_joints).to_record())
+                    recovered.append(read_measurement(path, robot.n_joints, limits=robot.limits).to_record())
                 except InputError as error:
                     self.say(f"warning: cannot recover from {path}: {error}")
         records = list(contents.records)
@@ -338,7 +353,8 @@ class OnlineService:
                 continue
             source = self.inbox / entry.name
             try:
-                measurement = read_measurement(claimed, self.calibrator.robot.n_joints, entry.name, source)
+                robot = self.calibrator.robot
+                measurement = read_measurement(claimed, robot.n_joints, entry.name, source, robot.limits)
                 unknown = [n for n, _ in measurement.pixels if n not in self.calibrator.points_F]
                 if unknown:
                     raise InputError(source, f"pixels.{unknown[0]}", "unknown calibration point")

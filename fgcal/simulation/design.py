@@ -220,7 +220,7 @@ def space_filling_design(
             elapsed = time.monotonic() - started
             left = elapsed * max(0, oversample * n_wanted - len(pool)) / max(len(pool), 1)
             progress(
-                f"  space-filling design: {len(pool)} of {oversample * n_wanted} candidate configurations "
+                f"  space-filling design: {len(pool)} candidate configurations, {oversample * n_wanted} wanted "
                 f"({elapsed:.0f} s" + (f", about {left:.0f} s left)" if len(pool) < oversample * n_wanted else ")")
             )
     if len(pool) < n_wanted:
@@ -308,6 +308,11 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     robot = cell.robot
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
     header, body = read_csv(path, ["config", *joints, *(["block"] if cell.camera is not None else [])])
+    extra = [c for c in header if c.startswith("q") and c[1:].isdigit() and c not in joints]
+    if extra:
+        raise InputError(
+            path, "header", f"column {extra[0]}: {robot.name} has {robot.n_joints} joints (q1..q{robot.n_joints})"
+        )
     if not body:
         raise InputError(path, None, "no configurations")
     q = parse_numbers(path, header, body, joints, "angle", 1.0)

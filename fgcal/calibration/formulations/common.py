@@ -111,12 +111,18 @@ def depth_over_focal(problem: Problem, main: MeasurementSet, inputs: list, state
 
 def pnp_per_image(dataset: Dataset, observations: PixelObservations) -> dict[int, np.ndarray]:
     """T_C_F (or T_C_B) of every image with at least four points, from OpenCV's solvePnP (IPPE)."""
+    spread = np.linalg.svd(observations.points - observations.points.mean(axis=0), compute_uv=False)
+    if len(spread) < 2 or spread[1] <= 1e-6 * max(spread[0], 1e-300):
+        raise InputError(
+            dataset.path / "points.csv", None, "the points seen in the images lie on one line (or one point): a "
+            "camera's pose needs points spanning a plane",
+        )  # fmt: skip
     poses = {}
     for j in np.unique(observations.configs):
         rows = observations.configs == j
         if rows.sum() >= 4:
             T = solve_pnp(observations.points[rows], observations.pixels[rows], dataset.camera)
-            if T is not None:
+            if T is not None and np.all(np.isfinite(T)):
                 poses[int(j)] = T
     if len(poses) < 3:
         raise InputError(

@@ -15,7 +15,7 @@ from ...errors import InputError
 from ...factors import Distances, MeasurementSet, RobustLoss
 from ...robot import Robot
 from ...se3 import pose
-from ...truth import Truth
+from ...truth import Truth, named_points
 from ..batch import BatchKinematics
 from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, rows_of, subset_of, take
 from ..settings import MeasurementSettings
@@ -142,7 +142,7 @@ class DistanceReadings(Formulation):
         aux = {"tool_points": Auxiliary("points", np.asarray(truth.ballbar_ball)[None, :], ("ball",))}
         names = problem.observations.names
         if names:
-            aux["pivots"] = Auxiliary("points", np.array([truth.ballbar_pivots[n] for n in names]), names)
+            aux["pivots"] = Auxiliary("points", named_points(truth.ballbar_pivots, names, "ballbar_pivots"), names)
         return robot, State(robot.parameter_vector(truth.parameters), aux)
 
 

@@ -16,7 +16,7 @@ from ...errors import InputError
 from ...factors import MeasurementSet, RobustLoss, SocketSpacings, TouchPoints
 from ...robot import Robot
 from ...se3 import pose, transform_points
-from ...truth import Truth
+from ...truth import Truth, named_points
 from ..batch import BatchKinematics
 from ..prediction import scored_jacobian
 from ..problem import (
@@ -213,7 +213,7 @@ class Touch(Formulation):
         names = problem.observations.names
         aux = {
             "tool_points": Auxiliary("points", np.asarray(truth.touch_probe)[None, :], ("probe",)),
-            "touch_points": Auxiliary("points", np.array([truth.touch_points[n] for n in names]), names),
+            "touch_points": Auxiliary("points", named_points(truth.touch_points, names, "touch_points"), names),
         }
         return robot, State(robot.parameter_vector(truth.parameters), aux)
 

@@ -20,7 +20,7 @@ from ...errors import InputError
 from ...factors import MeasurementSet, RobustLoss, TrackerPoints, point_jacobian
 from ...robot import Robot
 from ...se3 import inverse, kabsch, transform_points
-from ...truth import Truth
+from ...truth import Truth, named_points
 from ..batch import BatchKinematics
 from ..problem import (
     Formulation,
@@ -177,7 +177,7 @@ class Tracker(Formulation):
         names = problem.observations.names
         aux = {
             "tracker": Auxiliary("pose3", inverse(truth.tracker_pose)),
-            "tool_points": Auxiliary("points", np.array([truth.tracker_targets[n] for n in names]), names),
+            "tool_points": Auxiliary("points", named_points(truth.tracker_targets, names, "tracker_targets"), names),
         }
         return robot, State(robot.parameter_vector(truth.parameters), aux)
 
