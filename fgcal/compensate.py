@@ -24,7 +24,7 @@ import numpy as np
 
 from .dataset import parse_numbers, read_csv, write_csv
 from .errors import InputError
-from .fields import check_name
+from .fields import check_name, first_repeat
 from .ik import TOL_M, TOL_RAD
 from .robot import Robot
 from .robot_io import bundled_robots, load_robot
@@ -69,11 +69,9 @@ def read_targets(path: str | Path, n_joints: int) -> Targets:
         check_name(row[header.index("target")].strip(), path, f"line {line}, column target")
         for line, row in enumerate(body, start=2)
     ]
-    first_line: dict[str, int] = {}
-    for line, name in enumerate(names, start=2):
-        if name in first_line:
-            raise InputError(path, f"lines {first_line[name]} and {line}", f"target {name!r} given twice")
-        first_line[name] = line
+    repeat = first_repeat(enumerate(names, start=2))
+    if repeat is not None:
+        raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
     return Targets(names, positions, rotations, hints)
 
 

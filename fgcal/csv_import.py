@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import re
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, UNORDERED, load_dataset, write_csv, write_header
 from .errors import InputError
-from .fields import Fields, check_name, is_plain_number, read_file_text, read_yaml
+from .fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
 from .outputs import output_dir
 from .robot_io import embed_robot, referenced_robot, robot_reference
 from .units import Units, parse_units
@@ -152,7 +153,7 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
         raise fields.error("header", f"expected true or false, got {header!r}")
     if header:
         columns = [c.strip() for c in cells[0]]
-        repeated = sorted({c for c in columns if c and columns.count(c) > 1})
+        repeated = sorted(c for c, count in Counter(columns).items() if c and count > 1)
         if repeated:
             raise InputError(path, f"line {numbered[0][0]}", f"the header names column {repeated[0]!r} twice")
         rows, line_numbers = cells[1:], [n for n, _ in numbered[1:]]
@@ -280,7 +281,7 @@ def _measurements(
         raise fields.error("zeros_mean_not_found", f"expected true or false, got {zeros!r}")
     config_ids = list(configs)
     imported = Imported([*joins, *ids], [])
-    first_line: dict[tuple, int] = {}  # each measurement once (as a dataset's tables require)
+    lines = []  # of the rows kept
     for r in range(len(source.rows)):
         where = f"line {source.lines[r]}"
         row: list[object] = [source.name(r, c) for c in config_columns] if config_columns else [config_ids[r]]
@@ -305,14 +306,16 @@ def _measurements(
         if zeros and not any(values):
             imported.dropped += 1
             continue
-        key = tuple(sorted(row)) if name in UNORDERED else tuple(row)
-        if key in first_line:
-            raise InputError(
-                source.path, f"lines {first_line[key]} and {source.lines[r]}", f"{', '.join(imported.header)} "
-                f"{' '.join(map(repr, key))} given twice: each measurement once",
-            )  # fmt: skip
-        first_line[key] = source.lines[r]
         imported.rows.append(row + values)
+        lines.append(source.lines[r])
+    keys = (tuple(sorted(row[:len(imported.header)])) if name in UNORDERED else tuple(row[:len(imported.header)])
+            for row in imported.rows)  # fmt: skip
+    repeat = first_repeat(zip(lines, keys, strict=True))  # each measurement once (a dataset's tables require it)
+    if repeat is not None:
+        raise InputError(
+            source.path, f"lines {repeat[0]} and {repeat[1]}", f"{', '.join(imported.header)} "
+            f"{' '.join(map(repr, repeat[2]))} given twice: each measurement once",
+        )  # fmt: skip
     if name in ("distances", "tool_distances"):
         imported.header.append("distance")
     elif name == "tracker_poses":

@@ -44,7 +44,7 @@ import yaml
 from .boards import DICTIONARY, SideBoard
 from .camera import Camera, parse_camera
 from .errors import InputError
-from .fields import Fields, check_name, is_plain_number, read_file_text, read_yaml
+from .fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
 from .noise import parse_noise
 from .outputs import write_text
 from .robot import Robot
@@ -226,15 +226,16 @@ UNORDERED = ("point_distances", "tool_distances")
 def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
     """A measurement given twice would count twice: refused, naming both lines."""
     columns = KEY_COLUMNS.get(name, tuple(ids))
-    seen: dict[tuple, int] = {}
-    for line, key in enumerate(zip(*(ids[c] for c in columns), strict=True), start=2):
-        key = tuple(sorted(key)) if name in UNORDERED else key
-        if key in seen:
-            raise InputError(
-                path, f"lines {seen[key]} and {line}", f"{', '.join(columns)} {' '.join(map(repr, key))} given twice: "
-                "each measurement once (repeated readings at one pose: give each its own configuration)",
-            )  # fmt: skip
-        seen[key] = line
+    keys = zip(*(ids[c] for c in columns), strict=True)
+    repeat = first_repeat(
+        (line, tuple(sorted(key)) if name in UNORDERED else key) for line, key in enumerate(keys, start=2)
+    )
+    if repeat is not None:
+        first, line, key = repeat
+        raise InputError(
+            path, f"lines {first} and {line}", f"{', '.join(columns)} {' '.join(map(repr, key))} given twice: "
+            "each measurement once (repeated readings at one pose: give each its own configuration)",
+        )  # fmt: skip
 
 
 def _inside(root: Path, files: Fields, name: str) -> Path:

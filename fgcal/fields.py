@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import re
 import stat
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -155,6 +155,17 @@ _PLAIN_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0
 def is_plain_number(text: str) -> bool:
     """ASCII decimal notation only (``float`` also takes ``1_000``, full-width digits, nan)."""
     return _PLAIN_NUMBER.fullmatch(text) is not None
+
+
+def first_repeat(keyed: Iterable[tuple[int, Hashable]]) -> tuple[int, int, Hashable] | None:
+    """The first key given twice among (line, key) pairs, as (its first line, the repeat's
+    line, the key); None when every key is given once."""
+    first_line: dict[Hashable, int] = {}
+    for line, key in keyed:
+        if key in first_line:
+            return first_line[key], line, key
+        first_line[key] = line
+    return None
 
 
 def check_name(text: str, source: str | Path, field: str) -> str:

@@ -17,6 +17,7 @@ sidecar YAML (:func:`compliance_document`), named in a comment of the URDF.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -87,7 +88,7 @@ def _validate(path: Path, root) -> None:
         names = [element.get("name") for element in root.findall(kind)]
         if any(not name for name in names):
             raise InputError(path, kind, f"a <{kind}> without a name")
-        repeated = sorted({name for name in names if names.count(name) > 1})
+        repeated = sorted(name for name, count in Counter(names).items() if count > 1)
         if repeated:
             raise InputError(path, f"{kind} {repeated[0]}", f"two <{kind}> elements are named {repeated[0]!r}")
     links = {element.get("name") for element in root.findall("link")}
