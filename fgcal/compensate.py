@@ -26,7 +26,7 @@ from .dataset import parse_numbers, read_csv, write_csv
 from .errors import InputError
 from .fields import check_name, first_repeat
 from .ik import TOL_M, TOL_RAD
-from .robot import Robot
+from .robot import SAME_ROBOT_M, Robot
 from .robot_io import bundled_robots, load_robot
 from .se3 import pose, so3_exp, so3_log
 
@@ -73,11 +73,6 @@ def read_targets(path: str | Path, n_joints: int) -> Targets:
     if repeat is not None:
         raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
     return Targets(names, positions, rotations, hints)
-
-
-# A calibration moves the flange by millimetres: a nominal model this far from the calibrated
-# robot is another robot.
-SAME_ROBOT_M = 0.05
 
 
 def nominal_of(robot: Robot, nominal: str | Path | None) -> Robot:

@@ -21,6 +21,9 @@ from .joints import DHJoint, Joint, perturbation_elements, pose_elements
 from .parameters import parameter_names
 
 MODELS = ("DH", "DH,s", "DH,s,e")
+# A calibration moves the flange by millimetres: two models whose flanges are farther apart
+# than this (Robot.flange_gap_m) are two robots.
+SAME_ROBOT_M = 0.05
 
 
 @dataclass(frozen=True)

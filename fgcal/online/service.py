@@ -24,12 +24,12 @@ import yaml
 
 from .. import strict_json
 from ..calibration.covariance import position_covariance
-from ..compensate import SAME_ROBOT_M
 from ..dataset import load_dataset
 from ..errors import InputError
 from ..fields import Fields, read_yaml
 from ..outputs import subfolder, write_bytes, write_text
 from ..parameters import unit_of
+from ..robot import SAME_ROBOT_M
 from ..robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
