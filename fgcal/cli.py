@@ -276,12 +276,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from .robot_io import load_robot
-    from .urdf_io import export_urdf
+    from .urdf_export import export_urdf, template_of
 
     robot = load_robot(args.robot, args.tip)
-    urdf, sidecar = export_urdf(robot, args.urdf)
+    urdf, sidecar = export_urdf(robot, args.urdf, args.template)
+    template = template_of(robot, args.template)
     print(f"wrote {urdf} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
-    print("  express); links: world, base_link, link_1..link_n, flange, tool0")
+    if template is None:
+        print("  express); links: world, base_link, link_1..link_n, flange, tool0")
+    else:
+        print(f"  express, and the robot's placement); {template[0].name} with the calibrated joint origins")
     return 0
 
 
@@ -517,6 +521,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot", help="robot file (calibrated_robot.yaml, a URDF) or a bundled name")
     p.add_argument("--urdf", required=True, help="output URDF file; the sidecar <stem>.compliance.yaml goes beside it")
     p.add_argument("--tip", help="tip link of a URDF input (default tool0, else its only leaf)")
+    p.add_argument(
+        "--template",
+        help="the robot's own URDF to write the calibration into (default: the URDF the robot came from, if any)",
+    )
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("robots", help="list the bundled robot descriptions")

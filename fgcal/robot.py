@@ -34,7 +34,9 @@ class Robot:
     axes), base to flange; ``coms`` the centres of mass of the links in their own frames
     (m: the frame after joint i's link); ``base_pose`` the nominal ``T_W_0``,
     ``flange_pose`` the flange in the last link's frame (identity for DH; the tip link of a
-    URDF) and ``tool_pose`` the nominal ``T_n_C`` (flange to tool or camera).
+    URDF) and ``tool_pose`` the nominal ``T_n_C`` (flange to tool or camera). ``urdf``: the
+    URDF file and tip link of a robot that came from one (fgcal export writes that document
+    back with the calibrated joint origins).
     """
 
     name: str
@@ -52,6 +54,7 @@ class Robot:
     overrides: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
     model: str = "DH,s,e"
+    urdf: tuple[str, str] | None = None  # the URDF (file, tip link) the description came from
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:

@@ -16,6 +16,7 @@ Schema (documented in docs/formats.md)::
     payload: {mass: 0, com: [0, 0, 0]}   # kg; com in the flange frame
     gravity: [0, 0, -9.81]         # m/s^2 in W
     parameters: {sy3: 0.01, ...}   # optional values overriding nominal (a calibrated robot)
+    urdf: {file: arm.urdf, tip: tool0}   # the URDF the joints came from (fgcal export keeps it)
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ ROBOT_KEYS = (
     "payload",
     "gravity",
     "parameters",
+    "urdf",
     "notes",
 )
 DH_KEYS = ("theta", "d", "a", "alpha")
@@ -219,7 +221,20 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         flange_pose=_pose(doc, "flange", units),
         overrides=overrides,
         source=str(doc.raw("source")),
+        urdf=_urdf_origin(doc, Path(source)),
     )
+
+
+def _urdf_origin(doc: Fields, source: Path) -> tuple[str, str] | None:
+    """The ``urdf: {file, tip}`` entry: the URDF (relative to the robot file) its joints came from."""
+    if not doc.has("urdf"):
+        return None
+    entry = doc.sub("urdf")
+    entry.check_keys(("file", "tip"))
+    file = entry.string("file")
+    if Path(file).suffix.lower() != ".urdf":
+        raise entry.error("file", f"a URDF file's name ends in .urdf, got {file!r}")
+    return str((source.parent / file).resolve()), entry.string("tip")
 
 
 def _joint_geometry(joint: Fields, units: Units) -> DHJoint | OriginJoint:
@@ -288,6 +303,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
         "gravity": [float(v) for v in robot.gravity],
         "parameters": {k: float(v) for k, v in values.items() if v != 0.0},
     }
+    if robot.urdf is not None:
+        doc["urdf"] = {"file": robot.urdf[0], "tip": robot.urdf[1]}
     if notes:
         doc["notes"] = notes
     return doc

@@ -7,47 +7,48 @@ the next moving joint's origin (or, after the last one, into the flange pose), s
 of branches off the chain (their joints at zero), is lumped into the body of the moving
 joint that carries it, with its centre of mass in that body's frame.
 
-Export (:func:`urdf_document`): links ``world``, ``base_link``, ``link_1..link_n``,
-``flange`` and ``tool0``; joints ``joint_1..joint_n`` whose value is the controller's joint
-value. The calibrated geometry (DH, offsets, distortions, origin corrections, base, flange
-and tool) is folded exactly into the joint origins and axes, read off the robot's own
-elementary transform chain at q = 0 with the compliances at zero. Compliances go to a
-sidecar YAML (:func:`compliance_document`), named in a comment of the URDF.
+Export: fgcal.urdf_export.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from . import kinematics
 from .errors import InputError
 from .fields import read_file_text
 from .joints import OriginJoint
-from .outputs import output_dir, output_file, write_text
 from .robot import Robot
-from .se3 import inverse, rpy_from_rotation
 
 MOVING = ("revolute", "continuous", "prismatic")
 CONTINUOUS_LIMITS_RAD = (-2 * np.pi, 2 * np.pi)
 
 
-def _parse(path: Path):
-    """The yourdfpy model of a URDF file; malformed XML or URDF is an InputError."""
-    import yourdfpy
+def read_document(path: Path):
+    """The checked XML tree (lxml, comments and layout kept) of a URDF file; malformed XML or
+    an invalid document is an InputError."""
     from lxml import etree
 
     text = read_file_text(path)  # a regular file of a sane size (not a FIFO, not /dev/zero)
     # yourdfpy recovers from broken XML silently: check well-formedness first, without
     # entities or network access.
     try:
-        root = etree.fromstring(text.encode("utf-8"), etree.XMLParser(resolve_entities=False, no_network=True))
+        tree = etree.ElementTree(
+            etree.fromstring(text.encode("utf-8"), etree.XMLParser(resolve_entities=False, no_network=True))
+        )
     except (etree.XMLSyntaxError, ValueError) as exc:
         raise InputError(path, None, f"malformed XML: {exc}") from None
-    _validate(path, root)
+    _validate(path, tree.getroot())
+    return tree
+
+
+def _parse(path: Path):
+    """The yourdfpy model of a URDF file; malformed XML or URDF is an InputError."""
+    import yourdfpy
+
+    read_document(path)
     try:
         return yourdfpy.URDF.load(
             str(path),
@@ -251,163 +252,5 @@ def load_urdf(path: str | Path, tip: str | None = None) -> Robot:
         coms=coms,
         flange_pose=pending,
         source=f"URDF {path.name}: chain {root} -> {tip}",
+        urdf=(str(path.resolve()), tip),
     )
-
-
-# -- export ------------------------------------------------------------------------------
-
-
-def _comment(text: str) -> str:
-    # "--" may not appear inside an XML comment.
-    return "<!-- " + text.replace("--", "- -") + " -->"
-
-
-def _number(value: float) -> str:
-    return repr(float(value) + 0.0)
-
-
-def _origin_xml(T: np.ndarray) -> str:
-    xyz = " ".join(_number(v) for v in T[:3, 3])
-    rpy = " ".join(_number(v) for v in rpy_from_rotation(T[:3, :3]))
-    return f'<origin xyz="{xyz}" rpy="{rpy}"/>'
-
-
-def _link_xml(name: str, mass: float = 0.0, com: np.ndarray | None = None) -> str:
-    if mass <= 0.0:
-        return f"  <link name={quoteattr(name)}/>"
-    com_xyz = " ".join(_number(v) for v in com)
-    return (
-        f"  <link name={quoteattr(name)}>\n"
-        f'    <inertial>\n      <origin xyz="{com_xyz}" rpy="0 0 0"/>\n      <mass value="{_number(mass)}"/>\n'
-        '      <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>\n    </inertial>\n  </link>'
-    )
-
-
-def _fixed_xml(name: str, parent: str, child: str, T: np.ndarray) -> str:
-    return (
-        f'  <joint name={quoteattr(name)} type="fixed">\n'
-        f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(child)}/>\n    {_origin_xml(T)}\n"
-        "  </joint>"
-    )
-
-
-def joint_frames(robot: Robot) -> dict:
-    """Frames of the exported URDF in W at q = 0, at the robot's parameter values with the
-    compliances zero: ``base`` (T_W_0), ``joints`` (n, 4, 4: joint i's frame, its motion's
-    axis through the origin), ``axes`` (n, 3: in the joint frame, signed by the joint
-    direction), ``bodies`` (n, 4, 4: the frames the link masses are given in), ``bends``
-    (n, 4, 4: the bending frames), ``flange`` and ``tool``."""
-    chain = robot.chain
-    data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
-    frames = data.frames_rigid[:, 0]
-    motion = [next(k for k, et in enumerate(chain.elements) if et.joint == i) for i in range(robot.n_joints)]
-    joints, axes = [], []
-    for i, k in enumerate(motion):
-        # A joint given by its origin keeps its link frame (after the axis alignment is undone).
-        child = chain.link_end[i] if isinstance(robot.joints[i], OriginJoint) else k + 1
-        J = frames[child]
-        after_motion = frames[k + 1]
-        if np.linalg.norm(J[:3, 3] - after_motion[:3, 3]) > 1e-12:
-            raise ValueError(f"joint {i + 1}: the link frame is not on the joint axis")
-        et = chain.elements[k]
-        axis_world = et.sign * after_motion[:3, "xyz".index(et.axis[1])]
-        joints.append(J)
-        axes.append(J[:3, :3].T @ axis_world)
-    return {
-        "base": frames[chain.base_end],
-        "joints": np.array(joints),
-        "axes": np.array(axes),
-        "bodies": frames[list(chain.link_end)],
-        "bends": frames[list(chain.bend)],
-        "flange": frames[chain.flange],
-        "tool": frames[chain.tool],
-    }
-
-
-def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
-    """The URDF (text) of ``robot`` at its parameter values (a calibrated robot's estimates)."""
-    f = joint_frames(robot)
-    n = robot.n_joints
-    parts = [
-        '<?xml version="1.0"?>',
-        _comment(
-            f"Written by fgcal from {robot.name}. Joint values are the controller's (rad, m); the calibrated "
-            "geometry is folded into the joint origins and axes. Inertia tensors are not modelled (zero)."
-        ),
-    ]
-    if sidecar:
-        parts.append(_comment(f"Joint compliances (gravity deflection) cannot be expressed in URDF: see {sidecar}"))
-    parts.append(f"<robot name={quoteattr(robot.name)}>")
-    parts += [_link_xml("world"), _link_xml("base_link")]
-    parts.append(_fixed_xml("world-base_link", "world", "base_link", f["base"]))
-    parent, T_parent = "base_link", f["base"]
-    for i in range(n):
-        link = f"link_{i + 1}"
-        J = f["joints"][i]
-        com_in_joint = inverse(J) @ f["bodies"][i] @ np.append(robot.coms[i], 1.0)
-        parts.append(_link_xml(link, float(robot.masses[i]), com_in_joint[:3]))
-        kind = "prismatic" if robot.joints[i].prismatic else "revolute"
-        lower, upper = (_number(v) for v in robot.limits[i])
-        axis = " ".join(_number(v) for v in f["axes"][i])
-        parts.append(
-            f'  <joint name="joint_{i + 1}" type="{kind}">\n'
-            f'    <parent link="{parent}"/>\n    <child link="{link}"/>\n'
-            f"    {_origin_xml(inverse(T_parent) @ J)}\n"
-            f'    <axis xyz="{axis}"/>\n'
-            f'    <limit lower="{lower}" upper="{upper}" effort="0" velocity="0"/>\n'
-            "  </joint>"
-        )
-        parent, T_parent = link, J
-    parts.append(_link_xml("flange", float(robot.payload_mass), robot.payload_com))
-    parts.append(_fixed_xml(f"{parent}-flange", parent, "flange", inverse(T_parent) @ f["flange"]))
-    parts.append(_link_xml("tool0"))
-    parts.append(_fixed_xml("flange-tool0", "flange", "tool0", inverse(f["flange"]) @ f["tool"]))
-    parts.append("</robot>")
-    return "\n".join(parts) + "\n"
-
-
-def compliance_document(robot: Robot, urdf_name: str) -> dict:
-    """The sidecar of an exported URDF: the joint compliances (rad/(N m)) and what they mean."""
-    values = robot.nominal_parameters()
-    frames = joint_frames(robot)
-    joints = []
-    for i in range(robot.n_joints):
-        B_in_joint = inverse(frames["joints"][i]) @ frames["bends"][i]
-        joints.append(
-            {
-                "joint": f"joint_{i + 1}",
-                "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
-                "bending_frame_rpy_rad": [float(v) + 0.0 for v in rpy_from_rotation(B_in_joint[:3, :3])],
-            }
-        )
-    return {
-        "urdf": urdf_name,
-        "robot": robot.name,
-        "model": robot.model,
-        "meaning": (
-            "Joint i deflects by Rz(kz tz) Ry(ky ty) Rx(kx tx) right after its motion, in its bending frame B_i "
-            "(bending_frame_rpy_rad: B_i in the URDF joint frame; z along the joint axis). t = (tx, ty, tz) is the "
-            "gravity moment (N m) that joint i carries, in B_i: the weights of the links after it and of the payload "
-            "(the URDF inertials) about B_i's origin, on the undeformed chain, with gravity gravity_m_per_s2 in world."
-        ),
-        "gravity_m_per_s2": [float(v) for v in robot.gravity],
-        "payload": {"mass_kg": float(robot.payload_mass), "com_m_in_flange": [float(v) for v in robot.payload_com]},
-        "joints": joints,
-    }
-
-
-def export_urdf(robot: Robot, path: str | Path) -> tuple[Path, Path]:
-    """Write ``path`` (URDF) and its compliance sidecar beside it (``<stem>.compliance.yaml``)."""
-    import yaml
-
-    path = Path(path)
-    if path.suffix.lower() != ".urdf":
-        raise InputError(path, None, "the URDF file name must end in .urdf")
-    if path.is_dir():
-        raise InputError(path, None, "is a folder: give the URDF file's name")
-    output_dir(path.parent, None)
-    sidecar = path.with_name(f"{path.stem}.compliance.yaml")
-    output_file(sidecar)  # both outputs checked before either is written
-    write_text(path, urdf_document(robot, sidecar.name))
-    write_text(sidecar, yaml.safe_dump(compliance_document(robot, path.name), sort_keys=False))
-    return path, sidecar

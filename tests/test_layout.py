@@ -91,7 +91,7 @@ LAYERS = (
     (
         "model",
         ("fgcal.ets", "fgcal.joints", "fgcal.kinematics", "fgcal.robot", "fgcal.robot_io", "fgcal.urdf_io",
-         "fgcal.ik", "fgcal.camera", "fgcal.boards"),
+         "fgcal.urdf_export", "fgcal.ik", "fgcal.camera", "fgcal.boards"),
     ),
     ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensate")),
     ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),

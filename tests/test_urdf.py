@@ -12,7 +12,7 @@ import fgcal
 from fgcal import kinematics
 from fgcal.cli import main
 from fgcal.robot_io import bundled_robots, save_robot
-from fgcal.urdf_io import export_urdf
+from fgcal.urdf_export import export_urdf
 
 
 def _yourdfpy(path):
@@ -75,7 +75,11 @@ def test_exported_urdf_matches_tool_pose_for_every_bundled_robot(tmp_path):
         reference = _yourdfpy(urdf)
         for q in rng.uniform(robot.limits[:, 0], robot.limits[:, 1], (10, robot.n_joints)):
             reference.update_cfg(q)
-            assert _pose_error(reference.get_transform("tool0", "world"), robot.fk_tool(q)) < 1e-9, name
+            if robot.urdf is None:  # fgcal's own layout: world is W, tool0 the tool
+                assert _pose_error(reference.get_transform("tool0", "world"), robot.fk_tool(q)) < 1e-9, name
+            else:  # the robot's own URDF: its root is the base frame, its tip the flange
+                tip = robot.urdf[1]
+                assert _pose_error(reference.get_transform(tip, reference.base_link), robot.fk(q)) < 1e-9, name
 
 
 @pytest.mark.parametrize("source", ["kuka_kr125_2", "random_urdf"])
@@ -97,17 +101,25 @@ def test_exported_calibrated_robot_round_trip(tmp_path, source):
     rigid = {k: 0.0 for k in calibrated.parameter_names if k[:2] in ("kx", "ky", "kz")}
     reloaded = fgcal.load_robot(tmp_path / "out.urdf")
     assert "out.compliance.yaml" in (tmp_path / "out.urdf").read_text()
+    sidecar = yaml.safe_load((tmp_path / "out.compliance.yaml").read_text())
+    placement = fgcal.se3.pose_from_xyz_rpy(sidecar["base_in_world"]["xyz_m"], sidecar["base_in_world"]["rpy_rad"])
+    tool = fgcal.se3.pose_from_xyz_rpy(sidecar["tool_in_flange"]["xyz_m"], sidecar["tool_in_flange"]["rpy_rad"])
     for q in rng.uniform(calibrated.limits[:, 0], calibrated.limits[:, 1], (10, calibrated.n_joints)):
         reference.update_cfg(q)
         expected = calibrated.fk_tool(q, rigid)
-        assert _pose_error(reference.get_transform("tool0", "world"), expected) < 1e-9
-        assert _pose_error(reloaded.fk(q), expected) < 1e-9
+        if source == "random_urdf":  # written into its own URDF: root = base frame 0, tip = flange
+            flange = reference.get_transform("tool0", reference.base_link)
+            assert _pose_error(placement @ flange @ tool, expected) < 1e-9
+            assert _pose_error(placement @ reloaded.fk(q) @ tool, expected) < 1e-9
+        else:
+            assert _pose_error(reference.get_transform("tool0", "world"), expected) < 1e-9
+            assert _pose_error(reloaded.fk(q), expected) < 1e-9
     # The sidecar keeps the compliances (and the payload the URDF's flange inertial carries).
-    sidecar = yaml.safe_load((tmp_path / "out.compliance.yaml").read_text())
     values = calibrated.nominal_parameters()
     assert sidecar["joints"][1]["compliance_rad_per_Nm"] == [values[f"{k}2"] for k in ("kx", "ky", "kz")]
     assert sidecar["payload"]["mass_kg"] == 12.0
-    assert reloaded.masses.sum() == pytest.approx(calibrated.masses.sum() + 12.0)
+    if source != "random_urdf":
+        assert reloaded.masses.sum() == pytest.approx(calibrated.masses.sum() + 12.0)
 
 
 def test_urdf_robot_saved_as_yaml_reloads_exactly(tmp_path):

@@ -1,0 +1,334 @@
+"""URDF out: the calibrated robot for ROS, MoveIt and simulators.
+
+Two documents, both with the calibrated geometry (DH, offsets, distortions, origin
+corrections) folded exactly into joint origins (and axes), read off the robot's own elementary
+transform chain at q = 0 with the compliances at zero:
+
+- a robot that came from a URDF (``Robot.urdf``, or a template given): **that document**, with
+  only the origins of the chain's moving joints changed. Names, links, meshes, limits,
+  inertias, transmissions, ros2_control and gazebo blocks are kept (:func:`faithful_document`);
+- any other robot: links ``world``, ``base_link``, ``link_1..link_n``, ``flange`` and
+  ``tool0`` (ROS-Industrial names); joints ``joint_1..joint_n`` whose value is the
+  controller's joint value (:func:`urdf_document`).
+
+Numbers are written clean: values below 1e-12 as 0, 15 significant digits, unit axes, so that
+every URDF reader (yourdfpy, pinocchio, roboticstoolbox) computes the same forward kinematics.
+Compliances, and what a URDF cannot hold (the robot's placement in the calibration's frame, the
+calibration's tool), go to a sidecar YAML (:func:`compliance_document`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from . import kinematics
+from .errors import InputError
+from .joints import OriginJoint
+from .outputs import output_dir, output_file, write_text
+from .robot import Robot
+from .se3 import inverse, rpy_from_rotation
+
+TINY = 1e-12  # m or rad: below this a value is written as 0
+
+
+def number(value: float) -> str:
+    """A value as URDF text: 0 below TINY, else 15 significant digits (no -0, no 1e-17 noise)."""
+    value = float(value)
+    return "0" if abs(value) < TINY else f"{value:.15g}"
+
+
+def _vector(values) -> str:
+    return " ".join(number(v) for v in values)
+
+
+def _unit(axis: np.ndarray) -> np.ndarray:
+    axis = np.where(np.abs(axis) < TINY, 0.0, axis)
+    return axis / np.linalg.norm(axis)
+
+
+def origin_attributes(T: np.ndarray) -> dict[str, str]:
+    """``xyz`` and ``rpy`` of a pose, clean. Within TINY of gimbal lock the angles are taken at
+    the lock exactly (yaw 0, roll carrying the turn), so that no reader divides by cos(pitch)."""
+    roll, pitch, yaw = rpy_from_rotation(T[:3, :3])
+    if abs(abs(pitch) - np.pi / 2) < TINY:
+        pitch = np.copysign(np.pi / 2, pitch)
+    return {"xyz": _vector(T[:3, 3]), "rpy": _vector((roll, pitch, yaw))}
+
+
+def _origin_xml(T: np.ndarray) -> str:
+    attributes = origin_attributes(T)
+    return f'<origin xyz="{attributes["xyz"]}" rpy="{attributes["rpy"]}"/>'
+
+
+def _comment(text: str) -> str:
+    # "--" may not appear inside an XML comment.
+    return "<!-- " + text.replace("--", "- -") + " -->"
+
+
+def joint_frames(robot: Robot) -> dict:
+    """Frames of the exported URDF in W at q = 0, at the robot's parameter values with the
+    compliances zero: ``base`` (T_W_0), ``joints`` (n, 4, 4: joint i's frame, its motion's
+    axis through the origin), ``axes`` (n, 3: in the joint frame, signed by the joint
+    direction), ``bodies`` (n, 4, 4: the frames the link masses are given in), ``bends``
+    (n, 4, 4: the bending frames), ``flange`` and ``tool``."""
+    chain = robot.chain
+    data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
+    frames = data.frames_rigid[:, 0]
+    motion = [next(k for k, et in enumerate(chain.elements) if et.joint == i) for i in range(robot.n_joints)]
+    joints, axes = [], []
+    for i, k in enumerate(motion):
+        # A joint given by its origin keeps its link frame (after the axis alignment is undone).
+        child = chain.link_end[i] if isinstance(robot.joints[i], OriginJoint) else k + 1
+        J = frames[child]
+        after_motion = frames[k + 1]
+        if np.linalg.norm(J[:3, 3] - after_motion[:3, 3]) > 1e-12:
+            raise ValueError(f"joint {i + 1}: the link frame is not on the joint axis")
+        et = chain.elements[k]
+        axis_world = et.sign * after_motion[:3, "xyz".index(et.axis[1])]
+        joints.append(J)
+        axes.append(J[:3, :3].T @ axis_world)
+    return {
+        "base": frames[chain.base_end],
+        "joints": np.array(joints),
+        "axes": np.array(axes),
+        "bodies": frames[list(chain.link_end)],
+        "bends": frames[list(chain.bend)],
+        "flange": frames[chain.flange],
+        "tool": frames[chain.tool],
+    }
+
+
+# -- a robot without a URDF of its own --------------------------------------------------------
+
+
+def _link_xml(name: str, mass: float = 0.0, com: np.ndarray | None = None) -> str:
+    if mass <= 0.0:
+        return f"  <link name={quoteattr(name)}/>"
+    return (
+        f"  <link name={quoteattr(name)}>\n"
+        f'    <inertial>\n      <origin xyz="{_vector(com)}" rpy="0 0 0"/>\n      <mass value="{number(mass)}"/>\n'
+        '      <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>\n    </inertial>\n  </link>'
+    )
+
+
+def _fixed_xml(name: str, parent: str, child: str, T: np.ndarray) -> str:
+    return (
+        f'  <joint name={quoteattr(name)} type="fixed">\n'
+        f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(child)}/>\n    {_origin_xml(T)}\n"
+        "  </joint>"
+    )
+
+
+def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
+    """The URDF (text) of ``robot`` at its parameter values (a calibrated robot's estimates),
+    with the ROS-Industrial link names."""
+    f = joint_frames(robot)
+    n = robot.n_joints
+    parts = [
+        '<?xml version="1.0"?>',
+        _comment(
+            f"Written by fgcal from {robot.name}. Joint values are the controller's (rad, m); the calibrated "
+            "geometry is folded into the joint origins and axes. Inertia tensors are not modelled (zero)."
+        ),
+    ]
+    if sidecar:
+        parts.append(_comment(f"Joint compliances (gravity deflection) cannot be expressed in URDF: see {sidecar}"))
+    parts.append(f"<robot name={quoteattr(robot.name)}>")
+    parts += [_link_xml("world"), _link_xml("base_link")]
+    parts.append(_fixed_xml("world-base_link", "world", "base_link", f["base"]))
+    parent, T_parent = "base_link", f["base"]
+    for i in range(n):
+        link = f"link_{i + 1}"
+        J = f["joints"][i]
+        com_in_joint = inverse(J) @ f["bodies"][i] @ np.append(robot.coms[i], 1.0)
+        parts.append(_link_xml(link, float(robot.masses[i]), com_in_joint[:3]))
+        kind = "prismatic" if robot.joints[i].prismatic else "revolute"
+        lower, upper = (number(v) for v in robot.limits[i])
+        parts.append(
+            f'  <joint name="joint_{i + 1}" type="{kind}">\n'
+            f'    <parent link="{parent}"/>\n    <child link="{link}"/>\n'
+            f"    {_origin_xml(inverse(T_parent) @ J)}\n"
+            f'    <axis xyz="{_vector(_unit(f["axes"][i]))}"/>\n'
+            f'    <limit lower="{lower}" upper="{upper}" effort="0" velocity="0"/>\n'
+            "  </joint>"
+        )
+        parent, T_parent = link, J
+    parts.append(_link_xml("flange", float(robot.payload_mass), robot.payload_com))
+    parts.append(_fixed_xml(f"{parent}-flange", parent, "flange", inverse(T_parent) @ f["flange"]))
+    parts.append(_link_xml("tool0"))
+    parts.append(_fixed_xml("flange-tool0", "flange", "tool0", inverse(f["flange"]) @ f["tool"]))
+    parts.append("</robot>")
+    return "\n".join(parts) + "\n"
+
+
+# -- a robot that came from a URDF -------------------------------------------------------------
+
+
+def _moving_chain(template: Path, tip: str) -> tuple[list, str]:
+    """The joints (yourdfpy) from the template's root to ``tip``, and its root link."""
+    from .urdf_io import _chain_to, _parse
+
+    model = _parse(template)
+    root, _, chain = _chain_to(template, model, tip)
+    return chain, root
+
+
+def _check_template(robot: Robot, template: Path, tip: str) -> None:
+    """The template must be this robot's URDF: the same joints, origins, axes and tip."""
+    from .urdf_io import load_urdf
+
+    nominal = load_urdf(template, tip)
+    if nominal.n_joints != robot.n_joints or not all(
+        isinstance(mine, OriginJoint)
+        and mine.prismatic == theirs.prismatic
+        and np.allclose(mine.origin, theirs.origin, atol=1e-9)
+        and np.allclose(mine.axis, theirs.axis, atol=1e-9)
+        for mine, theirs in zip(robot.joints, nominal.joints, strict=False)
+    ):
+        raise InputError(
+            template, "joints", f"is not the URDF {robot.name} was described by: its chain to {tip} has other joints "
+            "(fgcal export writes the calibration into the robot's own URDF)",
+        )  # fmt: skip
+    if not np.allclose(robot.flange_pose, nominal.flange_pose, atol=1e-9):
+        raise InputError(template, tip, f"the fixed joints up to {tip} differ from {robot.name}'s flange")
+
+
+def faithful_document(robot: Robot, template: Path, tip: str, sidecar: str | None = None):
+    """The lxml tree of ``template`` (the robot's own URDF) with the calibrated origins of the
+    moving joints between its root and ``tip``; nothing else of the document changes. The
+    root link is the robot's base frame 0; fixed joints keep their origins."""
+    from lxml import etree
+
+    from .urdf_io import read_document
+
+    _check_template(robot, template, tip)
+    tree = read_document(template)
+    chain, root_link = _moving_chain(template, tip)
+    f = joint_frames(robot)
+    elements = {element.get("name"): element for element in tree.getroot().findall("joint")}
+    placed = {root_link: f["base"]}  # W pose of each chain link in the new document
+    moving = 0
+    for joint in chain:
+        parent = placed[joint.parent]
+        if joint.type == "fixed":
+            placed[joint.child] = parent @ (np.eye(4) if joint.origin is None else joint.origin)
+            continue
+        J = f["joints"][moving]
+        element = elements[joint.name]
+        origin = element.find("origin")
+        if origin is None:  # the default identity origin, now a calibrated one
+            origin = etree.SubElement(element, "origin")
+        for key, text in origin_attributes(inverse(parent) @ J).items():
+            origin.set(key, text)
+        axis = element.find("axis")
+        if axis is not None or not np.allclose(f["axes"][moving], [1.0, 0.0, 0.0], atol=TINY):
+            if axis is None:
+                axis = etree.SubElement(element, "axis")
+            axis.set("xyz", _vector(_unit(f["axes"][moving])))
+        placed[joint.child] = J
+        moving += 1
+    tip_pose = placed[tip]
+    if not np.allclose(tip_pose, f["flange"], atol=1e-9):  # the fixed joints to the tip are the robot's flange
+        raise ValueError(f"the exported chain misses the flange by {np.abs(tip_pose - f['flange']).max():.3g}")
+    note = f"Calibrated by fgcal: the origins of the joints from {root_link} to {tip} carry the calibration."
+    if sidecar:
+        note += f" Compliances and the robot's placement: {sidecar}"
+    tree.getroot().addprevious(etree.Comment(" " + note.replace("--", "- -") + " "))
+    return tree
+
+
+def serialise(tree) -> str:
+    from lxml import etree
+
+    return etree.tostring(tree, xml_declaration=True, encoding="UTF-8").decode("utf-8") + "\n"
+
+
+# -- the sidecar and the files -----------------------------------------------------------------
+
+
+def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | None = None) -> dict:
+    """The sidecar of an exported URDF: the joint compliances (rad/(N m)) and what they mean,
+    the URDF's root in the calibration's frame W and the calibration's tool on the flange."""
+    values = robot.nominal_parameters()
+    frames = joint_frames(robot)
+    names = joint_names or [f"joint_{i + 1}" for i in range(robot.n_joints)]
+    joints = []
+    for i in range(robot.n_joints):
+        B_in_joint = inverse(frames["joints"][i]) @ frames["bends"][i]
+        joints.append(
+            {
+                "joint": names[i],
+                "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
+                "bending_frame_rpy_rad": [float(v) + 0.0 for v in rpy_from_rotation(B_in_joint[:3, :3])],
+            }
+        )
+
+    def pose(T: np.ndarray) -> dict:
+        return {
+            "xyz_m": [float(v) + 0.0 for v in T[:3, 3]],
+            "rpy_rad": [float(v) + 0.0 for v in rpy_from_rotation(T[:3, :3])],
+        }
+
+    return {
+        "urdf": urdf_name,
+        "robot": robot.name,
+        "model": robot.model,
+        "meaning": (
+            "Joint i deflects by Rz(kz tz) Ry(ky ty) Rx(kx tx) right after its motion, in its bending frame B_i "
+            "(bending_frame_rpy_rad: B_i in the URDF joint frame; z along the joint axis). t = (tx, ty, tz) is the "
+            "gravity moment (N m) that joint i carries, in B_i: the weights of the links after it and of the payload "
+            "(the URDF inertials) about B_i's origin, on the undeformed chain, with gravity gravity_m_per_s2 in world."
+        ),
+        "gravity_m_per_s2": [float(v) for v in robot.gravity],
+        "payload": {"mass_kg": float(robot.payload_mass), "com_m_in_flange": [float(v) for v in robot.payload_com]},
+        "base_in_world": pose(frames["base"]),
+        "tool_in_flange": pose(inverse(frames["flange"]) @ frames["tool"]),
+        "joints": joints,
+    }
+
+
+def export_urdf(robot: Robot, path: str | Path, template: str | Path | None = None) -> tuple[Path, Path]:
+    """Write ``path`` (URDF) and its compliance sidecar beside it (``<stem>.compliance.yaml``).
+    A robot that came from a URDF (or ``template``, its URDF) is written into that document."""
+    import yaml
+
+    path = Path(path)
+    if path.suffix.lower() != ".urdf":
+        raise InputError(path, None, "the URDF file name must end in .urdf")
+    if path.is_dir():
+        raise InputError(path, None, "is a folder: give the URDF file's name")
+    output_dir(path.parent, None)
+    sidecar = path.with_name(f"{path.stem}.compliance.yaml")
+    output_file(sidecar)  # both outputs checked before either is written
+    source = template_of(robot, template)
+    if source is None:
+        text, names = urdf_document(robot, sidecar.name), None
+    else:
+        file, tip = source
+        tree = faithful_document(robot, file, tip, sidecar.name)
+        text = serialise(tree)
+        names = [joint.name for joint in _moving_chain(file, tip)[0] if joint.type != "fixed"]
+    write_text(path, text)
+    write_text(sidecar, yaml.safe_dump(compliance_document(robot, path.name, names), sort_keys=False))
+    return path, sidecar
+
+
+def template_of(robot: Robot, template: str | Path | None) -> tuple[Path, str] | None:
+    """The URDF (file, tip) the export writes into: ``template``, else the robot's own."""
+    if template is not None:
+        tip = robot.urdf[1] if robot.urdf is not None else None
+        from .urdf_io import _chain_to, _parse
+
+        _, tip, _ = _chain_to(Path(template), _parse(Path(template)), tip)
+        return Path(template), tip
+    if robot.urdf is None:
+        return None
+    file = Path(robot.urdf[0])
+    if not file.exists():
+        raise InputError(
+            None, "urdf", f"{robot.name} came from {file}, which is not there any more: give it with --template"
+        )
+    return file, robot.urdf[1]
