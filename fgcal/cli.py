@@ -275,18 +275,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .robot_io import load_robot
-    from .urdf_export import export_urdf, template_of
+    from .reports.export import export_command
 
-    robot = load_robot(args.robot, args.tip)
-    urdf, sidecar = export_urdf(robot, args.urdf, args.template)
-    template = template_of(robot, args.template)
-    print(f"wrote {urdf} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
-    if template is None:
-        print("  express); links: world, base_link, link_1..link_n, flange, tool0")
-    else:
-        print(f"  express, and the robot's placement); {template[0].name} with the calibrated joint origins")
-    return 0
+    return export_command(
+        args.robot, args.urdf, tip=args.tip, template=args.template, calibration=args.calibration,
+        rigid_fit=args.rigid_fit, payload_mass=args.payload_mass, payload_com=args.payload_com,
+        say=lambda msg: print(msg, flush=True),
+    )  # fmt: skip
 
 
 def cmd_robots(args: argparse.Namespace) -> int:
@@ -525,6 +520,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--template",
         help="the robot's own URDF to write the calibration into (default: the URDF the robot came from, if any)",
     )
+    p.add_argument(
+        "--calibration",
+        help="the calibration's config: state the URDF's accuracy on its data (fitting and held out) beside the "
+        "full model's; its fitting configurations are the region of --rigid-fit",
+    )
+    p.add_argument(
+        "--rigid-fit",
+        action="store_true",
+        help="refit the rigid parameters to the full model (with the deflection at the payload) over the "
+        "calibrated region, so that the URDF holds what it can of the compliances",
+    )
+    p.add_argument(
+        "--payload-mass", type=_real(0.0, 10000.0, "kg"), help="payload of --rigid-fit (kg; default the robot's)"
+    )
+    p.add_argument("--payload-com", type=LENGTH_M, nargs=3, help="payload centre of mass in the flange frame (m)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("robots", help="list the bundled robot descriptions")

@@ -283,26 +283,41 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
             "(the URDF inertials) about B_i's origin, on the undeformed chain, with gravity gravity_m_per_s2 in world."
         ),
         "gravity_m_per_s2": [float(v) for v in robot.gravity],
-        "payload": {"mass_kg": float(robot.payload_mass), "com_m_in_flange": [float(v) for v in robot.payload_com]},
+        "payload": {
+            "mass_kg": float(robot.payload_mass),
+            "com_m_in_flange": [float(v) for v in robot.payload_com],
+            # fgcal's own layout carries it as the flange link's inertial; a robot's own URDF does not.
+            "in_urdf": joint_names is None,
+        },
         "base_in_world": pose(frames["base"]),
         "tool_in_flange": pose(inverse(frames["flange"]) @ frames["tool"]),
         "joints": joints,
     }
 
 
-def export_urdf(robot: Robot, path: str | Path, template: str | Path | None = None) -> tuple[Path, Path]:
-    """Write ``path`` (URDF) and its compliance sidecar beside it (``<stem>.compliance.yaml``).
-    A robot that came from a URDF (or ``template``, its URDF) is written into that document."""
-    import yaml
-
+def check_outputs(path: str | Path) -> tuple[Path, Path]:
+    """The URDF's path and its sidecar's, both checked writable (before any work)."""
     path = Path(path)
     if path.suffix.lower() != ".urdf":
         raise InputError(path, None, "the URDF file name must end in .urdf")
     if path.is_dir():
         raise InputError(path, None, "is a folder: give the URDF file's name")
     output_dir(path.parent, None)
+    output_file(path)
     sidecar = path.with_name(f"{path.stem}.compliance.yaml")
-    output_file(sidecar)  # both outputs checked before either is written
+    output_file(sidecar)
+    return path, sidecar
+
+
+def export_urdf(
+    robot: Robot, path: str | Path, template: str | Path | None = None, accuracy: dict | None = None
+) -> tuple[Path, Path]:
+    """Write ``path`` (URDF) and its compliance sidecar beside it (``<stem>.compliance.yaml``,
+    with ``accuracy``: what the URDF keeps, SI). A robot that came from a URDF (or
+    ``template``, its URDF) is written into that document."""
+    import yaml
+
+    path, sidecar = check_outputs(path)  # both outputs checked before either is written
     source = template_of(robot, template)
     if source is None:
         text, names = urdf_document(robot, sidecar.name), None
@@ -312,7 +327,10 @@ def export_urdf(robot: Robot, path: str | Path, template: str | Path | None = No
         text = serialise(tree)
         names = [joint.name for joint in _moving_chain(file, tip)[0] if joint.type != "fixed"]
     write_text(path, text)
-    write_text(sidecar, yaml.safe_dump(compliance_document(robot, path.name, names), sort_keys=False))
+    document = compliance_document(robot, path.name, names)
+    if accuracy:
+        document["accuracy"] = accuracy
+    write_text(sidecar, yaml.safe_dump(document, sort_keys=False))
     return path, sidecar
 
 

@@ -42,6 +42,10 @@ RUNS = {
          "0.1", "--tolerance-um", "2"],
         ["export", "{ws}/calibrated/calibrated_robot.yaml", "--urdf", "{ws}/urdf/calibrated.urdf"],
         ["export", "seven_axis", "--urdf", "{ws}/urdf/seven_axis.urdf", "--tip", "link_7"],
+        ["export", "{ws}/calibrated/calibrated_robot.yaml", "--urdf", "{ws}/urdf/rigid.urdf", "--calibration",
+         "{ws}/seed/calibration.yaml", "--rigid-fit", "--payload-mass", "50", "--payload-com", "0", "0", "0.1"],
+        ["export", "seven_axis", "--urdf", "{ws}/urdf/templated.urdf", "--template",
+         str(REPO / "datasets" / "robots" / "seven_axis.urdf")],
         ["robots"],
         ["fk", "abb_irb120", "0", "0.5", "0", "0", "0", "0"],
         ["fk", "kuka_kr125_2", "0", "-30", "20", "0", "45", "0", "--deg", "--tool"],
@@ -146,7 +150,9 @@ def test_use_the_result_as_documented(ws, capsys):
         rows = (ws / name).read_text().splitlines()[1:]
         assert len(rows) == 5 and all(row.endswith(",ok") for row in rows), rows
     assert (ws / "urdf" / "calibrated.urdf").exists() and (ws / "urdf" / "seven_axis.compliance.yaml").exists()
-    assert "kuka_kr125_2" in printed[4] and "T_W_n" in printed[5] and "T_W_C" in printed[6]
+    assert "kuka_kr125_2" in printed[6] and "T_W_n" in printed[7] and "T_W_C" in printed[8]
+    assert "URDF alone, rigid fit" in printed[4]
+    assert "accuracy" in yaml.safe_load((ws / "urdf" / "rigid.compliance.yaml").read_text())
 
 
 def test_online_as_documented(ws, capsys):

@@ -172,3 +172,46 @@ def test_a_moved_urdf_is_named(tmp_path, capsys):
     copy.unlink()
     assert main(["export", str(tmp_path / "robot.yaml"), "--urdf", str(tmp_path / "o.urdf")]) == 2
     assert "--template" in capsys.readouterr().err
+
+
+FARO = REPO.parent / "shared" / "data" / "irb120_faro"
+
+
+@pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
+def test_faro_rigid_fit_keeps_the_accuracy_of_a_plain_dh_calibration(tmp_path, capsys):
+    """Issue 24: on the real IRB 120 set (tracker, DH,s,e, half held out), the URDF alone after
+    --rigid-fit is at least as accurate on the held-out half as a plain DH calibration of the
+    same split; the figures are printed and land in the sidecar."""
+    import yaml
+
+    from fgcal.calibration.config import load_config
+    from fgcal.calibration.run import calibrate
+    from fgcal.faro import convert_faro
+
+    convert_faro(FARO, tmp_path / "faro")
+    configs = {}
+    for model in ("DH,s,e", "DH"):
+        configs[model] = tmp_path / f"calibration_{model.replace(',', '_')}.yaml"
+        configs[model].write_text(
+            yaml.safe_dump(
+                {"dataset": str(tmp_path / "faro"), "formulation": "tracker", "model": model, "units": {"length": "mm"},
+                 "noise": {"tracker_sigma": 0.05}, "validation": {"holdout": 0.5, "seed": 0}}
+            )
+        )  # fmt: skip
+    assert main(["calibrate", str(configs["DH,s,e"]), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    plain_dh = calibrate(load_config(configs["DH"])).validation["after"]["tool_point"].rms
+    capsys.readouterr()
+    argv = ["export", str(tmp_path / "out" / "calibrated_robot.yaml"), "--urdf", str(tmp_path / "irb120.urdf")]
+    assert main([*argv, "--calibration", str(configs["DH,s,e"]), "--rigid-fit"]) == 0
+    printed = capsys.readouterr().out
+    accuracy = yaml.safe_load((tmp_path / "irb120.compliance.yaml").read_text())["accuracy"]
+    rows = accuracy["on_the_calibration_data"]
+    full, dropped = rows["full model (with the compliances)"], rows["URDF alone (compliances dropped)"]
+    refit = rows["URDF alone, rigid fit"]
+    assert refit["held_out_rms_m"] <= plain_dh, (refit, plain_dh)
+    assert full["held_out_rms_m"] < refit["held_out_rms_m"] < dropped["held_out_rms_m"]
+    assert f"{refit['held_out_rms_m'] * 1e3:.3f}" in printed and "warning: the URDF alone is" in printed
+    # The URDF written is the refit: its sidecar carries no compliance to apply on top.
+    sidecar = yaml.safe_load((tmp_path / "irb120.compliance.yaml").read_text())
+    assert all(k == 0.0 for joint in sidecar["joints"] for k in joint["compliance_rad_per_Nm"])
+    assert accuracy["rigid_fit"]["remaining_rms_m"] < accuracy["rigid_fit"]["compliances_dropped_rms_m"] / 3

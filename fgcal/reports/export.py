@@ -1,0 +1,123 @@
+"""fgcal export: the calibrated robot as URDF, with what the URDF keeps of its accuracy.
+
+A URDF cannot bend: the gravity compliances go to the sidecar, and a consumer that reads the
+URDF alone gets the rigid model. This command says what that costs. With the calibration's
+config, on its data (fitting and held out, each model with the instrument registered to it);
+without, as the difference from the full model over the joint ranges. ``--rigid-fit`` refits
+the rigid parameters to the full model over the calibrated region (fgcal.rigid_fit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
+from ..robot_io import load_robot
+from ..urdf_export import check_outputs, export_urdf, template_of
+
+LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held-out accuracy is warned of
+
+
+def export_command(
+    robot_file: str,
+    urdf: str,
+    tip: str | None = None,
+    template: str | None = None,
+    calibration: str | None = None,
+    rigid_fit: bool = False,
+    payload_mass: float | None = None,
+    payload_com: list[float] | None = None,
+    say: Callable[[str], None] = print,
+) -> int:
+    path, _ = check_outputs(urdf)  # before the work, not after it
+    robot = load_robot(robot_file, tip)
+    if payload_mass is not None or payload_com is not None:
+        mass = robot.payload_mass if payload_mass is None else payload_mass
+        com = robot.payload_com if payload_com is None else np.array(payload_com, dtype=float)
+        robot = robot.with_tool(robot.tool_pose, float(mass), com)
+    result = None
+    if calibration is not None:
+        from ..calibration.config import load_config
+        from ..calibration.run import calibrate
+
+        say(f"repeating the calibration {calibration} to score the URDF on its data")
+        result = calibrate(load_config(calibration))
+    accuracy: dict = {}
+    fitted: RigidFit | None = None
+    if rigid_fit:
+        from ..calibration.model_accuracy import fitting_configurations
+
+        region = fitting_configurations(result) if result is not None else region_sample(robot)
+        where = "the calibration's fitting configurations" if result is not None else "seeded joint values in range"
+        fitted = rigid_refit(robot, region)
+        say(
+            f"rigid fit over {len(region)} configurations ({where}), payload {robot.payload_mass:g} kg: the URDF "
+            f"alone was {fitted.dropped_rms_m * 1e3:.3f} mm RMS ({fitted.dropped_max_m * 1e3:.3f} max) from the full "
+            f"model, the refit is {fitted.remaining_rms_m * 1e3:.3f} mm RMS ({fitted.remaining_max_m * 1e3:.3f} max)"
+        )
+        accuracy["rigid_fit"] = {
+            "configurations": fitted.n_configurations,
+            "region": where,
+            "payload_mass_kg": float(robot.payload_mass),
+            "compliances_dropped_rms_m": fitted.dropped_rms_m,
+            "compliances_dropped_max_m": fitted.dropped_max_m,
+            "remaining_rms_m": fitted.remaining_rms_m,
+            "remaining_max_m": fitted.remaining_max_m,
+        }
+    exported = fitted.robot if fitted is not None else robot
+    if result is not None:
+        accuracy["on_the_calibration_data"] = _on_data(result, robot, exported, fitted is not None, say)
+    elif fitted is None:
+        region = region_sample(robot)
+        gap = np.linalg.norm(
+            robot.fk_tool(region)[:, :3, 3] - without_compliances(robot).fk_tool(region)[:, :3, 3], axis=1
+        )
+        if gap.max() > 0:
+            say(
+                f"the URDF alone (compliances dropped) is {np.sqrt(np.mean(gap**2)) * 1e3:.3f} mm RMS "
+                f"({gap.max() * 1e3:.3f} max) from the full model over {len(region)} seeded configurations: "
+                "--calibration CONFIG states it on the data, --rigid-fit folds what it can into the URDF"
+            )
+    written, sidecar = export_urdf(exported, path, template, accuracy=accuracy or None)
+    template_file = template_of(exported, template)
+    say(f"wrote {written} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
+    if template_file is None:
+        say("  express); links: world, base_link, link_1..link_n, flange, tool0")
+    else:
+        say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
+    return 0
+
+
+def _on_data(result, robot, exported, refitted: bool, say: Callable[[str], None]) -> dict:
+    from ..calibration.model_accuracy import model_accuracy
+
+    rows = {"full model (with the compliances)": model_accuracy(result, robot)}
+    rows["URDF alone (compliances dropped)"] = model_accuracy(result, without_compliances(robot))
+    if refitted:
+        rows["URDF alone, rigid fit"] = model_accuracy(result, exported)
+    say("accuracy on the calibration's data, mm (each model with the instrument registered to it on the fitting data):")
+    say(f"  {'model':40s} {'fitting RMS':>12s} {'held-out RMS':>13s} {'held-out max':>13s}")
+    out = {}
+    for label, accuracy in rows.items():
+        held = accuracy.held_out
+        say(
+            f"  {label:40s} {accuracy.fit.rms * 1e3:12.3f} "
+            + (f"{held.rms * 1e3:13.3f} {held.max * 1e3:13.3f}" if held is not None else f"{'-':>13s} {'-':>13s}")
+        )
+        out[label] = {
+            "fit_rms_m": accuracy.fit.rms,
+            "held_out_rms_m": None if held is None else held.rms,
+            "held_out_max_m": None if held is None else held.max,
+        }
+    full, urdf = rows["full model (with the compliances)"], list(rows.values())[-1]
+    score = (lambda a: a.held_out.rms) if full.held_out is not None else (lambda a: a.fit.rms)
+    loss = score(urdf) / score(full) - 1.0
+    if loss > LOSS_WARNING:
+        say(
+            f"warning: the URDF alone is {100 * loss:.0f}% less accurate than the full model"
+            + ("" if refitted else "; --rigid-fit folds what it can of the compliances into it")
+            + "; for the full accuracy, correct the commands with fgcal compensate (docs/using.md)"
+        )
+    return out
