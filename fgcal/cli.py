@@ -194,6 +194,11 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
         robot = robot.with_tool(robot.tool_pose, float(mass), com)
     nominal = nominal_of(robot, args.nominal)
+    if Path(args.targets).suffix.lower() in PROGRAM_SUFFIXES:
+        return _compensate_program(args, robot, nominal)
+    if args.tool is not None or args.base is not None:
+        print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
+        return 2
     targets = read_targets(args.targets, robot.n_joints)
     tcp = None if args.tcp is None else np.array(args.tcp)
     result = compensate(
@@ -211,6 +216,56 @@ def cmd_compensate(args: argparse.Namespace) -> int:
             f"  {int((~reached).sum())} unreachable: the nearest the calibrated model gets is "
             f"{result.residual_m[~reached].min() * 1e3:.4g} mm to {result.residual_m[~reached].max() * 1e3:.4g} mm away"
         )
+    return 0
+
+
+PROGRAM_SUFFIXES = (".mod", ".modx", ".prg", ".sys", ".dat")
+
+
+def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
+    from .dataset import write_csv
+    from .errors import InputError
+    from .outputs import output_file, write_bytes
+    from .program_filter import WRITTEN, correction_rows, filter_targets, program_frames
+    from .programs import KRL_SUFFIXES, read_program, write_program
+
+    source, out = Path(args.targets), Path(args.out)
+    if (source.suffix.lower() in KRL_SUFFIXES) != (out.suffix.lower() in KRL_SUFFIXES) or out.suffix.lower() not in (
+        PROGRAM_SUFFIXES
+    ):
+        raise InputError(out, "--out", f"the corrected program is a {source.suffix} file like {source.name}")
+    if args.tcp is not None:
+        raise InputError(source, "--tcp", "a program's TCP is its tool: give --tool (a tooldata name, or X Y Z A B C)")
+    table = out.with_name(f"{out.stem}.corrections.csv")
+    output_file(table)
+    program = read_program(source)
+    if not program.targets:
+        raise InputError(source, None, "no targets (robtarget, E6POS or POS declarations) to correct")
+    frames = program_frames(program, args.tool, args.base, robot)
+    poses = np.array([target.pose for target in program.targets])
+    print(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})", flush=True)
+    result = filter_targets(robot, nominal, poses, [t.config for t in program.targets], program.kind, frames)
+    written = np.isin(result.status, WRITTEN)
+    corrected = {
+        target.name: (result.poses[k], {key: v for key, v in result.configs[k].items() if key in target.config})
+        for k, target in enumerate(program.targets)
+        if written[k]
+    }
+    text = write_program(program, corrected, out)
+    write_bytes(out, text.encode(program.encoding))
+    write_csv(table, *correction_rows(program, result, written))
+    counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
+    print(f"wrote {out} and {table}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    if written.any():
+        print(
+            f"  corrections {result.correction_m[written].mean() * 1e3:.3f} mm mean, "
+            f"{result.correction_m[written].max() * 1e3:.3f} mm max, "
+            f"{np.degrees(result.correction_rad[written]).max() * 1e3:.1f} mdeg max"
+        )
+    if (~written).any():
+        print(f"  {int((~written).sum())} targets left as they were (see the status in {table.name})")
+    if (result.status == "configuration changed").any():
+        print("  warning: some corrected targets need another configuration (new confdata or S/T): check their path")
     return 0
 
 
@@ -430,8 +485,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("compensate", help="corrected commands: joints and nominal-model targets reaching TARGETS")
     p.add_argument("robot", help="the calibrated robot (calibrated_robot.yaml) or a bundled name")
-    p.add_argument("targets", help="CSV: target, x, y, z (m, W) [, rx, ry, rz (rad)] [, q1..qn hints (rad)]")
-    p.add_argument("--out", required=True, help="output CSV (columns: docs/using.md)")
+    p.add_argument(
+        "targets",
+        help="a robot program (ABB RAPID .mod/.modx/.prg/.sys, KUKA KRL .dat) or a CSV: target, x, y, z (m, W) "
+        "[, rx, ry, rz (rad)] [, q1..qn hints (rad)]",
+    )
+    p.add_argument(
+        "--out", required=True, help="the corrected program (and OUT.corrections.csv beside it), or the output CSV"
+    )
+    p.add_argument(
+        "--tool", nargs="+", metavar="TOOL",
+        help="a program's TCP: a tooldata the module declares, or X Y Z A B C (mm, deg; KUKA $TOOL); default the "
+        "tool of each target's first instruction, else the flange",
+    )  # fmt: skip
+    p.add_argument(
+        "--base", nargs="+", metavar="BASE",
+        help="a program's work object: a wobjdata the module declares, or X Y Z A B C (mm, deg; KUKA $BASE) in the "
+        "robot's base frame; default each target's \\WObj, else the base frame",
+    )  # fmt: skip
     p.add_argument("--tcp", type=LENGTH_M, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
     p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
     p.add_argument(

@@ -87,8 +87,10 @@ def rigid_refit(robot: Robot, q: np.ndarray) -> RigidFit:
 
 
 def region_sample(robot: Robot, count: int = 2000, seed: int = 0) -> np.ndarray:
-    """Seeded configurations within the joint limits (angles within +-pi): the region where no
-    calibration says which configurations matter."""
+    """The robot's calibrated region (the configurations its calibration was fitted on), else
+    ``count`` seeded configurations within the joint limits (angles within +-pi)."""
+    if robot.region is not None:
+        return robot.region
     low = np.maximum(robot.limits[:, 0], -np.pi)
     high = np.minimum(robot.limits[:, 1], np.pi)
     return np.random.default_rng(seed).uniform(low, np.maximum(low, high), (count, robot.n_joints))

@@ -36,7 +36,8 @@ class Robot:
     ``flange_pose`` the flange in the last link's frame (identity for DH; the tip link of a
     URDF) and ``tool_pose`` the nominal ``T_n_C`` (flange to tool or camera). ``urdf``: the
     URDF file and tip link of a robot that came from one (fgcal export writes that document
-    back with the calibrated joint origins).
+    back with the calibrated joint origins). ``region``: configurations of a calibrated robot's
+    fitting data, where its model is known best (program filtering and rigid fits use them).
     """
 
     name: str
@@ -55,6 +56,7 @@ class Robot:
     source: str = ""
     model: str = "DH,s,e"
     urdf: tuple[str, str] | None = None  # the URDF (file, tip link) the description came from
+    region: np.ndarray | None = None  # (K, n) configurations a calibration was fitted on (rad, m)
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:

@@ -17,6 +17,7 @@ Schema (documented in docs/formats.md)::
     gravity: [0, 0, -9.81]         # m/s^2 in W
     parameters: {sy3: 0.01, ...}   # optional values overriding nominal (a calibrated robot)
     urdf: {file: arm.urdf, tip: tool0}   # the URDF the joints came from (fgcal export keeps it)
+    calibrated_region: [[q1, .., qn], ...]  # configurations a calibration was fitted on
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ ROBOT_KEYS = (
     "gravity",
     "parameters",
     "urdf",
+    "calibrated_region",
     "notes",
 )
 DH_KEYS = ("theta", "d", "a", "alpha")
@@ -222,7 +224,30 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         overrides=overrides,
         source=str(doc.raw("source")),
         urdf=_urdf_origin(doc, Path(source)),
+        region=_region(doc, units, [g.prismatic for g in geometries]),
     )
+
+
+MAX_REGION = 10000  # configurations a robot file may list as its calibrated region
+
+
+def _region(doc: Fields, units: Units, prismatic: list[bool]) -> np.ndarray | None:
+    """``calibrated_region``: configurations (joint units of the file), each with every joint."""
+    if not doc.has("calibrated_region"):
+        return None
+    rows = doc.raw("calibrated_region")
+    if not isinstance(rows, list) or not 0 < len(rows) <= MAX_REGION:
+        raise doc.error("calibrated_region", f"a list of 1 to {MAX_REGION} configurations")
+    scale = np.array([units.to_m if p else units.to_rad for p in prismatic])
+    out = np.empty((len(rows), len(prismatic)))
+    for k, row in enumerate(rows):
+        ok = isinstance(row, list) and len(row) == len(prismatic)
+        ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+        values = np.array(row, dtype=float) if ok else None
+        if values is None or not np.all(np.isfinite(values)) or np.abs(values).max() > 1e3:
+            raise doc.error(f"calibrated_region[{k}]", f"{len(prismatic)} finite joint values within 1000")
+        out[k] = values * scale
+    return out
 
 
 def _urdf_origin(doc: Fields, source: Path) -> tuple[str, str] | None:
@@ -305,6 +330,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     }
     if robot.urdf is not None:
         doc["urdf"] = {"file": robot.urdf[0], "tip": robot.urdf[1]}
+    if robot.region is not None:
+        doc["calibrated_region"] = [[float(v) for v in row] for row in robot.region]
     if notes:
         doc["notes"] = notes
     return doc

@@ -91,9 +91,10 @@ LAYERS = (
     (
         "model",
         ("fgcal.ets", "fgcal.joints", "fgcal.kinematics", "fgcal.robot", "fgcal.robot_io", "fgcal.urdf_io",
-         "fgcal.urdf_export", "fgcal.ik", "fgcal.camera", "fgcal.boards"),
+         "fgcal.urdf_export", "fgcal.rigid_fit", "fgcal.ik", "fgcal.camera", "fgcal.boards"),
     ),
-    ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensate")),
+    ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensate", "fgcal.programs",
+              "fgcal.program_filter")),
     ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),
     ("calibration", ("fgcal.calibration",)),
     ("online and planning", ("fgcal.online", "fgcal.planning")),

@@ -3,6 +3,7 @@ plots. Reads a finished CalibrationResult; computes nothing the calibration did 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -274,11 +275,16 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
     return doc
 
 
+REGION_ROWS = 200  # fitting configurations calibrated_robot.yaml keeps as the calibrated region
+
+
 def calibrated_robot(result: CalibrationResult) -> tuple[Robot, dict[str, float]]:
     """The robot and parameters calibrated_robot.yaml holds: the estimate, carrying the tool
     the calibration estimated on the flange (a probe, a ball) where it did."""
     robot = result.problem.robot
     params = robot.parameter_dict(result.state.params)
+    fitted = result.problem.dataset.q[result.problem.fit]
+    robot = replace(robot, region=fitted[np.unique(np.linspace(0, len(fitted) - 1, REGION_ROWS).astype(int))])
     tool = result.problem.formulation.tool_frame(result.state)
     if tool is None:
         return robot, params

@@ -50,7 +50,12 @@ def export_command(
         from ..calibration.model_accuracy import fitting_configurations
 
         region = fitting_configurations(result) if result is not None else region_sample(robot)
-        where = "the calibration's fitting configurations" if result is not None else "seeded joint values in range"
+        if result is not None:
+            where = "the calibration's fitting configurations"
+        elif robot.region is not None:
+            where = "the calibrated region the robot file keeps"
+        else:
+            where = "seeded joint values within the limits"
         fitted = rigid_refit(robot, region)
         say(
             f"rigid fit over {len(region)} configurations ({where}), payload {robot.payload_mass:g} kg: the URDF "

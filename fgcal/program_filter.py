@@ -1,0 +1,307 @@
+"""Program filtering: a robot program's targets corrected so that a controller running its
+nominal model lands where the program means (ABB RAPID, KUKA KRL; fgcal.programs reads and
+writes them).
+
+For each target (the TCP pose in a work object or base, in the controller's terms):
+
+1. the flange pose the program asks for, in the controller's base frame:
+   ``F = T_base_wobj X T_tcp^-1`` (the work object or $BASE, the tool or $TOOL);
+2. the joints the nominal controller would take for it (``q_nominal``: its IK, from a start in
+   the quadrants and signs the target's configuration names);
+3. the joints at which the *calibrated* model puts the flange there (``q``: IK on the full
+   model, deflection at the tool's load, from ``q_nominal``);
+4. the corrected target: the nominal model's flange at ``q``, back through the tool and work
+   object. The controller, running its nominal model, goes to ``q``; the real robot lands on F.
+
+The controller's base frame in the calibrated model: the calibration's frame W is its own (the
+tracker's registration, a gauge), so the base frame is placed where the nominal model best
+matches the calibrated one over the calibrated region (a rigid fit of flange poses at the
+calibration's fitting configurations, which calibrated_robot.yaml keeps): the calibrated model
+is known there, and only there. A program thus keeps its average place; what the calibration corrects is the
+rest: the robot's distortion of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .compensate import SOLVED, default_hints
+from .rigid_fit import region_sample
+from .robot import Robot
+from .se3 import inverse, kabsch, so3_log
+
+QUADRANT = np.pi / 2
+
+
+@dataclass(frozen=True)
+class Frames:
+    """The program's frames (SI): per target, the work object (or base) in the controller's
+    base frame and the TCP in the flange frame, and the load the tool carries."""
+
+    work_objects: np.ndarray  # (N, 4, 4)
+    tools: np.ndarray  # (N, 4, 4)
+    payload_mass_kg: float | None = None
+    payload_com_m: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Filtered:
+    poses: np.ndarray  # (N, 4, 4) corrected targets, in the program's frames (m)
+    q: np.ndarray  # (N, n) joints the controller goes to (rad)
+    q_nominal: np.ndarray  # (N, n) joints it went to before
+    configs: list  # the configuration data of q (the controller's numbers)
+    correction_m: np.ndarray  # (N,) how far each target moved
+    correction_rad: np.ndarray  # (N,) and turned
+    residual_m: np.ndarray  # calibrated-model IK residual
+    status: np.ndarray  # ok, unreachable, outside joint limits, near singularity, configuration changed
+    controller_in_W: np.ndarray  # (4, 4) the controller's base frame in the calibration's W
+
+
+def controller_frame(robot: Robot, nominal: Robot, count: int = 2000) -> np.ndarray:
+    """T_W_ctrl: the nominal model's base frame placed in the calibrated robot's W, the rigid
+    motion that best maps the nominal flange onto the calibrated one (origin and points 0.1 m
+    along its axes) over the calibrated region (the robot file's fitting configurations; without
+    them, ``count`` seeded configurations within the joint ranges)."""
+    q = region_sample(robot, count)
+    offsets = np.array([[0, 0, 0, 1], [0.1, 0, 0, 1], [0, 0.1, 0, 1], [0, 0, 0.1, 1]], dtype=float)
+    calibrated = np.einsum("nij,kj->nki", robot.fk(q), offsets)[..., :3].reshape(-1, 3)
+    commanded = np.einsum("nij,kj->nki", nominal.fk(q), offsets)[..., :3].reshape(-1, 3)
+    R, t = kabsch(commanded, calibrated)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def configurations(nominal: Robot, kind: str, q: np.ndarray) -> list[dict[str, int]]:
+    """The controller's configuration data of joints ``q`` (N, n) on the nominal model.
+
+    ABB (``rapid``): cf1, cf4, cf6 the quadrants of joints 1, 4, 6 (floor(q / 90 deg)); cfx =
+    4 (wrist centre behind axis 1) + 2 (wrist centre behind the lower arm) + 1 (joint 5
+    negative). KUKA (``krl``): S = 1 (wrist centre behind axis 1) + 2 (elbow on the side of
+    the zero pose) + 4 (A5 negative); T bit i set when joint i+1 is negative. In front and
+    behind are taken against the zero pose, for a 6-axis arm; other arms get the quadrants and
+    signs only."""
+    n = q.shape[1]
+    quadrants = np.floor(q / QUADRANT).astype(int)
+    negative = q < 0
+    shoulder = elbow = np.zeros(len(q), dtype=bool)
+    if n == 6:
+        shoulder, elbow = _arm_sides(nominal, q)
+    wrist = negative[:, 4] if n > 4 else np.zeros(len(q), dtype=bool)
+    out = []
+    for row in range(len(q)):
+        if kind == "rapid":
+            cfx = 4 * int(shoulder[row]) + 2 * int(elbow[row]) + int(wrist[row])
+            out.append({"cf1": int(quadrants[row, 0]), "cf4": int(quadrants[row, min(3, n - 1)]),
+                        "cf6": int(quadrants[row, min(5, n - 1)]), "cfx": cfx})  # fmt: skip
+        else:
+            S = int(shoulder[row]) + 2 * int(not elbow[row]) + 4 * int(wrist[row])
+            out.append({"S": S, "T": sum(1 << j for j in range(min(6, n)) if negative[row, j])})
+    return out
+
+
+def _arm_sides(nominal: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(behind axis 1, behind the lower arm) of the wrist centre, against the zero pose."""
+
+    def sides(frames: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        first, second, centre = frames[0], frames[1], frames[4][:, :3, 3]
+        in_first = np.einsum("nji,nj->ni", first[:, :3, :3], centre - first[:, :3, 3])
+        elbow = np.einsum(
+            "ni,ni->n", np.cross(second[:, :3, 3] - first[:, :3, 3], centre - second[:, :3, 3]), first[:, :3, 2]
+        )
+        return in_first, elbow
+
+    ahead, elbow = sides(kinematics_frames(nominal, q))
+    ahead0, elbow0 = sides(kinematics_frames(nominal, np.zeros((1, nominal.n_joints))))
+    # In front of axis 1: on the side the zero pose reaches to, in the plane of frame 1's x and y.
+    behind = np.einsum("ni,i->n", ahead[:, :2], ahead0[0, :2]) < 0
+    return behind, np.sign(elbow) != np.sign(elbow0[0])
+
+
+def controller_ik(
+    nominal: Robot, flange: np.ndarray, kind: str, configs: list[dict[str, int]], starts: int = 64
+) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal controller's joints for flange poses (N, 4, 4): from seeded starts, the first
+    solution whose configuration data are the target's (every key given); without one, the
+    solution nearest the middle of the ranges (default_hints). Returns (q, found)."""
+    low, high = nominal.limits[:, 0], nominal.limits[:, 1]
+    rng = np.random.default_rng(0)
+    q = default_hints(nominal, flange, np.zeros(3), frame="flange")
+    found = np.zeros(len(flange), dtype=bool)
+    for k in range(starts):
+        todo = np.flatnonzero(~found)
+        if not len(todo):
+            break
+        start = q[todo] if k == 0 else _starts(rng, low, high, kind, [configs[t] for t in todo])
+        solved = nominal.ik(flange[todo], start, frame="flange", clamp=True)
+        have = configurations(nominal, kind, solved.q)
+        for row, target in enumerate(todo):
+            if solved.status[row] in SOLVED and all(have[row].get(key) == v for key, v in configs[target].items()):
+                q[target], found[target] = solved.q[row], True
+    return q, found
+
+
+def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]) -> np.ndarray:
+    """Random joints within the ranges, in the quadrants and signs the configurations name."""
+    lower = np.tile(low, (len(configs), 1))
+    upper = np.tile(high, (len(configs), 1))
+    for row, config in enumerate(configs):
+        bounds = {}
+        if kind == "rapid":
+            for joint, key in ((0, "cf1"), (3, "cf4"), (5, "cf6")):
+                if key in config and joint < len(low):
+                    bounds[joint] = (config[key] * QUADRANT, (config[key] + 1) * QUADRANT)
+            if "cfx" in config and len(low) > 4:
+                bounds[4] = (-np.inf, 0.0) if config["cfx"] & 1 else (0.0, np.inf)
+        elif "T" in config:
+            for joint in range(min(6, len(low))):
+                bounds[joint] = (-np.inf, 0.0) if config["T"] >> joint & 1 else (0.0, np.inf)
+        for joint, (a, b) in bounds.items():
+            lower[row, joint] = max(lower[row, joint], a)
+            upper[row, joint] = max(lower[row, joint], min(upper[row, joint], b))
+    return rng.uniform(lower, upper)
+
+
+def kinematics_frames(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
+    """The link frames (after each joint) in W, rigid, (n) x (N, 4, 4)."""
+    from . import kinematics
+
+    data = kinematics.forward(robot, robot.parameter_vector(), q)
+    return [data.frames_rigid[k] for k in robot.chain.link_end]
+
+
+def filter_targets(
+    robot: Robot, nominal: Robot, poses: np.ndarray, configs: list[dict[str, int]], kind: str, frames: Frames
+) -> Filtered:
+    """Corrected targets for a program's ``poses`` (N, 4, 4; TCP in its work object, m)."""
+    if frames.payload_mass_kg is not None:
+        robot = robot.with_tool(robot.tool_pose, frames.payload_mass_kg, frames.payload_com_m)
+    flange = frames.work_objects @ poses @ inverse(frames.tools)  # in the controller's base frame
+    q_nominal, found = controller_ik(nominal, flange, kind, configs)
+    T_W_ctrl = controller_frame(robot, nominal)
+    solved = robot.ik(T_W_ctrl @ flange, q_nominal, frame="flange")
+    corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
+    moved = inverse(poses) @ corrected
+    before, after = configurations(nominal, kind, q_nominal), configurations(nominal, kind, solved.q)
+    status = solved.status.astype(object)
+    changed = np.array([a != b for a, b in zip(after, before, strict=True)])
+    status[changed & np.isin(status, SOLVED)] = "configuration changed"
+    status[~found & np.isin(status, SOLVED)] = "configuration not found"
+    return Filtered(
+        poses=corrected,
+        q=solved.q,
+        q_nominal=q_nominal,
+        configs=after,
+        correction_m=np.linalg.norm(corrected[:, :3, 3] - poses[:, :3, 3], axis=1),
+        correction_rad=np.linalg.norm(so3_log(moved[:, :3, :3]), axis=-1),
+        residual_m=solved.residual_m,
+        status=status.astype(str),
+        controller_in_W=T_W_ctrl,
+    )
+
+
+# -- a program file in, a corrected program and a table out --------------------------------------
+
+WRITTEN = ("ok", "near singularity", "configuration changed")  # statuses whose targets are corrected
+
+
+def frame_from_numbers(values: list[float]) -> np.ndarray:
+    """A frame given as X Y Z (mm) A B C (deg; R = Rz(A) Ry(B) Rx(C), KUKA's $TOOL and $BASE)."""
+    from .se3 import pose
+
+    x, y, z, a, b, c = values
+    R = _rz(np.radians(a)) @ _ry(np.radians(b)) @ _rx(np.radians(c))
+    return pose(R, np.array([x, y, z]) * 1e-3)
+
+
+def _rx(t: float) -> np.ndarray:
+    return np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+
+
+def _ry(t: float) -> np.ndarray:
+    return np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+
+
+def _rz(t: float) -> np.ndarray:
+    return np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+
+
+def program_frames(program, tool: list[str] | None, base: list[str] | None, robot: Robot) -> Frames:
+    """Each target's work object and TCP: ``tool``/``base`` from the command line (a name the
+    RAPID module declares, or X Y Z A B C in mm and deg) before the module's own (the tool and
+    \\WObj of the first instruction using the target), else the flange and the base frame. The
+    tool's load (RAPID tload) is the payload the deflection is computed for."""
+    from .errors import InputError
+
+    def given(values: list[str] | None, declared: dict, what: str):
+        if values is None:
+            return None
+        if len(values) == 6:
+            try:
+                return frame_from_numbers([float(v) for v in values])
+            except ValueError:
+                pass
+        if len(values) == 1 and values[0] in declared:
+            return values[0]
+        names = ", ".join(sorted(declared)) or "none"
+        raise InputError(
+            program.path, f"--{what}", f"{' '.join(values)!r}: give X Y Z A B C (mm, deg) or a {what} the module "
+            f"declares ({names})",
+        )  # fmt: skip
+
+    tool_given = given(tool, program.tools, "tool")
+    base_given = given(base, program.work_objects, "base")
+    tools, objects, loads = [], [], set()
+    for target in program.targets:
+        name = tool_given if tool_given is not None else target.tool
+        if isinstance(name, np.ndarray):
+            tools.append(name)
+        elif name is None or name.lower() == "tool0":
+            tools.append(np.eye(4))
+        elif name in program.tools:
+            data = program.tools[name]
+            if not data.robhold:
+                raise InputError(program.path, f"tooldata {name}", "a stationary tool (robhold FALSE) is not supported")
+            tools.append(data.tcp)
+            loads.add((data.mass_kg, tuple(data.cog_m)))
+        else:
+            raise InputError(program.path, f"line {target.line}, {target.name}", f"tool {name!r} is not declared in "
+                             "the module: give it with --tool X Y Z A B C (mm, deg)")  # fmt: skip
+        frame = base_given if base_given is not None else target.work_object
+        if isinstance(frame, np.ndarray):
+            objects.append(frame)
+        elif frame is None or frame.lower() == "wobj0":
+            objects.append(np.eye(4))
+        elif frame in program.work_objects:
+            objects.append(program.work_objects[frame])
+        else:
+            raise InputError(program.path, f"line {target.line}, {target.name}", f"work object {frame!r} is not "
+                             "declared in the module: give it with --base X Y Z A B C (mm, deg)")  # fmt: skip
+    loads = {load for load in loads if load[0] > 0}
+    if len(loads) > 1:
+        raise InputError(program.path, "tooldata", "the targets use tools of different loads: filter them one tool "
+                         "at a time (--tool NAME)")  # fmt: skip
+    mass, cog = next(iter(loads)) if loads else (None, None)
+    return Frames(
+        np.array(objects).reshape(-1, 4, 4), np.array(tools).reshape(-1, 4, 4), mass,
+        None if cog is None else np.array(cog),
+    )  # fmt: skip
+
+
+def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[list[str], list[list]]:
+    """The table of corrections (mm, mdeg, um, deg: named in the header)."""
+    n = result.q.shape[1]
+    header = ["target", "line", "status", "corrected", "dx_mm", "dy_mm", "dz_mm", "correction_mm", "rotation_mdeg",
+              "residual_um", *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
+    rows = []
+    for k, target in enumerate(program.targets):
+        delta = (result.poses[k, :3, 3] - target.pose[:3, 3]) * 1e3
+        rows.append(
+            [target.name, target.line, str(result.status[k]), "yes" if written[k] else "no",
+             *[round(float(v), 4) for v in delta], round(float(result.correction_m[k] * 1e3), 4),
+             round(float(np.degrees(result.correction_rad[k]) * 1e3), 3), round(float(result.residual_m[k] * 1e6), 3),
+             *[round(float(np.degrees(v)), 4) for v in result.q[k]]]
+        )  # fmt: skip
+    return header, rows
