@@ -182,7 +182,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_compensate(args: argparse.Namespace) -> int:
-    from .compensate import compensate, nominal_of, read_targets, write_compensation
+    from .compensate import TargetUnits, compensate, nominal_of, read_targets, write_compensation
     from .outputs import output_file
     from .robot_io import load_robot
 
@@ -199,13 +199,14 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     if args.tool is not None or args.base is not None:
         print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
         return 2
-    targets = read_targets(args.targets, robot.n_joints)
+    units = TargetUnits(args.length_unit, args.angle_unit, args.orientation)
+    targets = read_targets(args.targets, robot.n_joints, units, robot.prismatic)
     tcp = None if args.tcp is None else np.array(args.tcp)
     result = compensate(
         robot, nominal, targets.as_ik_targets(), targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6,
         progress=lambda msg: print(msg, flush=True),
     )  # fmt: skip
-    write_compensation(args.out, targets.names, result, targets.rotations is not None)
+    write_compensation(args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic)
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     print(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
     reached = result.status != "unreachable"
@@ -220,6 +221,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
 
 
 PROGRAM_SUFFIXES = (".mod", ".modx", ".prg", ".sys", ".dat")
+UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
 
 
 def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
@@ -245,7 +247,9 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     poses = np.array([target.pose for target in program.targets])
     print(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})", flush=True)
     result = filter_targets(robot, nominal, poses, [t.config for t in program.targets], program.kind, frames)
-    written = np.isin(result.status, WRITTEN)
+    # A target the calibration leaves where it was (below what the file's digits hold) keeps its text.
+    moved = (result.correction_m > UNCHANGED_M) | (result.correction_rad > UNCHANGED_RAD)
+    written = np.isin(result.status, WRITTEN) & moved
     corrected = {
         target.name: (result.poses[k], {key: v for key, v in result.configs[k].items() if key in target.config})
         for k, target in enumerate(program.targets)
@@ -262,8 +266,11 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
             f"{result.correction_m[written].max() * 1e3:.3f} mm max, "
             f"{np.degrees(result.correction_rad[written]).max() * 1e3:.1f} mdeg max"
         )
-    if (~written).any():
-        print(f"  {int((~written).sum())} targets left as they were (see the status in {table.name})")
+    solved = np.isin(result.status, WRITTEN)
+    if (solved & ~moved).any():
+        print(f"  {int((solved & ~moved).sum())} targets need no correction (below 0.5 um and 0.01 urad): kept")
+    if (~solved).any():
+        print(f"  {int((~solved).sum())} targets left as they were: see their status in {table.name}")
     if (result.status == "configuration changed").any():
         print("  warning: some corrected targets need another configuration (new confdata or S/T): check their path")
     return 0
@@ -332,10 +339,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from .reports.export import export_command
 
+    if args.urdf is None and args.ur_kinematics is None:
+        print("fgcal: error: fgcal export: give --urdf OUT.urdf, --ur-kinematics OUT.yaml or both", file=sys.stderr)
+        return 2
     return export_command(
         args.robot, args.urdf, tip=args.tip, template=args.template, calibration=args.calibration,
         rigid_fit=args.rigid_fit, payload_mass=args.payload_mass, payload_com=args.payload_com,
-        say=lambda msg: print(msg, flush=True),
+        ur_kinematics=args.ur_kinematics, nominal=args.nominal, say=lambda msg: print(msg, flush=True),
     )  # fmt: skip
 
 
@@ -418,6 +428,7 @@ LENGTH_M = _real(-10.0, 10.0, "m")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .compensate import ORIENTATIONS
     from .planning import MAX_CANDIDATES
     from .simulation import MAX_CONFIGURATIONS
 
@@ -493,6 +504,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--out", required=True, help="the corrected program (and OUT.corrections.csv beside it), or the output CSV"
     )
+    p.add_argument(
+        "--length-unit", choices=("m", "mm"), default="m", help="of a targets CSV and its output (default m)"
+    )
+    p.add_argument(
+        "--angle-unit", choices=("rad", "deg"), default="rad", help="of a targets CSV and its output (default rad)"
+    )
+    p.add_argument(
+        "--orientation", choices=tuple(ORIENTATIONS), default="rotvec",
+        help="a targets CSV's orientation columns, and its output's: rotvec (rx ry rz), rpy (roll pitch yaw: "
+        "Rz(yaw) Ry(pitch) Rx(roll)), abc (a b c, KUKA: Rz(A) Ry(B) Rx(C)) or quaternion (qw qx qy qz); "
+        "default rotvec",
+    )  # fmt: skip
     p.add_argument(
         "--tool", nargs="+", metavar="TOOL",
         help="a program's TCP: a tooldata the module declares, or X Y Z A B C (mm, deg; KUKA $TOOL); default the "
@@ -585,7 +608,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="write a robot (calibrated or nominal) as URDF, compliances in a sidecar YAML")
     p.add_argument("robot", help="robot file (calibrated_robot.yaml, a URDF) or a bundled name")
-    p.add_argument("--urdf", required=True, help="output URDF file; the sidecar <stem>.compliance.yaml goes beside it")
+    p.add_argument("--urdf", help="output URDF file; the sidecar <stem>.compliance.yaml goes beside it")
+    p.add_argument(
+        "--ur-kinematics",
+        help="also (or only) write the calibrated kinematics of a UR arm as the UR ROS 2 description's "
+        "default_kinematics.yaml (x y z roll pitch yaw per joint)",
+    )
+    p.add_argument(
+        "--nominal",
+        help="the controller's nominal model, for --ur-kinematics (default: the bundled robot of the same name)",
+    )
     p.add_argument("--tip", help="tip link of a URDF input (default tool0, else its only leaf)")
     p.add_argument(
         "--template",

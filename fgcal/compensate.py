@@ -6,11 +6,15 @@ kinematics on the full model (fgcal.ik). A controller that runs its *nominal* mo
 sent the Cartesian command at which its nominal model is at those joints: it moves there, and
 the real robot, which the calibrated model describes, lands on the target.
 
-Targets file (CSV, SI): ``target, x, y, z`` (m), optionally ``rx, ry, rz`` (rotation vector of
-the TCP frame, rad) and ``q1..qn`` (rad: branch hints such as the program's joints; without
-them each target starts from the nominal model's IK within the joint limits). Output CSV:
-``target, q1..qn, x_cmd, y_cmd, z_cmd[, rx_cmd, ry_cmd, rz_cmd], residual_m[, residual_rad],
-status``.
+Targets file (CSV): ``target, x, y, z``, optionally an orientation and ``q1..qn`` (branch hints
+such as the program's joints; without them each target starts from the nominal model's IK
+within the joint limits). Units and the orientation's convention are the user's
+(:class:`TargetUnits`): m or mm, rad or deg, and a rotation vector ``rx, ry, rz``, URDF
+``roll, pitch, yaw`` (R = Rz(yaw) Ry(pitch) Rx(roll)), KUKA ``a, b, c`` (R = Rz(A) Ry(B) Rx(C))
+or a quaternion ``qw, qx, qy, qz``. Output CSV, in the same units and convention, each column
+named with its unit where it is not SI: ``target, q1..qn, x_cmd, y_cmd, z_cmd[, orientation],
+residual_m[, residual_rad], status`` (SI), or e.g. ``q1_deg, x_cmd_mm, a_cmd_deg,
+residual_um, residual_mdeg`` (mm and deg).
 """
 
 from __future__ import annotations
@@ -28,7 +32,68 @@ from .fields import check_name, first_repeat
 from .ik import TOL_M, TOL_RAD
 from .robot import SAME_ROBOT_M, Robot
 from .robot_io import bundled_robots, load_robot
-from .se3 import pose, so3_exp, so3_log
+from .se3 import pose, pose_from_xyz_rpy, rpy_from_rotation, so3_exp, so3_log
+
+ORIENTATIONS = {
+    "rotvec": ("rx", "ry", "rz"),
+    "rpy": ("roll", "pitch", "yaw"),
+    "abc": ("a", "b", "c"),
+    "quaternion": ("qw", "qx", "qy", "qz"),
+}
+
+
+@dataclass(frozen=True)
+class TargetUnits:
+    """Units and orientation convention of a targets file and its output (default SI, rotation vector)."""
+
+    length: str = "m"  # m or mm
+    angle: str = "rad"  # rad or deg
+    orientation: str = "rotvec"  # a key of ORIENTATIONS
+
+    @property
+    def to_m(self) -> float:
+        return 1e-3 if self.length == "mm" else 1.0
+
+    @property
+    def to_rad(self) -> float:
+        return float(np.pi / 180) if self.angle == "deg" else 1.0
+
+    @property
+    def si(self) -> bool:
+        return self.length == "m" and self.angle == "rad"
+
+    def rotations(self, values: np.ndarray) -> np.ndarray:
+        """(N, 3, 3) from the orientation columns' values (file units)."""
+        if self.orientation == "quaternion":
+            from scipy.spatial.transform import Rotation
+
+            w, x, y, z = values.T
+            return Rotation.from_quat(np.column_stack([x, y, z, w])).as_matrix()
+        angles = values * self.to_rad
+        if self.orientation == "rotvec":
+            return so3_exp(angles)
+        if self.orientation == "abc":  # A about z, B about y, C about x: the same matrix as yaw, pitch, roll
+            angles = angles[:, ::-1]
+        return np.array([pose_from_xyz_rpy(np.zeros(3), rpy)[:3, :3] for rpy in angles])
+
+    def orientation_values(self, R: np.ndarray) -> list[float]:
+        """The orientation columns' values (file units) of a rotation."""
+        if self.orientation == "quaternion":
+            from scipy.spatial.transform import Rotation
+
+            x, y, z, w = Rotation.from_matrix(R).as_quat()
+            return [w, x, y, z] if w >= 0 else [-w, -x, -y, -z]
+        if self.orientation == "rotvec":
+            return [float(v) / self.to_rad for v in so3_log(R)]
+        roll, pitch, yaw = rpy_from_rotation(R)
+        ordered = (roll, pitch, yaw) if self.orientation == "rpy" else (yaw, pitch, roll)
+        return [float(v) / self.to_rad for v in ordered]
+
+    def column(self, name: str, kind: str) -> str:
+        """An output column's name with its unit where it is not SI (kind: length, angle or none)."""
+        if self.si or kind == "none":
+            return name
+        return f"{name}_{self.length if kind == 'length' else self.angle}"
 
 
 @dataclass
@@ -44,18 +109,38 @@ class Targets:
         return np.array([pose(R, p) for R, p in zip(self.rotations, self.positions, strict=True)])
 
 
-def read_targets(path: str | Path, n_joints: int) -> Targets:
+def read_targets(
+    path: str | Path, n_joints: int, units: TargetUnits | None = None, prismatic: np.ndarray | None = None
+) -> Targets:
+    """The targets of a CSV in ``units`` (SI rotation vectors by default); ``prismatic`` marks
+    the joints whose hints are lengths."""
+    units = units or TargetUnits()
+    joint_scale = np.where(np.zeros(n_joints, bool) if prismatic is None else prismatic, units.to_m, units.to_rad)
     path = Path(path)
     header, body = read_csv(path, ["target", "x", "y", "z"])
     if not body:
         raise InputError(path, None, "no targets")
-    positions = parse_numbers(path, header, body, ["x", "y", "z"], "length", 1.0)
-    rotation_columns = [c for c in ("rx", "ry", "rz") if c in header]
+    positions = parse_numbers(path, header, body, ["x", "y", "z"], "length", units.to_m)
     rotations = None
-    if rotation_columns:
-        if len(rotation_columns) != 3:
-            raise InputError(path, "header", "rx, ry and rz come together (a rotation vector, rad)")
-        rotations = so3_exp(parse_numbers(path, header, body, ["rx", "ry", "rz"], "angle", 1.0))
+    for convention, columns in ORIENTATIONS.items():
+        present = [c for c in columns if c in header]
+        if present and convention != units.orientation:
+            raise InputError(
+                path, "header", f"columns {', '.join(present)} are the {convention} orientation: give --orientation "
+                f"{convention} (the targets are read as {units.orientation})",
+            )  # fmt: skip
+        if present and len(present) != len(columns):
+            together = f"{', '.join(columns[:-1])} and {columns[-1]}"
+            raise InputError(path, "header", f"{together} come together (the {convention} orientation)")
+        if present:
+            kind = "none" if convention == "quaternion" else "angle"
+            values = parse_numbers(path, header, body, list(columns), kind if kind != "none" else "angle", 1.0)
+            if convention == "quaternion":
+                norms = np.linalg.norm(values, axis=1)
+                bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+                if len(bad):
+                    raise InputError(path, f"line {bad[0] + 2}", f"a quaternion of norm {norms[bad[0]]:.6g}, not 1")
+            rotations = units.rotations(values)
     joint_columns = [c for c in header if c.startswith("q") and c[1:].isdigit()]
     hints = None
     if joint_columns:
@@ -64,7 +149,7 @@ def read_targets(path: str | Path, n_joints: int) -> Targets:
             raise InputError(
                 path, "header", f"hints need columns {', '.join(expected)}, got {', '.join(joint_columns)}"
             )
-        hints = parse_numbers(path, header, body, expected, "angle", 1.0)
+        hints = parse_numbers(path, header, body, expected, "angle", 1.0) * joint_scale
     names = [
         check_name(row[header.index("target")].strip(), path, f"line {line}, column target")
         for line, row in enumerate(body, start=2)
@@ -177,20 +262,39 @@ def default_hints(
     return hints
 
 
-def write_compensation(path: str | Path, names: list[str], result: Compensation, with_rotation: bool) -> None:
+def write_compensation(
+    path: str | Path,
+    names: list[str],
+    result: Compensation,
+    with_rotation: bool,
+    units: TargetUnits | None = None,
+    prismatic: np.ndarray | None = None,
+) -> None:
+    """The output CSV in the targets' units and orientation convention (columns named with
+    their units where not SI)."""
+    units = units or TargetUnits()
     n = result.q.shape[1]
-    header = ["target", *[f"q{i}" for i in range(1, n + 1)], "x_cmd", "y_cmd", "z_cmd"]
+    prismatic = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
+    joint_scale = np.where(prismatic, units.to_m, units.to_rad)
+    header = ["target", *[units.column(f"q{i}", "length" if prismatic[i - 1] else "angle") for i in range(1, n + 1)]]
+    header += [units.column(f"{axis}_cmd", "length") for axis in "xyz"]
     if with_rotation:
-        header += ["rx_cmd", "ry_cmd", "rz_cmd"]
-    header += ["residual_m"] + (["residual_rad"] if with_rotation else []) + ["status"]
+        kind = "none" if units.orientation == "quaternion" else "angle"
+        header += [units.column(f"{c}_cmd", kind) for c in ORIENTATIONS[units.orientation]]
+    if units.si:
+        header += ["residual_m"] + (["residual_rad"] if with_rotation else [])
+    else:
+        header += ["residual_um"] + ([f"residual_m{units.angle}"] if with_rotation else [])
+    header.append("status")
     rows = []
     for i, name in enumerate(names):
-        row = [name, *map(float, result.q[i]), *map(float, result.commands[i, :3, 3])]
+        row = [name, *(float(v) for v in result.q[i] / joint_scale)]
+        row += [float(v) / units.to_m for v in result.commands[i, :3, 3]]
         if with_rotation:
-            row += [float(v) for v in so3_log(result.commands[i, :3, :3])]
-        row.append(float(result.residual_m[i]))
+            row += units.orientation_values(result.commands[i, :3, :3])
+        row.append(float(result.residual_m[i]) * (1.0 if units.si else 1e6))
         if with_rotation:
-            row.append(float(result.residual_rad[i]))
+            row.append(float(result.residual_rad[i]) * (1.0 if units.si else 1e3 / units.to_rad))
         row.append(str(result.status[i]))
         rows.append(row)
     write_csv(Path(path), header, rows)

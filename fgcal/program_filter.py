@@ -30,7 +30,7 @@ import numpy as np
 from .compensate import SOLVED, default_hints
 from .rigid_fit import region_sample
 from .robot import Robot
-from .se3 import inverse, kabsch, so3_log
+from .se3 import inverse, kabsch, pose_from_xyz_rpy, so3_log
 
 QUADRANT = np.pi / 2
 
@@ -209,23 +209,8 @@ WRITTEN = ("ok", "near singularity", "configuration changed")  # statuses whose 
 
 def frame_from_numbers(values: list[float]) -> np.ndarray:
     """A frame given as X Y Z (mm) A B C (deg; R = Rz(A) Ry(B) Rx(C), KUKA's $TOOL and $BASE)."""
-    from .se3 import pose
-
     x, y, z, a, b, c = values
-    R = _rz(np.radians(a)) @ _ry(np.radians(b)) @ _rx(np.radians(c))
-    return pose(R, np.array([x, y, z]) * 1e-3)
-
-
-def _rx(t: float) -> np.ndarray:
-    return np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
-
-
-def _ry(t: float) -> np.ndarray:
-    return np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
-
-
-def _rz(t: float) -> np.ndarray:
-    return np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    return pose_from_xyz_rpy(np.array([x, y, z]) * 1e-3, np.radians([c, b, a]))
 
 
 def program_frames(program, tool: list[str] | None, base: list[str] | None, robot: Robot) -> Frames:
@@ -253,32 +238,31 @@ def program_frames(program, tool: list[str] | None, base: list[str] | None, robo
 
     tool_given = given(tool, program.tools, "tool")
     base_given = given(base, program.work_objects, "base")
+
+    def resolve(target, chosen, declared: dict, neutral: str, what: str, option: str):
+        """The frame (or the declared data) a target uses: given, the module's, or the neutral one."""
+        if isinstance(chosen, np.ndarray):
+            return chosen
+        if chosen is None or chosen.lower() == neutral:
+            return np.eye(4)
+        if chosen in declared:
+            return declared[chosen]
+        raise InputError(program.path, f"line {target.line}, {target.name}", f"{what} {chosen!r} is not declared "
+                         f"in the module: give it with {option} X Y Z A B C (mm, deg)")  # fmt: skip
+
     tools, objects, loads = [], [], set()
     for target in program.targets:
-        name = tool_given if tool_given is not None else target.tool
-        if isinstance(name, np.ndarray):
-            tools.append(name)
-        elif name is None or name.lower() == "tool0":
-            tools.append(np.eye(4))
-        elif name in program.tools:
-            data = program.tools[name]
-            if not data.robhold:
-                raise InputError(program.path, f"tooldata {name}", "a stationary tool (robhold FALSE) is not supported")
-            tools.append(data.tcp)
-            loads.add((data.mass_kg, tuple(data.cog_m)))
+        used = tool_given if tool_given is not None else target.tool
+        tool_data = resolve(target, used, program.tools, "tool0", "tool", "--tool")
+        if isinstance(tool_data, np.ndarray):
+            tools.append(tool_data)
         else:
-            raise InputError(program.path, f"line {target.line}, {target.name}", f"tool {name!r} is not declared in "
-                             "the module: give it with --tool X Y Z A B C (mm, deg)")  # fmt: skip
-        frame = base_given if base_given is not None else target.work_object
-        if isinstance(frame, np.ndarray):
-            objects.append(frame)
-        elif frame is None or frame.lower() == "wobj0":
-            objects.append(np.eye(4))
-        elif frame in program.work_objects:
-            objects.append(program.work_objects[frame])
-        else:
-            raise InputError(program.path, f"line {target.line}, {target.name}", f"work object {frame!r} is not "
-                             "declared in the module: give it with --base X Y Z A B C (mm, deg)")  # fmt: skip
+            if not tool_data.robhold:
+                raise InputError(program.path, f"tooldata {used}", "a stationary tool (robhold FALSE) is not supported")
+            tools.append(tool_data.tcp)
+            loads.add((tool_data.mass_kg, tuple(tool_data.cog_m)))
+        used = base_given if base_given is not None else target.work_object
+        objects.append(resolve(target, used, program.work_objects, "wobj0", "work object", "--base"))
     loads = {load for load in loads if load[0] > 0}
     if len(loads) > 1:
         raise InputError(program.path, "tooldata", "the targets use tools of different loads: filter them one tool "
@@ -300,7 +284,7 @@ def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[lis
         delta = (result.poses[k, :3, 3] - target.pose[:3, 3]) * 1e3
         rows.append(
             [target.name, target.line, str(result.status[k]), "yes" if written[k] else "no",
-             *[round(float(v), 4) for v in delta], round(float(result.correction_m[k] * 1e3), 4),
+             *[round(float(v), 4) + 0.0 for v in delta], round(float(result.correction_m[k] * 1e3), 4),
              round(float(np.degrees(result.correction_rad[k]) * 1e3), 3), round(float(result.residual_m[k] * 1e6), 3),
              *[round(float(np.degrees(v)), 4) for v in result.q[k]]]
         )  # fmt: skip

@@ -199,6 +199,30 @@ def _argv(*argv: str):
     return lambda root: list(argv)
 
 
+RAPID_TARGET = "MODULE M\nCONST robtarget p1:=[[1,2,3],[1,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+
+
+def _program(name: str, text: str, out: str = "o.mod", extra: list[str] | None = None):
+    """A robot program, corrected by fgcal compensate for the IRB 120."""
+
+    def apply(root: Path) -> list[str]:
+        (root / name).write_text(text if "ENDMODULE" in text or name.endswith(".dat") else text + "ENDMODULE\n")
+        return ["compensate", "abb_irb120", name, "--out", out, *(extra or [])]
+
+    return apply
+
+
+def _robot_edit(line: str):
+    """robot.yaml with one more top-level entry, read by fgcal fk."""
+
+    def apply(root: Path) -> list[str]:
+        with open(root / "robot.yaml", "a") as fh:
+            fh.write("\n" + line + "\n")
+        return ["fk", "robot.yaml", "0", "0", "0", "0", "0", "0"]
+
+    return apply
+
+
 def _cell(name: str, edit: Callable[[str], str]):
     """A bundled cell's text, edited, as cell.yaml."""
 
@@ -573,6 +597,41 @@ CASES = [
     ("demo_n_zero", _argv("demo", "--n", "0"), "fgcal demo", "--n"),
     ("demo_n_huge", _argv("demo", "--n", "50000"), "fgcal demo", "--n"),
     ("demo_out_is_a_file", _argv("demo", "--out", "robot.yaml", "--n", "30"), "robot.yaml", "is a file"),
+    # Issue 24: robot programs (fgcal compensate), the calibrated region, the URDF and UR exports
+    ("rapid_position_two_numbers", _program("p.mod", RAPID_TARGET.replace("[[1,2,3]", "[[1,2]")), "p.mod", "p1"),
+    ("rapid_quaternion_zero", _program("p.mod", RAPID_TARGET.replace("[1,0,0,0]", "[0,0,0,0]")), "p.mod", "p1"),
+    ("rapid_nan", _program("p.mod", RAPID_TARGET.replace("[[1,2,3]", "[[1,nan,3]")), "p.mod", "p1"),
+    ("rapid_unterminated", _program("p.mod", RAPID_TARGET.replace("]];", "]")), "p.mod", "line"),
+    ("rapid_undeclared_tool", _program("p.mod", RAPID_TARGET + "PROC main()\n MoveL p1, v100, fine, gun;\nENDPROC\n"),
+     "p.mod", "tool 'gun'"),
+    ("rapid_no_targets", _program("p.mod", "MODULE M\nENDMODULE\n"), "p.mod", "no targets"),
+    ("rapid_out_not_a_program", _program("p.mod", RAPID_TARGET, out="o.csv"), "o.csv", "--out"),
+    ("rapid_tool_unknown_name", _program("p.mod", RAPID_TARGET, extra=["--tool", "gun"]), "p.mod", "--tool"),
+    ("rapid_tool_five_numbers", _program("p.mod", RAPID_TARGET, extra=["--tool", "0", "0", "1", "0", "0"]), "p.mod",
+     "--tool"),
+    ("krl_missing_x", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n", out="o.dat"),
+     "p.dat", "X"),
+    ("krl_out_rapid", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n"), "o.mod",
+     "--out"),
+    ("program_with_tcp", _program("p.mod", RAPID_TARGET, extra=["--tcp", "0", "0", "0.1"]), "p.mod", "--tcp"),
+    ("csv_tool_option", _argv("compensate", "robot.yaml", "targets.csv", "--out", "o.csv", "--tool", "t"), "--tool",
+     "RAPID"),
+    ("csv_abc_without_orientation", _prepare_then(
+        lambda root: (root / "abc.csv").write_text("target,x,y,z,a,b,c\nt,0.4,0,0.5,0,90,0\n"),
+        ["compensate", "robot.yaml", "abc.csv", "--out", "o.csv"]), "abc.csv", "--orientation abc"),
+    ("csv_quaternion_not_unit", _prepare_then(
+        lambda root: (root / "q.csv").write_text("target,x,y,z,qw,qx,qy,qz\nt,0.4,0,0.5,2,0,0,0\n"),
+        ["compensate", "robot.yaml", "q.csv", "--out", "o.csv", "--orientation", "quaternion"]), "q.csv", "norm"),
+    ("region_short_row", _robot_edit("calibrated_region: [[0, 0]]"), "robot.yaml", "calibrated_region[0]"),
+    ("region_nan", _robot_edit("calibrated_region: [[0, 0, 0, 0, 0, .nan]]"), "robot.yaml", "calibrated_region[0]"),
+    ("region_not_a_list", _robot_edit("calibrated_region: 5"), "robot.yaml", "calibrated_region"),
+    ("urdf_origin_not_urdf", _robot_edit("urdf: {file: arm.yaml, tip: tool0}"), "robot.yaml", "urdf.file"),
+    ("export_template_other_robot", _argv("export", "robot.yaml", "--urdf", "x.urdf", "--template", "good.urdf"),
+     "good.urdf", "is not the URDF"),
+    ("export_ur_not_a_ur_arm", _argv("export", "seven_axis", "--ur-kinematics", "k.yaml"), "--ur-kinematics",
+     "UR arm"),
+    ("export_ur_not_yaml", _argv("export", "ur10e", "--ur-kinematics", "k.txt"), "k.txt", ".yaml"),
+    ("export_nothing_to_write", _argv("export", "ur10e"), "fgcal export", "--urdf"),
 ]  # fmt: skip
 
 

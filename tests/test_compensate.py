@@ -69,6 +69,50 @@ def test_compensate_command_with_orientations_and_hints(calibrated, tmp_path, ca
 
 
 @pytest.mark.parametrize(
+    ("length", "angle", "orientation"),
+    [("mm", "deg", "abc"), ("mm", "deg", "rpy"), ("m", "rad", "quaternion"), ("mm", "rad", "rotvec")],
+)
+def test_targets_in_the_users_units_and_convention(calibrated, tmp_path, capsys, length, angle, orientation):
+    """The same pose targets in mm, deg and a vendor's convention give the SI run's commands,
+    written back in that convention, each column named with its unit."""
+    from fgcal.compensate import ORIENTATIONS, TargetUnits
+    from fgcal.robot_io import save_robot
+
+    robot_file = tmp_path / "calibrated_robot.yaml"
+    robot = calibrated.problem.robot
+    save_robot(robot_file, robot, robot.parameter_dict(calibrated.state.params))
+    T = fgcal.load_robot(robot_file).fk_tool(calibrated.problem.dataset.q[:4] + 0.02)
+    units, si = TargetUnits(length, angle, orientation), TargetUnits()
+    for name, u in (("si", si), ("user", units)):
+        rows = ["target,x,y,z," + ",".join(ORIENTATIONS[u.orientation])]
+        for i in range(4):
+            values = [*(T[i, :3, 3] / u.to_m), *u.orientation_values(T[i, :3, :3])]
+            rows.append(",".join([f"p{i}", *(repr(float(v)) for v in values)]))
+        (tmp_path / f"{name}.csv").write_text("\n".join(rows) + "\n")
+    argv = ["compensate", str(robot_file), str(tmp_path / "si.csv"), "--out", str(tmp_path / "si_out.csv")]
+    assert main(argv) == 0
+    argv = ["compensate", str(robot_file), str(tmp_path / "user.csv"), "--out", str(tmp_path / "user_out.csv"),
+            "--length-unit", length, "--angle-unit", angle, "--orientation", orientation]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    header, *lines = (tmp_path / "user_out.csv").read_text().splitlines()
+    columns = header.split(",")
+    assert columns[7] == units.column("x_cmd", "length") and columns[1] == units.column("q1", "angle")
+    assert columns[10] == units.column(f"{ORIENTATIONS[orientation][0]}_cmd", "none" if orientation == "quaternion"
+                                       else "angle")  # fmt: skip
+    si_table = [line.split(",") for line in (tmp_path / "si_out.csv").read_text().splitlines()[1:]]
+    for mine, theirs in zip(lines, si_table, strict=True):
+        mine = mine.split(",")
+        q = np.array([float(v) for v in mine[1:7]]) * units.to_rad
+        np.testing.assert_allclose(q, [float(v) for v in theirs[1:7]], atol=1e-9)
+        position = np.array([float(v) for v in mine[7:10]]) * units.to_m
+        np.testing.assert_allclose(position, [float(v) for v in theirs[7:10]], atol=1e-9)
+        width = len(ORIENTATIONS[orientation])
+        R = units.rotations(np.array([[float(v) for v in mine[10 : 10 + width]]]))[0]
+        R_si = si.rotations(np.array([[float(v) for v in theirs[10:13]]]))[0]
+        np.testing.assert_allclose(R, R_si, atol=1e-9)
+
+
+@pytest.mark.parametrize(
     ("text", "field"),
     [
         ("target,x,y\nt,1,2\n", "z"),

@@ -94,7 +94,7 @@ LAYERS = (
          "fgcal.urdf_export", "fgcal.rigid_fit", "fgcal.ik", "fgcal.camera", "fgcal.boards"),
     ),
     ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensate", "fgcal.programs",
-              "fgcal.program_filter")),
+              "fgcal.program_filter", "fgcal.ur_kinematics")),
     ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),
     ("calibration", ("fgcal.calibration",)),
     ("online and planning", ("fgcal.online", "fgcal.planning")),

@@ -50,6 +50,11 @@ RUNS = {
         ["fk", "abb_irb120", "0", "0.5", "0", "0", "0", "0"],
         ["fk", "kuka_kr125_2", "0", "-30", "20", "0", "45", "0", "--deg", "--tool"],
         ["fk", "seven_axis", "0", "0.1", "0", "0.2", "0", "0.3", "0", "--tip", "link_7"],
+        ["export", "ur10e", "--ur-kinematics", "{ws}/urdf/ur10e_kinematics.yaml", "--nominal", "ur10e"],
+        ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/targets_mm.csv", "--out", "{ws}/commands_mm.csv",
+         "--length-unit", "mm", "--angle-unit", "deg", "--orientation", "abc"],
+        ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/PALLET.dat", "--out", "{ws}/PALLET_cal.dat",
+         "--tool", "0", "0", "100", "0", "0", "0", "--base", "1000", "0", "0", "0", "0", "0"],
     ],
     "online": [
         ["online-feed", "{ws}/seed", "--inbox", "{ws}/inbox", "--first", "0", "--n", "20", "--cycle-size", "10"],
@@ -145,6 +150,27 @@ def test_use_the_result_as_documented(ws, capsys):
     (ws / "targets.csv").write_text(
         "target,x,y,z\n" + "".join(f"p{i},{x:.17g},{y:.17g},{z:.17g}\n" for i, (x, y, z) in enumerate(positions))
     )
+    from fgcal.program_filter import configurations, frame_from_numbers
+    from fgcal.programs import krl_abc_deg
+
+    taught = (
+        np.linalg.inv(frame_from_numbers([1000, 0, 0, 0, 0, 0]))
+        @ robot.fk(q)
+        @ frame_from_numbers([0, 0, 100, 0, 0, 0])
+    )
+    lines = ["DEFDAT PALLET", "; taught on the nominal controller"]
+    for i, (T, c) in enumerate(zip(taught, configurations(robot, "krl", q), strict=True)):
+        a, b, cc = krl_abc_deg(T[:3, :3])
+        x, y, z = T[:3, 3] * 1e3
+        lines.append(f"DECL E6POS XP{i}={{X {x:.3f},Y {y:.3f},Z {z:.3f},A {a:.4f},B {b:.4f},C {cc:.4f},S {c['S']},"
+                     f"T {c['T']}}}")  # fmt: skip
+    abc = [krl_abc_deg(T[:3, :3]) for T in robot.fk_tool(q)]
+    (ws / "targets_mm.csv").write_text(
+        "target,x,y,z,a,b,c\n"
+        + "".join(f"p{i},{x * 1e3:.6f},{y * 1e3:.6f},{z * 1e3:.6f},{a:.6f},{b:.6f},{c:.6f}\n"
+                  for i, ((x, y, z), (a, b, c)) in enumerate(zip(positions, abc, strict=True)))
+    )  # fmt: skip
+    (ws / "PALLET.dat").write_text("\n".join([*lines, "ENDDAT"]) + "\n")
     printed = [_run(argv, ws, capsys) for argv in RUNS["use the result"]]
     for name in ("commands.csv", "commands2.csv"):
         rows = (ws / name).read_text().splitlines()[1:]
@@ -152,6 +178,9 @@ def test_use_the_result_as_documented(ws, capsys):
     assert (ws / "urdf" / "calibrated.urdf").exists() and (ws / "urdf" / "seven_axis.compliance.yaml").exists()
     assert "kuka_kr125_2" in printed[6] and "T_W_n" in printed[7] and "T_W_C" in printed[8]
     assert "URDF alone, rigid fit" in printed[4]
+    assert "ok 5" in printed[-1] and (ws / "PALLET_cal.corrections.csv").exists()
+    assert "kinematics" in yaml.safe_load((ws / "urdf" / "ur10e_kinematics.yaml").read_text())
+    assert (ws / "commands_mm.csv").read_text().startswith("target,q1_deg,")
     assert "accuracy" in yaml.safe_load((ws / "urdf" / "rigid.compliance.yaml").read_text())
 
 

@@ -215,3 +215,78 @@ def test_faro_rigid_fit_keeps_the_accuracy_of_a_plain_dh_calibration(tmp_path, c
     sidecar = yaml.safe_load((tmp_path / "irb120.compliance.yaml").read_text())
     assert all(k == 0.0 for joint in sidecar["joints"] for k in joint["compliance_rad_per_Nm"])
     assert accuracy["rigid_fit"]["remaining_rms_m"] < accuracy["rigid_fit"]["compliances_dropped_rms_m"] / 3
+
+
+UR_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+UR_LINKS = ("base_link_inertia", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link",
+            "wrist_3_link")  # fmt: skip
+
+
+def _ur_description(document: dict, path):
+    """The chain of the UR ROS 2 description (ur_macro.xacro) with a default_kinematics.yaml."""
+    k = document["kinematics"]
+    parts = ['<robot name="ur">', *[f'<link name="{link}"/>' for link in ("base_link", *UR_LINKS, "flange", "tool0")]]
+    parts.append('<joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>'
+                 f'<child link="base_link_inertia"/><origin xyz="0 0 0" rpy="0 0 {np.pi!r}"/></joint>')  # fmt: skip
+    for i, (key, joint) in enumerate(zip(("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3"),
+                                         UR_JOINTS, strict=True)):  # fmt: skip
+        e = k[key]
+        parts.append(
+            f'<joint name="{joint}_joint" type="revolute"><parent link="{UR_LINKS[i]}"/>'
+            f'<child link="{UR_LINKS[i + 1]}"/>'
+            f'<origin xyz="{e["x"]!r} {e["y"]!r} {e["z"]!r}" rpy="{e["roll"]!r} {e["pitch"]!r} {e["yaw"]!r}"/>'
+            '<axis xyz="0 0 1"/><limit lower="-6.3" upper="6.3" effort="1" velocity="1"/></joint>'
+        )
+    parts.append('<joint name="wrist_3-flange" type="fixed"><parent link="wrist_3_link"/><child link="flange"/>'
+                 f'<origin xyz="0 0 0" rpy="0 {-np.pi / 2!r} {-np.pi / 2!r}"/></joint>')  # fmt: skip
+    parts.append('<joint name="flange-tool0" type="fixed"><parent link="flange"/><child link="tool0"/>'
+                 f'<origin xyz="0 0 0" rpy="{np.pi / 2!r} {np.pi!r} {np.pi / 2!r}"/></joint></robot>')  # fmt: skip
+    path.write_text("".join(parts))
+    return yourdfpy.URDF.load(str(path), load_meshes=False, build_collision_scene_graph=False)
+
+
+@pytest.mark.parametrize("square", [True, False])
+def test_ur_kinematics_yaml_reproduces_the_calibrated_arm(tmp_path, capsys, square):
+    """A calibrated UR10e as the UR description's default_kinematics.yaml: the description's tool0
+    is fgcal's flange turned by pi about z (as for the nominal arm), exactly when the calibrated
+    flange is square to axis 6; otherwise off by what the command reports."""
+    import yaml
+
+    from fgcal.program_filter import controller_frame
+    from fgcal.ur_kinematics import WRIST_TO_TOOL0
+
+    rng = np.random.default_rng(2)
+    robot = fgcal.load_robot("ur10e")
+    params = random_parameters(robot, rng)
+    if square:  # nothing tilts the flange against axis 6
+        params = {k: v for k, v in params.items() if k not in ("alpha6", "a6") and not k.startswith("tool.")}
+    save_robot(tmp_path / "ur.yaml", robot, params)
+    argv = ["export", str(tmp_path / "ur.yaml"), "--ur-kinematics", str(tmp_path / "default_kinematics.yaml")]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    document = yaml.safe_load((tmp_path / "default_kinematics.yaml").read_text())
+    assert set(document["kinematics"]) == {"shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3", "hash"}
+    calibrated = fgcal.load_robot(tmp_path / "ur.yaml").with_model("DH,s")
+    base = controller_frame(calibrated, fgcal.load_robot("ur10e"))
+    description = _ur_description(document, tmp_path / "ur.urdf")
+    worst = 0.0
+    for q in rng.uniform(-3, 3, (5, 6)):
+        description.update_cfg(q)
+        tool0 = description.get_transform("tool0", "base_link_inertia")
+        worst = max(worst, np.abs(tool0 - inverse(base) @ calibrated.fk(q) @ WRIST_TO_TOOL0).max())
+    if square:
+        assert worst < 1e-9 and "cannot hold of the flange: none" in printed
+        return
+    # Not square: tool0 is off by exactly the tilt and the offset the command reports.
+    from fgcal.se3 import so3_log
+    from fgcal.ur_kinematics import residual_text, ur_kinematics
+
+    result = ur_kinematics(fgcal.load_robot(tmp_path / "ur.yaml"), fgcal.load_robot("ur10e"))
+    assert result.tool0_tilt_rad > 1e-5 and residual_text(result) in printed and "warning" in printed
+    for q in rng.uniform(-3, 3, (5, 6)):
+        description.update_cfg(q)
+        error = inverse(inverse(base) @ calibrated.fk(q) @ WRIST_TO_TOOL0) @ description.get_transform(
+            "tool0", "base_link_inertia"
+        )
+        assert abs(np.linalg.norm(so3_log(error[:3, :3])) - result.tool0_tilt_rad) < 1e-9
+        assert np.linalg.norm(error[:3, 3]) <= result.tool0_offset_m + 1e-9

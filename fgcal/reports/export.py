@@ -10,9 +10,12 @@ the rigid parameters to the full model over the calibrated region (fgcal.rigid_f
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
+from ..outputs import output_file, write_text
 from ..rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
 from ..robot_io import load_robot
 from ..urdf_export import check_outputs, export_urdf, template_of
@@ -22,16 +25,22 @@ LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held
 
 def export_command(
     robot_file: str,
-    urdf: str,
+    urdf: str | None,
     tip: str | None = None,
     template: str | None = None,
     calibration: str | None = None,
     rigid_fit: bool = False,
     payload_mass: float | None = None,
     payload_com: list[float] | None = None,
+    ur_kinematics: str | None = None,
+    nominal: str | None = None,
     say: Callable[[str], None] = print,
 ) -> int:
-    path, _ = check_outputs(urdf)  # before the work, not after it
+    path = None if urdf is None else check_outputs(urdf)[0]  # before the work, not after it
+    if ur_kinematics is not None:
+        if Path(ur_kinematics).suffix.lower() not in (".yaml", ".yml"):
+            raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
+        output_file(ur_kinematics, "--ur-kinematics")
     robot = load_robot(robot_file, tip)
     if payload_mass is not None or payload_com is not None:
         mass = robot.payload_mass if payload_mass is None else payload_mass
@@ -85,6 +94,10 @@ def export_command(
                 f"({gap.max() * 1e3:.3f} max) from the full model over {len(region)} seeded configurations: "
                 "--calibration CONFIG states it on the data, --rigid-fit folds what it can into the URDF"
             )
+    if ur_kinematics is not None:
+        _write_ur_kinematics(exported, nominal, Path(ur_kinematics), say)
+    if path is None:
+        return 0
     written, sidecar = export_urdf(exported, path, template, accuracy=accuracy or None)
     template_file = template_of(exported, template)
     say(f"wrote {written} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
@@ -93,6 +106,22 @@ def export_command(
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0
+
+
+def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[str], None]) -> None:
+    import yaml
+
+    from ..compensate import nominal_of
+    from ..ur_kinematics import residual_text, ur_kinematics
+
+    result = ur_kinematics(robot, nominal_of(robot, nominal))
+    write_text(path, yaml.safe_dump(result.document, sort_keys=False))
+    say(
+        f"wrote {path}: {robot.name}'s calibrated kinematics as the UR description's default_kinematics.yaml "
+        f"(compliances dropped); what that layout cannot hold of the flange: {residual_text(result)}"
+    )
+    if result.tool0_tilt_rad > 1e-5 or result.tool0_offset_m > 1e-5:
+        say("warning: the calibrated flange is not square to axis 6: the file puts tool0 off by that much")
 
 
 def _on_data(result, robot, exported, refitted: bool, say: Callable[[str], None]) -> dict:
