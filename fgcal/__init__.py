@@ -1,6 +1,8 @@
 """fgcal: calibration of industrial robot arms with factor graphs.
 
-Public API: :func:`load_robot` returns a :class:`Robot`; see docs/api.md.
+Public API: :func:`load_robot` returns a :class:`Robot`; :func:`calibrate` a calibration with
+named estimates, sigmas and held-out figures; :func:`compensate` corrected commands. See
+docs/api.md.
 """
 
 import os
@@ -21,5 +23,20 @@ from .errors import FgcalError, InputError
 from .robot import Robot
 from .robot_io import load_robot, save_robot
 
-__all__ = ["FgcalError", "InputError", "Robot", "load_robot", "save_robot"]
+__all__ = ["FgcalError", "InputError", "Robot", "calibrate", "compensate", "load_robot", "save_robot"]
 __version__ = "0.1.0"
+
+
+def calibrate(dataset, **settings):
+    """Calibrate a dataset with a calibration config's settings (fgcal.api.calibrate)."""
+    # Loaded when first used (GTSAM, SciPy): import fgcal stays as light as the model.
+    from .api import calibrate as run
+
+    return run(dataset, **settings)
+
+
+def compensate(robot, targets, hints=None, nominal=None, tcp=None):
+    """Corrected commands for a controller running its nominal model (fgcal.api.compensate)."""
+    from .api import compensate as run
+
+    return run(robot, targets, hints, nominal, tcp)

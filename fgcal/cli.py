@@ -13,6 +13,7 @@ from typing import NoReturn
 
 import numpy as np
 
+from .console import Reporter, detail, say, warn
 from .errors import FgcalError
 
 
@@ -40,6 +41,14 @@ def _bundled_cell(path: str) -> Path:
     raise InputError(path, None, f"no such cell file or bundled cell (bundled: {', '.join(bundled_cells())})")
 
 
+def _emit(args: argparse.Namespace, document: dict) -> None:
+    """With --json: the command's one strict JSON object (SI units) on stdout."""
+    if getattr(args, "json", False):
+        from . import strict_json
+
+        print(strict_json.dumps({"command": args.command, **document}))
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .calibration.suggest import write_suggested_config
     from .dataset import load_dataset
@@ -52,14 +61,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         args.seed,
         design=args.design,
         n_configurations=args.n,
-        progress=lambda msg: print(msg, flush=True),
+        progress=Reporter(),
         render=args.render,
         drift=_parse_drift(args.drift),
         configurations=args.configurations,
     )
-    print(result.summary())
+    say(result.summary())
     config = write_suggested_config(load_cell(_bundled_cell(args.cell)), load_dataset(args.out))
-    print(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
+    say(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
+    _emit(args, {
+        "dataset": str(result.out_dir), "calibration_config": str(config), "seed": result.seed,
+        "design": result.design, "n_configurations": result.n_configurations, "observations": result.n_observations,
+        "nominal_deviation_mean_m": result.deviation_mean_m, "nominal_deviation_max_m": result.deviation_max_m,
+        "time_s": result.time_s,
+    })  # fmt: skip
     return 0
 
 
@@ -83,7 +98,7 @@ def _parse_drift(text: str | None):
 def cmd_online(args: argparse.Namespace) -> int:
     from .online.service import OnlineService
 
-    service = OnlineService(args.state, args.inbox, args.setup, say=lambda msg: print(msg, flush=True))
+    service = OnlineService(args.state, args.inbox, args.setup, say=say)
     try:
         service.run(once=args.once, poll_s=args.poll)
     except KeyboardInterrupt:
@@ -92,11 +107,11 @@ def cmd_online(args: argparse.Namespace) -> int:
         service.close()
     report = service.report()
     if not report["n_images"]:
-        print(f"no image folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
+        say(f"no image folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
         return 0
     accuracy = report["predicted_accuracy"]
-    print(
-        f"{report['n_images']} images; predicted RMS flange sigma {accuracy['rms_m']:.3e} m; "
+    say(
+        f"{report['n_images']} images; predicted RMS flange sigma {accuracy['rms_m'] * 1e3:#.4g} mm; "
         f"{len(report['alarms'])} drift alarms; wrote {args.state}/report.json, report.md, calibrated_robot.yaml"
     )
     return 0
@@ -106,7 +121,7 @@ def cmd_online_feed(args: argparse.Namespace) -> int:
     from .online.feed import feed_dataset
 
     written = feed_dataset(args.dataset, args.inbox, args.first, args.n, args.cycle_size)
-    print(f"wrote {written} measurement files to {args.inbox}")
+    say(f"wrote {written} measurement files to {args.inbox}")
     return 0
 
 
@@ -118,7 +133,7 @@ def _score(result):
     result = score_with_truth(result)
     line = held_out_summary(result)
     if line:
-        print(line, flush=True)
+        say(line)
     return result
 
 
@@ -127,13 +142,27 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibration.run import calibrate
     from .reports.calibration import write_report
 
-    result = _score(calibrate(load_config(args.config), progress=lambda msg: print(msg, flush=True)))
+    result = _score(calibrate(load_config(args.config), progress=Reporter()))
     started = time.perf_counter()
-    write_report(result, args.out, plots=not args.no_plots)
-    print(
+    doc = write_report(result, args.out, plots=not args.no_plots)
+    say(
         f"wrote {args.out}/report.md, report.json, calibrated_robot.yaml, estimates.yaml "
         f"(calibration {result.timing['total_s']:.2f} s, report {time.perf_counter() - started:.2f} s)"
     )
+    for name, entry in doc["parameters"].items():  # with -v: every estimate, in the units of report.md
+        if entry.get("sigma") is not None:
+            scale, unit = {"m": (1e3, "mm"), "rad": (180e3 / np.pi, "mdeg")}.get(entry["unit"], (1.0, entry["unit"]))
+            detail(
+                f"  {name:10s} {entry['difference_from_nominal'] * scale:+#.4g} {unit} from nominal, "
+                f"sigma {entry['sigma'] * scale:#.3g} {unit}"
+            )
+    out = Path(args.out)
+    files = ["report.md", "report.json", "calibrated_robot.yaml", "estimates.yaml"]
+    _emit(args, {
+        "out": str(out), "files": {name: str(out / name) for name in files},
+        "model": doc["model"], "formulation": doc["formulation"], "headline": doc["headline"],
+        "goodness_of_fit": doc["goodness_of_fit"], "seed": doc["seed"],
+    })  # fmt: skip
     return 0
 
 
@@ -149,41 +178,42 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .simulation.simulate import simulate
 
     out = output_dir(args.out)
-    print(f"1/3 simulating the seed cell: space-filling design of {args.n} configurations, seed {args.seed}")
+    say(f"1/3 simulating the seed cell: space-filling design of {args.n} configurations, seed {args.seed}")
     sim = simulate(
         _bundled_cell("kr125_seed"),
         out / "data",
         args.seed,
         design="space_filling",
         n_configurations=args.n,
-        progress=lambda msg: print(msg, flush=True),
+        progress=Reporter(),
     )
-    print(sim.summary())
+    say(sim.summary())
     config_path = write_text(
         out / "calibration.yaml",
         yaml.safe_dump({"dataset": "data", "formulation": args.formulation, "model": "DH,s,e"}, sort_keys=False),
     )
-    print(f"2/3 calibrating ({config_path})")
-    result = _score(calibrate(load_config(config_path), progress=lambda msg: print(msg, flush=True)))
+    say(f"2/3 calibrating ({config_path})")
+    result = _score(calibrate(load_config(config_path), progress=Reporter()))
     if result.truth is not None:
         from .calibration.scoring import compensation_study
 
         study = compensation_study(result)
         result = dataclasses.replace(result, compensation=study)
-        print(
+        say(
             f"  compensation of {study.n_targets} random targets, driven through the true robot: "
             f"{study.uncompensated_rms_m * 1e3:.4g} mm RMS with the nominal model's joints, "
             f"{study.compensated_rms_m * 1e3:.4g} mm with the calibrated model's ({study.improvement:.0f}x)"
         )
-    print("3/3 writing the report")
+    say("3/3 writing the report")
     write_report(result, out / "report")
-    print(f"report: {out / 'report' / 'report.md'}")
+    say(f"report: {out / 'report' / 'report.md'}")
     return 0
 
 
 def cmd_compensate(args: argparse.Namespace) -> int:
-    from .compensate import TargetUnits, compensate, nominal_of, read_targets, write_compensation
-    from .outputs import output_file
+    from .compensation import TargetUnits, compensate, nominal_of, read_targets, write_compensation
+    from .errors import InputError
+    from .outputs import distinct, output_file
     from .robot_io import load_robot
 
     output_file(args.out, "--out")  # before the work, not after it
@@ -199,39 +229,72 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     if args.tool is not None or args.base is not None:
         print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
         return 2
+    if Path(args.out).suffix.lower() != ".csv":
+        raise InputError(args.out, "--out", "the commands of a targets CSV are a .csv file")
+    distinct({"--out": args.out}, {"TARGETS": args.targets, "ROBOT": args.robot if Path(args.robot).suffix else None})
     units = TargetUnits(args.length_unit, args.angle_unit, args.orientation)
     targets = read_targets(args.targets, robot.n_joints, units, robot.prismatic)
     tcp = None if args.tcp is None else np.array(args.tcp)
+    wanted = _in_calibration_frame(targets.as_ik_targets(), robot, nominal, args.targets_frame)
     result = compensate(
-        robot, nominal, targets.as_ik_targets(), targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6,
-        progress=lambda msg: print(msg, flush=True),
-    )  # fmt: skip
+        robot, nominal, wanted, targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter()
+    )
     write_compensation(args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic)
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
-    print(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    say(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    _emit(args, {
+        "out": str(args.out), "n_targets": len(targets.names), "status": counts,
+        "residual_max_m": float(result.residual_m.max()),
+    })  # fmt: skip
     reached = result.status != "unreachable"
     if reached.any():
-        print(f"  reached in the calibrated model to {result.residual_m[reached].max() * 1e6:.3g} um at worst")
+        say(f"  reached in the calibrated model to {result.residual_m[reached].max() * 1e6:.3g} um at worst")
     if (~reached).any():
-        print(
-            f"  {int((~reached).sum())} unreachable: the nearest the calibrated model gets is "
-            f"{result.residual_m[~reached].min() * 1e3:.4g} mm to {result.residual_m[~reached].max() * 1e3:.4g} mm away"
+        gaps = result.residual_m[~reached] * 1e3
+        span = (
+            f"{gaps.min():.4g} mm" if np.isclose(gaps.min(), gaps.max()) else f"{gaps.min():.4g} to {gaps.max():.4g} mm"
         )
+        say(f"  {_count(int((~reached).sum()), 'target')} unreachable: the calibrated model stays {span} away")
     return 0
+
+
+def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np.ndarray:
+    """Targets (N, 3) or (N, 4, 4) in the calibration's W: as given (``W``), or from the
+    controller's base frame (``controller``), placed as program filtering places it. With
+    ``W``, says how far the controller's frame is, when that is more than 1 mm or 1 mrad."""
+    from .program_filter import controller_frame
+    from .se3 import so3_log
+
+    T_W_ctrl = controller_frame(robot, nominal)
+    if frame == "controller":
+        return T_W_ctrl @ targets if targets.ndim == 3 else targets @ T_W_ctrl[:3, :3].T + T_W_ctrl[:3, 3]
+    offset_m, turn_rad = np.linalg.norm(T_W_ctrl[:3, 3]), np.linalg.norm(so3_log(T_W_ctrl[:3, :3]))
+    if offset_m > 1e-3 or turn_rad > 1e-3:
+        say(
+            f"  the targets are in the calibration's frame W; the controller's base frame lies {offset_m * 1e3:.3g} mm "
+            f"and {np.degrees(turn_rad) * 1e3:.3g} mdeg from it (--targets-frame controller reads them there)"
+        )
+    return targets
 
 
 PROGRAM_SUFFIXES = (".mod", ".modx", ".prg", ".sys", ".dat")
 UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     from .dataset import write_csv
     from .errors import InputError
-    from .outputs import output_file, write_bytes
+    from .outputs import distinct, output_file, write_bytes
     from .program_filter import WRITTEN, correction_rows, filter_targets, program_frames
     from .programs import KRL_SUFFIXES, read_program, write_program
 
     source, out = Path(args.targets), Path(args.out)
+    distinct({"--out": out, "the corrections table": out.with_name(f"{out.stem}.corrections.csv")},
+             {"PROGRAM": source, "ROBOT": args.robot if Path(args.robot).suffix else None})  # fmt: skip
     if (source.suffix.lower() in KRL_SUFFIXES) != (out.suffix.lower() in KRL_SUFFIXES) or out.suffix.lower() not in (
         PROGRAM_SUFFIXES
     ):
@@ -245,7 +308,7 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
         raise InputError(source, None, "no targets (robtarget, E6POS or POS declarations) to correct")
     frames = program_frames(program, args.tool, args.base, robot)
     poses = np.array([target.pose for target in program.targets])
-    print(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})", flush=True)
+    say(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})")
     result = filter_targets(robot, nominal, poses, [t.config for t in program.targets], program.kind, frames)
     # A target the calibration leaves where it was (below what the file's digits hold) keeps its text.
     moved = (result.correction_m > UNCHANGED_M) | (result.correction_rad > UNCHANGED_RAD)
@@ -259,20 +322,34 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     write_bytes(out, text.encode(program.encoding))
     write_csv(table, *correction_rows(program, result, written))
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
-    print(f"wrote {out} and {table}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    say(f"wrote {out} and {table}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    _emit(args, {
+        "out": str(out), "table": str(table), "n_targets": len(poses), "n_corrected": int(written.sum()),
+        "status": counts,
+        "correction_max_m": float(result.correction_m[written].max()) if written.any() else 0.0,
+        "rotation_max_rad": float(result.correction_rad[written].max()) if written.any() else 0.0,
+    })  # fmt: skip
     if written.any():
-        print(
+        say(
             f"  corrections {result.correction_m[written].mean() * 1e3:.3f} mm mean, "
             f"{result.correction_m[written].max() * 1e3:.3f} mm max, "
             f"{np.degrees(result.correction_rad[written]).max() * 1e3:.1f} mdeg max"
         )
     solved = np.isin(result.status, WRITTEN)
+    whose = "the tool's load" if frames.payload_mass_kg is not None else "the robot file's; a tooldata's tload sets it"
+    say(f"  deflection computed for a payload of {result.payload_mass_kg:g} kg ({whose})")
     if (solved & ~moved).any():
-        print(f"  {int((solved & ~moved).sum())} targets need no correction (below 0.5 um and 0.01 urad): kept")
+        say(f"  {_count(int((solved & ~moved).sum()), 'target')} need no correction (below 0.5 um and 0.01 urad): kept")
     if (~solved).any():
-        print(f"  {int((~solved).sum())} targets left as they were: see their status in {table.name}")
+        say(f"  {_count(int((~solved).sum()), 'target')} left as they were: see their status in {table.name}")
+    if result.in_region is not None and (solved & ~result.in_region).any():
+        warn(
+            f"{_count(int((solved & ~result.in_region).sum()), 'target')} need joints outside the range the "
+            "calibration measured: their correction is the model's extrapolation "
+            f"(in_calibrated_region in {table.name})"
+        )
     if (result.status == "configuration changed").any():
-        print("  warning: some corrected targets need another configuration (new confdata or S/T): check their path")
+        warn("some corrected targets need another configuration (new confdata or S/T): check their path")
     return 0
 
 
@@ -282,7 +359,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     sizes = tuple(args.sizes)
     # With --json, stdout carries the JSON object alone; the progress goes to stderr.
-    say = (lambda msg: print(msg, file=sys.stderr, flush=True)) if args.json else (lambda msg: print(msg, flush=True))
     faro = Path(args.faro) if args.faro else None
     if faro is not None and not (faro / "dataset.yaml").exists():
         print(
@@ -299,7 +375,7 @@ def cmd_convert_faro(args: argparse.Namespace) -> int:
     from .faro import convert_faro
 
     counts = convert_faro(args.src, args.out)
-    print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    say(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     return 0
 
 
@@ -307,7 +383,7 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
     from .csv_import import import_tables
 
     counts = import_tables(args.mapping, args.out)
-    print(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    say(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     return 0
 
 
@@ -322,17 +398,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
         formulation=args.formulation,
         model=args.model,
         seed=args.seed,
-        progress=lambda msg: print(msg, flush=True),
+        progress=Reporter(),
     )
     written = write_plan(result, args.out, plot=not args.no_plots)
-    print(
+    say(
         f"  predicted position accuracy {result.predicted_sigma_m * 1e3:.4f} mm RMS over the region "
         f"(space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
         f"condition number {result.indices['condition_number']:.3g}"
     )
     t = result.timing_s
-    print(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
-    print(f"wrote {args.out}: {', '.join(written)}")
+    say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
+    say(f"wrote {args.out}: {', '.join(written)}")
+    _emit(args, {
+        "out": str(args.out), "files": {name: str(Path(args.out) / name) for name in written},
+        "n_configurations": args.n, "criterion": args.criterion,
+        "predicted_sigma_m": result.predicted_sigma_m, "space_filling_sigma_m": result.space_filling_sigma_m,
+        "condition_number": result.indices["condition_number"], "cpu_s": dict(result.timing_s),
+    })  # fmt: skip
     return 0
 
 
@@ -342,11 +424,25 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.urdf is None and args.ur_kinematics is None:
         print("fgcal: error: fgcal export: give --urdf OUT.urdf, --ur-kinematics OUT.yaml or both", file=sys.stderr)
         return 2
+    if args.nominal is not None and args.ur_kinematics is None:
+        print("fgcal: error: fgcal export: --nominal applies to --ur-kinematics", file=sys.stderr)
+        return 2
     return export_command(
         args.robot, args.urdf, tip=args.tip, template=args.template, calibration=args.calibration,
         rigid_fit=args.rigid_fit, payload_mass=args.payload_mass, payload_com=args.payload_com,
-        ur_kinematics=args.ur_kinematics, nominal=args.nominal, say=lambda msg: print(msg, flush=True),
+        ur_kinematics=args.ur_kinematics, nominal=args.nominal, say=say,
     )  # fmt: skip
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    if args.what == "robots":
+        return cmd_robots(args)
+    from .simulation.cell import load_cell
+
+    for name in bundled_cells():
+        cell = load_cell(_bundled_cell(name))
+        print(f"{name:26s} {cell.name} ({cell.robot.name})")
+    return 0
 
 
 def cmd_robots(args: argparse.Namespace) -> int:
@@ -428,12 +524,14 @@ LENGTH_M = _real(-10.0, 10.0, "m")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .compensate import ORIENTATIONS
+    from .compensation import ORIENTATIONS
     from .planning import MAX_CANDIDATES
     from .simulation import MAX_CONFIGURATIONS
 
     configurations = _integer(1, MAX_CONFIGURATIONS, "configurations")
     parser = _Parser(prog="fgcal", description="Robot calibration with factor graphs (GTSAM).")
+    parser.add_argument("--version", action="version", version=f"fgcal {_version()}")
+    _verbosity(parser, argparse.SUPPRESS)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate a calibration cell: true robot, configurations, measurements")
@@ -453,12 +551,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--drift", help="step change of one true parameter for the camera measurements, NAME=CHANGE@CONFIG (SI)"
     )
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object (SI units) on stdout; the lines go to stderr"
+    )
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("calibrate", help="calibrate from a dataset as a calibration config describes")
     p.add_argument("config", help="calibration config YAML (docs/calibration.md)")
     p.add_argument("--out", required=True, help="output directory for the report and calibrated robot")
     p.add_argument("--no-plots", action="store_true", help="write report.md without the PNG plots")
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object (SI units) on stdout; the lines go to stderr"
+    )
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("demo", help="simulate the seed cell, calibrate it and write the report")
@@ -505,6 +609,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, help="the corrected program (and OUT.corrections.csv beside it), or the output CSV"
     )
     p.add_argument(
+        "--targets-frame", choices=("W", "controller"), default="W",
+        help="a targets CSV's frame: the calibration's W (default), or the controller's base frame, placed as "
+        "program filtering places it",
+    )  # fmt: skip
+    p.add_argument(
         "--length-unit", choices=("m", "mm"), default="m", help="of a targets CSV and its output (default m)"
     )
     p.add_argument(
@@ -539,6 +648,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=_real(0.0, 1e6, "um", above_low=True),
         default=1.0,
         help="how close counts as reached, um (default 1; angles 1 urad)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object (SI units) on stdout; the lines go to stderr"
     )
     p.set_defaults(func=cmd_compensate)
 
@@ -604,6 +716,9 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument("--seed", type=SEED, default=1, help="seed of the candidates (default 1)")
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
+    p.add_argument(
+        "--json", action="store_true", help="print one JSON object (SI units) on stdout; the lines go to stderr"
+    )
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("export", help="write a robot (calibrated or nominal) as URDF, compliances in a sidecar YAML")
@@ -640,8 +755,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--payload-com", type=LENGTH_M, nargs=3, help="payload centre of mass in the flange frame (m)")
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("robots", help="list the bundled robot descriptions")
+    p = sub.add_parser("robots", help="list the bundled robot descriptions (as fgcal list robots)")
     p.set_defaults(func=cmd_robots)
+
+    p = sub.add_parser("list", help="list the bundled robots or cells")
+    p.add_argument("what", choices=("robots", "cells"), help="robots or cells")
+    p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("fk", help="forward kinematics of a robot (bundled, or a robot file) at one configuration")
     p.add_argument("robot", help="bundled robot name, robot YAML file or URDF")
@@ -650,14 +769,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deg", action="store_true", help="joint angles in degrees")
     p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")
     p.set_defaults(func=cmd_fk)
+    for command in sub.choices.values():  # fgcal -q calibrate ... and fgcal calibrate ... -q alike
+        _verbosity(command, 0)
     return parser
 
 
+def _verbosity(parser: argparse.ArgumentParser, default) -> None:
+    parser.add_argument("-q", "--quiet", action="count", default=default, help="only warnings and errors")
+    parser.add_argument("-v", "--verbose", action="count", default=default, help="more detail")
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fgcal")
+    except PackageNotFoundError:  # a source tree without an install
+        return "unknown (not installed)"
+
+
 def main(argv: list[str] | None = None) -> int:
+    from .console import setup
+
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else 2
+    setup(getattr(args, "verbose", 0) - getattr(args, "quiet", 0), to_stderr=getattr(args, "json", False))
     from threadpoolctl import threadpool_limits
 
     try:

@@ -241,6 +241,8 @@ def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> Non
 def _inside(root: Path, files: Fields, name: str) -> Path:
     """A table's path, which must stay inside the dataset directory."""
     relative = files.string(name)
+    if "\x00" in relative:  # no file has it in its name, and pathlib refuses it with a ValueError
+        raise files.error(name, f"a file name with a NUL character: {relative!r}")
     path = (root / relative).resolve()
     if not path.is_relative_to(root.resolve()):
         raise files.error(name, f"{relative!r} is outside the dataset directory {root}")

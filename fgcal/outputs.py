@@ -50,9 +50,24 @@ def output_file(path: str | Path, field: str | None = None) -> Path:
         raise InputError(path, field, "is a symbolic link: fgcal does not write through links")
     if path.is_dir():
         raise InputError(path, field, "is a folder: name the file to write")
+    if path.exists() and not path.is_file():  # a FIFO would block the writer, a device swallow the output
+        raise InputError(path, field, "is not a regular file (a FIFO, a device or a socket): name a file to write")
     if not path.parent.is_dir():
         raise InputError(path, field, f"no such folder {path.parent}")
     return path
+
+
+def distinct(outputs: dict[str, str | Path | None], inputs: dict[str, str | Path | None]) -> None:
+    """Refuse an output that is one of the command's inputs or another output (by the file it
+    names): writing it would destroy what the command reads, or write one file twice."""
+    seen: dict[Path, str] = {}
+    for role, path in [*((f"input {k}", v) for k, v in inputs.items()), *outputs.items()]:
+        if path is None:
+            continue
+        resolved = Path(path).resolve()
+        if resolved in seen:
+            raise InputError(path, role, f"is the same file as {seen[resolved]}: name another output")
+        seen[resolved] = role
 
 
 def write_bytes(path: str | Path, data: bytes, field: str | None = None, sync: bool = False) -> Path:

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .compensate import SOLVED, default_hints
+from .compensation import SOLVED, default_hints
+from .fields import is_plain_number
 from .rigid_fit import region_sample
 from .robot import Robot
 from .se3 import inverse, kabsch, pose_from_xyz_rpy, so3_log
@@ -57,6 +58,8 @@ class Filtered:
     residual_m: np.ndarray  # calibrated-model IK residual
     status: np.ndarray  # ok, unreachable, outside joint limits, near singularity, configuration changed
     controller_in_W: np.ndarray  # (4, 4) the controller's base frame in the calibration's W
+    in_region: np.ndarray | None  # (N,) joints within the calibrated region's ranges; None: no region known
+    payload_mass_kg: float  # the load the deflection was computed for
 
 
 def controller_frame(robot: Robot, nominal: Robot, count: int = 2000) -> np.ndarray:
@@ -128,7 +131,11 @@ def controller_ik(
     solution nearest the middle of the ranges (default_hints). Returns (q, found)."""
     low, high = nominal.limits[:, 0], nominal.limits[:, 1]
     rng = np.random.default_rng(0)
-    q = default_hints(nominal, flange, np.zeros(3), frame="flange")
+    # A target with configuration data starts in its quadrants; one without, from the usual search.
+    q = _starts(np.random.default_rng(1), low, high, kind, configs)
+    plain = np.array([not config for config in configs])
+    if plain.any():
+        q[plain] = default_hints(nominal, flange[plain], np.zeros(3), frame="flange")
     found = np.zeros(len(flange), dtype=bool)
     for k in range(starts):
         todo = np.flatnonzero(~found)
@@ -136,11 +143,35 @@ def controller_ik(
             break
         start = q[todo] if k == 0 else _starts(rng, low, high, kind, [configs[t] for t in todo])
         solved = nominal.ik(flange[todo], start, frame="flange", clamp=True)
-        have = configurations(nominal, kind, solved.q)
+        below = configurations(nominal, kind, solved.q - BOUNDARY_RAD)
+        above = configurations(nominal, kind, solved.q + BOUNDARY_RAD)
+        exact = configurations(nominal, kind, solved.q)
         for row, target in enumerate(todo):
-            if solved.status[row] in SOLVED and all(have[row].get(key) == v for key, v in configs[target].items()):
+            if solved.status[row] in SOLVED and _consistent(configs[target], exact[row], below[row], above[row]):
                 q[target], found[target] = solved.q[row], True
     return q, found
+
+
+def _consistent(wanted: dict[str, int], exact: dict, below: dict, above: dict) -> bool:
+    """Whether joints have the configuration ``wanted``: each number as at the joints, or, for a
+    joint on a quadrant's edge (0, 90 deg...), as on either side of it (``below``/``above``: the
+    data of the joints moved by BOUNDARY_RAD). The arm's sides are compared as they are."""
+    for key, value in wanted.items():
+        if key in ("cf1", "cf4", "cf6"):
+            if value not in (exact[key], below[key], above[key]):
+                return False
+        elif key in ("cfx", "S"):  # the lowest bit of cfx and bit 2 of S: joint 5's sign
+            bit = 1 if key == "cfx" else 4
+            if (value & ~bit) != (exact[key] & ~bit) or (value & bit) not in (below[key] & bit, above[key] & bit):
+                return False
+        elif key == "T":
+            for j in range(6):
+                b = 1 << j
+                if (value & b) not in (exact[key] & b, below[key] & b, above[key] & b):
+                    return False
+        elif value != exact.get(key):
+            return False
+    return True
 
 
 def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]) -> np.ndarray:
@@ -179,16 +210,28 @@ def filter_targets(
     if frames.payload_mass_kg is not None:
         robot = robot.with_tool(robot.tool_pose, frames.payload_mass_kg, frames.payload_com_m)
     flange = frames.work_objects @ poses @ inverse(frames.tools)  # in the controller's base frame
-    q_nominal, found = controller_ik(nominal, flange, kind, configs)
+    # Beyond the arm's reach no IK need try (thousands of far targets would take minutes).
+    origin, reach = nominal.reach_m()
+    within = np.linalg.norm(flange[:, :3, 3] - origin, axis=1) <= 1.1 * reach + 0.1
+    q_nominal = np.tile(0.5 * nominal.limits.sum(axis=1), (len(poses), 1))
+    found = np.zeros(len(poses), dtype=bool)
+    if within.any():
+        near = [config for config, inside in zip(configs, within, strict=True) if inside]
+        q_nominal[within], found[within] = controller_ik(nominal, flange[within], kind, near)
     T_W_ctrl = controller_frame(robot, nominal)
     solved = robot.ik(T_W_ctrl @ flange, q_nominal, frame="flange")
+    solved.status[~within] = "unreachable"
     corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
     moved = inverse(poses) @ corrected
-    before, after = configurations(nominal, kind, q_nominal), configurations(nominal, kind, solved.q)
+    after = configurations(nominal, kind, solved.q)
+    reached = np.isin(solved.status, SOLVED)
     status = solved.status.astype(object)
-    changed = np.array([a != b for a, b in zip(after, before, strict=True)])
-    status[changed & np.isin(status, SOLVED)] = "configuration changed"
-    status[~found & np.isin(status, SOLVED)] = "configuration not found"
+    status[reached & found & significant_change(nominal, q_nominal, solved.q)] = "configuration changed"
+    status[reached & ~found] = "configuration not found"
+    in_region = None
+    if robot.region is not None:  # each joint within the range the calibration saw (and a degree)
+        low, high = robot.region.min(axis=0) - REGION_MARGIN_RAD, robot.region.max(axis=0) + REGION_MARGIN_RAD
+        in_region = np.all((solved.q >= low) & (solved.q <= high), axis=1)
     return Filtered(
         poses=corrected,
         q=solved.q,
@@ -199,7 +242,27 @@ def filter_targets(
         residual_m=solved.residual_m,
         status=status.astype(str),
         controller_in_W=T_W_ctrl,
+        in_region=in_region,
+        payload_mass_kg=float(robot.payload_mass),
     )
+
+
+REGION_MARGIN_RAD = np.radians(1.0)
+BOUNDARY_RAD = np.radians(0.1)  # a joint this close to a quadrant's edge may cross it for any correction
+
+
+def significant_change(nominal: Robot, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """(N,) whether the joints ``after`` take another branch than ``before``: a joint changes
+    quadrant or sign from farther than BOUNDARY_RAD from the edge, or the arm's sides (wrist
+    centre against axis 1 and the lower arm) change. A joint at 0 that a correction moves to
+    -0.01 deg changes its configuration data, not its path: that is not significant."""
+    crossed = (np.floor(before / QUADRANT) != np.floor(after / QUADRANT)) | ((before < 0) != (after < 0))
+    near_edge = np.abs(before - np.round(before / QUADRANT) * QUADRANT) < BOUNDARY_RAD
+    out = np.any(crossed & ~near_edge, axis=1)
+    if nominal.n_joints == 6:
+        sides_before, sides_after = _arm_sides(nominal, before), _arm_sides(nominal, after)
+        out |= (sides_before[0] != sides_after[0]) | (sides_before[1] != sides_after[1])
+    return out
 
 
 # -- a program file in, a corrected program and a table out --------------------------------------
@@ -223,13 +286,16 @@ def program_frames(program, tool: list[str] | None, base: list[str] | None, robo
     def given(values: list[str] | None, declared: dict, what: str):
         if values is None:
             return None
-        if len(values) == 6:
-            try:
-                return frame_from_numbers([float(v) for v in values])
-            except ValueError:
-                pass
-        if len(values) == 1 and values[0] in declared:
-            return values[0]
+        if len(values) == 6 and all(is_plain_number(v) for v in values):
+            numbers = np.array([float(v) for v in values])
+            if np.all(np.abs(numbers[:3]) <= MAX_FRAME_MM) and np.all(np.abs(numbers[3:]) <= 360.0):
+                return frame_from_numbers(list(numbers))
+            raise InputError(
+                program.path, f"--{what}", f"{' '.join(values)}: X Y Z within {MAX_FRAME_MM:g} mm and A B C within "
+                "360 deg",
+            )  # fmt: skip
+        if len(values) == 1 and _declared(values[0], declared) is not None:
+            return _declared(values[0], declared)
         names = ", ".join(sorted(declared)) or "none"
         raise InputError(
             program.path, f"--{what}", f"{' '.join(values)!r}: give X Y Z A B C (mm, deg) or a {what} the module "
@@ -245,8 +311,8 @@ def program_frames(program, tool: list[str] | None, base: list[str] | None, robo
             return chosen
         if chosen is None or chosen.lower() == neutral:
             return np.eye(4)
-        if chosen in declared:
-            return declared[chosen]
+        if _declared(chosen, declared) is not None:
+            return declared[_declared(chosen, declared)]
         raise InputError(program.path, f"line {target.line}, {target.name}", f"{what} {chosen!r} is not declared "
                          f"in the module: give it with {option} X Y Z A B C (mm, deg)")  # fmt: skip
 
@@ -274,18 +340,31 @@ def program_frames(program, tool: list[str] | None, base: list[str] | None, robo
     )  # fmt: skip
 
 
+MAX_FRAME_MM = 1e5  # a tool or base frame farther than 100 m is a typo
+
+
+def _declared(name: str, declared: dict) -> str | None:
+    """The declared name ``name`` refers to: RAPID names are not case-sensitive."""
+    return next((key for key in declared if key.lower() == name.lower()), None)
+
+
 def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[list[str], list[list]]:
-    """The table of corrections (mm, mdeg, um, deg: named in the header)."""
+    """The table of corrections (mm, mdeg, um, deg: named in the header). A target that was not
+    solved (unreachable, outside the limits, no branch of its configuration) has no figures."""
     n = result.q.shape[1]
-    header = ["target", "line", "status", "corrected", "dx_mm", "dy_mm", "dz_mm", "correction_mm", "rotation_mdeg",
-              "residual_um", *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
+    header = ["target", "line", "status", "corrected", "in_calibrated_region", "dx_mm", "dy_mm", "dz_mm",
+              "correction_mm", "rotation_mdeg", "residual_um", *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
     rows = []
     for k, target in enumerate(program.targets):
+        region = "-" if result.in_region is None else "yes" if result.in_region[k] else "no"
+        row = [target.name, target.line, str(result.status[k]), "yes" if written[k] else "no", region]
+        if result.status[k] not in WRITTEN:
+            rows.append(row + [""] * (len(header) - len(row)))
+            continue
         delta = (result.poses[k, :3, 3] - target.pose[:3, 3]) * 1e3
         rows.append(
-            [target.name, target.line, str(result.status[k]), "yes" if written[k] else "no",
-             *[round(float(v), 4) + 0.0 for v in delta], round(float(result.correction_m[k] * 1e3), 4),
+            [*row, *[round(float(v), 4) + 0.0 for v in delta], round(float(result.correction_m[k] * 1e3), 4),
              round(float(np.degrees(result.correction_rad[k]) * 1e3), 3), round(float(result.residual_m[k] * 1e6), 3),
-             *[round(float(np.degrees(v)), 4) for v in result.q[k]]]
+             *[round(float(np.degrees(v)), 4) + 0.0 for v in result.q[k]]]
         )  # fmt: skip
     return header, rows

@@ -102,11 +102,24 @@ def read_program(path: str | Path) -> Program:
     if suffix not in RAPID_SUFFIXES + KRL_SUFFIXES:
         accepted = ", ".join(RAPID_SUFFIXES + KRL_SUFFIXES)
         raise InputError(path, None, f"unknown program suffix {path.suffix or '(none)'!r}: expected one of {accepted}")
+    if path.is_file() and path.stat().st_size > MAX_PROGRAM_BYTES:
+        raise InputError(
+            path, None, f"{path.stat().st_size / 1e6:.0f} MB: a program is at most {MAX_PROGRAM_BYTES // 10**6} MB"
+        )
     text, encoding = _read_text(path)
-    if suffix in KRL_SUFFIXES:
-        return Program(path, "krl", text, _krl_targets(text, path), {}, {}, encoding)
-    targets, tools, work_objects = _read_rapid(text, path)
+    if "\r" in text and "\n" not in text:
+        raise InputError(path, None, "its lines end in CR alone (classic Mac OS): convert them to LF or CR LF")
+    try:
+        if suffix in KRL_SUFFIXES:
+            return Program(path, "krl", text, _krl_targets(text, path), {}, {}, encoding)
+        targets, tools, work_objects = _read_rapid(text, path)
+    except RecursionError:
+        raise InputError(path, None, "brackets nested too deeply for a robot program") from None
     return Program(path, "rapid", text, targets, tools, work_objects, encoding)
+
+
+MAX_PROGRAM_BYTES = 32 * 10**6  # a 32 MB module holds some 200 000 targets
+MAX_VALUE = 1e10  # beyond this a number is a typo (9E+09 is RAPID's unused external axis)
 
 
 def _read_text(path: Path) -> tuple[str, str]:
@@ -133,7 +146,7 @@ _RAPID_TOKEN = re.compile(
     r"""(?P<space>\s+)
     |(?P<comment>![^\r\n]*)
     |(?P<string>"(?:[^"\r\n]|"")*")
-    |(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)
+    |(?P<number>(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)
     |(?P<name>[A-Za-z_][A-Za-z0-9_]*)
     |(?P<assign>:=)
     |(?P<other>.)""",
@@ -236,9 +249,12 @@ def _number(node: _Node, what: str, ctx: _Context) -> float:
     if not isinstance(node, _Leaf) or node.kind != "number":
         text = node.text if isinstance(node, _Leaf) else "[...]"
         raise ctx.fail(_first_line(node, ctx), f"{what}: {text!r} is not a number")
-    value = float(re.sub(r"\s+", "", node.text))
-    if not math.isfinite(value):
-        raise ctx.fail(node.line, f"{what}: {node.text!r} is out of range")
+    try:
+        value = float(re.sub(r"\s+", "", node.text))
+    except ValueError:  # a comment between a sign and its digits
+        raise ctx.fail(node.line, f"{what}: {node.text!r} is not a plain number") from None
+    if not math.isfinite(value) or abs(value) > MAX_VALUE:
+        raise ctx.fail(node.line, f"{what}: {node.text!r} is out of range (beyond {MAX_VALUE:g})")
     return value
 
 
@@ -355,16 +371,28 @@ def _tooldata(value: _Node, ctx: _Context) -> ToolData:
     for node in inertia:
         _number(node, "tload inertia", ctx)
     tcp = _frame(tframe, "tframe", ctx)
-    return ToolData(tcp, _number(mass_node, "tload mass", ctx), np.array(cog) * MM, _boolean(robhold, "robhold", ctx))
+    mass = _number(mass_node, "tload mass", ctx)
+    if not 0.0 <= mass <= MAX_LOAD_KG or np.abs(cog).max() > MAX_COG_MM:
+        raise ctx.fail(
+            _first_line(tload, ctx), f"tload: a mass of 0 to {MAX_LOAD_KG:g} kg and a cog within {MAX_COG_MM:g} mm, "
+            f"got {mass:g} kg at {[float(v) for v in cog]}",
+        )  # fmt: skip
+    return ToolData(tcp, mass, np.array(cog) * MM, _boolean(robhold, "robhold", ctx))
+
+
+MAX_LOAD_KG, MAX_COG_MM = 10000.0, 10000.0
 
 
 def _wobjdata(value: _Node, ctx: _Context) -> np.ndarray:
     """``[robhold, ufprog, "ufmec", uframe, oframe]`` as uframe @ oframe (m)."""
     robhold, ufprog, ufmec, uframe, oframe = _aggregate(value, 5, "wobjdata", ctx)
-    _boolean(robhold, "robhold", ctx)
-    _boolean(ufprog, "ufprog", ctx)
     if not (isinstance(ufmec, _Leaf) and ufmec.kind == "string"):
         raise ctx.fail(_first_line(ufmec, ctx), 'ufmec: expected a string ("")')
+    if _boolean(robhold, "robhold", ctx) or not _boolean(ufprog, "ufprog", ctx):
+        raise ctx.fail(
+            _first_line(value, ctx), "a work object held by the robot (robhold TRUE) or moved by a mechanical unit "
+            "(ufprog FALSE) is not supported: its targets move with it",
+        )  # fmt: skip
     return _frame(uframe, "uframe", ctx) @ _frame(oframe, "oframe", ctx)
 
 
@@ -482,8 +510,8 @@ _KRL_CODE = re.compile(r'(?:"[^"\r\n]*"|[^";\r\n])*')  # a line's code, before a
 _KRL_DECL = re.compile(r"\s*(?:GLOBAL\s+)?(?:DECL\s+)?(?:GLOBAL\s+)?(E6POS|POS)\s+([A-Za-z_$][\w$]*)", re.IGNORECASE)
 _KRL_TYPE_PREFIX = re.compile(r"\s*[A-Za-z_]\w*\s*:(?!=)")
 _KRL_COMPONENT = re.compile(r"\s*([A-Za-z_]\w*)\s+(\S(?:.*\S)?)\s*", re.DOTALL)
-_KRL_REAL = re.compile(r"[+-]?\s*(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-_KRL_INT = re.compile(r"[+-]?\d+")
+_KRL_REAL = re.compile(r"[+-]?\s*(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_KRL_INT = re.compile(r"[+-]?[0-9]+")
 _KRL_BITS = re.compile(r"'([Bb])([01]+)'|'([Hh])([0-9A-Fa-f]+)'")
 _Fail = Callable[[str], InputError]  # builds the error naming the file, line and target
 

@@ -17,12 +17,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .errors import InputError
 from .parameters import COMPLIANCE_KINDS, split_name
 from .robot import Robot
 
 # Tool-frame points the fit matches (m): the origin and 0.1 m along each axis.
 POINTS = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
 ITERATIONS = 20
+MIN_CONFIGURATIONS = 10  # fewer cannot fix the rigid parameters a URDF holds
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,11 @@ def rigid_refit(robot: Robot, q: np.ndarray) -> RigidFit:
     """The rigid robot nearest ``robot`` (full model, at its payload) over configurations ``q``
     (N, n; rad): every rigid parameter refitted, compliances zero."""
     q = robot.check_q(q)
+    distinct = len(np.unique(np.round(q, 9), axis=0))
+    if distinct < MIN_CONFIGURATIONS:
+        raise InputError(
+            None, "--rigid-fit", f"{distinct} distinct configurations: a rigid fit needs at least {MIN_CONFIGURATIONS}"
+        )
     wanted = _points(robot, q)
     dropped = without_compliances(robot)
     names = [name for name in robot.parameter_names if not _compliance(name)]

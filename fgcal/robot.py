@@ -76,6 +76,12 @@ class Robot:
         if unknown:
             raise ValueError(f"unknown parameter names: {sorted(unknown)}")
 
+    def __repr__(self) -> str:
+        kinds = "prismatic and revolute" if self.prismatic.any() else "revolute"
+        calibrated = f", {len(self.overrides)} parameters set" if self.overrides else ""
+        payload = f", payload {self.payload_mass:g} kg" if self.payload_mass else ""
+        return f"<Robot {self.name!r}: {self.n_joints} {kinds} joints, model {self.model}{calibrated}{payload}>"
+
     # -- description -------------------------------------------------------------------
     @property
     def n_joints(self) -> int:

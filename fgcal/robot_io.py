@@ -224,14 +224,14 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         overrides=overrides,
         source=str(doc.raw("source")),
         urdf=_urdf_origin(doc, Path(source)),
-        region=_region(doc, units, [g.prismatic for g in geometries]),
+        region=_region(doc, units, [g.prismatic for g in geometries], np.array(limits)),
     )
 
 
 MAX_REGION = 10000  # configurations a robot file may list as its calibrated region
 
 
-def _region(doc: Fields, units: Units, prismatic: list[bool]) -> np.ndarray | None:
+def _region(doc: Fields, units: Units, prismatic: list[bool], limits: np.ndarray) -> np.ndarray | None:
     """``calibrated_region``: configurations (joint units of the file), each with every joint."""
     if not doc.has("calibrated_region"):
         return None
@@ -247,6 +247,8 @@ def _region(doc: Fields, units: Units, prismatic: list[bool]) -> np.ndarray | No
         if values is None or not np.all(np.isfinite(values)) or np.abs(values).max() > 1e3:
             raise doc.error(f"calibrated_region[{k}]", f"{len(prismatic)} finite joint values within 1000")
         out[k] = values * scale
+        if np.any(out[k] < limits[:, 0] - 1e-6) or np.any(out[k] > limits[:, 1] + 1e-6):
+            raise doc.error(f"calibrated_region[{k}]", "a configuration outside the joint limits")
     return out
 
 

@@ -27,7 +27,7 @@ from .joints import DHJoint
 from .program_filter import controller_frame
 from .robot import Robot
 from .se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation, so3_exp
-from .urdf_export import TINY, joint_frames
+from .urdf_export import clean, joint_frames
 
 JOINTS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
 # wrist_3_link -> tool0 in the UR description: the flange (0, -pi/2, -pi/2), then tool0 (pi/2, pi, pi/2).
@@ -53,6 +53,7 @@ def ur_kinematics(robot: Robot, nominal: Robot) -> URKinematics:
         )
     rigid = robot.with_model("DH,s")  # a kinematics file cannot bend: the compliances stay in the sidecar
     frames = joint_frames(rigid)
+    _check_ur_layout(robot, frames)
     base = controller_frame(rigid, nominal)
     joints = inverse(base) @ frames["joints"]  # in the controller's base frame
     axes = frames["axes"]
@@ -80,12 +81,29 @@ def ur_kinematics(robot: Robot, nominal: Robot) -> URKinematics:
         local = inverse(parent) @ J
         xyz, rpy = local[:3, 3], rpy_from_rotation(local[:3, :3])
         entries[name] = {
-            k: _clean(v) for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), [*xyz, *rpy], strict=True)
+            k: clean(v) for k, v in zip(("x", "y", "z", "roll", "pitch", "yaw"), [*xyz, *rpy], strict=True)
         }
         parent = J
     digest = hashlib.sha256(repr(sorted((k, tuple(v.values())) for k, v in entries.items())).encode()).hexdigest()
     document = {"kinematics": {**entries, "hash": f"fgcal_{digest[:16]}"}}
     return URKinematics(document, joints, tilt, offset)
+
+
+UR_AXES_DEG = 2.0  # how far from parallel or square the UR layout's axes may be
+
+
+def _check_ur_layout(robot: Robot, frames: dict) -> None:
+    """A UR arm: axes 2, 3 and 4 parallel, axis 1 square to 2, 5 square to 4, 6 square to 5."""
+    axes = np.einsum("nij,nj->ni", frames["joints"][:, :3, :3], frames["axes"])  # in W
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    tolerance = np.sin(np.radians(UR_AXES_DEG))
+    parallel = all(np.linalg.norm(np.cross(axes[1], axes[k])) < tolerance for k in (2, 3))
+    square = all(abs(axes[a] @ axes[b]) < tolerance for a, b in ((0, 1), (3, 4), (4, 5)))
+    if not (parallel and square):
+        raise InputError(
+            None, "--ur-kinematics", f"{robot.name} is not laid out as a UR arm (axes 2, 3 and 4 parallel; 1, 5 and "
+            "6 square to their neighbours): the UR description cannot hold it",
+        )  # fmt: skip
 
 
 def _z_along(J: np.ndarray, axis: np.ndarray) -> np.ndarray:
@@ -101,11 +119,6 @@ def _z_along(J: np.ndarray, axis: np.ndarray) -> np.ndarray:
     out = J.copy()
     out[:3, :3] = J[:3, :3] @ R
     return out
-
-
-def _clean(value: float) -> float:
-    """0 below TINY, else 15 significant digits (no 0.6127000000000005)."""
-    return 0.0 if abs(value) < TINY else float(f"{value:.15g}")
 
 
 def residual_text(result: URKinematics) -> str:

@@ -12,7 +12,7 @@ transform chain at q = 0 with the compliances at zero:
   controller's joint value (:func:`urdf_document`).
 
 Numbers are written clean: values below 1e-12 as 0, 15 significant digits, unit axes, so that
-every URDF reader (yourdfpy, pinocchio, roboticstoolbox) computes the same forward kinematics.
+every URDF reader computes the same forward kinematics (the tests check three independent ones).
 Compliances, and what a URDF cannot hold (the robot's placement in the calibration's frame, the
 calibration's tool), go to a sidecar YAML (:func:`compliance_document`).
 """
@@ -38,6 +38,11 @@ def number(value: float) -> str:
     """A value as URDF text: 0 below TINY, else 15 significant digits (no -0, no 1e-17 noise)."""
     value = float(value)
     return "0" if abs(value) < TINY else f"{value:.15g}"
+
+
+def clean(value: float) -> float:
+    """A value for YAML: 0 below TINY, else 15 significant digits (no 0.11999999999999922)."""
+    return 0.0 if abs(value) < TINY else float(f"{value:.15g}")
 
 
 def _vector(values) -> str:
@@ -168,7 +173,7 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
 
 
 def _moving_chain(template: Path, tip: str) -> tuple[list, str]:
-    """The joints (yourdfpy) from the template's root to ``tip``, and its root link."""
+    """The joints (fgcal.urdf_io's model) from the template's root to ``tip``, and its root link."""
     from .urdf_io import _chain_to, _parse
 
     model = _parse(template)
@@ -214,7 +219,7 @@ def faithful_document(robot: Robot, template: Path, tip: str, sidecar: str | Non
     for joint in chain:
         parent = placed[joint.parent]
         if joint.type == "fixed":
-            placed[joint.child] = parent @ (np.eye(4) if joint.origin is None else joint.origin)
+            placed[joint.child] = parent @ joint.origin
             continue
         J = f["joints"][moving]
         element = elements[joint.name]
@@ -262,15 +267,12 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
             {
                 "joint": names[i],
                 "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
-                "bending_frame_rpy_rad": [float(v) + 0.0 for v in rpy_from_rotation(B_in_joint[:3, :3])],
+                "bending_frame_rpy_rad": [clean(v) for v in rpy_from_rotation(B_in_joint[:3, :3])],
             }
         )
 
     def pose(T: np.ndarray) -> dict:
-        return {
-            "xyz_m": [float(v) + 0.0 for v in T[:3, 3]],
-            "rpy_rad": [float(v) + 0.0 for v in rpy_from_rotation(T[:3, :3])],
-        }
+        return {"xyz_m": [clean(v) for v in T[:3, 3]], "rpy_rad": [clean(v) for v in rpy_from_rotation(T[:3, :3])]}
 
     return {
         "urdf": urdf_name,

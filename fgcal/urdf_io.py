@@ -1,5 +1,11 @@
 """URDF in and out.
 
+Reading: the file is parsed (lxml, well-formed XML only) and checked (:func:`read_document`),
+then read into a small model of its own (:func:`_parse`: links with their mass and centre of
+mass, joints with type, parent, child, origin, axis, limits and mimic), with the URDF defaults:
+no ``<origin>`` is the identity, a missing ``xyz`` or ``rpy`` is zeros, ``rpy`` is fixed-axis
+Rz(yaw) Ry(pitch) Rx(roll), no ``<axis>`` is (1, 0, 0).
+
 Import (:func:`load_urdf`): the chain from the root link to the tip link becomes a
 :class:`~fgcal.robot.Robot` of :class:`~fgcal.joints.OriginJoint` s. Fixed joints fold into
 the next moving joint's origin (or, after the last one, into the flange pose), so
@@ -13,6 +19,7 @@ Export: fgcal.urdf_export.
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +28,7 @@ from .errors import InputError
 from .fields import read_file_text
 from .joints import OriginJoint
 from .robot import Robot
+from .se3 import pose_from_xyz_rpy
 
 MOVING = ("revolute", "continuous", "prismatic")
 CONTINUOUS_LIMITS_RAD = (-2 * np.pi, 2 * np.pi)
@@ -32,8 +40,7 @@ def read_document(path: Path):
     from lxml import etree
 
     text = read_file_text(path)  # a regular file of a sane size (not a FIFO, not /dev/zero)
-    # yourdfpy recovers from broken XML silently: check well-formedness first, without
-    # entities or network access.
+    # Well-formed XML only (no recovery from broken XML), without entities or network access.
     try:
         tree = etree.ElementTree(
             etree.fromstring(text.encode("utf-8"), etree.XMLParser(resolve_entities=False, no_network=True))
@@ -44,20 +51,107 @@ def read_document(path: Path):
     return tree
 
 
-def _parse(path: Path):
-    """The yourdfpy model of a URDF file; malformed XML or URDF is an InputError."""
-    import yourdfpy
+@dataclass(frozen=True)
+class _Link:
+    name: str
+    mass: float | None  # kg; None: no <inertial> or no <mass> in it
+    com_origin: np.ndarray  # 4x4: the inertial frame (centre of mass) in the link's
 
-    read_document(path)
+
+@dataclass(frozen=True)
+class _Joint:
+    name: str
+    type: str | None
+    parent: str
+    child: str
+    origin: np.ndarray  # 4x4: the child link's frame in the parent's at zero
+    axis: np.ndarray  # (3,)
+    lower: float | None
+    upper: float | None
+    mimic: bool
+
+
+@dataclass(frozen=True)
+class _Model:
+    name: str
+    links: tuple[_Link, ...]
+    joints: tuple[_Joint, ...]
+
+
+# Numbers of a URDF that fgcal does not use, read all the same: a file in which they are not
+# numbers is refused.
+_UNUSED_NUMBERS = {
+    "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+    "limit": ("effort", "velocity"),
+    "mimic": ("multiplier", "offset"),
+    "calibration": ("rising", "falling"),
+    "safety_controller": ("soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity"),
+}
+
+
+def _check_unused(element, tags: tuple[str, ...]) -> None:
+    for tag in tags:
+        child = element.find(tag)
+        for key in _UNUSED_NUMBERS[tag] if child is not None else ():
+            if (text := child.get(key)) is not None:
+                float(text)
+
+
+def _origin(element) -> np.ndarray:
+    """The pose of an ``<origin>``: the identity if there is none, a missing xyz or rpy zeros."""
+    if element is None:
+        return np.eye(4)
+    xyz = [float(v) for v in element.get("xyz", "0 0 0").split()]
+    rpy = [float(v) for v in element.get("rpy", "0 0 0").split()]
+    return pose_from_xyz_rpy(np.array(xyz), np.array(rpy))
+
+
+def _optional_float(text: str | None) -> float | None:
+    return None if text is None else float(text)
+
+
+def _read_model(root) -> _Model:
+    """The model of a checked URDF tree (:func:`_validate`). A number that is not one, or a
+    <robot> without a name, raises ValueError or KeyError."""
+    name = root.attrib["name"]
+    links = []
+    for element in root.findall("link"):
+        inertial = element.find("inertial")
+        mass, com_origin = None, np.eye(4)
+        if inertial is not None:
+            com_origin = _origin(inertial.find("origin"))
+            _check_unused(inertial, ("inertia",))
+            mass_element = inertial.find("mass")
+            if mass_element is not None:
+                mass = float(mass_element.get("value", "0"))
+        links.append(_Link(element.get("name"), mass, com_origin))
+    joints = []
+    for element in root.findall("joint"):
+        axis = element.find("axis")
+        limit = element.find("limit")
+        _check_unused(element, ("limit", "mimic", "calibration", "safety_controller"))
+        joints.append(
+            _Joint(
+                name=element.get("name"),
+                type=element.get("type"),
+                parent=element.find("parent").get("link"),
+                child=element.find("child").get("link"),
+                origin=_origin(element.find("origin")),
+                axis=np.array([float(v) for v in ("1 0 0" if axis is None else axis.get("xyz", "1 0 0")).split()]),
+                lower=None if limit is None else _optional_float(limit.get("lower")),
+                upper=None if limit is None else _optional_float(limit.get("upper")),
+                mimic=element.find("mimic") is not None,
+            )
+        )
+    return _Model(name, tuple(links), tuple(joints))
+
+
+def _parse(path: Path) -> _Model:
+    """The model of a URDF file; malformed XML or URDF is an InputError."""
+    root = read_document(path).getroot()
     try:
-        return yourdfpy.URDF.load(
-            str(path),
-            build_scene_graph=False,
-            load_meshes=False,
-            build_collision_scene_graph=False,
-            load_collision_meshes=False,
-        ).robot
-    except Exception as exc:  # yourdfpy raises many kinds on a bad document
+        return _read_model(root)
+    except (KeyError, ValueError) as exc:  # a <robot> without a name, a number that is not one
         raise InputError(path, None, f"not a valid URDF: {type(exc).__name__}: {exc}") from None
 
 
@@ -81,7 +175,7 @@ def _numbers(path: Path, where: str, text: str | None, count: int, bound: float)
 
 
 def _validate(path: Path, root) -> None:
-    """Checks yourdfpy does not make: a <robot> document, unique link and joint names, joints
+    """The checks of a URDF's structure and numbers: a <robot> document, unique link and joint names, joints
     between links that exist, origins, axes and limits of the right length and size."""
     if root.tag != "robot":
         raise InputError(path, None, f"not a URDF: the document is <{root.tag}>, not <robot>")
@@ -174,10 +268,9 @@ def _chain_to(path: Path, model, tip: str | None) -> tuple[str, str, list]:
 def _joint_limits(path: Path, joint) -> np.ndarray:
     if joint.type == "continuous":
         return np.array(CONTINUOUS_LIMITS_RAD)
-    limit = joint.limit
-    if limit is None or limit.lower is None or limit.upper is None:
+    if joint.lower is None or joint.upper is None:
         raise InputError(path, f"joint {joint.name}.limit", "a revolute or prismatic joint needs both limits")
-    lower, upper = float(limit.lower), float(limit.upper)
+    lower, upper = joint.lower, joint.upper
     if not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
         raise InputError(path, f"joint {joint.name}.limit", f"lower {lower} must be below upper {upper}, both finite")
     return np.array([lower, upper])
@@ -197,12 +290,12 @@ def _lumped_inertials(path: Path, model, chain: list) -> tuple[np.ndarray, np.nd
     stack = [(chain[0].parent, 0, np.eye(4))]
     while stack:
         link_name, body, T_body_link = stack.pop()
-        inertial = links[link_name].inertial
-        if inertial is not None and inertial.mass is not None:
-            m = float(inertial.mass)
+        link = links[link_name]
+        if link.mass is not None:
+            m = link.mass
             if not np.isfinite(m) or m < 0 or m > 1e6:
                 raise InputError(path, f"link {link_name}.inertial.mass", f"must be finite, 0 to 1e6 kg, got {m}")
-            com = _finite_pose(path, f"link {link_name}.inertial.origin", inertial.origin)[:3, 3]
+            com = _finite_pose(path, f"link {link_name}.inertial.origin", link.com_origin)[:3, 3]
             mass[body] += m
             first_moment[body] += m * (T_body_link[:3, :3] @ com + T_body_link[:3, 3])
         for joint in children.get(link_name, []):
@@ -232,7 +325,7 @@ def load_urdf(path: str | Path, tip: str | None = None) -> Robot:
             continue
         if joint.type not in MOVING:
             raise InputError(path, f"joint {joint.name}.type", f"{joint.type!r} joints are not supported in the chain")
-        if joint.mimic is not None:
+        if joint.mimic:
             raise InputError(path, f"joint {joint.name}.mimic", "mimic joints are not supported in the chain")
         axis = np.asarray(joint.axis, dtype=float)
         if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:

@@ -200,6 +200,8 @@ def _argv(*argv: str):
 
 
 RAPID_TARGET = "MODULE M\nCONST robtarget p1:=[[1,2,3],[1,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+RAPID_TOOL = RAPID_TARGET + "PERS tooldata gun:=[TRUE,[[0,0,100],[1,0,0,0]],[0.5,[0,0,30],[1,0,0,0],0,0,0]];\n"
+RAPID_WOBJ = RAPID_TARGET + 'PERS wobjdata table:=[FALSE,TRUE,"",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];\n'
 
 
 def _program(name: str, text: str, out: str = "o.mod", extra: list[str] | None = None):
@@ -632,6 +634,53 @@ CASES = [
      "UR arm"),
     ("export_ur_not_yaml", _argv("export", "ur10e", "--ur-kinematics", "k.txt"), "k.txt", ".yaml"),
     ("export_nothing_to_write", _argv("export", "ur10e"), "fgcal export", "--urdf"),
+    # From the hunt of issue 24's surfaces
+    ("rapid_comment_in_number", _program("p.mod", RAPID_TARGET.replace("[[1,2,3]", "[[- !c\n1,2,3]")), "p.mod",
+     "not a plain number"),
+    ("rapid_nested_deep", _program("p.mod", "MODULE M\nCONST robtarget p:=" + "[" * 5000 + "1" + "]" * 5000 + ";\n"),
+     "p.mod", "nested too deeply"),
+    ("rapid_tload_huge", _program("p.mod", RAPID_TOOL.replace("[0.5,", "[1e300,")), "p.mod", "tload"),
+    ("rapid_tload_negative", _program("p.mod", RAPID_TOOL.replace("[0.5,", "[-5,")), "p.mod", "tload"),
+    ("rapid_wobj_robot_held", _program("p.mod", RAPID_WOBJ.replace("[FALSE,TRUE", "[TRUE,TRUE")), "p.mod",
+     "robhold TRUE"),
+    ("rapid_cr_only", _program("p.mod", RAPID_TARGET.replace("\n", "\r") + "ENDMODULE\r"), "p.mod", "CR alone"),
+    ("rapid_fullwidth_digit", _program("p.mod", RAPID_TARGET.replace("[[1,2,3]", "[[\uff13,2,3]")), "p.mod", "p1"),
+    ("rapid_out_is_input", _program("p.mod", RAPID_TARGET, out="p.mod"), "p.mod", "same file"),
+    ("rapid_out_fifo", _prepare_then(lambda root: ((root / "p.mod").write_text(RAPID_TARGET + "ENDMODULE\n"),
+     os.mkfifo(root / "o.mod")), ["compensate", "abb_irb120", "p.mod", "--out", "o.mod"]), "o.mod",
+     "not a regular file"),
+    ("rapid_tool_nan", _program("p.mod", RAPID_TARGET, extra=["--tool", "0", "0", "nan", "0", "0", "0"]), "p.mod",
+     "--tool"),
+    ("rapid_tool_underscore", _program("p.mod", RAPID_TARGET, extra=["--tool", "0", "0", "1_20", "0", "0", "0"]),
+     "p.mod", "--tool"),
+    ("rapid_base_huge", _program("p.mod", RAPID_TARGET, extra=["--base", "1e300", "0", "0", "0", "0", "0"]), "p.mod",
+     "--base"),
+    ("csv_out_is_the_robot", _argv("compensate", "robot.yaml", "targets.csv", "--out", "robot.yaml"), "robot.yaml",
+     ".csv"),
+    ("csv_out_is_the_targets", _argv("compensate", "robot.yaml", "targets.csv", "--out", "targets.csv"),
+     "targets.csv", "same file"),
+    ("csv_out_fifo", _prepare_then(lambda root: os.mkfifo(root / "o.csv"),
+     ["compensate", "robot.yaml", "targets.csv", "--out", "o.csv"]), "o.csv", "not a regular file"),
+    ("csv_column_twice", _prepare_then(lambda root: (root / "d.csv").write_text("target,x,y,z,x\nt,0.4,0,0.5,1\n"),
+     ["compensate", "robot.yaml", "d.csv", "--out", "o.csv"]), "d.csv", "given twice"),
+    ("csv_empty_target_name", _prepare_then(lambda root: (root / "e.csv").write_text("target,x,y,z\n ,0.4,0,0.5\n"),
+     ["compensate", "robot.yaml", "e.csv", "--out", "o.csv"]), "e.csv", "empty target name"),
+    ("program_without_suffix", _argv("compensate", "robot.yaml", "nothing", "--out", "o.csv"), "nothing",
+     "file not found"),
+    ("export_kinematics_over_the_robot", _argv("export", "robot.yaml", "--ur-kinematics", "robot.yaml"), "robot.yaml",
+     "same file"),
+    ("export_kinematics_over_the_sidecar", _argv("export", "ur10e", "--urdf", "u.urdf", "--ur-kinematics",
+     "u.compliance.yaml"), "u.compliance.yaml", "same file"),
+    ("export_urdf_over_the_template", _argv("export", "good.urdf", "--urdf", "good.urdf"), "good.urdf", "same file"),
+    ("export_urdf_fifo", _prepare_then(lambda root: os.mkfifo(root / "f.urdf"),
+     ["export", "ur10e", "--urdf", "f.urdf"]), "f.urdf", "not a regular file"),
+    ("export_nominal_alone", _argv("export", "ur10e", "--urdf", "u.urdf", "--nominal", "abb_irb120"), "fgcal export",
+     "--nominal"),
+    ("region_outside_limits", _robot_edit("calibrated_region: [[0, 0, 0, 0, 0, 900]]"), "robot.yaml",
+     "outside the joint limits"),
+    ("region_too_few_for_a_fit", _prepare_then(lambda root: (root / "robot.yaml").write_text(
+     (root / "robot.yaml").read_text() + "\ncalibrated_region: [[0, 0, 0, 0, 0, 0]]\n"),
+     ["export", "robot.yaml", "--urdf", "r.urdf", "--rigid-fit"]), "--rigid-fit", "distinct configurations"),
 ]  # fmt: skip
 
 

@@ -227,6 +227,11 @@ def test_real_tracker_data(tmp_path):
     assert 0.67 <= ratio <= 1.5, (ratio, predicted)
     doc = write_report(result, tmp_path / "report", plots=False)
     assert doc["goodness_of_fit"]["chi2_per_dof"] == pytest.approx(fit.chi2_per_dof)
+    from test_smoke import assert_headline_is_the_reports
+
+    assert_headline_is_the_reports(tmp_path / "report")
+    assert doc["headline"]["after_m"]["rms"] == result.validation["after"]["tool_point"].rms
+    assert len(doc["worst_configurations"]) == 10 and doc["iso9283"]["poses"] == len(result.problem.test)
     assert all("chi2" in stage and "chi2_p_value" in stage for stage in doc["stages"])
     # Negative compliances are effective corrections, said so; each is also a displacement.
     kx1 = doc["parameters"]["kx1"]

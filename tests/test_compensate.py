@@ -9,7 +9,7 @@ from conftest import SEED_CELL, SHARED, calibrate
 import fgcal
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.cli import main
-from fgcal.compensate import compensate, nominal_of
+from fgcal.compensation import compensate, nominal_of
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +75,7 @@ def test_compensate_command_with_orientations_and_hints(calibrated, tmp_path, ca
 def test_targets_in_the_users_units_and_convention(calibrated, tmp_path, capsys, length, angle, orientation):
     """The same pose targets in mm, deg and a vendor's convention give the SI run's commands,
     written back in that convention, each column named with its unit."""
-    from fgcal.compensate import ORIENTATIONS, TargetUnits
+    from fgcal.compensation import ORIENTATIONS, TargetUnits
     from fgcal.robot_io import save_robot
 
     robot_file = tmp_path / "calibrated_robot.yaml"
@@ -214,7 +214,7 @@ def test_targets_solved_in_chunks_are_solved_as_one(monkeypatch):
     """Issue 23: 20000 targets did not finish in 120 s; they are now solved a few thousand at a
     time (arrays that stay in the cache). The chunks change nothing but the rounding: every
     joint value is the one of a single batch."""
-    import fgcal.compensate as module
+    import fgcal.compensation as module
 
     robot = fgcal.load_robot("abb_irb120")
     rng = np.random.default_rng(11)

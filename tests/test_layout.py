@@ -87,18 +87,18 @@ def test_no_import_circles():
 # belong to one (a new module states its layer here).
 LAYERS = (
     ("core", ("fgcal.errors", "fgcal.fields", "fgcal.units", "fgcal.strict_json", "fgcal.parameters", "fgcal.se3",
-              "fgcal.noise", "fgcal.outputs")),
+              "fgcal.noise", "fgcal.outputs", "fgcal.console")),
     (
         "model",
         ("fgcal.ets", "fgcal.joints", "fgcal.kinematics", "fgcal.robot", "fgcal.robot_io", "fgcal.urdf_io",
          "fgcal.urdf_export", "fgcal.rigid_fit", "fgcal.ik", "fgcal.camera", "fgcal.boards"),
     ),
-    ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensate", "fgcal.programs",
+    ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensation", "fgcal.programs",
               "fgcal.program_filter", "fgcal.ur_kinematics")),
     ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),
     ("calibration", ("fgcal.calibration",)),
     ("online and planning", ("fgcal.online", "fgcal.planning")),
-    ("reports and commands", ("fgcal.reports", "fgcal.bench", "fgcal.cli", "fgcal.__main__")),
+    ("reports and commands", ("fgcal.reports", "fgcal.bench", "fgcal.cli", "fgcal.__main__", "fgcal.api")),
 )  # fmt: skip
 
 

@@ -15,7 +15,7 @@ from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate
 from fgcal.calibration.scoring import score_with_truth
 from fgcal.cli import main
-from fgcal.compensate import nominal_of
+from fgcal.compensation import nominal_of
 from fgcal.program_filter import configurations, controller_frame, frame_from_numbers
 from fgcal.programs import read_program
 from fgcal.reports.calibration import calibrated_robot
@@ -144,7 +144,8 @@ def test_a_rapid_module_lands_within_the_calibration(irb120, tmp_path, capsys):
     )
     assert _rms(before) >= 100 * _rms(now), (_rms(before), _rms(now))
     rows = (tmp_path / "weld_cal.corrections.csv").read_text().splitlines()
-    assert rows[0].startswith("target,line,status,corrected,dx_mm") and len(rows) == N_TARGETS + 1
+    assert rows[0].startswith("target,line,status,corrected,in_calibrated_region,dx_mm") and len(rows) == N_TARGETS + 1
+    assert all(row.split(",")[3] == "yes" and row.split(",")[4] in ("yes", "no") for row in rows[1:]), rows
 
 
 def test_a_krl_dat_lands_within_the_calibration(kr125, tmp_path, capsys):

@@ -26,13 +26,15 @@ RUNS = {
     "simulate and calibrate": [
         ["simulate", "kr125_seed", "--out", "{ws}/seed", "--seed", "2"],
         ["calibrate", "{ws}/seed/calibration.yaml", "--out", "{ws}/calibrated"],
-        ["calibrate", "{ws}/seed/calibration.yaml", "--out", "{ws}/calibrated_text", "--no-plots"],
-        ["simulate", "kr125_seed", "--out", "{ws}/rendered", "--design", "space_filling", "--n", "6", "--render"],
+        ["calibrate", "{ws}/seed/calibration.yaml", "--out", "{ws}/calibrated_text", "--no-plots", "--json", "-q",
+         "-v"],
+        ["simulate", "kr125_seed", "--out", "{ws}/rendered", "--design", "space_filling", "--n", "6", "--render",
+         "--json"],
         ["simulate", "kr125_seed", "--out", "{ws}/drifted", "--design", "space_filling", "--n", "12",
          "--drift", "a2=0.001@6"],
         ["plan", "kr125_seed", "--n", "12", "--out", "{ws}/plan", "--criterion", "position", "--candidates", "300",
          "--formulation", "pairs", "--model", "DH,s,e", "--seed", "2", "--no-plots"],
-        ["plan", "irb120_tracker", "--n", "12", "--out", "{ws}/plan_tracker", "--candidates", "300"],
+        ["plan", "irb120_tracker", "--n", "12", "--out", "{ws}/plan_tracker", "--candidates", "300", "--json"],
         ["simulate", "kr125_seed", "--out", "{ws}/planned", "--configurations", "{ws}/plan/configurations.csv"],
     ],
     "use the result": [
@@ -47,12 +49,15 @@ RUNS = {
         ["export", "seven_axis", "--urdf", "{ws}/urdf/templated.urdf", "--template",
          str(REPO / "datasets" / "robots" / "seven_axis.urdf")],
         ["robots"],
+        ["list", "cells"],
+        ["--version"],
         ["fk", "abb_irb120", "0", "0.5", "0", "0", "0", "0"],
         ["fk", "kuka_kr125_2", "0", "-30", "20", "0", "45", "0", "--deg", "--tool"],
         ["fk", "seven_axis", "0", "0.1", "0", "0.2", "0", "0.3", "0", "--tip", "link_7"],
         ["export", "ur10e", "--ur-kinematics", "{ws}/urdf/ur10e_kinematics.yaml", "--nominal", "ur10e"],
         ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/targets_mm.csv", "--out", "{ws}/commands_mm.csv",
-         "--length-unit", "mm", "--angle-unit", "deg", "--orientation", "abc"],
+         "--length-unit", "mm", "--angle-unit", "deg", "--orientation", "abc", "--json", "--targets-frame",
+         "controller"],
         ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/PALLET.dat", "--out", "{ws}/PALLET_cal.dat",
          "--tool", "0", "0", "100", "0", "0", "0", "--base", "1000", "0", "0", "0", "0", "0"],
     ],
@@ -176,7 +181,8 @@ def test_use_the_result_as_documented(ws, capsys):
         rows = (ws / name).read_text().splitlines()[1:]
         assert len(rows) == 5 and all(row.endswith(",ok") for row in rows), rows
     assert (ws / "urdf" / "calibrated.urdf").exists() and (ws / "urdf" / "seven_axis.compliance.yaml").exists()
-    assert "kuka_kr125_2" in printed[6] and "T_W_n" in printed[7] and "T_W_C" in printed[8]
+    assert "kuka_kr125_2" in printed[6] and "kr125_seed" in printed[7] and "T_W_n" in printed[9]
+    assert "T_W_C" in printed[10] and printed[8].startswith("fgcal ")
     assert "URDF alone, rigid fit" in printed[4]
     assert "ok 5" in printed[-1] and (ws / "PALLET_cal.corrections.csv").exists()
     assert "kinematics" in yaml.safe_load((ws / "urdf" / "ur10e_kinematics.yaml").read_text())
@@ -198,6 +204,21 @@ def test_demo_as_documented(ws, capsys):
         assert "compensation of 200 random targets" in printed
     report = json.loads((ws / "demo_tracker" / "report" / "report.json").read_text())
     assert report["formulation"] == "tracker" and report["compensation"]["improvement"] > 50
+    for folder in ("demo", "demo_tracker"):
+        assert_headline_is_the_reports(ws / folder / "report")
+
+
+def assert_headline_is_the_reports(folder: Path) -> None:
+    """report.md opens (after its title) with the headline, whose figures are report.json's."""
+    from fgcal.reports.headline import figure
+
+    headline = json.loads((folder / "report.json").read_text())["headline"]
+    lines = (folder / "report.md").read_text().splitlines()
+    assert lines[0].startswith("# Calibration report") and lines[2] == f"**{headline['text']}**", lines[:3]
+    for label in ("after_m", "before_m"):
+        for key in ("rms", "p95", "max"):
+            assert figure(headline[label][key] * 1e3) in lines[2], (label, key)
+    assert headline["after_m"]["rms"] < headline["before_m"]["rms"]
 
 
 def test_import_convert_and_bench_as_documented(ws, capsys):

@@ -210,7 +210,8 @@ def test_faro_rigid_fit_keeps_the_accuracy_of_a_plain_dh_calibration(tmp_path, c
     refit = rows["URDF alone, rigid fit"]
     assert refit["held_out_rms_m"] <= plain_dh, (refit, plain_dh)
     assert full["held_out_rms_m"] < refit["held_out_rms_m"] < dropped["held_out_rms_m"]
-    assert f"{refit['held_out_rms_m'] * 1e3:.3f}" in printed and "warning: the URDF alone is" in printed
+    assert f"{refit['held_out_rms_m'] * 1e3:.3f}" in printed
+    assert "warning: the URDF alone, rigid fit has 1.23x the full model's held-out RMS error" in printed
     # The URDF written is the refit: its sidecar carries no compliance to apply on top.
     sidecar = yaml.safe_load((tmp_path / "irb120.compliance.yaml").read_text())
     assert all(k == 0.0 for joint in sidecar["joints"] for k in joint["compliance_rad_per_Nm"])
@@ -257,7 +258,8 @@ def test_ur_kinematics_yaml_reproduces_the_calibrated_arm(tmp_path, capsys, squa
 
     rng = np.random.default_rng(2)
     robot = fgcal.load_robot("ur10e")
-    params = random_parameters(robot, rng)
+    # Axis distortions of a calibration's size (random_parameters' 3 deg would be another arm).
+    params = {k: v / 10 if k[:2] in ("sx", "sy") else v for k, v in random_parameters(robot, rng).items()}
     if square:  # nothing tilts the flange against axis 6
         params = {k: v for k, v in params.items() if k not in ("alpha6", "a6") and not k.startswith("tool.")}
     save_robot(tmp_path / "ur.yaml", robot, params)

@@ -29,8 +29,7 @@ def model_accuracy(result: CalibrationResult, robot: Robot) -> ModelAccuracy:
     """``robot``'s parameters (the calibration's robot, another model of it) scored on the
     calibration's data, the auxiliary unknowns registered to it on the fitting data."""
     problem = result.problem
-    if robot.parameter_names != problem.robot.parameter_names or problem.robot.flange_gap_m(robot) > SAME_ROBOT_M:
-        raise InputError(None, "--calibration", f"the calibration is of another robot than {robot.name}")
+    check_same_robot(result, robot)
     state = result.state.with_params(robot.parameter_vector())
     if state.n_auxiliary:
         state = solve_stage(problem, "registration", [], state)[0]
@@ -42,6 +41,13 @@ def model_accuracy(result: CalibrationResult, robot: Robot) -> ModelAccuracy:
 
     held = None if result.test_observations is None else scored(result.test_observations)
     return ModelAccuracy(scored(problem.observations), held)
+
+
+def check_same_robot(result: CalibrationResult, robot: Robot) -> None:
+    """The calibration must be of ``robot`` (the same joints, flanges within SAME_ROBOT_M)."""
+    problem = result.problem
+    if robot.parameter_names != problem.robot.parameter_names or problem.robot.flange_gap_m(robot) > SAME_ROBOT_M:
+        raise InputError(None, "--calibration", f"the calibration is of another robot than {robot.name}")
 
 
 def fitting_configurations(result: CalibrationResult) -> np.ndarray:

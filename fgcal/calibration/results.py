@@ -50,6 +50,7 @@ class ErrorStats:
     errors: np.ndarray  # norms
     axis_rms: np.ndarray | None = None  # (3,) where there are vectors
     configs: np.ndarray | None = None
+    vectors: np.ndarray | None = None  # (N, 3) the error vectors, where the score has them
 
     def as_dict(self) -> dict:
         if not self.errors.size:
@@ -67,13 +68,15 @@ def stats(errors: np.ndarray, configs: np.ndarray | None = None) -> ErrorStats:
     errors = np.asarray(errors, dtype=float)
     if errors.size == 0:
         return ErrorStats(math.nan, math.nan, math.nan, np.zeros(0))
-    axis_rms = None
+    axis_rms = vectors = None
     if errors.ndim == 2:
         axis_rms = np.sqrt(np.mean(errors**2, axis=0))
+        vectors = errors
         errors = np.linalg.norm(errors, axis=1)
     return ErrorStats(
-        float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors, axis_rms, configs
-    )
+        float(errors.mean()), float(np.sqrt(np.mean(errors**2))), float(errors.max()), errors, axis_rms, configs,
+        vectors,
+    )  # fmt: skip
 
 
 # Held-out scores, in order of preference, with their label (all in m).

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..compensate import compensate, nominal_of
+from ..compensation import compensate, nominal_of
 from ..truth import Truth, load_truth
 from .gauge import remove_gauge
 from .prediction import predicted_against_truth, scored_covariances, scored_positions
@@ -99,7 +99,7 @@ def position_coverage(result: CalibrationResult) -> float:
 
 
 def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: int = 0) -> CompensationStudy:
-    """Compensation scored on the simulated true robot (fgcal.compensate): ``n_targets``
+    """Compensation scored on the simulated true robot (fgcal.compensation): ``n_targets``
     random targets for the first scored point (its position at the dataset's configurations
     moved by up to 0.1 rad per joint, seeded), each from a hint 0.05 rad off. Compensated: the
     joints at which the calibrated model reaches the target; uncompensated: the joints the

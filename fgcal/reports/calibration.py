@@ -18,6 +18,7 @@ from ..parameters import unit_of
 from ..robot import Robot
 from ..robot_io import save_robot
 from .estimates import write_estimates
+from .headline import figure, headline, iso9283, worst_configurations
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -65,6 +66,7 @@ def report_dict(result: CalibrationResult) -> dict:
     intrinsics = result.state.aux.get("intrinsics")
     detection = problem.detection
     return {
+        "headline": headline(result),
         "model": config.model,
         "formulation": formulation.name,
         "robot": robot.name,
@@ -123,6 +125,8 @@ def report_dict(result: CalibrationResult) -> dict:
                 else {}
             ),
         },
+        "worst_configurations": worst_configurations(result),
+        "iso9283": iso9283(result),
         "estimates_file": "estimates.yaml",  # every estimate besides the robot, with sigmas (estimates.py)
         "seed": result.truth.seed if result.truth is not None else None,
         "timing": dict(result.timing),
@@ -163,6 +167,12 @@ def _score_name(key: str) -> str:
     return f"{key}_error_m"
 
 
+GAUGE_WORDS = {
+    "none": "nothing removed before scoring.",
+    "translation": "a common offset removed before scoring (the data cannot fix where the robot stands: "
+    "the gauge of a relative calibration).",
+    "rigid": "a common rigid motion removed before scoring (the data cannot fix the robot's placement in W).",
+}
 STRONG_CORRELATION = 0.95
 _STATS = ("mean", "rms", "p50", "p95", "max")
 
@@ -189,18 +199,13 @@ def _workspace_panel(ax, region: dict | None) -> None:
     sigma_mm = region["predicted_sigma_m"] * 1e3
     measured = region["measured_m"]
     sizes = 12.0 if measured is None else 8.0 + 120.0 * measured / max(float(measured.max()), 1e-12)
-    ax.scatter(xy[:, 0], xy[:, 1], c=sigma_mm, s=sizes, cmap="viridis", edgecolors="none")
+    points = ax.scatter(xy[:, 0], xy[:, 1], c=sigma_mm, s=sizes, cmap="viridis", edgecolors="none")
+    ax.figure.colorbar(points, ax=ax, label="predicted sigma (mm)", shrink=0.85)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x in W (m)")
     ax.set_ylabel("y in W (m)")
-    # The colour scale in words rather than a colour bar (an axis of its own, ticks and all).
-    largest = "" if measured is None else f"\nsize: measured error, largest {measured.max() * 1e3:.3g} mm"
-    ax.set_title(
-        f"Held-out points from above; colour: predicted sigma, {sigma_mm.min():.3g} mm (dark) to "
-        f"{sigma_mm.max():.3g} mm (yellow){largest}",
-        y=1.0,
-        fontsize=9,
-    )
+    largest = "" if measured is None else f"\ndot size: measured error (largest {figure(measured.max() * 1e3)} mm)"
+    ax.set_title(f"Held-out points, seen from above{largest}", fontsize=9)
 
 
 def _region(result: CalibrationResult) -> dict | None:
@@ -402,10 +407,48 @@ def _references_lines(check: dict) -> list[str]:
     return lines
 
 
-def _markdown(doc: dict, plots: dict[str, str]) -> str:
+def _iso_lines(iso: dict | None) -> list[str]:
+    if not iso:
+        return []
     lines = [
-        f"# Calibration report: {doc['robot']}",
         "",
+        f"In the manner of ISO 9283, over {iso['poses']} held-out poses ({iso['points']} scored points): position "
+        "accuracy AP (the distance from "
+        f"where the model commands to the mean of where the robot went) {figure(iso['ap_mean_m'] * 1e3)} mm on "
+        f"average, {figure(iso['ap_max_m'] * 1e3)} mm at worst; ",
+    ]
+    if iso["repeated_poses"]:
+        lines[-1] += (
+            f"repeatability RP (mean distance to that mean plus three standard deviations) over "
+            f"{iso['repeated_poses']} poses visited more than once: {figure(iso['rp_mean_m'] * 1e3)} mm on average, "
+            f"{figure(iso['rp_max_m'] * 1e3)} mm at worst."
+        )
+    else:
+        lines[-1] += "repeatability RP: no pose was visited twice."
+    return lines
+
+
+def _worst_lines(worst: list[dict] | None) -> list[str]:
+    if not worst:
+        return []
+    lines = [
+        "",
+        f"The {len(worst)} worst held-out configurations:",
+        "",
+        "| configuration | error (mm) | joints (deg) |",
+    ]
+    lines.append("|---|---|---|")
+    for row in worst:
+        joints = ", ".join(f"{np.degrees(v):.1f}" for v in row["joints_rad"])
+        lines.append(f"| {row['config']} | {figure(row['error_m'] * 1e3)} | {joints} |")
+    return lines
+
+
+def _markdown(doc: dict, plots: dict[str, str]) -> str:
+    lines = [f"# Calibration report: {doc['robot']}", ""]
+    if doc["headline"] is not None:
+        lines += [f"**{doc['headline']['text']}**", ""]
+    lines += [
         f"Model **{doc['model']}**, **{doc['formulation']}** formulation, schedule {doc['schedule']}. "
         f"{doc['n_fit_configurations']} configurations for fitting, {doc['n_validation_configurations']} held "
         f"out, {doc['n_residuals']} residuals. Total time {doc['timing']['total_s']:.2f} s."
@@ -424,9 +467,10 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 else "Reference: the held-out images' pixels, reprojected with the estimated robot, fixture pose "
                 "and intrinsics; each pixel error times the point's depth over the focal length (m)."
                 if "reprojection_error_m" in val["after"]
-                else f"Reference: {val['reference']}; gauge removed: {val['gauge_removed']}."
+                else f"Reference: {val['reference']}; {GAUGE_WORDS[val['gauge_removed']]}"
                 + (
-                    f" Scored point in the {val['scored_point_frame']} frame: {val['scored_point_m']} m."
+                    f" Scored point in the {val['scored_point_frame']} frame: "
+                    f"({', '.join(f'{v * 1e3:.3f}' for v in val['scored_point_m'])}) mm."
                     if val["scored_point_m"]
                     else ""
                 )
@@ -444,8 +488,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                     if key.endswith("_rad")
                     else (1e3, "mm")
                 )
-                cells = " | ".join("-" if stat[k] is None else f"{stat[k] * scale:.4g}" for k in _STATS)
-                axes = ", ".join(f"{stat['rms_' + a] * scale:.3g}" for a in "xyz") if "rms_x" in stat else "-"
+                cells = " | ".join("-" if stat[k] is None else figure(stat[k] * scale) for k in _STATS)
+                axes = ", ".join(figure(stat["rms_" + a] * scale) for a in "xyz") if "rms_x" in stat else "-"
                 name = key.removesuffix("_m").removesuffix("_px").removesuffix("_rad").replace("_", " ")
                 lines.append(f"| {label}: {name} ({unit}) | {cells} | {axes} |")
         if val.get("predicted_position_sigma_m"):
@@ -476,6 +520,7 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             lines += ["", f"Test points, measured only at held-out configurations: {modes}."]
         if "errors" in plots:
             lines += ["", f"![errors]({plots['errors']})"]
+        lines += _iso_lines(doc.get("iso9283")) + _worst_lines(doc.get("worst_configurations"))
     if doc["rejected_measurements"]:
         lines += ["", f"## Rejected measurements ({len(doc['rejected_measurements'])})", ""]
         lines += ["| config | kind | point or target | size (sigmas) | size |", "|---|---|---|---|---|"]
@@ -502,7 +547,7 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             f"| the calibrated model (compensated) | {c['compensated_rms_m'] * 1e3:.4g} |",
             "",
             f"Compensation removes {c['improvement']:.0f}x of the error; in the calibrated model every scored "
-            f"target is reached to {c['model_residual_max_m']:.1e} m.",
+            f"target is reached to {c['model_residual_max_m'] * 1e6:.2g} um.",
         ]
     fit = doc["goodness_of_fit"]
     if fit is not None:

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..console import warn
 from ..errors import InputError
-from ..outputs import output_file, write_text
+from ..outputs import distinct, output_file, write_text
 from ..rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
 from ..robot_io import load_robot
 from ..urdf_export import check_outputs, export_urdf, template_of
@@ -37,6 +38,10 @@ def export_command(
     say: Callable[[str], None] = print,
 ) -> int:
     path = None if urdf is None else check_outputs(urdf)[0]  # before the work, not after it
+    sidecar = None if path is None else path.with_name(f"{path.stem}.compliance.yaml")
+    robot_input = robot_file if Path(robot_file).suffix else None  # a file, not a bundled name
+    distinct({"--urdf": path, "the sidecar": sidecar, "--ur-kinematics": ur_kinematics},
+             {"ROBOT": robot_input, "--template": template, "--calibration": calibration})  # fmt: skip
     if ur_kinematics is not None:
         if Path(ur_kinematics).suffix.lower() not in (".yaml", ".yml"):
             raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
@@ -49,10 +54,12 @@ def export_command(
     result = None
     if calibration is not None:
         from ..calibration.config import load_config
+        from ..calibration.model_accuracy import check_same_robot
         from ..calibration.run import calibrate
 
         say(f"repeating the calibration {calibration} to score the URDF on its data")
         result = calibrate(load_config(calibration))
+        check_same_robot(result, robot)
     accuracy: dict = {}
     fitted: RigidFit | None = None
     if rigid_fit:
@@ -85,13 +92,14 @@ def export_command(
         accuracy["on_the_calibration_data"] = _on_data(result, robot, exported, fitted is not None, say)
     elif fitted is None:
         region = region_sample(robot)
+        where = "the calibrated region's" if robot.region is not None else "seeded"
         gap = np.linalg.norm(
             robot.fk_tool(region)[:, :3, 3] - without_compliances(robot).fk_tool(region)[:, :3, 3], axis=1
         )
         if gap.max() > 0:
             say(
                 f"the URDF alone (compliances dropped) is {np.sqrt(np.mean(gap**2)) * 1e3:.3f} mm RMS "
-                f"({gap.max() * 1e3:.3f} max) from the full model over {len(region)} seeded configurations: "
+                f"({gap.max() * 1e3:.3f} max) from the full model over {where} {len(region)} configurations: "
                 "--calibration CONFIG states it on the data, --rigid-fit folds what it can into the URDF"
             )
     if ur_kinematics is not None:
@@ -102,7 +110,7 @@ def export_command(
     template_file = template_of(exported, template)
     say(f"wrote {written} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
     if template_file is None:
-        say("  express); links: world, base_link, link_1..link_n, flange, tool0")
+        say(f"  express); links: world, base_link, link_1..link_{robot.n_joints}, flange, tool0")
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0
@@ -111,7 +119,7 @@ def export_command(
 def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[str], None]) -> None:
     import yaml
 
-    from ..compensate import nominal_of
+    from ..compensation import nominal_of
     from ..ur_kinematics import residual_text, ur_kinematics
 
     result = ur_kinematics(robot, nominal_of(robot, nominal))
@@ -121,7 +129,7 @@ def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[
         f"(compliances dropped); what that layout cannot hold of the flange: {residual_text(result)}"
     )
     if result.tool0_tilt_rad > 1e-5 or result.tool0_offset_m > 1e-5:
-        say("warning: the calibrated flange is not square to axis 6: the file puts tool0 off by that much")
+        warn("the calibrated flange is not square to axis 6: the file puts tool0 off by that much")
 
 
 def _on_data(result, robot, exported, refitted: bool, say: Callable[[str], None]) -> dict:
@@ -145,12 +153,15 @@ def _on_data(result, robot, exported, refitted: bool, say: Callable[[str], None]
             "held_out_rms_m": None if held is None else held.rms,
             "held_out_max_m": None if held is None else held.max,
         }
-    full, urdf = rows["full model (with the compliances)"], list(rows.values())[-1]
+    label, urdf = list(rows.items())[-1]
+    full = rows["full model (with the compliances)"]
+    which = "held-out" if full.held_out is not None else "fitting"
     score = (lambda a: a.held_out.rms) if full.held_out is not None else (lambda a: a.fit.rms)
-    loss = score(urdf) / score(full) - 1.0
-    if loss > LOSS_WARNING:
-        say(
-            f"warning: the URDF alone is {100 * loss:.0f}% less accurate than the full model"
+    ratio = score(urdf) / score(full)
+    if ratio - 1.0 > LOSS_WARNING:
+        warn(
+            f"the {label} has {ratio:.2f}x the full model's {which} RMS error ({score(urdf) * 1e3:.3f} against "
+            f"{score(full) * 1e3:.3f} mm)"
             + ("" if refitted else "; --rigid-fit folds what it can of the compliances into it")
             + "; for the full accuracy, correct the commands with fgcal compensate (docs/using.md)"
         )

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..console import step
 from ..errors import InputError
 from ..robot import Robot
 from ..se3 import inverse, pose, transform_points
@@ -200,8 +201,9 @@ def space_filling_design(
     rounds = 0
     started = last = round_started = time.monotonic()
 
-    def solved(done: int, total: int) -> None:  # a line every 10 s, with an estimate
+    def solved(done: int, total: int) -> None:  # a bar on a terminal; a line every 10 s, with an estimate
         nonlocal last
+        step(progress, f"design round {rounds}: IK starts", done, total)
         now = time.monotonic()
         if progress and now - last > 10 and done < total:
             last = now
@@ -214,6 +216,8 @@ def space_filling_design(
         requests = random_block_requests(cell, max(64, oversample * n_wanted - len(pool)), rng)
         round_started = time.monotonic()
         pool += solve_views(cell, requests, true_camera, rng, solved=solved)
+        step(progress, f"design round {rounds}: IK starts", 1, 1)  # the round's bar closes
+        step(progress, "design: candidate configurations", min(len(pool), oversample * n_wanted), oversample * n_wanted)
         if not pool and rounds >= NOTHING_REACHABLE_ROUNDS:
             raise _unreachable(cell, rounds, len(requests))
         if progress:

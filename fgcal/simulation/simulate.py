@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..console import step
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
 from ..noise import noise_document
@@ -52,7 +53,7 @@ class SimulationResult:
             f"-> {self.out_dir}\n"
             f"  observations: {obs}\n"
             f"  true robot vs nominal model, flange position in the base frame over these configurations:\n"
-            f"    deviation mean {self.deviation_mean_m:.4e} m, max {self.deviation_max_m:.4e} m\n"
+            f"    deviation mean {self.deviation_mean_m * 1e3:#.4g} mm, max {self.deviation_max_m * 1e3:#.4g} mm\n"
             f"  time {self.time_s:.1f} s"
         )
 
@@ -341,6 +342,7 @@ def _render_images(
         board = by_side[f"{view.side.obj}{view.side.side}"]
         image = renderer.render(board, board_pose_in_camera(T_W_C[i], cell.fixture_pose, board), rng)
         write_bytes(images / f"{cid}.png", cv2.imencode(".png", image)[1].tobytes())
+        step(say, "rendering images", i + 1, len(views))
         if (i + 1) % 50 == 0:
             say(f"  rendered {i + 1}/{len(views)} images")
     return boards

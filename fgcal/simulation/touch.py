@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..console import step
 from ..dataset import write_csv
 from ..errors import InputError
 from ..se3 import pose, so3_exp
@@ -106,6 +107,7 @@ def reach_all(
             q[pending[rows]] = q_try[ok]
             solved[rows] = True
         pending = pending[~solved]
+        step(progress, "reaching positions", len(positions) - len(pending), len(positions))
         if not len(pending) or (rounds >= NOTHING_REACHED_ROUNDS and len(pending) == len(positions)):
             break  # all reached, or none: more rounds would not help
         if rounds >= MOSTLY_UNREACHED_ROUNDS and len(pending) > len(positions) / 2:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .console import step
 from .dataset import parse_numbers, read_csv, write_csv
 from .errors import InputError
 from .fields import check_name, first_repeat
@@ -117,7 +118,14 @@ def read_targets(
     units = units or TargetUnits()
     joint_scale = np.where(np.zeros(n_joints, bool) if prismatic is None else prismatic, units.to_m, units.to_rad)
     path = Path(path)
+    if not path.exists():
+        raise InputError(path, None, "file not found")
     header, body = read_csv(path, ["target", "x", "y", "z"])
+    repeated = first_repeat(enumerate(header, start=1))
+    if repeated is not None:
+        raise InputError(
+            path, "header", f"column {repeated[2]!r} given twice (columns {repeated[0]} and {repeated[1]})"
+        )
     if not body:
         raise InputError(path, None, "no targets")
     positions = parse_numbers(path, header, body, ["x", "y", "z"], "length", units.to_m)
@@ -154,6 +162,9 @@ def read_targets(
         check_name(row[header.index("target")].strip(), path, f"line {line}, column target")
         for line, row in enumerate(body, start=2)
     ]
+    empty = next((line for line, name in enumerate(names, start=2) if not name), None)
+    if empty is not None:
+        raise InputError(path, f"line {empty}, column target", "an empty target name")
     repeat = first_repeat(enumerate(names, start=2))
     if repeat is not None:
         raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
@@ -212,6 +223,7 @@ def compensate(
         start = default_hints(nominal, targets[rows], tcp, frame=frame) if hints is None else hints[rows]
         parts.append(robot.ik(targets[rows], start, tcp=tcp, frame=frame, tol_m=tol_m, tol_rad=tol_rad))
         done = min(chunk + CHUNK, len(targets))
+        step(progress, "compensating: targets", done, len(targets))
         if progress is not None and done < len(targets):
             elapsed = time.monotonic() - started
             progress(

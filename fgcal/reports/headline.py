@@ -1,0 +1,137 @@
+"""The verdict at a glance: the headline of a calibration report, its worst held-out
+configurations, and position accuracy and repeatability in the manner of ISO 9283.
+
+All figures are computed from the result's held-out scores (against the truth of a simulation,
+else against the held-out measurements), in SI in report.json; report.md shows mm and mdeg.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..calibration.results import SCORES, CalibrationResult, ErrorStats, primary_score
+
+WORST = 10  # held-out configurations the report lists
+
+
+def figure(value: float) -> str:
+    """A figure with four significant digits, trailing zeros kept (4.000, not 4; 0.02188)."""
+    return f"{value:#.4g}".rstrip(".")
+
+
+def _triple(stat: ErrorStats) -> dict[str, float]:
+    return {"rms": stat.rms, "p95": float(np.percentile(stat.errors, 95)), "max": stat.max}
+
+
+def headline(result: CalibrationResult) -> dict | None:
+    """The held-out accuracy after and before (RMS, P95 and max, m; orientation in rad where it
+    is measured), the number of held-out configurations, and the sentence report.md opens with."""
+    after, before = primary_score(result.validation, "after"), primary_score(result.validation, "before")
+    if after is None:
+        return None
+    key, stat = after
+    out = {
+        "score": SCORES[key],
+        "reference": "ground truth" if result.truth is not None else "held-out measurements",
+        "n_configurations": len(result.problem.test),
+        "after_m": _triple(stat),
+        "before_m": _triple(before[1]) if before is not None and before[0] == key else None,
+        "orientation_after_rad": None,
+        "orientation_before_rad": None,
+        "orientation_reference": None,
+    }
+    # Orientation: against the truth where it is scored there, else against the measurements.
+    for scores in (result.validation, result.measured):
+        name = next((k for k, v in scores.get("after", {}).items() if k.endswith("_rad") and v.errors.size), None)
+        if name is None:
+            continue
+        out["orientation_after_rad"] = _triple(scores["after"][name])
+        previous = scores.get("before", {}).get(name)
+        if previous is not None and previous.errors.size:
+            out["orientation_before_rad"] = _triple(previous)
+        out["orientation_reference"] = "ground truth" if scores is result.validation and result.truth else (
+            "held-out measurements"
+        )  # fmt: skip
+        break
+    out["text"] = sentence(out)
+    return out
+
+
+def sentence(h: dict) -> str:
+    def mm(t: dict) -> str:
+        return f"{figure(t['rms'] * 1e3)} mm RMS, {figure(t['p95'] * 1e3)} mm P95, {figure(t['max'] * 1e3)} mm max"
+
+    def slash(t: dict, scale: float) -> str:
+        return " / ".join(figure(t[k] * scale) for k in ("rms", "p95", "max"))
+
+    text = f"After calibration: {mm(h['after_m'])}"
+    if h["before_m"] is not None:
+        text += f" (before: {slash(h['before_m'], 1e3)} mm)"
+    if h["orientation_after_rad"] is not None:
+        scale = 180e3 / np.pi
+        text += f"; orientation {figure(h['orientation_after_rad']['rms'] * scale)} mdeg RMS"
+        if h["orientation_before_rad"] is not None:
+            text += f" (before {figure(h['orientation_before_rad']['rms'] * scale)} mdeg)"
+        if h.get("orientation_reference") != h["reference"]:
+            text += f" against the {h['orientation_reference']}"
+    return (
+        f"{text}. {h['score'].capitalize()} on {h['n_configurations']} held-out configurations, "
+        f"against the {h['reference']}."
+    )
+
+
+def _held_out_ids(result: CalibrationResult) -> np.ndarray:
+    problem = result.problem
+    return np.asarray(problem.dataset.configs, dtype=object)[problem.test]
+
+
+def worst_configurations(result: CalibrationResult, count: int = WORST) -> list[dict]:
+    """The held-out configurations with the largest error of the main score (each scored point
+    of a configuration counts; its largest is its error), largest first."""
+    after = primary_score(result.validation, "after")
+    if after is None or after[1].configs is None:
+        return []
+    stat = after[1]
+    ids, problem = _held_out_ids(result), result.problem
+    worst: dict[int, float] = {}
+    for config, error in zip(stat.configs, stat.errors, strict=True):
+        worst[int(config)] = max(worst.get(int(config), 0.0), float(error))
+    ranked = sorted(worst.items(), key=lambda item: -item[1])[:count]
+    return [
+        {"config": str(ids[c]), "error_m": e, "joints_rad": [float(v) for v in problem.dataset.q[problem.test[c]]]}
+        for c, e in ranked
+        if c < len(ids)
+    ]
+
+
+def iso9283(result: CalibrationResult) -> dict | None:
+    """Position accuracy AP and repeatability RP in the manner of ISO 9283, on the held-out
+    configurations: visits of one pose (the same joint values) are grouped; AP of a pose is the
+    distance from its commanded position (the model's) to the mean of the attained ones, RP is
+    mean(l) + 3 s(l) of the attained positions' distances l to their mean (poses visited at least
+    twice). Needs the error vectors of the main score; None without them."""
+    after = primary_score(result.validation, "after")
+    if after is None or after[1].vectors is None or after[1].configs is None:
+        return None
+    stat, problem = after[1], result.problem
+    q = problem.dataset.q[problem.test]
+    poses: dict[tuple, list[np.ndarray]] = {}
+    seen: dict[int, int] = {}  # scored points of each configuration so far (the k-th is point k)
+    for config, vector in zip(stat.configs, stat.vectors, strict=True):
+        point = seen[int(config)] = seen.get(int(config), -1) + 1
+        poses.setdefault((tuple(np.round(q[int(config)], 7)), point), []).append(vector)
+    ap = np.array([np.linalg.norm(np.mean(v, axis=0)) for v in poses.values()])
+    repeated = [np.asarray(v) for v in poses.values() if len(v) > 1]
+    rp = []
+    for visits in repeated:
+        distances = np.linalg.norm(visits - visits.mean(axis=0), axis=1)
+        rp.append(distances.mean() + 3 * distances.std(ddof=1))
+    return {
+        "poses": len({pose for pose, _ in poses}),
+        "points": len(poses),
+        "ap_mean_m": float(ap.mean()),
+        "ap_max_m": float(ap.max()),
+        "repeated_poses": len(repeated),
+        "rp_mean_m": float(np.mean(rp)) if rp else None,
+        "rp_max_m": float(np.max(rp)) if rp else None,
+    }

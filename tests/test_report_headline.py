@@ -1,0 +1,36 @@
+"""The report's verdict at a glance (issue 27): a headline with the held-out accuracy after and
+before, orientation where 6D poses are measured, the worst configurations and ISO 9283 figures,
+through the top-level Python API."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import REPO
+
+import fgcal
+from fgcal.simulation.simulate import simulate
+
+
+def test_a_6d_calibration_headline_states_the_orientation(tmp_path):
+    simulate(REPO / "datasets" / "cells" / "irb120_tracker6d.yaml", tmp_path / "data", seed=3, n_configurations=60)
+    calibration = fgcal.calibrate(tmp_path / "data", formulation="poses")
+    h = calibration.headline
+    measured = calibration.result.measured["after"]
+    orientation = next(v for k, v in measured.items() if k.endswith("_rad"))
+    assert h["orientation_after_rad"]["rms"] == orientation.rms
+    assert f"{orientation.rms * 180e3 / np.pi:#.4g}".rstrip(".") + " mdeg RMS" in h["text"]
+    assert h["after_m"]["rms"] == calibration.result.validation["after"]["tool_point"].rms
+    assert h["after_m"]["rms"] < h["before_m"]["rms"] and h["reference"] == "ground truth"
+    assert calibration.held_out == {"after_m": h["after_m"], "before_m": h["before_m"]}
+    # Named estimates and sigmas; a one-line repr.
+    assert set(calibration.sigmas) == set(calibration.estimates) == set(calibration.result.released)
+    assert "\n" not in repr(calibration) and "poses formulation" in repr(calibration)
+    assert repr(calibration.robot).startswith("<Robot 'ABB IRB 120': 6 revolute joints")
+    doc = calibration.write_report(tmp_path / "report", plots=False)
+    worst = doc["worst_configurations"]
+    errors = [row["error_m"] for row in worst]
+    assert (
+        errors == sorted(errors, reverse=True) and errors[0] == calibration.result.validation["after"]["tool_point"].max
+    )
+    assert doc["iso9283"]["poses"] == len(calibration.result.problem.test)
+    assert doc["iso9283"]["ap_max_m"] <= errors[0] + 1e-15
