@@ -219,6 +219,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     output_file(args.out, "--out")  # before the work, not after it
 
     robot = load_robot(args.robot)
+    calibrated = robot  # at the calibration's payload: where the controller's base frame is placed
     if args.payload_mass is not None or args.payload_com is not None:
         mass = robot.payload_mass if args.payload_mass is None else args.payload_mass
         com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
@@ -235,7 +236,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     units = TargetUnits(args.length_unit, args.angle_unit, args.orientation)
     targets = read_targets(args.targets, robot.n_joints, units, robot.prismatic)
     tcp = None if args.tcp is None else np.array(args.tcp)
-    wanted = _in_calibration_frame(targets.as_ik_targets(), robot, nominal, args.targets_frame)
+    wanted = _in_calibration_frame(targets.as_ik_targets(), calibrated, nominal, args.targets_frame)
     result = compensate(
         robot, nominal, wanted, targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter()
     )
@@ -277,7 +278,7 @@ def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np
     return targets
 
 
-PROGRAM_SUFFIXES = (".mod", ".modx", ".prg", ".sys", ".dat")
+PROGRAM_SUFFIXES = (".mod", ".modx", ".prg", ".sys", ".dat")  # programs.RAPID_SUFFIXES + KRL_SUFFIXES
 UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
 
 
@@ -289,7 +290,7 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     from .dataset import write_csv
     from .errors import InputError
     from .outputs import distinct, output_file, write_bytes
-    from .program_filter import WRITTEN, correction_rows, filter_targets, program_frames
+    from .program_filter import WRITTEN, check_program, correction_rows, filter_targets, program_frames
     from .programs import KRL_SUFFIXES, read_program, write_program
 
     source, out = Path(args.targets), Path(args.out)
@@ -301,11 +302,18 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
         raise InputError(out, "--out", f"the corrected program is a {source.suffix} file like {source.name}")
     if args.tcp is not None:
         raise InputError(source, "--tcp", "a program's TCP is its tool: give --tool (a tooldata name, or X Y Z A B C)")
+    for option, value, default in (("--length-unit", args.length_unit, "m"), ("--angle-unit", args.angle_unit, "rad"),
+                                   ("--orientation", args.orientation, "rotvec"),
+                                   ("--targets-frame", args.targets_frame, "W")):  # fmt: skip
+        if value != default:
+            raise InputError(source, option, "applies to a targets CSV: a program's units and frames are its own")
     table = out.with_name(f"{out.stem}.corrections.csv")
     output_file(table)
     program = read_program(source)
     if not program.targets:
         raise InputError(source, None, "no targets (robtarget, E6POS or POS declarations) to correct")
+    for note in check_program(program, args.tool is not None, args.base is not None):
+        warn(note)
     frames = program_frames(program, args.tool, args.base, robot)
     poses = np.array([target.pose for target in program.targets])
     say(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})")
@@ -770,7 +778,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")
     p.set_defaults(func=cmd_fk)
     for command in sub.choices.values():  # fgcal -q calibrate ... and fgcal calibrate ... -q alike
-        _verbosity(command, 0)
+        _verbosity(command, argparse.SUPPRESS)  # only when given: -q before the command is kept
     return parser
 
 

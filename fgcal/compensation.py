@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .console import step
-from .dataset import parse_numbers, read_csv, write_csv
+from .dataset import QUATERNION_TOLERANCE, parse_numbers, read_csv, write_csv
 from .errors import InputError
 from .fields import check_name, first_repeat
 from .ik import TOL_M, TOL_RAD
@@ -141,11 +141,10 @@ def read_targets(
             together = f"{', '.join(columns[:-1])} and {columns[-1]}"
             raise InputError(path, "header", f"{together} come together (the {convention} orientation)")
         if present:
-            kind = "none" if convention == "quaternion" else "angle"
-            values = parse_numbers(path, header, body, list(columns), kind if kind != "none" else "angle", 1.0)
+            values = parse_numbers(path, header, body, list(columns), "angle", 1.0)  # bounds: quaternions too
             if convention == "quaternion":
                 norms = np.linalg.norm(values, axis=1)
-                bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+                bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
                 if len(bad):
                     raise InputError(path, f"line {bad[0] + 2}", f"a quaternion of norm {norms[bad[0]]:.6g}, not 1")
             rotations = units.rotations(values)
@@ -157,7 +156,13 @@ def read_targets(
             raise InputError(
                 path, "header", f"hints need columns {', '.join(expected)}, got {', '.join(joint_columns)}"
             )
-        hints = parse_numbers(path, header, body, expected, "angle", 1.0) * joint_scale
+        linear = np.zeros(n_joints, bool) if prismatic is None else np.asarray(prismatic, bool)
+        hints = np.column_stack(
+            [  # each joint in its unit, checked in SI
+                parse_numbers(path, header, body, [column], "length" if linear[j] else "angle", joint_scale[j])[:, 0]
+                for j, column in enumerate(expected)
+            ]
+        )
     names = [
         check_name(row[header.index("target")].strip(), path, f"line {line}, column target")
         for line, row in enumerate(body, start=2)

@@ -56,9 +56,9 @@ class Filtered:
     correction_m: np.ndarray  # (N,) how far each target moved
     correction_rad: np.ndarray  # (N,) and turned
     residual_m: np.ndarray  # calibrated-model IK residual
-    status: np.ndarray  # ok, unreachable, outside joint limits, near singularity, configuration changed
+    status: np.ndarray  # ok, near singularity, configuration changed or not found, unreachable, outside limits
     controller_in_W: np.ndarray  # (4, 4) the controller's base frame in the calibration's W
-    in_region: np.ndarray | None  # (N,) joints within the calibrated region's ranges; None: no region known
+    in_region: np.ndarray | None  # (N,) solved, joints within the calibrated region's ranges; None: no region
     payload_mass_kg: float  # the load the deflection was computed for
 
 
@@ -83,7 +83,7 @@ def configurations(nominal: Robot, kind: str, q: np.ndarray) -> list[dict[str, i
     ABB (``rapid``): cf1, cf4, cf6 the quadrants of joints 1, 4, 6 (floor(q / 90 deg)); cfx =
     4 (wrist centre behind axis 1) + 2 (wrist centre behind the lower arm) + 1 (joint 5
     negative). KUKA (``krl``): S = 1 (wrist centre behind axis 1) + 2 (elbow on the side of
-    the zero pose) + 4 (A5 negative); T bit i set when joint i+1 is negative. In front and
+    the mastering pose, A3 = 90 deg) + 4 (A5 negative); T bit i set when joint i+1 is negative. In front and
     behind are taken against the zero pose, for a 6-axis arm; other arms get the quadrants and
     signs only."""
     n = q.shape[1]
@@ -91,7 +91,9 @@ def configurations(nominal: Robot, kind: str, q: np.ndarray) -> list[dict[str, i
     negative = q < 0
     shoulder = elbow = np.zeros(len(q), dtype=bool)
     if n == 6:
-        shoulder, elbow = _arm_sides(nominal, q)
+        # ABB's zero pose has the wrist in front of the lower arm. KUKA's zero pose stretches the
+        # elbow (A3 = 0 is its boundary); its mastering pose, A3 = 90 deg, sets S bit 1.
+        shoulder, elbow = _arm_sides(nominal, q, 0.0 if kind == "rapid" else np.pi / 2)
     wrist = negative[:, 4] if n > 4 else np.zeros(len(q), dtype=bool)
     out = []
     for row in range(len(q)):
@@ -105,8 +107,10 @@ def configurations(nominal: Robot, kind: str, q: np.ndarray) -> list[dict[str, i
     return out
 
 
-def _arm_sides(nominal: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(behind axis 1, behind the lower arm) of the wrist centre, against the zero pose."""
+def _arm_sides(nominal: Robot, q: np.ndarray, elbow_reference: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(behind axis 1, on the other side of the lower arm) of the wrist centre: against the zero
+    pose, and for the elbow against the pose with joint 3 at ``elbow_reference`` (rad; the elbow's
+    side depends on joint 3 alone)."""
 
     def sides(frames: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         first, second, centre = frames[0], frames[1], frames[4][:, :3, 3]
@@ -117,7 +121,10 @@ def _arm_sides(nominal: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return in_first, elbow
 
     ahead, elbow = sides(kinematics_frames(nominal, q))
-    ahead0, elbow0 = sides(kinematics_frames(nominal, np.zeros((1, nominal.n_joints))))
+    ahead0, _ = sides(kinematics_frames(nominal, np.zeros((1, nominal.n_joints))))
+    reference = np.zeros((1, nominal.n_joints))
+    reference[0, 2] = elbow_reference
+    _, elbow0 = sides(kinematics_frames(nominal, reference))
     # In front of axis 1: on the side the zero pose reaches to, in the plane of frame 1's x and y.
     behind = np.einsum("ni,i->n", ahead[:, :2], ahead0[0, :2]) < 0
     return behind, np.sign(elbow) != np.sign(elbow0[0])
@@ -207,10 +214,14 @@ def filter_targets(
     robot: Robot, nominal: Robot, poses: np.ndarray, configs: list[dict[str, int]], kind: str, frames: Frames
 ) -> Filtered:
     """Corrected targets for a program's ``poses`` (N, 4, 4; TCP in its work object, m)."""
+    # The base frame is the robot's, whatever it carries: placed at the calibration's payload, so
+    # that the sag of the tool's load is corrected, not absorbed into the frame.
+    T_W_ctrl = controller_frame(robot, nominal)
     if frames.payload_mass_kg is not None:
         robot = robot.with_tool(robot.tool_pose, frames.payload_mass_kg, frames.payload_com_m)
     flange = frames.work_objects @ poses @ inverse(frames.tools)  # in the controller's base frame
-    # Beyond the arm's reach no IK need try (thousands of far targets would take minutes).
+    # Beyond the arm's reach the controller's IK need not search (thousands of far targets would
+    # take minutes); the calibrated IK then fails fast from the middle of the ranges.
     origin, reach = nominal.reach_m()
     within = np.linalg.norm(flange[:, :3, 3] - origin, axis=1) <= 1.1 * reach + 0.1
     q_nominal = np.tile(0.5 * nominal.limits.sum(axis=1), (len(poses), 1))
@@ -218,7 +229,6 @@ def filter_targets(
     if within.any():
         near = [config for config, inside in zip(configs, within, strict=True) if inside]
         q_nominal[within], found[within] = controller_ik(nominal, flange[within], kind, near)
-    T_W_ctrl = controller_frame(robot, nominal)
     solved = robot.ik(T_W_ctrl @ flange, q_nominal, frame="flange")
     solved.status[~within] = "unreachable"
     corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
@@ -227,11 +237,11 @@ def filter_targets(
     reached = np.isin(solved.status, SOLVED)
     status = solved.status.astype(object)
     status[reached & found & significant_change(nominal, q_nominal, solved.q)] = "configuration changed"
-    status[reached & ~found] = "configuration not found"
+    status[within & ~found] = "configuration not found"  # the controller itself has no such branch
     in_region = None
     if robot.region is not None:  # each joint within the range the calibration saw (and a degree)
         low, high = robot.region.min(axis=0) - REGION_MARGIN_RAD, robot.region.max(axis=0) + REGION_MARGIN_RAD
-        in_region = np.all((solved.q >= low) & (solved.q <= high), axis=1)
+        in_region = np.all((solved.q >= low) & (solved.q <= high), axis=1) & np.isin(status, WRITTEN)
     return Filtered(
         poses=corrected,
         q=solved.q,
@@ -348,6 +358,35 @@ def _declared(name: str, declared: dict) -> str | None:
     return next((key for key in declared if key.lower() == name.lower()), None)
 
 
+CONFIG_RANGES = {"cfx": (0, 7), "S": (0, 7), "T": (0, 63), "cf1": (-8, 7), "cf4": (-8, 7), "cf6": (-8, 7)}
+
+
+def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
+    """Refuse configuration data no controller writes; the notes a person should read about
+    frames the program does not name (they default to the flange and the base frame)."""
+    from .errors import InputError
+
+    for target in program.targets:
+        for key, value in target.config.items():
+            low, high = CONFIG_RANGES.get(key, (-(2**31), 2**31))
+            if not low <= value <= high:
+                raise InputError(program.path, f"line {target.line}, {target.name}", f"{key} {value} is not "
+                                 f"{low} to {high}")  # fmt: skip
+    notes = []
+    if program.kind == "rapid" and not tool_given:
+        unused = [t.name for t in program.targets if t.tool is None]
+        if unused:
+            named = ", ".join(unused[:5]) + (", ..." if len(unused) > 5 else "")
+            notes.append(
+                f"{len(unused)} of the targets ({named}) are used by no MoveL, MoveJ or MoveC of the module: they "
+                "are taken with tool0 and wobj0 (give --tool and --base)"
+            )
+    if program.kind == "krl" and not (tool_given and base_given):
+        notes.append("KRL targets are taken in $BASE = the robot's base frame and with $TOOL = the flange where "
+                     "--base and --tool do not give them")  # fmt: skip
+    return notes
+
+
 def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[list[str], list[list]]:
     """The table of corrections (mm, mdeg, um, deg: named in the header). A target that was not
     solved (unreachable, outside the limits, no branch of its configuration) has no figures."""
@@ -356,7 +395,8 @@ def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[lis
               "correction_mm", "rotation_mdeg", "residual_um", *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
     rows = []
     for k, target in enumerate(program.targets):
-        region = "-" if result.in_region is None else "yes" if result.in_region[k] else "no"
+        unsolved = result.status[k] not in WRITTEN
+        region = "-" if result.in_region is None or unsolved else "yes" if result.in_region[k] else "no"
         row = [target.name, target.line, str(result.status[k]), "yes" if written[k] else "no", region]
         if result.status[k] not in WRITTEN:
             rows.append(row + [""] * (len(header) - len(row)))

@@ -22,6 +22,7 @@ Schema (documented in docs/formats.md)::
 
 from __future__ import annotations
 
+import os
 from importlib import resources
 from pathlib import Path
 
@@ -340,4 +341,7 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
 
 
 def save_robot(path: str | Path, robot: Robot, params: dict[str, float] | None = None, notes: str = "") -> None:
-    write_text(path, yaml.safe_dump(robot_document(robot, params, notes), sort_keys=False))
+    doc = robot_document(robot, params, notes)
+    if "urdf" in doc:  # relative to the robot file: a calibration folder moves with its dataset
+        doc["urdf"]["file"] = os.path.relpath(doc["urdf"]["file"], Path(path).resolve().parent)
+    write_text(path, yaml.safe_dump(doc, sort_keys=False))

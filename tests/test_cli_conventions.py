@@ -118,6 +118,8 @@ def test_quiet_and_verbose(work, capsys):
     capsys.readouterr()
     assert main(["calibrate", config, "--out", str(work / "q"), "--no-plots", "-q"]) == 0
     assert capsys.readouterr().out == ""
+    assert main(["-q", "calibrate", config, "--out", str(work / "q2"), "--no-plots"]) == 0  # -q before the command
+    assert capsys.readouterr().out == ""
     assert main(["-q", "list", "robots"]) == 0  # a listing is the command's result, not a log line
     assert "abb_irb120" in capsys.readouterr().out
     assert main(["calibrate", config, "--out", str(work / "v"), "--no-plots"]) == 0

@@ -205,3 +205,36 @@ def test_program_errors_name_the_file_and_field(irb120, tmp_path, capsys):
         err = capsys.readouterr().err
         assert expected in err and "Traceback" not in err, err
     assert not (tmp_path / "o.mod").exists()
+
+
+def test_configuration_data_as_the_vendors_document_them():
+    """KUKA's HOME {A1 0, A2 -90, A3 90, A4 0, A5 0, A6 0} is S 'B010', T 'B000010' (KRL manual);
+    ABB: the quadrants of joints 1, 4, 6, and cfx odd for a negative joint 5 (RAPID manual)."""
+    import fgcal
+
+    kuka = fgcal.load_robot("kuka_kr125_2")
+    assert configurations(kuka, "krl", np.radians([[0, -90, 90, 0, 0, 0]])) == [{"S": 2, "T": 2}]
+    assert configurations(kuka, "krl", np.radians([[0, -90, 90, 0, -30, 0]]))[0]["S"] == 6  # A5 negative: bit 2
+    abb = fgcal.load_robot("abb_irb120")
+    poses = np.radians([[0, 0, 0, 0, 0, 0], [0, 0, 0, 0, -30, 0], [170, 0, 0, -100, 30, 200]])
+    assert configurations(abb, "rapid", poses) == [
+        {"cf1": 0, "cf4": 0, "cf6": 0, "cfx": 0},
+        {"cf1": 0, "cf4": 0, "cf6": 0, "cfx": 1},
+        {"cf1": 1, "cf4": -2, "cf6": 2, "cfx": 0},
+    ]
+
+
+def test_the_base_frame_does_not_move_with_the_tools_load(irb120):
+    """The controller's base frame is placed at the calibration's payload: a heavier tool's sag is
+    corrected, not absorbed into the frame."""
+    import fgcal
+    from fgcal.program_filter import Frames, filter_targets
+
+    robot = fgcal.load_robot(irb120.robot_file)
+    poses = irb120.nominal.fk(irb120.q[:3])
+    configs = configurations(irb120.nominal, "rapid", irb120.q[:3])
+    tools = np.tile(np.eye(4), (3, 1, 1))
+    light = filter_targets(robot, irb120.nominal, poses, configs, "rapid", Frames(tools, tools))
+    heavy = filter_targets(robot, irb120.nominal, poses, configs, "rapid", Frames(tools, tools, 3.0, np.zeros(3)))
+    np.testing.assert_array_equal(light.controller_in_W, heavy.controller_in_W)
+    assert heavy.payload_mass_kg == 3.0 and np.all(heavy.correction_m != light.correction_m)

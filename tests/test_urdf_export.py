@@ -108,6 +108,7 @@ def test_a_urdf_robot_exports_into_its_own_document(tmp_path):
     save_robot(tmp_path / "calibrated_robot.yaml", robot, random_parameters(robot, rng))
     calibrated = fgcal.load_robot(tmp_path / "calibrated_robot.yaml")
     assert calibrated.urdf == (str(source.resolve()), "tool0")
+    assert "file: arm.urdf" in (tmp_path / "calibrated_robot.yaml").read_text()  # relative: the folder may move
     assert main(["export", str(tmp_path / "calibrated_robot.yaml"), "--urdf", str(tmp_path / "out.urdf")]) == 0
 
     parser = etree.XMLParser(remove_comments=True)
