@@ -225,7 +225,9 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
         robot = robot.with_tool(robot.tool_pose, float(mass), com)
     nominal = nominal_of(robot, args.nominal)
-    if Path(args.targets).suffix.lower() in PROGRAM_SUFFIXES:
+    from .programs import KRL_SUFFIXES, RAPID_SUFFIXES
+
+    if Path(args.targets).suffix.lower() in RAPID_SUFFIXES + KRL_SUFFIXES:
         return _compensate_program(args, robot, nominal)
     if args.tool is not None or args.base is not None:
         print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
@@ -278,7 +280,6 @@ def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np
     return targets
 
 
-PROGRAM_SUFFIXES = (".mod", ".modx", ".prg", ".sys", ".dat")  # programs.RAPID_SUFFIXES + KRL_SUFFIXES
 UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
 
 
@@ -291,13 +292,13 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     from .errors import InputError
     from .outputs import distinct, output_file, write_bytes
     from .program_filter import WRITTEN, check_program, correction_rows, filter_targets, program_frames
-    from .programs import KRL_SUFFIXES, read_program, write_program
+    from .programs import KRL_SUFFIXES, RAPID_SUFFIXES, read_program, write_program
 
     source, out = Path(args.targets), Path(args.out)
     distinct({"--out": out, "the corrections table": out.with_name(f"{out.stem}.corrections.csv")},
              {"PROGRAM": source, "ROBOT": args.robot if Path(args.robot).suffix else None})  # fmt: skip
     if (source.suffix.lower() in KRL_SUFFIXES) != (out.suffix.lower() in KRL_SUFFIXES) or out.suffix.lower() not in (
-        PROGRAM_SUFFIXES
+        RAPID_SUFFIXES + KRL_SUFFIXES
     ):
         raise InputError(out, "--out", f"the corrected program is a {source.suffix} file like {source.name}")
     if args.tcp is not None:

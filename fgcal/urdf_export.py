@@ -203,8 +203,8 @@ def _check_template(robot: Robot, template: Path, tip: str) -> None:
 
 def faithful_document(robot: Robot, template: Path, tip: str, sidecar: str | None = None):
     """The lxml tree of ``template`` (the robot's own URDF) with the calibrated origins of the
-    moving joints between its root and ``tip``; nothing else of the document changes. The
-    root link is the robot's base frame 0; fixed joints keep their origins."""
+    moving joints between its root and ``tip``, and those joints' names; nothing else of the
+    document changes. The root link is the robot's base frame 0; fixed joints keep their origins."""
     from lxml import etree
 
     from .urdf_io import read_document
@@ -242,7 +242,7 @@ def faithful_document(robot: Robot, template: Path, tip: str, sidecar: str | Non
     if sidecar:
         note += f" Compliances and the robot's placement: {sidecar}"
     tree.getroot().addprevious(etree.Comment(" " + note.replace("--", "- -") + " "))
-    return tree
+    return tree, [joint.name for joint in chain if joint.type != "fixed"]
 
 
 def serialise(tree) -> str:
@@ -325,9 +325,8 @@ def export_urdf(
         text, names = urdf_document(robot, sidecar.name), None
     else:
         file, tip = source
-        tree = faithful_document(robot, file, tip, sidecar.name)
+        tree, names = faithful_document(robot, file, tip, sidecar.name)
         text = serialise(tree)
-        names = [joint.name for joint in _moving_chain(file, tip)[0] if joint.type != "fixed"]
     write_text(path, text)
     document = compliance_document(robot, path.name, names)
     if accuracy:
