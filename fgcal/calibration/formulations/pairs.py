@@ -308,6 +308,78 @@ def camera_points_from_pixels(dataset: Dataset) -> Table:
     )
 
 
+class _Remaining:
+    """Which of n positions remain, as a Fenwick tree: counts and removals in O(log n)."""
+
+    def __init__(self, n: int, positions) -> None:
+        self.tree = [0] * (n + 1)
+        self.total = 0
+        for position in positions:
+            self.add(position, 1)
+
+    def add(self, position: int, delta: int) -> None:
+        self.total += delta
+        i = position + 1
+        while i < len(self.tree):
+            self.tree[i] += delta
+            i += i & -i
+
+
+def _kth(parts: list[tuple[_Remaining, int]], k: int) -> int:
+    """The position of the k-th (0-based) remaining one of a signed sum of trees."""
+    n = len(parts[0][0].tree) - 1
+    position, step = 0, 1 << n.bit_length()
+    while step:
+        ahead = position + step
+        if ahead <= n:
+            count = sum(sign * tree.tree[ahead] for tree, sign in parts)
+            if count <= k:
+                position, k = ahead, k - count
+        step >>= 1
+    return position
+
+
+def _grouped(order: list[int], labels: list[tuple[str, str]], settings: MeasurementSettings, rng) -> list[list[int]]:
+    """Images in groups of settings.pairs.group_images: each group starts with the first image
+    left in ``order``, and each next image is drawn (``rng``) among those left in the preferred
+    category of pair with the previous one (PREFERENCE), else among all left. Counting trees per
+    (object, side), per object and in all make each draw O(log n): the groups are those of
+    scanning what is left for every draw, in linear time instead of quadratic."""
+    preference, size = PREFERENCE[settings.pairs.partner], settings.pairs.group_images
+    n = len(order)
+    everything = _Remaining(n, range(n))
+    by_object = {obj: _Remaining(n, [p for p in range(n) if labels[p][0] == obj]) for obj, _ in set(labels)}
+    by_side = {lab: _Remaining(n, [p for p in range(n) if labels[p] == lab]) for lab in set(labels)}
+
+    def take(position: int) -> int:
+        for tree in (everything, by_object[labels[position][0]], by_side[labels[position]]):
+            tree.add(position, -1)
+        return position
+
+    groups = []
+    while everything.total:
+        position = take(_kth([(everything, 1)], 0))
+        group = [position]
+        while len(group) < size and everything.total:
+            previous = labels[group[-1]]
+            choice = None
+            for wanted in preference:
+                parts = {
+                    "same_side": [(by_side[previous], 1)],
+                    "same_object": [(by_object[previous[0]], 1), (by_side[previous], -1)],
+                    "other_object": [(everything, 1), (by_object[previous[0]], -1)],
+                }[wanted]
+                count = sum(sign * tree.total for tree, sign in parts)
+                if count:
+                    choice = _kth(parts, int(rng.integers(count)))
+                    break
+            if choice is None:
+                choice = _kth([(everything, 1)], int(rng.integers(everything.total)))
+            group.append(take(choice))
+        groups.append([order[p] for p in group])
+    return groups
+
+
 def pair_observations(
     dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, exclude: set[tuple[str, str]] = frozenset()
 ) -> PairObservations:
@@ -327,24 +399,9 @@ def pair_observations(
         first = images[j][0][0]
         return str(points.ids["object"][first]), str(points.ids["side"][first])
 
-    preference = PREFERENCE[settings.pairs.partner]
     rng = np.random.default_rng(settings.pairs.seed)
-    remaining = [int(j) for j in rng.permutation(sorted(images))]
-    size = settings.pairs.group_images
-    while remaining:
-        group = [remaining.pop(0)]
-        while len(group) < size and remaining:
-            previous = label(group[-1])
-            choice = None
-            for wanted in preference:
-                options = [k for k in remaining if category(previous, label(k)) == wanted]
-                if options:
-                    choice = options[int(rng.integers(len(options)))]
-                    break
-            if choice is None:
-                choice = remaining[int(rng.integers(len(remaining)))]
-            remaining.remove(choice)
-            group.append(choice)
+    order = [int(j) for j in rng.permutation(sorted(images))]
+    for group in _grouped(order, [label(j) for j in order], settings, rng):
         observations = [(i, point, xyz) for i, j in enumerate(group) for point, xyz in images[j]]
         if len(observations) < 2:
             continue
