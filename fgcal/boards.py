@@ -4,11 +4,14 @@ it (markers: in dataset.yaml) and as fgcal.markers renders and detects it."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from .se3 import rpy_from_rotation
+
+if TYPE_CHECKING:
+    import cv2
 
 DICTIONARY = "DICT_5X5_1000"
 MARKER_RATIO = 0.75  # marker side / square side
@@ -31,6 +34,8 @@ class SideBoard:
         return self.squares[0] * self.squares[1] // 2
 
     def opencv(self) -> cv2.aruco.CharucoBoard:
+        import cv2  # loaded here, when images are drawn or read: other commands skip its 30 ms
+
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, DICTIONARY))
         ids = np.arange(self.first_id, self.first_id + self.n_markers, dtype=np.int32)
         return cv2.aruco.CharucoBoard(self.squares, self.square_m, MARKER_RATIO * self.square_m, dictionary, ids)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from .fields import Fields
@@ -28,6 +27,8 @@ class Camera:
 
     def project(self, points_C: np.ndarray) -> np.ndarray:
         """Pixels (M, 2) of points (M, 3) given in the camera frame (m)."""
+        import cv2  # loaded when used: commands without images or cameras skip it
+
         pts = np.ascontiguousarray(points_C, dtype=np.float64).reshape(-1, 1, 3)
         pixels, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.distortion)
         return pixels.reshape(-1, 2)
@@ -84,6 +85,8 @@ def solve_pnp(object_points: np.ndarray, image_points: np.ndarray, camera: Camer
     one board or side) is numerically poor for points far from the origin of their frame,
     which calibration objects placed in a cell are.
     """
+    import cv2  # loaded when used: commands without images or cameras skip it
+
     object_points = np.asarray(object_points, dtype=np.float64)
     centroid = object_points.mean(axis=0)
     centred = object_points - centroid

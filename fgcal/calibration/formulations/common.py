@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ...camera import solve_pnp
@@ -139,6 +138,8 @@ def initial_pose_chain(flange: np.ndarray, measured: np.ndarray, rounds: int = 1
     OpenCV's calibrateHandEye (Park) in its eye-to-hand use (the flange poses inverted gives
     ``Y = L^-1`` and the constant E), then alternating averages of L and E (chordal mean of
     the rotations, mean of the translations), which settle the noise of the hand-eye step."""
+    import cv2  # loaded when used: commands without images or cameras skip it
+
     inverse_flange = np.linalg.inv(flange)
     R, t = cv2.calibrateHandEye(
         list(inverse_flange[:, :3, :3]),

@@ -7,7 +7,6 @@ removed (the fixture pose is estimated relative to the robot: W is tied to the n
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from ...dataset import Dataset
@@ -118,6 +117,8 @@ def camera_work_point(dataset: Dataset) -> np.ndarray:
 def hand_eye_mounting(problem: Problem, T_C_F: dict[int, np.ndarray]) -> np.ndarray:
     """Camera mounting T_n_C from OpenCV's calibrateHandEye (Park), with the flange poses of
     the nominal model and the per-image target poses."""
+    import cv2  # loaded when used: commands without images or cameras skip it
+
     flange = problem.robot.fk(problem.observations.q)
     images = sorted(T_C_F)
     R, t = cv2.calibrateHandEye(
