@@ -61,6 +61,15 @@ class _Calibrated:
         landed = true_flange.fk(q) @ tcp
         return np.linalg.norm(landed[:, :3, 3] - wanted[:, :3, 3], axis=1)
 
+    def assert_lands(self, name: str, work_object: np.ndarray, tcp: np.ndarray, taught, sent) -> None:
+        """The corrected program lands within 1.5x the held-out RMS, 100x better than as it was."""
+        before = _rms(self.landed_m(work_object, tcp, taught, taught))
+        now = _rms(self.landed_m(work_object, tcp, taught, sent))
+        print(f"{name}: held out {self.held_out_rms_m * 1e3:.4f} mm, program as it was {before * 1e3:.4f} mm, "
+              f"corrected {now * 1e3:.4f} mm")  # fmt: skip
+        assert now <= 1.5 * self.held_out_rms_m, (now, self.held_out_rms_m)
+        assert before >= 100 * now, (before, now)
+
 
 class _TrueFlange:
     def __init__(self, robot, offset, region):
@@ -135,14 +144,7 @@ def test_a_rapid_module_lands_within_the_calibration(irb120, tmp_path, capsys):
     changed = [(a, b) for a, b in zip(text.splitlines(), after.splitlines(), strict=True) if a != b]
     assert len(changed) == N_TARGETS and all("robtarget" in a for a, _ in changed)
     assert [t.config for t in corrected.targets] == configs
-    sent = np.array([t.pose for t in corrected.targets])
-    before, now = irb120.landed_m(table, tcp, taught, taught), irb120.landed_m(table, tcp, taught, sent)
-    assert _rms(now) <= 1.5 * irb120.held_out_rms_m, (_rms(now), irb120.held_out_rms_m)
-    print(
-        f"irb120: held out {irb120.held_out_rms_m * 1e3:.4f} mm, program as it was {_rms(before) * 1e3:.4f} mm, "
-        f"corrected {_rms(now) * 1e3:.4f} mm"
-    )
-    assert _rms(before) >= 100 * _rms(now), (_rms(before), _rms(now))
+    irb120.assert_lands("irb120", table, tcp, taught, np.array([t.pose for t in corrected.targets]))
     rows = (tmp_path / "weld_cal.corrections.csv").read_text().splitlines()
     assert rows[0].startswith("target,line,status,corrected,in_calibrated_region,dx_mm") and len(rows) == N_TARGETS + 1
     assert all(row.split(",")[3] == "yes" and row.split(",")[4] in ("yes", "no") for row in rows[1:]), rows
@@ -177,14 +179,7 @@ def test_a_krl_dat_lands_within_the_calibration(kr125, tmp_path, capsys):
     changed = [(a, b) for a, b in zip(text.split("\r\n"), after.split("\r\n"), strict=True) if a != b]
     assert len(changed) == N_TARGETS and all(a.startswith("DECL E6POS") for a, _ in changed)
     assert [t.config for t in corrected.targets] == configs
-    sent = np.array([t.pose for t in corrected.targets])
-    before, now = kr125.landed_m(base, tcp, taught, taught), kr125.landed_m(base, tcp, taught, sent)
-    assert _rms(now) <= 1.5 * kr125.held_out_rms_m, (_rms(now), kr125.held_out_rms_m)
-    print(
-        f"kr125: held out {kr125.held_out_rms_m * 1e3:.4f} mm, program as it was {_rms(before) * 1e3:.4f} mm, "
-        f"corrected {_rms(now) * 1e3:.4f} mm"
-    )
-    assert _rms(before) >= 100 * _rms(now), (_rms(before), _rms(now))
+    kr125.assert_lands("kr125", base, tcp, taught, np.array([t.pose for t in corrected.targets]))
 
 
 def test_program_errors_name_the_file_and_field(irb120, tmp_path, capsys):
