@@ -239,9 +239,11 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     targets = read_targets(args.targets, robot.n_joints, units, robot.prismatic)
     tcp = None if args.tcp is None else np.array(args.tcp)
     wanted = _in_calibration_frame(targets.as_ik_targets(), calibrated, nominal, args.targets_frame)
+    approach = _approach(args, robot, targets.approach, len(targets.names))
     result = compensate(
-        robot, nominal, wanted, targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter()
-    )
+        robot, nominal, wanted, targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter(),
+        approach=approach, speed=targets.speed,
+    )  # fmt: skip
     write_compensation(args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic)
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     say(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
@@ -259,6 +261,25 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         )
         say(f"  {_count(int((~reached).sum()), 'target')} unreachable: the calibrated model stays {span} away")
     return 0
+
+
+def _approach(args: argparse.Namespace, robot, given: np.ndarray | None, n_targets: int) -> np.ndarray | None:
+    """The approach of each target for compensate (None: not allowed for), and what it
+    assumes, said."""
+    if not robot.history:
+        if given is not None and np.isfinite(given).any():
+            say(f"  the before_q columns are not used: {robot.name}'s model ({robot.model}) has no lost motion")
+        return None
+    if args.approach == "none":
+        say("  lost motion not allowed for (--approach none): the commands are the joints the calibrated model needs")
+        return None
+    n_given = 0 if given is None else int(np.all(np.isfinite(given), axis=1).sum())
+    say(
+        "  allowing for lost motion: each target approached from the previous one in the file's order"
+        + (f" ({n_given} from the joints their before_q columns give)" if n_given else "")
+        + "; the first gets no allowance (--approach none: none at all)"
+    )
+    return given if given is not None else np.full((n_targets, robot.n_joints), np.nan)
 
 
 def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np.ndarray:
@@ -658,6 +679,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=1.0,
         help="how close counts as reached, um (default 1; angles 1 urad)",
     )
+    p.add_argument(
+        "--approach", choices=("previous", "none"), default="previous",
+        help="with a robot calibrated with lost motion (model DH,s,e,h): each target is approached from the "
+        "previous one, in the file's order, unless before_q1.. give its approach (previous, the default), or the "
+        "approach is not allowed for (none)",
+    )  # fmt: skip
     p.add_argument(
         "--json", action="store_true", help="print one JSON object (SI units) on stdout; the lines go to stderr"
     )

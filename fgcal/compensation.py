@@ -6,15 +6,23 @@ kinematics on the full model (fgcal.ik). A controller that runs its *nominal* mo
 sent the Cartesian command at which its nominal model is at those joints: it moves there, and
 the real robot, which the calibrated model describes, lands on the target.
 
-Targets file (CSV): ``target, x, y, z``, optionally an orientation and ``q1..qn`` (branch hints
+A robot whose model has the motion history's terms (DH,s,e,h: lost motion, fgcal.motion)
+lands where the joints it is commanded to are moved by how it got there. The commands then
+allow for it: each target's joints are those the chain must see, minus the offsets its approach
+causes, the approach being the previous target's command (the targets are a program, in its
+order) or the joints given for it (``before_q1..before_qn``).
+
+Targets file (CSV): ``target, x, y, z``, optionally an orientation, ``q1..qn`` (branch hints
 such as the program's joints; without them each target starts from the nominal model's IK
-within the joint limits). Units and the orientation's convention are the user's
-(:class:`TargetUnits`): m or mm, rad or deg, and a rotation vector ``rx, ry, rz``, URDF
-``roll, pitch, yaw`` (R = Rz(yaw) Ry(pitch) Rx(roll)), KUKA ``a, b, c`` (R = Rz(A) Ry(B) Rx(C))
-or a quaternion ``qw, qx, qy, qz``. Output CSV, in the same units and convention, each column
-named with its unit where it is not SI: ``target, q1..qn, x_cmd, y_cmd, z_cmd[, orientation],
-residual_m[, residual_rad], status`` (SI), or e.g. ``q1_deg, x_cmd_mm, a_cmd_deg,
-residual_um, residual_mdeg`` (mm and deg).
+within the joint limits), ``before_q1..before_qn`` (the joints a target is approached from:
+empty, the previous target) and ``speed`` (each move's speed factor, 1 by default). Units and
+the orientation's convention are the user's (:class:`TargetUnits`): m or mm, rad or deg, and
+a rotation vector ``rx, ry, rz``, URDF ``roll, pitch, yaw`` (R = Rz(yaw) Ry(pitch) Rx(roll)),
+KUKA ``a, b, c`` (R = Rz(A) Ry(B) Rx(C)) or a quaternion ``qw, qx, qy, qz``. Output CSV, in
+the same units and convention, each column named with its unit where it is not SI: ``target,
+q1..qn, x_cmd, y_cmd, z_cmd[, orientation], residual_m[, residual_rad], status`` (SI), or e.g.
+``q1_deg, x_cmd_mm, a_cmd_deg, residual_um, residual_mdeg`` (mm and deg); with the approach
+allowed for, the expected lost motion per joint too (``lost_motion_q1..``, rad or mdeg).
 """
 
 from __future__ import annotations
@@ -26,11 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
+from . import kinematics
 from .console import step
-from .dataset import QUATERNION_TOLERANCE, parse_numbers, read_csv, write_csv
+from .dataset import QUATERNION_TOLERANCE, approach_columns, parse_numbers, read_csv, speed_column, write_csv
 from .errors import InputError
 from .fields import check_name, first_repeat
 from .ik import TOL_M, TOL_RAD
+from .motion import MotionHistory, features
 from .robot import SAME_ROBOT_M, Robot
 from .robot_io import bundled_robots, load_robot
 from .se3 import pose, pose_from_xyz_rpy, rpy_from_rotation, so3_exp, so3_log
@@ -103,6 +113,8 @@ class Targets:
     positions: np.ndarray  # (N, 3) m
     rotations: np.ndarray | None  # (N, 3, 3), when the file gives rx, ry, rz
     hints: np.ndarray | None  # (N, n) rad
+    approach: np.ndarray | None = None  # (N, n) joints each target is approached from; NaN rows: the previous
+    speed: np.ndarray | None = None  # (N,) speed factors of the moves
 
     def as_ik_targets(self) -> np.ndarray:
         if self.rotations is None:
@@ -173,7 +185,8 @@ def read_targets(
     repeat = first_repeat(enumerate(names, start=2))
     if repeat is not None:
         raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
-    return Targets(names, positions, rotations, hints)
+    approach = approach_columns(path, header, body, n_joints, units.to_rad)
+    return Targets(names, positions, rotations, hints, approach, speed_column(path, header, body))
 
 
 def nominal_of(robot: Robot, nominal: str | Path | None) -> Robot:
@@ -198,11 +211,45 @@ def nominal_of(robot: Robot, nominal: str | Path | None) -> Robot:
 
 @dataclass
 class Compensation:
-    q: np.ndarray  # (N, n) joints at which the calibrated model reaches each target
+    q: np.ndarray  # (N, n) joints to command: the calibrated model reaches each target from them
     commands: np.ndarray  # (N, 4, 4) nominal-model TCP pose at those joints
     residual_m: np.ndarray
     residual_rad: np.ndarray | None
     status: np.ndarray
+    # (N, n) the joint offsets the approach is expected to cause, which the commands allow for
+    # (rad or m; None: not allowed for)
+    motion_offset: np.ndarray | None = None
+
+
+def approach_commands(
+    robot: Robot, q_chain: np.ndarray, approach: np.ndarray, speed: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Commands (N, n) under which the robot's chain sees ``q_chain`` when each is approached
+    from ``approach`` (N, n; a NaN row: the previous command, none for the first), and the
+    offsets (N, n) the approaches cause: ``q_cmd = q_chain - offsets(q_cmd, before)``, solved
+    by fixed-point iteration (the offsets change by lm / 1 deg per radian of command at most:
+    a contraction for any real lost motion)."""
+    params = robot.parameter_vector()
+    speed = np.ones(len(q_chain)) if speed is None else speed
+    given = np.all(np.isfinite(approach), axis=1)
+    q_cmd = q_chain.copy()
+    offsets = np.zeros_like(q_chain)
+    for _ in range(MOTION_ITERATIONS):
+        before = np.vstack([np.full((1, q_cmd.shape[1]), np.nan), q_cmd[:-1]])
+        before[given] = approach[given]
+        offsets = kinematics.motion_offsets(robot, params, features(q_cmd, MotionHistory(before, speed)))
+        updated = q_chain - offsets
+        change = float(np.abs(updated - q_cmd).max())
+        q_cmd = updated
+        if change < 1e-13:
+            return q_cmd, offsets
+    raise InputError(
+        None, "robot", f"{robot.name}'s lost motion (lm) is too large for its commands to converge: check the "
+        "calibrated lm values (hundredths of a degree are usual)",
+    )  # fmt: skip
+
+
+MOTION_ITERATIONS = 60
 
 
 def compensate(
@@ -215,11 +262,16 @@ def compensate(
     tol_m: float = TOL_M,
     tol_rad: float = TOL_RAD,
     progress: Callable[[str], None] | None = None,
+    approach: np.ndarray | None = None,
+    speed: np.ndarray | None = None,
 ) -> Compensation:
     """Joints on the calibrated ``robot`` for ``targets`` (N, 3) or (N, 4, 4), and the
     commands (the ``nominal`` model's TCP pose there); the TCP ``tcp`` is fixed in ``frame``
     (tool or flange). A target counts as reached within ``tol_m`` (m) and ``tol_rad``. Without
-    hints each target starts from default_hints. ``progress`` hears of each chunk solved."""
+    hints each target starts from default_hints. ``progress`` hears of each chunk solved.
+    ``approach`` (N, n): the joints each target is approached from (NaN rows: the previous
+    target's command), allowed for when the robot's model has the motion history's terms;
+    None: not allowed for (the commands are the joints the chain must see)."""
     tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
     parts = []
     started = time.monotonic()
@@ -236,12 +288,15 @@ def compensate(
                 f"{elapsed / done * (len(targets) - done):.0f} s left)"
             )
     q = np.concatenate([p.q for p in parts])
+    motion_offset = None
+    if approach is not None and robot.history:
+        q, motion_offset = approach_commands(robot, q, np.asarray(approach, dtype=float), speed)
     commands = (nominal.fk_tool if frame == "tool" else nominal.fk)(q).copy()  # (N, 4, 4)
     commands[:, :3, 3] += commands[:, :3, :3] @ tcp
     residual_rad = None if parts[0].residual_rad is None else np.concatenate([p.residual_rad for p in parts])
     return Compensation(
         q, commands, np.concatenate([p.residual_m for p in parts]), residual_rad,
-        np.concatenate([p.status for p in parts]),
+        np.concatenate([p.status for p in parts]), motion_offset,
     )  # fmt: skip
 
 
@@ -302,6 +357,11 @@ def write_compensation(
         header += ["residual_m"] + (["residual_rad"] if with_rotation else [])
     else:
         header += ["residual_um"] + ([f"residual_m{units.angle}"] if with_rotation else [])
+    # The expected lost motion the commands allow for: rad and m, or mdeg and um.
+    motion_scale = np.ones(n) if units.si else np.where(prismatic, 1e6, 1e3 / units.to_rad)
+    if result.motion_offset is not None:
+        suffixes = ["" if units.si else ("_um" if prismatic[i] else f"_m{units.angle}") for i in range(n)]
+        header += [f"lost_motion_q{i + 1}{suffix}" for i, suffix in enumerate(suffixes)]
     header.append("status")
     rows = []
     for i, name in enumerate(names):
@@ -312,6 +372,8 @@ def write_compensation(
         row.append(float(result.residual_m[i]) * (1.0 if units.si else 1e6))
         if with_rotation:
             row.append(float(result.residual_rad[i]) * (1.0 if units.si else 1e3 / units.to_rad))
+        if result.motion_offset is not None:
+            row += [float(v) for v in result.motion_offset[i] * motion_scale]
         row.append(str(result.status[i]))
         rows.append(row)
     write_csv(Path(path), header, rows)

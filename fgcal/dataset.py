@@ -12,11 +12,15 @@ Header fields (documented in docs/formats.md)::
     fixture: {xyz, rpy}            # nominal T_W_F of the calibration objects (drawing)
     tracker: {targets: [names]}    # when a tracker was used
     noise: {tracker_sigma: 1.5e-5, ...}  # the instrument's stated noise (a calibration config's noise keys)
+    order: measured                # the configurations' rows are in measurement order (default), or unknown
     source: free text (simulation seed, converter, instrument)
 
 Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 
-- configurations: ``config, q1..qn`` (joint angles)
+- configurations: ``config, q1..qn`` (joint angles), in the order they were measured; optionally
+  ``before_q1..before_qn`` (the joint values the robot came from, when it was not the previous
+  row: an approach point; empty cells: the previous row) and ``speed`` (the move's speed factor,
+  1 by default): the motion history (fgcal.motion)
 - points: ``point, object, side, x, y, z`` (calibration points in the fixture frame F)
 - camera_points: ``config, point, x, y, z`` (point measured in the camera frame)
 - pixels: ``config, point, u, v`` (px)
@@ -45,6 +49,7 @@ from .boards import DICTIONARY, SideBoard
 from .camera import Camera, parse_camera
 from .errors import InputError
 from .fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
+from .motion import MotionHistory, features
 from .noise import parse_noise
 from .outputs import write_text
 from .robot import Robot
@@ -66,9 +71,12 @@ HEADER_KEYS = (
     "markers",
     "tracker",
     "noise",
+    "order",
     "source",
     "notes",
 )
+ORDERS = ("measured", "unknown")
+MAX_SPEED_FACTOR = 100.0
 # table name -> (id columns, numeric columns, kind of numeric columns)
 TABLES = {
     "points": (("point", "object", "side"), ("x", "y", "z"), "length"),
@@ -125,6 +133,21 @@ class Dataset:
     boards: list = field(default_factory=list)  # fgcal.markers.SideBoard of each marked side
     header: dict = field(default_factory=dict)
     noise: dict[str, float] = field(default_factory=dict)  # the instrument's stated sigmas (fgcal.noise), SI
+    history: MotionHistory | None = None  # how each configuration was reached (None: in row order)
+
+    @property
+    def motion_history(self) -> MotionHistory:
+        return self.history if self.history is not None else MotionHistory.in_order(self.q)
+
+    @property
+    def motion(self) -> np.ndarray:
+        """(N, 2n) motion-history features of the configurations (fgcal.motion); computed on
+        each call (microseconds), so that a copy with other configurations is never stale."""
+        return features(self.q, self.motion_history)
+
+    def motion_of(self, config_ids: np.ndarray) -> np.ndarray:
+        """The motion features of these configurations (by id)."""
+        return self.motion[self.config_index(config_ids)]
 
     def points_F(self) -> dict[str, np.ndarray]:
         """Calibration points by name, in the fixture frame (m)."""
@@ -195,6 +218,58 @@ def parse_numbers(
                 )
             out[i, j] = value
     return out
+
+
+def approach_columns(path: Path, header: list[str], body: list[list[str]], n: int, to_rad: float) -> np.ndarray:
+    """The optional ``before_q1..before_qn`` columns (N, n) in SI: the joint values each row
+    was approached from; NaN rows where the cells are empty (or the columns absent)."""
+    before = np.full((len(body), n), np.nan)
+    before_cols = [f"before_q{i}" for i in range(1, n + 1)]
+    present = [c for c in header if c.startswith("before_q")]
+    if not present:
+        return before
+    if present != before_cols:
+        raise InputError(path, "header", f"the approach columns are {', '.join(before_cols)}: got {', '.join(present)}")
+    given = np.array([[row[header.index(c)].strip() != "" for c in before_cols] for row in body])
+    partial = np.flatnonzero(given.any(axis=1) & ~given.all(axis=1))
+    if len(partial):
+        where = f"line {partial[0] + 2}"
+        raise InputError(path, where, f"give all of before_q1..before_q{n} or none (the previous row)")
+    rows = given.all(axis=1)
+    if rows.any():
+        # Rows without an approach parse as zeros, so that errors name the file's own lines.
+        columns = [header.index(c) for c in before_cols]
+        filled = [row if full else [("0" if c in columns else v) for c, v in enumerate(row)]
+                  for row, full in zip(body, rows, strict=True)]  # fmt: skip
+        before[rows] = parse_numbers(path, header, filled, before_cols, "angle", to_rad)[rows]
+    return before
+
+
+def speed_column(path: Path, header: list[str], body: list[list[str]]) -> np.ndarray:
+    """The optional ``speed`` column (N,): each move's speed factor (1 without the column)."""
+    speed = np.ones(len(body))
+    if "speed" in header:
+        speed = parse_numbers(path, header, body, ["speed"], "unitless", 1.0)[:, 0]
+        bad = np.flatnonzero(~((speed > 0) & (speed <= MAX_SPEED_FACTOR)))
+        if len(bad):
+            raise InputError(
+                path, f"line {bad[0] + 2}, column speed",
+                f"a speed factor is in (0, {MAX_SPEED_FACTOR:g}] (1: the program's speed), got {speed[bad[0]]:g}",
+            )  # fmt: skip
+    return speed
+
+
+def _history(
+    path: Path, header: list[str], body: list[list[str]], q: np.ndarray, units: Units, order: str
+) -> MotionHistory:
+    """The configurations' motion history: ``before_q*`` where given, else the previous row
+    (nothing with ``order: unknown``); ``speed`` factors (default 1)."""
+    history = MotionHistory.in_order(q) if order == "measured" else MotionHistory.unknown(*q.shape)
+    given = approach_columns(path, header, body, q.shape[1], units.to_rad)
+    rows = np.all(np.isfinite(given), axis=1)
+    before = history.before.copy()
+    before[rows] = given[rows]
+    return MotionHistory(before, speed_column(path, header, body))
 
 
 def _table(path: Path, name: str, units: Units) -> Table:
@@ -287,8 +362,9 @@ def load_dataset(path: str | Path) -> Dataset:
     configs = np.array([row[cfg_header.index("config")].strip() for row in cfg_body], dtype=object)
     if len(set(configs)) != len(configs):
         raise InputError(config_path, "config", "duplicate configuration ids")
+    history = _history(config_path, cfg_header, cfg_body, q, units, doc.string("order", "measured", ORDERS))
 
-    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=parse_noise(doc, units))
+    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=parse_noise(doc, units), history=history)
     known = set(configs)
     for name in TABLES:
         if not files.has(name):

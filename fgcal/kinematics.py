@@ -1,8 +1,10 @@
 """Per-evaluation kinematics of a :class:`~fgcal.robot.Robot`: frames, gravity moments
 and analytic Jacobians (SPEC sections 2 and 3).
 
-``forward(robot, params, q)`` returns a :class:`KinematicsData`; the other functions take
-the robot and that data. Nothing is stored on the robot.
+``forward(robot, params, q, motion)`` returns a :class:`KinematicsData`; the other functions
+take the robot and that data. Nothing is stored on the robot. ``motion`` are the motion-history
+features of the configurations (fgcal.motion): with model DH,s,e,h the chain sees the joint
+values ``q' = q + F_lm lm + F_lv lv`` (N, n), and every derivative goes through q'.
 
 Gravity moment of joint i (bodies b >= i, payload included; all forces are parallel to g,
 so the sum collapses to the first mass moment ``C_i = sum m_b c_b`` and mass ``M_i``)::
@@ -33,6 +35,8 @@ class Robot(Protocol):
     name: str
     model: str
     masses: np.ndarray
+    compliant: bool
+    history: bool
     coms: np.ndarray
     payload_mass: float
     payload_com: np.ndarray
@@ -53,13 +57,14 @@ class KinematicsData:
     """Everything computed for one parameter vector at N configurations."""
 
     params: np.ndarray
-    q: np.ndarray
+    q: np.ndarray  # (N, n) the joint values the chain sees: commanded plus motion offsets
     frames: np.ndarray  # (K+1, N, 4, 4) deformed chain
     frames_rigid: np.ndarray  # (K+1, N, 4, 4) undeformed chain (g = 0)
     moments: np.ndarray  # (N, 3n) gravity moments t_i, N m
     first_moment: np.ndarray  # (N, n+2, 3) suffix sums of m_b c_b over bodies >= j, kg m
     suffix_mass: np.ndarray  # (n+2,) suffix sums of m_b, kg
     torque_world: np.ndarray  # (N, n, 3) tau_i in W, N m
+    motion: np.ndarray | None = None  # (N, 2n) motion-history features (fgcal.motion)
     _twists: dict = field(default_factory=dict)
 
     def subset(self, rows: np.ndarray) -> KinematicsData:
@@ -67,6 +72,7 @@ class KinematicsData:
         return KinematicsData(
             self.params, self.q[rows], self.frames[:, rows], self.frames_rigid[:, rows], self.moments[rows],
             self.first_moment[rows], self.suffix_mass, self.torque_world[rows],
+            None if self.motion is None else self.motion[rows],
         )  # fmt: skip
 
     def twists(self, chain_elements, rigid: bool) -> list[np.ndarray]:
@@ -89,8 +95,23 @@ def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     return masses, coms
 
 
-def forward(robot: Robot, params: np.ndarray, q: np.ndarray) -> KinematicsData:
-    """Frames and gravity moments for parameter vector ``params`` at joint angles (N, n)."""
+def motion_offsets(robot: Robot, params: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """The joint offsets (N, n) of the motion history (fgcal.motion), rad or m."""
+    first = robot.parameter_names.index("lm1")
+    n = robot.n_joints
+    return motion[:, :n] * params[first : first + n] + motion[:, n:] * params[first + n : first + 2 * n]
+
+
+def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None = None) -> KinematicsData:
+    """Frames and gravity moments for parameter vector ``params`` at joint values (N, n),
+    reached as the motion-history features (N, 2n) say (None: no history offsets)."""
+    if motion is not None and not robot.history:
+        motion = None
+    if motion is not None:
+        motion = np.asarray(motion, dtype=float)
+        if motion.shape != (q.shape[0], 2 * robot.n_joints):
+            raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
+        q = q + motion_offsets(robot, params, motion)
     chain = robot.chain
     n, n_conf = robot.n_joints, q.shape[0]
     no_moments = np.zeros((n_conf, 3 * n))
@@ -112,8 +133,8 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray) -> KinematicsData:
         bend = rigid[chain.bend[i]]
         torque_world[:, i] = cross(first_moment[:, i] - suffix_mass[i] * bend[:, :3, 3], g)
         moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
-    frames = evaluate(chain.elements, params, q, moments) if robot.model == "DH,s,e" else rigid
-    return KinematicsData(params, q, frames, rigid, moments, first_moment, suffix_mass, torque_world)
+    frames = evaluate(chain.elements, params, q, moments) if robot.compliant else rigid
+    return KinematicsData(params, q, frames, rigid, moments, first_moment, suffix_mass, torque_world, motion)
 
 
 def frame_index(robot: Robot, frame: str) -> int:
@@ -164,8 +185,10 @@ def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray,
     return d_t.reshape(d_t.shape[0], d_t.shape[1], 3 * n)
 
 
-def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float]]:
-    """Entries (target, element, column, scale) through which each name enters directly."""
+def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float, int]]:
+    """Entries (target, element, column, scale, feature) through which each name enters
+    directly; ``feature`` >= 0: a motion term, which enters through its joint scaled by that
+    column of the motion features (-1: none)."""
     chain = robot.chain
     index = {name: t for t, name in enumerate(robot.parameter_names)}
     by_param: dict[int, list[tuple[int, int]]] = {}
@@ -178,15 +201,20 @@ def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, in
             by_param.setdefault(et.param, []).append((k, 0))
         if et.joint is not None:
             by_joint.setdefault(et.joint, []).append((k, et.sign))
+    n = robot.n_joints
+    first_motion = index["lm1"]
     entries = []
     for t, name in enumerate(wrt):
         if name.startswith("q") and name[1:].isdigit():
             joint = int(name[1:]) - 1
-            if not 0 <= joint < robot.n_joints:
+            if not 0 <= joint < n:
                 raise InputError(None, "wrt", f"{robot.name} has no joint {name}")
-            entries += [(t, k, 0, sign) for k, sign in by_joint.get(joint, [])]
+            entries += [(t, k, 0, sign, -1) for k, sign in by_joint.get(joint, [])]
+        elif name in index and first_motion <= index[name] < first_motion + 2 * n:
+            feature = index[name] - first_motion
+            entries += [(t, k, 0, sign, feature) for k, sign in by_joint.get(feature % n, [])]
         elif name in index:
-            entries += [(t, k, c, 1.0) for k, c in by_param.get(index[name], [])]
+            entries += [(t, k, c, 1.0, -1) for k, c in by_param.get(index[name], [])]
         else:
             raise InputError(None, "wrt", f"unknown parameter or joint name {name!r}")
     return entries
@@ -200,12 +228,18 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     entries = _direct_columns(robot, wrt)
     if not entries:
         return np.zeros((n_conf, len(wrt), 6))
-    targets, elements, columns, scales = (np.array(v) for v in zip(*entries, strict=True))
+    targets, elements, columns, scales, features = (np.array(v) for v in zip(*entries, strict=True))
     deformed = data.twists(chain.elements, rigid=False)
     twist = np.stack([deformed[k][:, c] for k, c in zip(elements, columns, strict=True)], axis=1)  # (N, E, 6)
     moment_of = np.array([-1 if chain.elements[k].moment is None else chain.elements[k].moment for k in elements])
     is_compliance = moment_of >= 0
-    coefficient = np.broadcast_to(scales, (n_conf, len(entries))).copy()
+    # Each entry's factor per configuration: its scale, times its motion feature if it has one
+    # (with no history given, a motion term moves nothing).
+    scale = np.broadcast_to(scales, (n_conf, len(entries))).copy()
+    motion_entries = features >= 0
+    if np.any(motion_entries):
+        scale[:, motion_entries] *= 0.0 if data.motion is None else data.motion[:, features[motion_entries]]
+    coefficient = scale.copy()
     coefficient[:, is_compliance] *= data.moments[:, moment_of[is_compliance]]
     coefficient[:, elements >= out_index] = 0.0
     contribution = twist * coefficient[..., None]
@@ -222,7 +256,7 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
             )
             rates = moment_derivatives(robot, data, elements[geometric], rigid_twist)[:, :, moment_index]
             deflection_twists = np.stack([deformed[k][:, 0] for k in deflections], axis=1)  # (N, M, 6)
-            weighted = rates * (compliances[None, None, :] * scales[geometric][None, :, None])
+            weighted = rates * (compliances[None, None, :] * scale[:, geometric][:, :, None])
             contribution[:, geometric] += np.matmul(weighted, deflection_twists)
     # Sum the entries into their targets (a name may enter through several elements).
     selection = np.zeros((len(wrt), len(entries)))

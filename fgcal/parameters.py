@@ -3,7 +3,9 @@
 A DH joint i (1-based) has ``theta{i} d{i} a{i} alpha{i} sx{i} sy{i} kx{i} ky{i} kz{i}``; a
 joint given by its origin (URDF) has ``theta{i}`` (``d{i}`` if prismatic), the origin
 correction ``tx{i} ty{i} tz{i} rx{i} ry{i} rz{i}`` and the compliances (fgcal.joints).
-``base.*`` and ``tool.*`` are local perturbations of the nominal base and tool poses,
+Every joint also has the motion-history terms ``lm{i} lv{i}`` (fgcal.motion: lost motion and
+the speed term, rad or m), listed after all the joints' geometry. ``base.*`` and ``tool.*`` are
+local perturbations of the nominal base and tool poses,
 translation (m) then rotation vector (rad).
 """
 
@@ -17,14 +19,16 @@ ORIGIN_CORRECTION_KINDS = ("tx", "ty", "tz", "rx", "ry", "rz")
 POSE_KINDS = ("tx", "ty", "tz", "rx", "ry", "rz")
 LENGTH_KINDS = frozenset({"d", "a", "tx", "ty", "tz"})
 COMPLIANCE_KINDS = frozenset({"kx", "ky", "kz"})
-_JOINT_NAME = re.compile(r"^(theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz)([1-9][0-9]*)$")
+MOTION_KINDS = ("lm", "lv")  # fgcal.motion
+_JOINT_NAME = re.compile(r"^(theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz|lm|lv)([1-9][0-9]*)$")
 _POSE_NAME = re.compile(r"^(base|tool)\.(tx|ty|tz|rx|ry|rz)$")
 
 
 def parameter_names(joint_kinds: Sequence[Sequence[str]]) -> list[str]:
     """All parameter names, in the order of the parameter vector: the kinds of each joint
-    (fgcal.joints), then base and tool."""
+    (fgcal.joints), the motion-history terms of each joint, then base and tool."""
     names = [f"{kind}{i}" for i, kinds in enumerate(joint_kinds, start=1) for kind in kinds]
+    names += [f"{kind}{i}" for kind in MOTION_KINDS for i in range(1, len(joint_kinds) + 1)]
     names += [f"{pose}.{kind}" for pose in ("base", "tool") for kind in POSE_KINDS]
     return names
 
@@ -48,7 +52,7 @@ def split_name(name: str) -> tuple[str, int | str]:
 
 
 def unit_of(name: str) -> str:
-    """SI unit of a parameter value."""
+    """SI unit of a parameter value (the motion terms of a prismatic joint are m, not rad)."""
     kind, _ = split_name(name)
     if kind in LENGTH_KINDS:
         return "m"
@@ -61,3 +65,8 @@ def default_compliant_joints(n_joints: int) -> tuple[int, ...]:
     """The joints whose compliances are candidates when nothing says otherwise: the seed's
     1-3, those the robot has (a 2-axis positioner has 1 and 2)."""
     return tuple(j for j in (1, 2, 3) if j <= n_joints)
+
+
+def is_motion(name: str) -> bool:
+    """A motion-history term (lm, lv) of a joint."""
+    return split_name(name)[0] in MOTION_KINDS

@@ -20,7 +20,9 @@ from .ik import IKResult, inverse_kinematics
 from .joints import DHJoint, Joint, perturbation_elements, pose_elements
 from .parameters import parameter_names
 
-MODELS = ("DH", "DH,s", "DH,s,e")
+# Each model adds terms to the one before: axis distortions (s), gravity compliances (e) and
+# the motion history's joint offsets (h: lost motion and the speed term, fgcal.motion).
+MODELS = ("DH", "DH,s", "DH,s,e", "DH,s,e,h")
 # A calibration moves the flange by millimetres: two models whose flanges are farther apart
 # than this (Robot.flange_gap_m) are two robots.
 SAME_ROBOT_M = 0.05
@@ -84,6 +86,16 @@ class Robot:
 
     # -- description -------------------------------------------------------------------
     @property
+    def compliant(self) -> bool:
+        """The model bends the joints under gravity (models DH,s,e and DH,s,e,h)."""
+        return "e" in self.model.split(",")
+
+    @property
+    def history(self) -> bool:
+        """The model offsets the joints by how they were reached (model DH,s,e,h)."""
+        return "h" in self.model.split(",")
+
+    @property
     def n_joints(self) -> int:
         return len(self.joints)
 
@@ -130,7 +142,7 @@ class Robot:
         return {name: float(v) for name, v in zip(self.parameter_names, vector, strict=True)}
 
     def with_model(self, model: str) -> Robot:
-        """The same robot with model 'DH', 'DH,s' or 'DH,s,e' (which terms enter the chain)."""
+        """The same robot with another of MODELS (which terms enter the chain)."""
         return replace(self, model=model)
 
     def with_tool(
@@ -160,17 +172,22 @@ class Robot:
             raise InputError(None, "q", "joint angles must be finite")
         return q2
 
-    def fk(self, q: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    def fk(
+        self, q: np.ndarray, params: Mapping[str, float] | None = None, motion: np.ndarray | None = None
+    ) -> np.ndarray:
         """Flange pose ``T_W_n`` (4x4, m) in the world frame, base pose applied.
 
         ``q`` is (n,) or (N, n) in rad; ``params`` a full or partial dict of parameter
-        names (missing names are nominal). Returns (4, 4) or (N, 4, 4).
+        names (missing names are nominal); ``motion`` the motion-history features (N, 2n) of
+        the configurations (fgcal.motion.features; model DH,s,e,h). Returns (4, 4) or (N, 4, 4).
         """
-        return self._frame(q, params, "flange")
+        return self._frame(q, params, "flange", motion)
 
-    def fk_tool(self, q: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    def fk_tool(
+        self, q: np.ndarray, params: Mapping[str, float] | None = None, motion: np.ndarray | None = None
+    ) -> np.ndarray:
         """Tool (or camera) pose ``T_W_C`` = ``T_W_n T_n_C``, like :meth:`fk`."""
-        return self._frame(q, params, "tool")
+        return self._frame(q, params, "tool", motion)
 
     def flange_gap_m(self, other: Robot, count: int = 32) -> float:
         """The largest flange-position difference (m) between this robot and ``other`` over
@@ -211,16 +228,17 @@ class Robot:
         params: Mapping[str, float] | None = None,
         frame: str = "flange",
         point: np.ndarray | None = None,
+        motion: np.ndarray | None = None,
     ) -> np.ndarray:
         """Analytic Jacobian with respect to the names in ``wrt`` (parameter names or
-        joints ``q1``..``qn``).
+        joints ``q1``..``qn``), at configurations reached as ``motion`` says (see :meth:`fk`).
 
         Without ``point``: (N, 6, len(wrt)) body-frame twist Jacobian of the frame's pose,
         rows ``[omega, v]`` (GTSAM's Pose3 retraction order). With ``point`` (3,), a point
         fixed in that frame: (N, 3, len(wrt)) derivative of its world position (m per unit).
         """
         q2 = self.check_q(q)
-        data = kinematics.forward(self, self.parameter_vector(params), q2)
+        data = kinematics.forward(self, self.parameter_vector(params), q2, _motion(motion, q2))
         return kinematics.jacobian(self, data, wrt, frame=frame, point=point)
 
     def ik(
@@ -245,11 +263,25 @@ class Robot:
             raise InputError(None, "q_hint", f"one hint per target: {len(hints)} hints for {len(batch)} targets")
         return inverse_kinematics(self, self.parameter_vector(params), batch, hints, frame, tcp, **options)
 
-    def _frame(self, q: np.ndarray, params: Mapping[str, float] | None, frame: str) -> np.ndarray:
+    def _frame(
+        self, q: np.ndarray, params: Mapping[str, float] | None, frame: str, motion: np.ndarray | None = None
+    ) -> np.ndarray:
         q2 = self.check_q(q)
-        data = kinematics.forward(self, self.parameter_vector(params), q2)
+        data = kinematics.forward(self, self.parameter_vector(params), q2, _motion(motion, q2))
         out = kinematics.frame_pose(self, data, frame)
         return out[0] if np.ndim(q) == 1 else out
+
+
+def _motion(motion: np.ndarray | None, q: np.ndarray) -> np.ndarray | None:
+    """Motion features as (N, 2n) rows for the (N, n) joint values (one row for one)."""
+    if motion is None:
+        return None
+    rows = np.atleast_2d(np.asarray(motion, dtype=float))
+    if rows.shape != (q.shape[0], 2 * q.shape[1]) or not np.all(np.isfinite(rows)):
+        raise InputError(
+            None, "motion", f"finite motion features of shape {(q.shape[0], 2 * q.shape[1])}, got {rows.shape}"
+        )
+    return rows
 
 
 def build_chain(robot: Robot) -> Chain:
@@ -273,7 +305,7 @@ def build_chain(robot: Robot) -> Chain:
 
         elements += joint.before_bend(param, i, float(robot.directions[i]), robot.model != "DH")
         bend.append(len(elements))
-        if robot.model == "DH,s,e":
+        if robot.compliant:
             elements += [
                 ET("Rz", param=param("kz"), moment=3 * i + 2),
                 ET("Ry", param=param("ky"), moment=3 * i + 1),

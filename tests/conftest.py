@@ -13,10 +13,13 @@ SEED_CELL = REPO / "datasets" / "cells" / "kr125_seed.yaml"
 
 
 def random_parameters(robot: fgcal.Robot, rng: np.random.Generator) -> dict[str, float]:
-    """Nominal parameters with random deviations of every kind, compliances included."""
+    """Nominal parameters with random deviations of every kind, compliances included, and the
+    motion terms if the robot's model has them (otherwise no draws: the stream stays as it was)."""
     params = robot.nominal_parameters()
     for name in params:
         kind = name.rstrip("0123456789")
+        if kind in ("lm", "lv") and not robot.history:
+            continue
         if kind in ("kx", "ky", "kz"):
             params[name] = rng.uniform(1e-6, 1e-5)
         elif kind in ("sx", "sy") or name.startswith(("base.r", "tool.r")):

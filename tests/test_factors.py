@@ -27,6 +27,7 @@ from fgcal.factors import (
     TrackerPoints,
     gaussian,
 )
+from fgcal.motion import MotionHistory, features
 
 RNG = np.random.default_rng(7)
 P_KEY = 100
@@ -37,15 +38,19 @@ def _pose() -> gtsam.Pose3:
 
 
 def _kinematics(values: gtsam.Values, n_configs: int = 3) -> BatchKinematics:
-    """Camera poses of a KR 125/2 with compliances and distortions, P near (not at) nominal."""
+    """Camera poses of a KR 125/2 with compliances, distortions and motion terms (reached by
+    random moves), P near (not at) nominal."""
     robot = fgcal.load_robot("kuka_kr125_2").with_tool(np.eye(4), payload_mass=10.0, payload_com=[0, 0, 0.1])
-    released = ["theta2", "d3", "alpha1", "sx2", "sy3", "kz2", "ky3", "tool.tx", "tool.rz"]
+    robot = robot.with_model("DH,s,e,h")
+    released = ["theta2", "d3", "alpha1", "sx2", "sy3", "kz2", "ky3", "lm2", "lv5", "tool.tx", "tool.rz"]
+    q = RNG.uniform(-1, 1, (n_configs, 6))
     model = BatchKinematics(
         robot,
-        robot.parameter_vector({"kz2": 6e-7, "ky3": 4e-7}),
+        robot.parameter_vector({"kz2": 6e-7, "ky3": 4e-7, "lm1": 3e-4}),
         released,
-        RNG.uniform(-1, 1, (n_configs, 6)),
+        q,
         "tool",
+        features(q, MotionHistory(q - RNG.uniform(-0.3, 0.3, q.shape), np.ones(n_configs))),
     )
     scale = np.array([1e-8 if name[0] == "k" else 1e-3 for name in released])  # rad/(N m), else m or rad
     values.insert(P_KEY, model.base[model.index] + RNG.normal(0, 1.0, len(released)) * scale)

@@ -9,6 +9,7 @@ from conftest import random_parameters, random_urdf
 
 import fgcal
 from fgcal import kinematics
+from fgcal.motion import MotionHistory, features
 from fgcal.se3 import so3_log
 
 # Flange axes at q = 0, worked by hand from the DH tables: both robots end with the flange
@@ -45,11 +46,12 @@ def test_irb120_elbow_up_by_hand():
 def test_nominal_parameters_has_every_spec_name():
     robot = fgcal.load_robot("kuka_kr125_2")
     params = robot.nominal_parameters()
-    expected = {f"{k}{i}" for i in range(1, 7) for k in ("theta", "d", "a", "alpha", "sx", "sy", "kx", "ky", "kz")}
+    kinds = ("theta", "d", "a", "alpha", "sx", "sy", "kx", "ky", "kz", "lm", "lv")
+    expected = {f"{k}{i}" for i in range(1, 7) for k in kinds}
     expected |= {f"{p}.{k}" for p in ("base", "tool") for k in ("tx", "ty", "tz", "rx", "ry", "rz")}
     assert set(params) == expected
     assert params["a1"] == pytest.approx(0.41) and params["alpha1"] == pytest.approx(-np.pi / 2)
-    assert all(params[f"{k}{i}"] == 0.0 for i in range(1, 7) for k in ("sx", "sy", "kx", "ky", "kz"))
+    assert all(params[f"{k}{i}"] == 0.0 for i in range(1, 7) for k in ("sx", "sy", "kx", "ky", "kz", "lm", "lv"))
 
 
 def test_partial_parameters_and_batch_agree():
@@ -95,15 +97,15 @@ def test_gravity_moment_against_direct_sum(robot_name, tmp_path):
         np.testing.assert_allclose(data.moments[:, 3 * i : 3 * i + 3], expected, rtol=1e-12, atol=1e-9)
 
 
-def _fd_columns(robot, q, params, name, frame, point, step):
+def _fd_columns(robot, q, params, name, frame, point, step, motion=None):
     def pose(h):
         if name.startswith("q"):
             qq = q.copy()
             qq[:, int(name[1:]) - 1] += h
-            return robot._frame(qq, params, frame)
+            return robot._frame(qq, params, frame, motion)
         shifted = dict(params)
         shifted[name] += h
-        return robot._frame(q, shifted, frame)
+        return robot._frame(q, shifted, frame, motion)
 
     T0, Tp, Tm = pose(0.0), pose(step), pose(-step)
     R0t = np.swapaxes(T0[:, :3, :3], 1, 2)
@@ -130,19 +132,26 @@ def _load(robot_name: str, tmp_path) -> fgcal.Robot:
 
 @pytest.mark.parametrize("robot_name", ["kuka_kr125_2", "ur10e", "random_urdf", "random_urdf_prismatic"])
 @pytest.mark.parametrize("frame", ["flange", "tool"])
-def test_jacobian_matches_central_differences(robot_name, frame, tmp_path):
+@pytest.mark.parametrize("model", ["DH,s,e", "DH,s,e,h"])
+def test_jacobian_matches_central_differences(robot_name, frame, model, tmp_path):
     rng = np.random.default_rng(11)
-    robot = _load(robot_name, tmp_path).with_tool(
-        np.array([[0, -1, 0, 0.05], [1, 0, 0, 0.02], [0, 0, 1, 0.15], [0, 0, 0, 1.0]]),
-        payload_mass=20.0,
-        payload_com=[0.01, 0.0, 0.08],
+    robot = (
+        _load(robot_name, tmp_path)
+        .with_tool(
+            np.array([[0, -1, 0, 0.05], [1, 0, 0, 0.02], [0, 0, 1, 0.15], [0, 0, 0, 1.0]]),
+            payload_mass=20.0,
+            payload_com=[0.01, 0.0, 0.08],
+        )
+        .with_model(model)
     )
     params = random_parameters(robot, rng)
     q = rng.uniform(-2.0, 2.0, (3, robot.n_joints))
+    # The features of configurations reached by random moves (fgcal.motion).
+    motion = features(q, MotionHistory(q - rng.uniform(-0.5, 0.5, q.shape), rng.uniform(0.2, 1.0, 3)))
     point = np.array([0.1, -0.2, 0.3])
     wrt = robot.parameter_names + [f"q{i}" for i in range(1, robot.n_joints + 1)]
-    J_pose = robot.jacobian(q, wrt, params, frame=frame)
-    J_point = robot.jacobian(q, wrt, params, frame=frame, point=point)
+    J_pose = robot.jacobian(q, wrt, params, frame=frame, motion=motion)
+    J_point = robot.jacobian(q, wrt, params, frame=frame, point=point, motion=motion)
     assert J_pose.shape == (3, 6, len(wrt)) and J_point.shape == (3, 3, len(wrt))
     moments = kinematics.forward(robot, robot.parameter_vector(params), q).moments
     worst = {}
@@ -152,12 +161,14 @@ def test_jacobian_matches_central_differences(robot_name, frame, tmp_path):
             # Step the compliance so that the deflection angle k * t changes by about 1e-6 rad.
             component = 3 * (int(name[2:]) - 1) + "xyz".index(name[1])
             step = 1e-6 / max(1.0, np.abs(moments[:, component]).max())
-        twist, point_rate = _fd_columns(robot, q, params, name, frame, point, step)
+        twist, point_rate = _fd_columns(robot, q, params, name, frame, point, step, motion)
         worst[name] = max(_relative_error(J_pose[:, :, col], twist), _relative_error(J_point[:, :, col], point_rate))
     bad = {k: v for k, v in worst.items() if v > 1e-6}
     assert not bad, f"Jacobian columns off by more than 1e-6 relative: {bad}"
     # Compliance enters through the moment, geometric parameters through it too (k != 0).
     assert np.linalg.norm(J_point[:, :, wrt.index("kz2")]) > 1.0
+    # The motion terms move the frame only in the model that has them.
+    assert (np.linalg.norm(J_point[:, :, wrt.index("lm2")]) > 0.1) == (model == "DH,s,e,h")
 
 
 def test_tool_parameters_do_not_move_the_flange():

@@ -12,7 +12,8 @@ from ..robot import Robot
 
 class BatchKinematics:
     """FK (N, 4, 4) and body Jacobians (N, 6, m) of ``frame`` at all configurations ``q``,
-    as functions of the m released parameters; the others stay at ``full_params``.
+    reached as their motion-history features ``motion`` (N, 2n) say (None: no history), as
+    functions of the m released parameters; the others stay at ``full_params``.
 
     Results are cached on the released values: when GTSAM evaluates or linearises the
     graph, the first measurement set to ask triggers one vectorised evaluation and the
@@ -20,7 +21,13 @@ class BatchKinematics:
     """
 
     def __init__(
-        self, robot: Robot, full_params: np.ndarray, released: Sequence[str], q: np.ndarray, frame: str
+        self,
+        robot: Robot,
+        full_params: np.ndarray,
+        released: Sequence[str],
+        q: np.ndarray,
+        frame: str,
+        motion: np.ndarray | None,
     ) -> None:
         self.robot = robot
         self.base = np.array(full_params, dtype=float)
@@ -28,6 +35,7 @@ class BatchKinematics:
         self.index = np.array([robot.parameter_names.index(name) for name in self.released], dtype=int)
         self.q = np.asarray(q, dtype=float)
         self.frame = frame
+        self.motion = motion
         self._cache: dict[bytes, dict] = {}
 
     @property
@@ -46,7 +54,7 @@ class BatchKinematics:
         if entry is None:
             if len(self._cache) >= 4:  # LM alternates between a few trial points
                 self._cache.pop(next(iter(self._cache)))
-            data = kinematics.forward(self.robot, self.full(values), self.q)
+            data = kinematics.forward(self.robot, self.full(values), self.q, self.motion)
             entry = {"data": data, "poses": kinematics.frame_pose(self.robot, data, self.frame)}
             self._cache[key] = entry
         return entry

@@ -8,21 +8,22 @@ from pathlib import Path
 
 from ..fields import Fields, read_yaml
 from ..noise import parse_noise
-from ..parameters import JOINT_KINDS, ORIGIN_CORRECTION_KINDS
+from ..parameters import JOINT_KINDS, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 from .formulations import NAMES
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
-KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, "base", "tool")
+KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
 # DH angles and their translation corrections (tx, ty, tz) with the lengths.
 SEED_STAGES = (
     ("theta",),
     ("alpha", "sx", "sy", "rx", "ry", "rz"),
     ("kx", "ky", "kz"),
-    ("theta", "alpha", "sx", "sy", "rx", "ry", "rz", "kx", "ky", "kz", "d", "a", "tx", "ty", "tz", "base", "tool"),
-)
+    ("theta", "alpha", "sx", "sy", "rx", "ry", "rz", "kx", "ky", "kz", "d", "a", "tx", "ty", "tz", "base", "tool",
+     "lm", "lv"),
+)  # fmt: skip
 ONE_SHOT = (SEED_STAGES[-1],)
 CONFIG_KEYS = (
     "dataset",
@@ -60,10 +61,13 @@ class CalibrationConfig:
     measurement: MeasurementSettings
     holdout: float
     split_seed: int
+    # Fit on the held-out part and hold out the fitting part: the split's other half, for
+    # cross-validation on both halves of one split.
+    complement: bool
     min_information: float
     max_iterations: int
     pixels_from: str = "table"
-    # DH, DH,s and DH,s,e are all fitted and compared (always with model: auto).
+    # Every model of MODELS is fitted and compared (always with model: auto).
     compare_models: bool = False
     # Separate validation sets (dataset directories): their configurations are held out (with
     # the fitting set's own holdout, 0 by default then).
@@ -135,7 +139,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     bounds = doc.sub("bounds", {})
     bounds.check_keys(("length",))
     validation = doc.sub("validation", {})
-    validation.check_keys(("holdout", "seed", "dataset", "tool_points"))
+    validation.check_keys(("holdout", "seed", "complement", "dataset", "tool_points"))
     validation_datasets = _validation_datasets(validation, base)
     declared_points = validation.sub("tool_points", {})
     validation_tool_points = {
@@ -172,6 +176,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         measurement=measurement,
         holdout=holdout,
         split_seed=validation.integer("seed", 0, minimum=0, maximum=2**32 - 1),
+        complement=_boolean(validation, "complement", False),
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),

@@ -46,7 +46,7 @@ class StageGraph:
 
 
 def build_graph(problem: Problem, released: Sequence[str], state: State) -> StageGraph:
-    kinematics = problem.kinematics(state, released, problem.observations.q)
+    kinematics = problem.kinematics(state, released, problem.observations)
     keys = keys_of(state, bool(released))
     values = values_of(state, keys, kinematics.base[kinematics.index])
     graph = gtsam.NonlinearFactorGraph()

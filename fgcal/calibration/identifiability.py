@@ -3,7 +3,7 @@
 From the whitened measurement Jacobian at the initial estimate (auxiliary unknowns such as
 the tracker pose projected out), columns scaled by each parameter's plausible deviation are selected greedily
 (Gram-Schmidt with pivoting) in priority order: DH (theta, d, a, alpha), then axis
-distortions, compliances, tool, base. A column whose information, after projecting out the
+distortions, compliances, the motion history's terms, tool, base. A column whose information, after projecting out the
 columns already selected, is below ``min_information`` (1 = its standard deviation would
 exceed its plausible deviation) is unidentifiable: it is fixed at its current value and
 reported with the selected parameters it is (nearly) a combination of.
@@ -15,17 +15,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..parameters import split_name
+from ..parameters import MOTION_KINDS, split_name
 from .graph import StageGraph
 
 GROUPS = (
     ("theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"),
     ("sx", "sy"),
     ("kx", "ky", "kz"),
+    ("lm", "lv"),
     ("tool",),
     ("base",),
 )
-SCALE = {"length": 1e-2, "angle": 1e-2}  # plausible deviations: m, rad
+# Plausible deviations: m, rad; a joint's lost motion is hundredths of a degree.
+SCALE = {"length": 1e-2, "angle": 1e-2, "motion": 1e-3}
 
 
 @dataclass
@@ -50,6 +52,8 @@ def parameter_scale(name: str, moments_rms: np.ndarray) -> float:
         return SCALE["angle"] / max(float(moment), 1e-9)
     if kind in ("d", "a", "tx", "ty", "tz"):
         return SCALE["length"]
+    if kind in MOTION_KINDS:
+        return SCALE["motion"]
     return SCALE["angle"]
 
 
@@ -151,3 +155,19 @@ def select(
         singular, condition = np.zeros(0), float("inf")
     order = [names[i] for i in sorted(selected)]
     return Identifiability(order, unidentifiable, singular, condition, scaled.shape[0], absorbed_by)
+
+
+def motion_warning(identifiability: Identifiability) -> str | None:
+    """What a design that cannot separate the motion history's terms from the joint offsets
+    must be told (fgcal.motion): every configuration was reached the same way."""
+    hidden = [n for n in identifiability.unidentifiable if split_name(n)[0] in MOTION_KINDS]
+    if not hidden:
+        return None
+    absorbing = sorted({p for n in hidden for p in identifiability.absorbed_by.get(n, [])})
+    into = f" (their effect is absorbed by {', '.join(absorbing)})" if absorbing else ""
+    return (
+        f"the motion-history terms {', '.join(hidden)} cannot be told apart from the joint offsets{into}: the "
+        "configurations were reached the same way (approached from one side, at one speed). They stay at zero, "
+        "and the calibration holds only for moves made the same way; to identify them, reach configurations "
+        "from both sides and at different speeds (docs/calibration.md, Motion history)"
+    )

@@ -2,7 +2,9 @@
 problem.Scored, ``p = L X(q) s_t``), how well the estimate knows them (the joint covariance of
 the parameters and auxiliary unknowns carried through the tracker-point model, the score's
 gauge removed), and the workspace map of the report. The model is the tracker's measurement
-model (fgcal.factors.TrackerPoints) with L and S variables or constants: written once."""
+model (fgcal.factors.TrackerPoints) with L and S variables or constants: written once.
+Configurations come with their motion features (fgcal.motion; None: no history), which the
+model needs as much as the joint values."""
 
 from __future__ import annotations
 
@@ -41,18 +43,20 @@ def _model(kinematics: BatchKinematics, scored: Scored, n_configs: int, variable
     )
 
 
-def scored_positions(robot: Robot, frame: str, params: np.ndarray, q: np.ndarray, scored: Scored) -> np.ndarray:
+def scored_positions(
+    robot: Robot, frame: str, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None, scored: Scored
+) -> np.ndarray:
     """The scored points (k * N, 3) at configurations q, point-major, in the score's frame."""
-    model = _model(BatchKinematics(robot, params, [], q, frame), scored, len(q))
+    model = _model(BatchKinematics(robot, params, [], q, frame, motion), scored, len(q))
     return model.compute([], False).residual.reshape(-1, 3)
 
 
 def scored_jacobian(
-    problem: Problem, state: State, scored: Scored, released: Sequence[str], q: np.ndarray
+    problem: Problem, state: State, scored: Scored, released: Sequence[str], q: np.ndarray, motion: np.ndarray | None
 ) -> tuple[np.ndarray, list[str]]:
     """Jacobian (k * N, 3, m) of the scored points through P (``released``), the instrument and
     the points where they are unknowns, and the names of those unknowns in column order."""
-    kinematics = problem.kinematics(state, released, q)
+    kinematics = BatchKinematics(problem.robot, state.params, released, q, problem.frame, motion)
     variables = []
     names = ["P"] if released else []
     inputs: list = [kinematics.base[kinematics.index]] if released else []
@@ -74,15 +78,15 @@ def scored_jacobian(
 
 
 def scored_covariances(
-    problem: Problem, state: State, covariance: JointCovariance, q: np.ndarray
+    problem: Problem, state: State, covariance: JointCovariance, q: np.ndarray, motion: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Positions (k * N, 3) of the scored points at configurations q, point-major, and the
     covariance (k * N, 3, 3) of each one's error, the score's gauge removed (over all of them)."""
     scored = problem.formulation.scored(problem, state)
-    positions = scored_positions(problem.robot, problem.frame, state.params, q, scored)
+    positions = scored_positions(problem.robot, problem.frame, state.params, q, motion, scored)
     if not covariance.released:
         return positions, np.zeros((len(positions), 3, 3))
-    J, names = scored_jacobian(problem, state, scored, covariance.released, q)
+    J, names = scored_jacobian(problem, state, scored, covariance.released, q, motion)
     gauge = problem.formulation.gauge(problem.settings)
     flat = without_gauge(J.reshape(-1, J.shape[2]), positions, gauge).reshape(len(positions), 3, -1)
     block = covariance.block(names)
@@ -90,24 +94,26 @@ def scored_covariances(
 
 
 def predicted_against_truth(
-    problem: Problem, state: State, covariance: JointCovariance, q: np.ndarray, factor: float
+    problem: Problem, state: State, covariance: JointCovariance, q: np.ndarray, motion: np.ndarray | None, factor: float
 ) -> Prediction | None:
     """Predicted RMS (m) of the score against the truth at q: the estimate's uncertainty
     carried to the scored points, the gauge removed; no noise (the truth is exact)."""
     if not len(q) or not covariance.released:
         return None
-    _, covariances = scored_covariances(problem, state, covariance, q)
+    _, covariances = scored_covariances(problem, state, covariance, q, motion)
     variance = float(np.mean(np.trace(covariances, axis1=1, axis2=2)))
     return Prediction(float(np.sqrt(variance)), float(np.sqrt(variance)), 0.0, factor)
 
 
-def workspace_map(problem: Problem, state: State, covariance: JointCovariance | None, q: np.ndarray) -> dict | None:
+def workspace_map(
+    problem: Problem, state: State, covariance: JointCovariance | None, q: np.ndarray, motion: np.ndarray | None
+) -> dict | None:
     """Where the robot was checked and how well it is known there: at each held-out
     configuration the first scored point in W (m) and its predicted sigma (m, the score's gauge
     removed, no noise)."""
     if not len(q) or covariance is None or not covariance.released:
         return None
-    positions, covariances = scored_covariances(problem, state, covariance, q)
+    positions, covariances = scored_covariances(problem, state, covariance, q, motion)
     positions, covariances = positions[: len(q)], covariances[: len(q)]  # the first point
     instrument = problem.formulation.scored(problem, state).instrument
     if instrument is not None:  # from the score's frame into W

@@ -32,7 +32,7 @@ import numpy as np
 from ..dataset import Dataset, Table
 from ..errors import InputError
 from ..factors import MeasurementSet, RobustLoss
-from ..parameters import default_compliant_joints, split_name
+from ..parameters import MOTION_KINDS, default_compliant_joints, split_name
 from ..robot import Robot
 from ..truth import Truth
 from .batch import BatchKinematics
@@ -143,10 +143,12 @@ class Problem:
     def with_fit(self, observations: Observations, rejected: Sequence[Rejection]) -> Problem:
         return replace(self, observations=observations, rejected=(*self.rejected, *rejected))
 
-    def kinematics(self, state: State, released: Sequence[str], q: np.ndarray) -> BatchKinematics:
-        """The formulation's frame at ``q`` as a function of the ``released`` parameters, the
+    def kinematics(self, state: State, released: Sequence[str], observations: Observations) -> BatchKinematics:
+        """The formulation's frame at the observations' configurations (reached as the
+        dataset's motion history says) as a function of the ``released`` parameters, the
         others at the state's values."""
-        return BatchKinematics(self.robot, state.params, released, q, self.frame)
+        motion = self.dataset.motion_of(observations.config_ids)
+        return BatchKinematics(self.robot, state.params, released, observations.q, self.frame, motion)
 
 
 @dataclass(frozen=True)
@@ -447,7 +449,7 @@ def main_set(
 ) -> tuple[MeasurementSet, list]:
     """The main measurement set of ``observations`` at ``state`` (P over ``released``, for
     Jacobians) and its inputs."""
-    kinematics = problem.kinematics(state, released, observations.q)
+    kinematics = problem.kinematics(state, released, observations)
     keys = keys_of(state, bool(released))
     sets = problem.formulation.measurement_sets(problem, observations, kinematics, keys, state, None)
     values = values_of(state, keys, kinematics.base[kinematics.index])
@@ -505,10 +507,14 @@ def compliant_joints(robot: Robot, joints: tuple[int, ...] | None) -> tuple[int,
 
 def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | None) -> list[str]:
     """Parameters the model could estimate: the model's kinds, compliances of the compliant
-    joints, base and tool. Identifiability analysis decides which the data determine."""
+    joints, the motion history's terms of every joint (model DH,s,e,h), base and tool.
+    Identifiability analysis decides which the data determine."""
+    terms = model.split(",")
     kinds = {"theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"}
-    if model in ("DH,s", "DH,s,e"):
+    if "s" in terms:
         kinds |= {"sx", "sy"}
+    if "h" in terms:
+        kinds |= set(MOTION_KINDS)
     compliant = compliant_joints(robot, joints)
     names = []
     for name in robot.parameter_names:
@@ -516,7 +522,7 @@ def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | Non
         if (
             isinstance(owner, str)
             or kind in kinds
-            or (model == "DH,s,e" and kind in ("kx", "ky", "kz") and owner in compliant)
+            or ("e" in terms and kind in ("kx", "ky", "kz") and owner in compliant)
         ):
             names.append(name)
     return names

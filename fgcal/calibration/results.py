@@ -110,6 +110,9 @@ class CompensationStudy:
     uncompensated_rms_m: float
     gauge_removed: str
     seed: int
+    # With a robot calibrated with lost motion: the compensated RMS when the commands do not
+    # allow for the approach (None: the robot has no motion terms).
+    without_approach_rms_m: float | None = None
 
     @property
     def improvement(self) -> float:
@@ -126,6 +129,7 @@ class CompensationStudy:
             "improvement": self.improvement,
             "gauge_removed": self.gauge_removed,
             "seed": self.seed,
+            "without_approach_rms_m": self.without_approach_rms_m,
         }
 
 

@@ -18,7 +18,7 @@ from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
 from .graph import StageGraph, build_graph, robust_scale
-from .identifiability import Identifiability, analyse
+from .identifiability import Identifiability, analyse, motion_warning
 from .models import compare_models
 from .problem import Detection, Observations, Problem, candidate_parameters, compliant_joints, split
 from .references import reference_check
@@ -53,6 +53,10 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
     )
     fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
+    if config.complement:
+        if not len(test):
+            raise InputError(config.path, "validation.complement", "needs a holdout > 0: nothing is held out to fit on")
+        fit, test = test, fit
     dataset, validation_sets = with_validation_sets(dataset, config)
     test = np.concatenate([test, *(indices for _, indices in validation_sets)]).astype(int)
     return Problem(
@@ -176,6 +180,9 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
             f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
             f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"
         )
+        hidden_motion = motion_warning(identifiability)
+        if hidden_motion is not None:
+            say(f"  warning: {hidden_motion}")
         # The mounting components the data cannot determine stay at the nominal mounting, not at
         # the hand-eye guess: the guess is noisy, and a fixed value is no estimate.
         names = problem.robot.parameter_names

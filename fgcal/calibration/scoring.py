@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..compensation import compensate, nominal_of
+from ..motion import MotionHistory, features
 from ..truth import Truth, load_truth
 from .gauge import remove_gauge
 from .prediction import predicted_against_truth, scored_covariances, scored_positions
@@ -23,13 +24,20 @@ from .state import State
 
 
 def truth_errors(
-    problem: Problem, state: State, truth: Truth, q: np.ndarray | None = None, points: np.ndarray | None = None
+    problem: Problem,
+    state: State,
+    truth: Truth,
+    q: np.ndarray | None = None,
+    points: np.ndarray | None = None,
+    motion: np.ndarray | None = None,
 ) -> dict[str, HeldOut]:
     """Error vectors (m) of the formulation's scored points at the estimate ``state`` against
-    the truth, on the held-out configurations (or at ``q``), the score's gauge removed: the
-    main score ``tool_point`` (every scored point, point-major) and each extra point's.
-    ``points`` (k, 3) replace the scored points where they are constants (a camera's)."""
-    q = problem.dataset.q[problem.test] if q is None else q
+    the truth, on the held-out configurations as they were reached (or at ``q``, reached as
+    ``motion`` says: None, no history), the score's gauge removed: the main score
+    ``tool_point`` (every scored point, point-major) and each extra point's. ``points`` (k, 3)
+    replace the scored points where they are constants (a camera's)."""
+    if q is None:
+        q, motion = problem.dataset.q[problem.test], problem.dataset.motion[problem.test]
     if not len(q):  # nothing held out: nothing to score
         return {}
     formulation = problem.formulation
@@ -45,8 +53,8 @@ def truth_errors(
         pairs.append((name, replace(estimated, points=point[None, :]), replace(true, points=point[None, :])))
     out = {}
     for name, mine, theirs in pairs:
-        predicted = scored_positions(problem.robot, problem.frame, state.params, q, mine)
-        reference = scored_positions(true_robot, problem.frame, true_state.params, q, theirs)
+        predicted = scored_positions(problem.robot, problem.frame, state.params, q, motion, mine)
+        reference = scored_positions(true_robot, problem.frame, true_state.params, q, motion, theirs)
         out[name] = HeldOut(remove_gauge(predicted, reference, gauge), np.tile(np.arange(len(q)), len(mine.points)))
     return out
 
@@ -71,8 +79,9 @@ def score_with_truth(result: CalibrationResult) -> CalibrationResult:
     prediction = None
     if result.covariance is not None:
         factor = result.fit.variance_factor if result.fit is not None else 1.0
+        test = problem.test
         prediction = predicted_against_truth(
-            problem, result.state, result.covariance, problem.dataset.q[problem.test], factor
+            problem, result.state, result.covariance, problem.dataset.q[test], problem.dataset.motion[test], factor
         )
     return replace(
         result,
@@ -92,7 +101,10 @@ def position_coverage(result: CalibrationResult) -> float:
     problem = result.problem
     truth = result.truth if result.truth is not None else load_truth(problem.dataset.path)
     error = truth_errors(problem, result.state, truth)["tool_point"].errors
-    _, covariances = scored_covariances(problem, result.state, result.covariance, problem.dataset.q[problem.test])
+    test = problem.test
+    _, covariances = scored_covariances(
+        problem, result.state, result.covariance, problem.dataset.q[test], problem.dataset.motion[test]
+    )
     # Pseudo-inverse: removing the gauge leaves each 3x3 block full rank here, but not by design.
     d2 = np.einsum("ni,nij,nj->n", error, np.linalg.pinv(covariances), error)
     return float(np.mean(d2 <= CHI2_3_95))
@@ -103,8 +115,11 @@ def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: in
     random targets for the first scored point (its position at the dataset's configurations
     moved by up to 0.1 rad per joint, seeded), each from a hint 0.05 rad off. Compensated: the
     joints at which the calibrated model reaches the target; uncompensated: the joints the
-    controller's nominal model finds for it. Both are driven through the true robot and
-    compared with the target in the score's frame, the score's gauge removed (SI)."""
+    controller's nominal model finds for it. Both are driven through the true robot, target
+    after target in their order (a robot with lost motion reaches each from the one before),
+    and compared with the target in the score's frame, the score's gauge removed (SI). With a
+    model that has the motion terms, the commands allow for that approach, and the RMS of
+    commands that do not is given too."""
     problem = result.problem
     truth = result.truth if result.truth is not None else load_truth(problem.dataset.path)
     formulation = problem.formulation
@@ -117,28 +132,42 @@ def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: in
     estimated = formulation.scored(problem, result.state)
     first = replace(estimated, points=estimated.points[:1])
     tcp = first.points[0]
-    targets = scored_positions(robot, problem.frame, result.state.params, q_target, replace(first, instrument=None))
+    targets = scored_positions(
+        robot, problem.frame, result.state.params, q_target, None, replace(first, instrument=None)
+    )
     hints = np.clip(q_target + rng.normal(0.0, 0.05, q_target.shape), low, high)
     nominal = nominal_of(problem.dataset.robot, None)
-    solved = compensate(replace(robot, overrides=params), nominal, targets, hints, tcp, problem.frame)
+    approach = np.full(q_target.shape, np.nan) if robot.history else None
+    solved = compensate(
+        replace(robot, overrides=params), nominal, targets, hints, tcp, problem.frame, approach=approach
+    )
     controller = nominal.ik(targets, hints, tcp=tcp, frame=problem.frame)
     usable = np.isin(solved.status, ("ok", "near singularity")) & np.isin(controller.status, ("ok", "near singularity"))
     true_robot, true_state = formulation.true_state(problem, truth)
     true = formulation.scored(problem, true_state)
     true = replace(true, points=true.points[:1])
-    wanted = scored_positions(robot, problem.frame, result.state.params, q_target[usable], first)
+    wanted = scored_positions(robot, problem.frame, result.state.params, q_target[usable], None, first)
     gauge = formulation.gauge(problem.settings)
 
     def landed(q: np.ndarray) -> np.ndarray:
-        return remove_gauge(scored_positions(true_robot, problem.frame, true_state.params, q, true), wanted, gauge)
+        """Where the true robot lands under the commands q (all targets, in order)."""
+        motion = features(q, MotionHistory.in_order(q))[usable]
+        return remove_gauge(
+            scored_positions(true_robot, problem.frame, true_state.params, q[usable], motion, true), wanted, gauge
+        )
+
+    without = None
+    if solved.motion_offset is not None:
+        without = stats(landed(solved.q + solved.motion_offset)).rms
 
     return CompensationStudy(
         n_targets=int(n_targets),
         n_scored=int(usable.sum()),
         status={s: int(np.sum(solved.status == s)) for s in sorted(set(solved.status.tolist()))},
         model_residual_max_m=float(solved.residual_m[usable].max()),
-        compensated_rms_m=stats(landed(solved.q[usable])).rms,
-        uncompensated_rms_m=stats(landed(controller.q[usable])).rms,
+        compensated_rms_m=stats(landed(solved.q)).rms,
+        uncompensated_rms_m=stats(landed(controller.q)).rms,
         gauge_removed=gauge,
         seed=seed,
+        without_approach_rms_m=without,
     )

@@ -1,6 +1,7 @@
 """The calibration config that a simulated cell's dataset suggests, written beside it by
 ``fgcal simulate`` (``calibration.yaml``): the formulation that reads the cell's own
-instrument, the extended model, the compliant joints of the cell's true robot, and the noise
+instrument, the extended model (with the motion history's terms when the cell's robot has
+lost motion), the compliant joints of the cell's true robot, and the noise
 its instruments state (the dataset's)."""
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def suggested_config(cell: Cell, dataset: Dataset) -> dict:
     return {
         "dataset": ".",
         "formulation": suggested_formulation(cell),
-        "model": "DH,s,e",
+        "model": "DH,s,e,h" if cell.motion is not None else "DH,s,e",
         "compliant_joints": joints,
         "noise": noise_document(dataset.noise),
     }

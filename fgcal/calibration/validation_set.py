@@ -19,6 +19,7 @@ import numpy as np
 
 from ..dataset import Dataset, Table, load_dataset
 from ..errors import InputError
+from ..motion import MotionHistory
 from .config import CalibrationConfig
 
 PREFIX = "validation/"
@@ -77,6 +78,9 @@ def with_validation_set(dataset: Dataset, path, config: CalibrationConfig, id_pr
     merged = copy.copy(dataset)
     merged.configs = np.concatenate([dataset.configs, [id_prefix + str(c) for c in other.configs]]).astype(object)
     merged.q = np.vstack([dataset.q, other.q])
+    # Each session's configurations were reached in its own order.
+    own, theirs = dataset.motion_history, other.motion_history
+    merged.history = MotionHistory(np.vstack([own.before, theirs.before]), np.concatenate([own.speed, theirs.speed]))
     merged.tables = dict(dataset.tables)
     for name, table in other.tables.items():
         if name in SESSION_ONLY:

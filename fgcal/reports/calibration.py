@@ -11,6 +11,7 @@ import numpy as np
 from .. import kinematics, strict_json
 from ..calibration.covariance import correlation
 from ..calibration.goodness import Fit
+from ..calibration.identifiability import motion_warning
 from ..calibration.prediction import workspace_map
 from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
 from ..outputs import output_dir, save_figure, write_text
@@ -104,6 +105,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "unidentifiable": sorted(result.final_identifiability.unidentifiable),
         "unidentifiable_reasons": result.final_identifiability.unidentifiable,
         "unidentifiable_at_nominal": result.identifiability.unidentifiable,
+        "motion_history_warning": motion_warning(result.final_identifiability),
         "identifiability": {
             "min_information": config.min_information,
             "condition_number": result.final_identifiability.condition_number,
@@ -213,7 +215,7 @@ def _region(result: CalibrationResult) -> dict | None:
     score has errors at every held-out configuration, their RMS per configuration (m)."""
     problem = result.problem
     q = problem.dataset.q[problem.test]
-    region = workspace_map(problem, result.state, result.covariance, q)
+    region = workspace_map(problem, result.state, result.covariance, q, problem.dataset.motion[problem.test])
     if region is None:
         return None
     scored = primary_score(result.validation, "after")
@@ -545,6 +547,12 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             "|---|---|",
             f"| the controller's nominal model (uncompensated) | {c['uncompensated_rms_m'] * 1e3:.4g} |",
             f"| the calibrated model (compensated) | {c['compensated_rms_m'] * 1e3:.4g} |",
+        ]
+        if c.get("without_approach_rms_m") is not None:
+            lines.append(
+                f"| the calibrated model, lost motion not allowed for | {c['without_approach_rms_m'] * 1e3:.4g} |"
+            )
+        lines += [
             "",
             f"Compensation removes {c['improvement']:.0f}x of the error; in the calibrated model every scored "
             f"target is reached to {c['model_residual_max_m'] * 1e6:.2g} um.",
@@ -619,6 +627,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         lines += ["", f"Strongly correlated estimates (|r| > {STRONG_CORRELATION}):", ""]
         lines += [f"- {c['a']} and {c['b']}: r = {c['r']:+.3f}" for c in doc["strong_correlations"]]
     lines += ["", "## Unidentifiable parameters (fixed at their current values)", ""]
+    if doc["motion_history_warning"]:
+        lines += [f"**Warning:** {doc['motion_history_warning']}.", ""]
     for name, reason in doc["unidentifiable_reasons"].items():
         lines.append(f"- `{name}`: {reason}")
     ident = doc["identifiability"]

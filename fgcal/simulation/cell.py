@@ -12,6 +12,7 @@ import numpy as np
 from ..camera import Camera, parse_camera
 from ..errors import InputError
 from ..fields import Fields, read_yaml
+from ..motion import MotionHistory
 from ..parameters import default_compliant_joints
 from ..robot import Robot
 from ..robot_io import load_referenced, robot_reference
@@ -36,10 +37,12 @@ CELL_KEYS = (
     "static_camera",
     "noise",
     "perturbation",
+    "motion_history",
     "design",
     "notes",
 )
 DESIGNS = ("seed", "space_filling")
+APPROACHES = ("previous", "from_below")
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,29 @@ class Perturbation:
     base_tilt_rad: float  # about the horizontal axes: unmeasured tilt against gravity
     tool_length_m: float
     tool_angle_rad: float
+
+
+@dataclass(frozen=True)
+class MotionTruth:
+    """The true robot's motion-history terms (fgcal.motion), rad per joint, and how the design
+    reaches each configuration: from the one before (``previous``) or from ``offset_rad`` below
+    on every joint (``from_below``: a unidirectional approach)."""
+
+    lost_motion_rad: np.ndarray
+    speed_rad: np.ndarray
+    approach: str
+    offset_rad: float
+
+    def parameters(self) -> dict[str, float]:
+        """The lm and lv values by parameter name."""
+        named = {f"lm{i}": float(v) for i, v in enumerate(self.lost_motion_rad, start=1)}
+        return named | {f"lv{i}": float(v) for i, v in enumerate(self.speed_rad, start=1)}
+
+    def history(self, q: np.ndarray) -> MotionHistory:
+        """How the design's configurations (in measurement order) are reached."""
+        if self.approach == "from_below":
+            return MotionHistory(q - self.offset_rad, np.ones(len(q)))
+        return MotionHistory.in_order(q)
 
 
 @dataclass(frozen=True)
@@ -178,6 +204,7 @@ class Cell:
     distance_sigma_m: float = 0.0
     static_camera: StaticCameraSetup | None = None
     has_tracker: bool = True  # a laser tracker measures the reflectors (tracker_targets)
+    motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
 
     @property
     def instruments(self) -> list[str]:
@@ -332,6 +359,25 @@ def _static_camera(section: Fields, to_m: float, to_rad: float) -> StaticCameraS
     )
 
 
+def _motion_truth(doc: Fields, n_joints: int, to_rad: float) -> MotionTruth | None:
+    """The ``motion_history`` section: lost_motion and speed, one value per joint (the cell's
+    angle unit), approach (previous or from_below) and approach_offset (angle unit)."""
+    if not doc.has("motion_history"):
+        return None
+    section = doc.sub("motion_history")
+    section.check_keys(("lost_motion", "speed", "approach", "approach_offset"))
+    zeros = [0.0] * n_joints
+    lost = np.array(section.vector("lost_motion", n_joints, zeros, to_rad))
+    speed = np.array(section.vector("speed", n_joints, zeros, to_rad))
+    for key, values in (("lost_motion", lost), ("speed", speed)):
+        if np.any(np.abs(values) > np.radians(0.5)):
+            raise section.error(key, "implausible: beyond 0.5 degrees (hundredths of a degree are usual)")
+    offset = section.number("approach_offset", np.radians(2.0) / to_rad, to_rad, positive=True)
+    if offset > np.radians(30.0):
+        raise section.error("approach_offset", "at most 30 degrees")
+    return MotionTruth(lost, speed, section.string("approach", "previous", APPROACHES), offset)
+
+
 def load_cell(path: str | Path) -> Cell:
     """Load and validate a cell file; every error names the file and field."""
     path = Path(path)
@@ -426,6 +472,12 @@ def load_cell(path: str | Path) -> Cell:
         if not 1 <= j <= robot.n_joints:
             raise pert.error("compliant_joints", f"joint {j} does not exist on a {robot.n_joints}-joint robot")
 
+    motion = _motion_truth(doc, robot.n_joints, to_rad)
+    if motion is not None:
+        if touch is not None or ballbar is not None or static is not None:
+            raise doc.error("motion_history", "is simulated in tracker and flange-camera cells only")
+        robot = robot.with_model("DH,s,e,h")
+
     design = doc.sub("design", {})
     design.check_keys(("kind", "n_configurations", "blocks_per_side", "views_per_block", "standoff", "max_view_angle"))
     standoff = design.vector("standoff", 2, [0.3 / to_m, 0.5 / to_m], to_m)
@@ -457,6 +509,7 @@ def load_cell(path: str | Path) -> Cell:
         ballbar=ballbar,
         distance_sigma_m=noise.number("distance_sigma", 2e-6 / to_m, to_m, nonnegative=True),
         static_camera=static,
+        motion=motion,
         # A tracker section declares one; a cell with no other instrument is a tracker cell.
         has_tracker=doc.has("tracker") or not setups,
         perturbation=Perturbation(

@@ -13,6 +13,7 @@ import numpy as np
 from ..console import step
 from ..dataset import FORMAT, write_csv, write_header
 from ..errors import InputError
+from ..motion import MotionHistory, features
 from ..noise import noise_document
 from ..outputs import output_dir, subfolder, write_bytes
 from ..robot_io import embed_robot
@@ -127,6 +128,10 @@ def simulate(
         np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)
     )
     true_params = perturb_parameters(robot, cell.perturbation, truth_rng)
+    if cell.motion is not None:
+        true_params |= cell.motion.parameters()
+    if render and cell.motion is not None:
+        raise InputError(cell.source, "motion_history", "--render does not simulate the motion history yet")
     if drift is not None and drift.parameter not in true_params:
         raise InputError(None, "drift", f"unknown parameter {drift.parameter!r} for {robot.name}")
 
@@ -165,6 +170,9 @@ def simulate(
         )  # fmt: skip
     config_ids = [f"c{i:04d}" for i in range(len(views))]
     say(f"  {len(views)} configurations; measuring")
+    # The configurations are measured in the design's order: that order is their motion history.
+    history = cell.motion.history(q) if cell.motion is not None else None
+    motion = features(q, history) if history is not None else None
 
     out = output_dir(out_dir)
     subfolder(out, "truth")
@@ -184,7 +192,7 @@ def simulate(
         _write_configurations(out, cell, q, config_ids)
         counts = write_static_camera_tables(out, cell, q, config_ids, true_params, noise_rng)
     else:
-        counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift)
+        counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift, history, motion)
     deviation = positioning_deviation(cell, q, true_params)
     boards = None
     if render:
@@ -247,21 +255,26 @@ def _write_measurements(
     true_params: dict[str, float],
     rng: np.random.Generator,
     drift: Drift | None = None,
+    history: MotionHistory | None = None,
+    motion: np.ndarray | None = None,
 ) -> dict[str, int]:
+    """The measurements at configurations q, reached as ``history`` says (its features
+    ``motion``; None: the robot has no motion terms)."""
     robot = cell.robot
-    _write_configurations(out, cell, q, config_ids)
+    _write_configurations(out, cell, q, config_ids, history)
     if cell.camera is None:  # a tracker cell
-        return _write_tracker_points(out, cell, q, config_ids, true_params, rng)
+        return _write_tracker_points(out, cell, q, config_ids, true_params, rng, motion)
     write_csv(
         out / "points.csv",
         ["point", "object", "side", "x", "y", "z"],
         [[p.name, p.obj, p.side, *map(float, p.position_F)] for p in cell.points()],
     )
     # Camera noise first, then the tracker's: the order of the draws is part of the seed.
-    T_C_W = inverse(robot.fk_tool(q, true_params))
+    T_C_W = inverse(robot.fk_tool(q, true_params, motion))
     if drift is not None:
         drifted = {**true_params, drift.parameter: true_params[drift.parameter] + drift.change}
-        T_C_W[drift.start :] = inverse(robot.fk_tool(q[drift.start :], drifted))
+        later = None if motion is None else motion[drift.start :]
+        T_C_W[drift.start :] = inverse(robot.fk_tool(q[drift.start :], drifted, later))
     cam_rows, cam_noise, px_rows, px_noise = [], [], [], []
     for cid, view, T in zip(config_ids, views, T_C_W, strict=True):
         names = [p.name for p in view.block]
@@ -279,22 +292,34 @@ def _write_measurements(
     write_csv(out / "pixels.csv", ["config", "point", "u", "v"], px_rows)
     write_csv(out / "truth" / "camera_points_noise.csv", ["config", "point", "x", "y", "z"], cam_noise)
     write_csv(out / "truth" / "pixels_noise.csv", ["config", "point", "u", "v"], px_noise)
-    counts = _write_tracker_points(out, cell, q, config_ids, true_params, rng)
+    counts = _write_tracker_points(out, cell, q, config_ids, true_params, rng, motion)
     return {"camera_points": len(cam_rows), "pixels": len(px_rows), **counts}
 
 
-def _write_configurations(out: Path, cell: Cell, q: np.ndarray, config_ids: list[str]) -> None:
-    write_csv(
-        out / "configurations.csv",
-        ["config"] + [f"q{i}" for i in range(1, cell.robot.n_joints + 1)],
-        [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)],
-    )
+def _write_configurations(
+    out: Path, cell: Cell, q: np.ndarray, config_ids: list[str], history: MotionHistory | None = None
+) -> None:
+    """configurations.csv, in measurement order; with an approach other than the previous
+    configuration, the joints each was approached from (before_q*)."""
+    n = cell.robot.n_joints
+    header = ["config"] + [f"q{i}" for i in range(1, n + 1)]
+    rows = [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)]
+    if history is not None and cell.motion is not None and cell.motion.approach != "previous":
+        header += [f"before_q{i}" for i in range(1, n + 1)]
+        rows = [[*row, *map(float, before)] for row, before in zip(rows, history.before, strict=True)]
+    write_csv(out / "configurations.csv", header, rows)
 
 
 def _write_tracker_points(
-    out: Path, cell: Cell, q: np.ndarray, config_ids: list[str], true_params: dict[str, float], rng
+    out: Path,
+    cell: Cell,
+    q: np.ndarray,
+    config_ids: list[str],
+    true_params: dict[str, float],
+    rng,
+    motion: np.ndarray | None = None,
 ) -> dict[str, int]:
-    T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params)
+    T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion)
     trk_rows, trk_noise = [], []
     for cid, T in zip(config_ids, T_T_n, strict=True):
         for i, target in enumerate(cell.tracker_targets):

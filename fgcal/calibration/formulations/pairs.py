@@ -126,7 +126,7 @@ class Pairs(Formulation):
         observations = pair_observations(problem.dataset, problem.settings, problem.test, excluded)
         if not observations.groups:
             return None, []
-        kinematics = problem.kinematics(state, [], observations.q)
+        kinematics = problem.kinematics(state, [], observations)
         deviations, threshold = _deviations(
             observations.groups, kinematics.poses(None), _rotation(problem, state), self.sigma(problem.settings)
         )

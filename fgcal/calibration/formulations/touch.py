@@ -191,7 +191,8 @@ class Touch(Formulation):
             scored = self.scored(problem, state)
             sigma2 = 3.0 * factor * problem.settings.noise.touch_m**2
             for _, at in observations.test_points:
-                J, names = scored_jacobian(problem, state, scored, covariance.released, observations.q[at])
+                motion = problem.dataset.motion_of(observations.config_ids[at])
+                J, names = scored_jacobian(problem, state, scored, covariance.released, observations.q[at], motion)
                 loo = J - (J.sum(axis=0) - J) / (len(at) - 1)
                 parameters.append(np.einsum("oij,jk,oik->o", loo, covariance.block(names), loo))
                 noise.append(np.full(len(at), sigma2 * (1 + 1 / (len(at) - 1))))

@@ -302,7 +302,7 @@ def _test_point_variances(
     others), and the noise 3 sigma^2 (1 + 1/(n - 1))."""
     if not observations.test_points:
         return
-    model = problem.kinematics(state, covariance.released, observations.q)
+    model = problem.kinematics(state, covariance.released, observations)
     p_values = model.base[model.index]
     T_X, J_P = model.poses(p_values), model.jacobians(p_values)
     T_L = state.value("tracker")
