@@ -312,7 +312,7 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     from .dataset import write_csv
     from .errors import InputError
     from .outputs import distinct, output_file, write_bytes
-    from .program_filter import WRITTEN, check_program, correction_rows, filter_targets, program_frames
+    from .program_filter import WRITTEN, check_program, correction_rows, filter_targets, program_frames, program_path
     from .programs import KRL_SUFFIXES, RAPID_SUFFIXES, read_program, write_program
 
     source, out = Path(args.targets), Path(args.out)
@@ -339,7 +339,15 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     frames = program_frames(program, args.tool, args.base, robot)
     poses = np.array([target.pose for target in program.targets])
     say(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})")
-    result = filter_targets(robot, nominal, poses, [t.config for t in program.targets], program.kind, frames)
+    path = None
+    if robot.history:
+        if args.approach == "none":
+            say("  lost motion not allowed for (--approach none)")
+        else:
+            path, assumption = program_path(program)
+            say(f"  allowing for lost motion along the path: {assumption} (--approach none: not allowed for)")
+    configs = [t.config for t in program.targets]
+    result = filter_targets(robot, nominal, poses, configs, program.kind, frames, path)
     # A target the calibration leaves where it was (below what the file's digits hold) keeps its text.
     moved = (result.correction_m > UNCHANGED_M) | (result.correction_rad > UNCHANGED_RAD)
     written = np.isin(result.status, WRITTEN) & moved
@@ -429,6 +437,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         model=args.model,
         seed=args.seed,
         progress=Reporter(),
+        approach=args.approach,
+        approach_offset_rad=float(np.radians(args.approach_offset)),
     )
     written = write_plan(result, args.out, plot=not args.no_plots)
     say(
@@ -438,12 +448,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
     )
     t = result.timing_s
     say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
+    if result.lost_motion is not None:
+        lost = result.lost_motion
+        say(
+            f"  the cell's lost motion leaves {lost['in_order_rms_m'] * 1e3:.4g} mm RMS that constant joint offsets "
+            f"cannot absorb visiting the plan in order, {lost['unidirectional_rms_m'] * 1e3:.4g} mm approached from "
+            "below" + (" (this plan)" if result.approach == "unidirectional" else " (--approach unidirectional)")
+        )
     say(f"wrote {args.out}: {', '.join(written)}")
     _emit(args, {
         "out": str(args.out), "files": {name: str(Path(args.out) / name) for name in written},
         "n_configurations": args.n, "criterion": args.criterion,
         "predicted_sigma_m": result.predicted_sigma_m, "space_filling_sigma_m": result.space_filling_sigma_m,
         "condition_number": result.indices["condition_number"], "cpu_s": dict(result.timing_s),
+        "approach": result.approach, "lost_motion": result.lost_motion,
     })  # fmt: skip
     return 0
 
@@ -751,6 +769,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="kinematic model whose parameters the plan determines: DH, DH,s or DH,s,e (default DH,s,e)",
     )  # fmt: skip
     p.add_argument("--seed", type=SEED, default=1, help="seed of the candidates (default 1)")
+    p.add_argument(
+        "--approach", choices=("previous", "unidirectional"), default="previous",
+        help="each configuration reached from the one before (previous, the default), or from --approach-offset "
+        "below on every joint (unidirectional: approach points in configurations.csv, lost motion absorbed)",
+    )  # fmt: skip
+    p.add_argument(
+        "--approach-offset", type=_real(0.0, 30.0, "deg", above_low=True), default=2.0,
+        help="how far below each configuration its approach point is, deg (default 2)",
+    )  # fmt: skip
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
     p.add_argument(
         "--json", action="store_true", help="print one JSON object (SI units) on stdout; the lines go to stderr"

@@ -39,6 +39,7 @@ MAPPING_KEYS = (
     "distances",
     "tool_distances",
     "payload",
+    "order",
     "source",
     "notes",
 )
@@ -46,7 +47,7 @@ READ_KEYS = ("file", "delimiter", "decimal", "header", "skip_rows", "encoding", 
 # What each table mapping may name besides its reading options: the dataset's id columns (each
 # from a column, or one fixed name for every row with the ``_name`` form) and its values.
 TABLE_KEYS = {
-    "configurations": ("config", "joints"),
+    "configurations": ("config", "joints", "approach", "speed"),
     "tracker_points": ("config", "target", "target_name", "xyz", "zeros_mean_not_found"),
     "tracker_references": ("config", "target", "target_name", "xyz", "zeros_mean_not_found"),
     "tracker_poses": ("config", "xyz", "quaternion", "euler", "zeros_mean_not_found"),
@@ -193,6 +194,10 @@ def _configurations(fields: Fields, base: Path, units: Units, n_joints: int) -> 
         raise fields.error("joints", f"the robot has {n_joints} joints: name {n_joints} columns, got {len(joints)}")
     joint_columns = _columns(fields, source, "joints", n_joints)
     id_column = source.index(fields, "config", fields.raw("config")) if fields.has("config") else None
+    # The motion history: the rows' order is the measurement order; optionally each one's
+    # approach point (joint columns, all empty: the previous row) and its move's speed factor.
+    approach = _columns(fields, source, "approach", n_joints) if fields.has("approach") else None
+    speed = source.index(fields, "speed", fields.raw("speed")) if fields.has("speed") else None
     scale = own.to_rad / units.to_rad
     rows, seen = [], {}
     for r in range(len(source.rows)):
@@ -202,8 +207,16 @@ def _configurations(fields: Fields, base: Path, units: Units, n_joints: int) -> 
         if config in seen:
             raise InputError(source.path, f"line {source.lines[r]}", f"configuration {config!r} appears twice")
         seen[config] = r
-        rows.append([config, *(source.number(r, c, "angle", own.to_rad) * scale for c in joint_columns)])
+        row = [config, *(source.number(r, c, "angle", own.to_rad) * scale for c in joint_columns)]
+        if approach is not None:
+            empty = all(not source.text(r, c) for c in approach)
+            row += [""] * n_joints if empty else [source.number(r, c, "angle", own.to_rad) * scale for c in approach]
+        if speed is not None:
+            row.append(source.number(r, speed, "unitless", 1.0) if source.text(r, speed) else 1.0)
+        rows.append(row)
     header = ["config", *(f"q{i}" for i in range(1, n_joints + 1))]
+    header += [f"before_q{i}" for i in range(1, n_joints + 1)] if approach is not None else []
+    header += ["speed"] if speed is not None else []
     return Imported(header, rows), seen
 
 
@@ -396,6 +409,7 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
         header["tracker"] = {"targets": sorted({row[1] for row in tables["tracker_points"].rows})}
     if doc.has("payload"):
         header["payload"] = doc.raw("payload")
+    header["order"] = doc.string("order", "measured", ("measured", "unknown"))
     described = doc.raw("source", "")
     header["source"] = origin + (f": {described}" if described else "")
     if doc.has("notes"):

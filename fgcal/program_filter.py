@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .compensation import SOLVED, default_hints
+from .compensation import SOLVED, approach_commands, default_hints
 from .fields import is_plain_number
 from .rigid_fit import region_sample
 from .robot import Robot
@@ -60,6 +60,7 @@ class Filtered:
     controller_in_W: np.ndarray  # (4, 4) the controller's base frame in the calibration's W
     in_region: np.ndarray | None  # (N,) solved, joints within the calibrated region's ranges; None: no region
     payload_mass_kg: float  # the load the deflection was computed for
+    motion_offset: np.ndarray | None = None  # (N, n) lost motion allowed for (rad or m); None: not allowed for
 
 
 def controller_frame(robot: Robot, nominal: Robot, count: int = 2000) -> np.ndarray:
@@ -211,9 +212,18 @@ def kinematics_frames(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
 
 
 def filter_targets(
-    robot: Robot, nominal: Robot, poses: np.ndarray, configs: list[dict[str, int]], kind: str, frames: Frames
+    robot: Robot,
+    nominal: Robot,
+    poses: np.ndarray,
+    configs: list[dict[str, int]],
+    kind: str,
+    frames: Frames,
+    path: np.ndarray | None = None,
 ) -> Filtered:
-    """Corrected targets for a program's ``poses`` (N, 4, 4; TCP in its work object, m)."""
+    """Corrected targets for a program's ``poses`` (N, 4, 4; TCP in its work object, m). With
+    ``path`` (target indices in the order the robot visits them) and a robot calibrated with
+    lost motion, each corrected target allows for its approach from the one before on the path
+    (fgcal.compensation.approach_commands)."""
     # The base frame is the robot's, whatever it carries: placed at the calibration's payload, so
     # that the sag of the tool's load is corrected, not absorbed into the frame.
     T_W_ctrl = controller_frame(robot, nominal)
@@ -231,6 +241,16 @@ def filter_targets(
         q_nominal[within], found[within] = controller_ik(nominal, flange[within], kind, near)
     solved = robot.ik(T_W_ctrl @ flange, q_nominal, frame="flange")
     solved.status[~within] = "unreachable"
+    motion_offset = None
+    if path is not None and robot.history:
+        # Along the path, the robot comes to each target it goes to from the one before.
+        visited = np.array([k for k in path if solved.status[k] in SOLVED], dtype=int)
+        motion_offset = np.zeros_like(solved.q)
+        if len(visited):
+            commands, offsets = approach_commands(
+                robot, solved.q[visited], np.full((len(visited), robot.n_joints), np.nan)
+            )
+            solved.q[visited], motion_offset[visited] = commands, offsets
     corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
     moved = inverse(poses) @ corrected
     after = configurations(nominal, kind, solved.q)
@@ -254,7 +274,26 @@ def filter_targets(
         controller_in_W=T_W_ctrl,
         in_region=in_region,
         payload_mass_kg=float(robot.payload_mass),
+        motion_offset=motion_offset,
     )
+
+
+def program_path(program) -> tuple[np.ndarray, str]:
+    """The order the robot is assumed to visit the program's targets in, and the assumption in
+    words: RAPID, the order of the module's motion instructions in its text (targets no
+    instruction uses last, in declaration order); KRL's .dat, the order of declaration."""
+    targets = program.targets
+    if program.kind == "rapid":
+        unused = len(targets) + np.arange(len(targets))
+        key = np.array([t.first_move if t.first_move is not None else u for t, u in zip(targets, unused, strict=True)])
+        order = np.argsort(key, kind="stable")
+        again = [t.name for t in targets if t.moves > 1]
+        note = "the targets in the order the module's MoveL/MoveJ/MoveC instructions first use them (text order)"
+        if again:
+            shown = ", ".join(again[:5]) + (", ..." if len(again) > 5 else "")
+            note += f"; {len(again)} used by several instructions ({shown}) allow for their first approach only"
+        return order, note
+    return np.arange(len(targets)), "the targets in the order the .dat file declares them"
 
 
 REGION_MARGIN_RAD = np.radians(1.0)
@@ -393,6 +432,8 @@ def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[lis
     n = result.q.shape[1]
     header = ["target", "line", "status", "corrected", "in_calibrated_region", "dx_mm", "dy_mm", "dz_mm",
               "correction_mm", "rotation_mdeg", "residual_um", *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
+    if result.motion_offset is not None:
+        header += [f"lost_motion_q{i}_mdeg" for i in range(1, n + 1)]
     rows = []
     for k, target in enumerate(program.targets):
         unsolved = result.status[k] not in WRITTEN
@@ -405,6 +446,8 @@ def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[lis
         rows.append(
             [*row, *[round(float(v), 4) + 0.0 for v in delta], round(float(result.correction_m[k] * 1e3), 4),
              round(float(np.degrees(result.correction_rad[k]) * 1e3), 3), round(float(result.residual_m[k] * 1e6), 3),
-             *[round(float(np.degrees(v)), 4) + 0.0 for v in result.q[k]]]
+             *[round(float(np.degrees(v)), 4) + 0.0 for v in result.q[k]],
+             *([] if result.motion_offset is None
+               else [round(float(np.degrees(v) * 1e3), 3) + 0.0 for v in result.motion_offset[k]])]
         )  # fmt: skip
     return header, rows

@@ -30,7 +30,7 @@ import bisect
 import math
 import re
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import NamedTuple
@@ -66,6 +66,8 @@ class ProgramTarget:
     spans: Mapping[str, tuple[int, int]] = field(default_factory=dict, repr=False)
     """Character offsets ``[start, end)`` into ``Program.text`` of each value (RAPID: x y z q1..q4
     cf1 cf4 cf6 cfx; KRL: X Y Z A B C and S T when given)."""
+    first_move: int | None = None  # RAPID: ordinal of the first motion instruction using it (text order)
+    moves: int = 0  # RAPID: how many motion instructions use it
 
 
 @dataclass(frozen=True)
@@ -419,10 +421,10 @@ def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[
     return tuple(targets), tools, work_objects
 
 
-def _with_use(target: ProgramTarget, use: tuple[str | None, str | None] | None) -> ProgramTarget:
+def _with_use(target: ProgramTarget, use: _Use | None) -> ProgramTarget:
     if use is None:
         return target
-    return ProgramTarget(target.name, target.line, target.pose, target.config, use[0], use[1], target.spans)
+    return replace(target, tool=use.tool, work_object=use.work_object, first_move=use.first, moves=use.count)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -444,9 +446,21 @@ _TARGET_FUNCTIONS = ("offs", "reltool")
 _OPENING, _CLOSING = frozenset("([{"), frozenset(")]}")
 
 
-def _motion_uses(tokens: list[_Token]) -> dict[str, tuple[str | None, str | None]]:
-    """Lower-case target name -> (tool, work object) of the first motion instruction using it."""
-    uses: dict[str, tuple[str | None, str | None]] = {}
+@dataclass
+class _Use:
+    """How a target is used: the tool and work object of the first motion instruction using it,
+    that instruction's ordinal (text order) and the number of motion instructions using it."""
+
+    tool: str | None
+    work_object: str | None
+    first: int
+    count: int = 1
+
+
+def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
+    """Lower-case target name -> its use by the module's motion instructions."""
+    uses: dict[str, _Use] = {}
+    ordinal = 0
     for i, tok in enumerate(tokens):
         spec = _MOTIONS.get(tok.text.lower()) if tok.kind == "name" else None
         if spec is None or (i > 0 and tokens[i - 1].text.lower() == "proc"):
@@ -456,8 +470,13 @@ def _motion_uses(tokens: list[_Token]) -> dict[str, tuple[str | None, str | None
         tool = _single_name(arguments[tool_index]) if len(arguments) > tool_index else None
         for argument in arguments[:n_targets]:
             name = _target_name(argument)
-            if name is not None:
-                uses.setdefault(name.lower(), (tool, wobj))
+            if name is None:
+                continue
+            if name.lower() in uses:
+                uses[name.lower()].count += 1
+            else:
+                uses[name.lower()] = _Use(tool, wobj, ordinal)
+            ordinal += 1
     return uses
 
 

@@ -34,13 +34,14 @@ from .fields import Fields, read_file_text, read_yaml
 from .joints import DHJoint, OriginJoint
 from .outputs import write_text
 from .parameters import LENGTH_KINDS, parameter_names, split_name
-from .robot import Robot
+from .robot import MODELS, Robot
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 from .units import Units, parse_units
 
 ROBOT_KEYS = (
     "name",
     "source",
+    "model",
     "units",
     "joints",
     "base",
@@ -224,6 +225,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         flange_pose=_pose(doc, "flange", units),
         overrides=overrides,
         source=str(doc.raw("source")),
+        model=doc.string("model", "DH,s,e", MODELS),
         urdf=_urdf_origin(doc, Path(source)),
         region=_region(doc, units, [g.prismatic for g in geometries], np.array(limits)),
     )
@@ -322,6 +324,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     doc = {
         "name": robot.name,
         "source": robot.source,
+        # The default model is not written: older readers take the file as it always was.
+        **({"model": robot.model} if robot.model != "DH,s,e" else {}),
         "units": {"length": "m", "angle": "rad"},
         "joints": joints,
         "base": _pose_dict(robot.base_pose),

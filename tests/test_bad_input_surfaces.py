@@ -361,6 +361,16 @@ def _seven_joint_file(root: Path) -> None:
 
 
 PLAN = ["plan", "kr125_seed", "--out", "plan", "--no-plots"]
+LOST_MOTION_CELL = (REPO / "datasets" / "cells" / "irb120_tracker_lost_motion.yaml").read_text()
+
+
+def _text(name: str, text: str) -> Callable[[Path], None]:
+    def write(root: Path) -> None:
+        (root / name).write_text(text)
+
+    return write
+
+
 DUPLICATE_ROW = 3  # a measurement row given again at the end of its table
 
 # (case id, damage, file or option named, field named)
@@ -682,6 +692,29 @@ CASES = [
      "--nominal"),
     ("region_outside_limits", _robot_edit("calibrated_region: [[0, 0, 0, 0, 0, 900]]"), "robot.yaml",
      "outside the joint limits"),
+    # The motion history (issue 25): cells, plans, targets and configs.
+    ("cell_lost_motion_huge", _prepare_then(_text("lm.yaml", LOST_MOTION_CELL.replace("[0.03, 0.02,", "[30, 0.02,")),
+     ["simulate", "lm.yaml", "--out", "o"]), "lm.yaml", "motion_history.lost_motion"),
+    ("cell_lost_motion_five_joints", _prepare_then(_text("lm.yaml", LOST_MOTION_CELL.replace("0.015, 0.02]", "0.015]")),
+     ["simulate", "lm.yaml", "--out", "o"]), "lm.yaml", "motion_history.lost_motion"),
+    ("cell_lost_motion_bad_approach", _prepare_then(_text("lm.yaml", LOST_MOTION_CELL.replace(
+     "approach: previous", "approach: sideways")), ["simulate", "lm.yaml", "--out", "o"]), "lm.yaml",
+     "motion_history.approach"),
+    ("plan_approach_offset_zero", _argv("plan", "irb120_tracker", "--n", "5", "--out", "p", "--approach",
+     "unidirectional", "--approach-offset", "0"), "--approach-offset", ""),
+    ("csv_approach_partial", _prepare_then(_text("a.csv", "target,x,y,z," + ",".join(f"before_q{i}" for i in
+     range(1, 7)) + "\nt,0.4,0,0.5,0.1,,,,,\n"), ["compensate", "robot.yaml", "a.csv", "--out", "o.csv"]),
+     "a.csv", "line 2"),
+    ("csv_speed_zero", _prepare_then(_text("s.csv", "target,x,y,z,speed\nt,0.4,0,0.5,0\n"),
+     ["compensate", "robot.yaml", "s.csv", "--out", "o.csv"]), "s.csv", "column speed"),
+    ("config_residual_model_unknown", _prepare_then(_text("c.yaml", "dataset: data\nresidual_model: magic\n"),
+     ["calibrate", "c.yaml", "--out", "out", "--no-plots"]), "c.yaml", "residual_model"),
+    ("config_complement_with_nothing_held_out", _prepare_then(_text("c.yaml", "dataset: data\nformulation: tracker"
+     "\nvalidation: {holdout: 0, complement: true}\n"), ["calibrate", "c.yaml", "--out", "out", "--no-plots"]),
+     "c.yaml", "validation.complement"),
+    ("config_residual_model_of_pairs", _prepare_then(_text("c.yaml", "dataset: data\nformulation: pairs\n"
+     "residual_model: gp\n"), ["calibrate", "c.yaml", "--out", "out", "--no-plots"]), "c.yaml", "residual_model"),
+    ("robot_model_unknown", _robot_edit("model: DH,h"), "robot.yaml", "model"),
     ("region_too_few_for_a_fit", _prepare_then(lambda root: (root / "robot.yaml").write_text(
      (root / "robot.yaml").read_text() + "\ncalibrated_region: [[0, 0, 0, 0, 0, 0]]\n"),
      ["export", "robot.yaml", "--urdf", "r.urdf", "--rigid-fit"]), "--rigid-fit", "distinct configurations"),

@@ -300,3 +300,26 @@ def test_distances_between_configurations(tmp_path):
     (tmp_path / "gauge.yaml").write_text(yaml.safe_dump(mapping))
     with pytest.raises(InputError, match=r"tool_distances\.config_a: .* config_a and config_b"):
         import_tables(tmp_path / "gauge.yaml", tmp_path / "out")
+
+
+def test_the_joint_log_carries_the_motion_history(probe_session, tmp_path):
+    """Issue 25: the log's rows are the measurement order; an approach column set and a speed
+    column come through as before_q1..n and speed (empty approach cells: the row before)."""
+    _exports(probe_session, tmp_path / "exports")
+    log = tmp_path / "exports" / "controller.csv"
+    lines = log.read_text().splitlines()
+    lines[2] += ";B1;B2;B3;B4;B5;B6;Speed"
+    for k in range(3, len(lines)):
+        lines[k] += ";;;;;;;" if k != 5 else ";1,5;2;3;4;5;6;0,5"
+    log.write_text("\n".join(lines) + "\n")
+    mapping = yaml.safe_load((tmp_path / "exports" / "mapping.yaml").read_text())
+    mapping["configurations"]["approach"] = ["B1", "B2", "B3", "B4", "B5", "B6"]
+    mapping["configurations"]["speed"] = "Speed"
+    (tmp_path / "exports" / "mapping.yaml").write_text(yaml.safe_dump(mapping))
+    import_tables(tmp_path / "exports" / "mapping.yaml", tmp_path / "dataset")
+    imported = load_dataset(tmp_path / "dataset")
+    history = imported.motion_history
+    assert imported.header["order"] == "measured"
+    np.testing.assert_allclose(history.before[2], np.radians([1.5, 2, 3, 4, 5, 6]))
+    np.testing.assert_allclose(history.before[3], imported.q[2])  # the row before, in the log's order
+    assert history.speed[2] == 0.5 and history.speed[3] == 1.0

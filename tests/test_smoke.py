@@ -35,6 +35,8 @@ RUNS = {
         ["plan", "kr125_seed", "--n", "12", "--out", "{ws}/plan", "--criterion", "position", "--candidates", "300",
          "--formulation", "pairs", "--model", "DH,s,e", "--seed", "2", "--no-plots"],
         ["plan", "irb120_tracker", "--n", "12", "--out", "{ws}/plan_tracker", "--candidates", "300", "--json"],
+        ["plan", "irb120_tracker_lost_motion", "--n", "12", "--out", "{ws}/plan_lost", "--candidates", "300",
+         "--approach", "unidirectional", "--approach-offset", "3"],
         ["simulate", "kr125_seed", "--out", "{ws}/planned", "--configurations", "{ws}/plan/configurations.csv"],
     ],
     "use the result": [
@@ -58,6 +60,8 @@ RUNS = {
         ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/targets_mm.csv", "--out", "{ws}/commands_mm.csv",
          "--length-unit", "mm", "--angle-unit", "deg", "--orientation", "abc", "--json", "--targets-frame",
          "controller"],
+        ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/targets.csv", "--out", "{ws}/commands3.csv",
+         "--approach", "none"],
         ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/PALLET.dat", "--out", "{ws}/PALLET_cal.dat",
          "--tool", "0", "0", "100", "0", "0", "0", "--base", "1000", "0", "0", "0", "0", "0"],
     ],

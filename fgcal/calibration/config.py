@@ -44,6 +44,7 @@ CONFIG_KEYS = (
     "pixels_from",
     "intrinsics",
     "compare_models",
+    "residual_model",
     "notes",
 )
 
@@ -64,6 +65,9 @@ class CalibrationConfig:
     # Fit on the held-out part and hold out the fitting part: the split's other half, for
     # cross-validation on both halves of one split.
     complement: bool
+    # "random": a seeded random split; "ordered": the last part of the run is held out (drift,
+    # and what changes over a session, cannot hide in it).
+    split: str
     min_information: float
     max_iterations: int
     pixels_from: str = "table"
@@ -73,6 +77,8 @@ class CalibrationConfig:
     # the fitting set's own holdout, 0 by default then).
     validation_datasets: tuple[Path, ...] = ()
     notes: dict = field(default_factory=dict)
+    # "gp": a Gaussian process on what the kinematic model leaves (fgcal.calibration.residual_model)
+    residual_model: str = "none"
 
     @property
     def noise(self):
@@ -139,7 +145,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     bounds = doc.sub("bounds", {})
     bounds.check_keys(("length",))
     validation = doc.sub("validation", {})
-    validation.check_keys(("holdout", "seed", "complement", "dataset", "tool_points"))
+    validation.check_keys(("holdout", "seed", "complement", "split", "dataset", "tool_points"))
     validation_datasets = _validation_datasets(validation, base)
     declared_points = validation.sub("tool_points", {})
     validation_tool_points = {
@@ -177,10 +183,12 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         holdout=holdout,
         split_seed=validation.integer("seed", 0, minimum=0, maximum=2**32 - 1),
         complement=_boolean(validation, "complement", False),
+        split=validation.string("split", "random", ("random", "ordered")),
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),
         validation_datasets=validation_datasets,
+        residual_model=doc.string("residual_model", "none", ("none", "gp")),
     )
 
 

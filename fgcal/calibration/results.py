@@ -14,6 +14,7 @@ from .config import CalibrationConfig
 from .goodness import Fit, goodness_of_fit
 from .identifiability import Identifiability
 from .problem import JointCovariance, Observations, Prediction, Problem
+from .residual_model import ResidualModelResult
 from .state import State
 
 
@@ -186,6 +187,7 @@ class CalibrationResult:
     compensation: CompensationStudy | None = None
     model_comparison: tuple[ModelRow, ...] | None = None
     references: dict | None = None  # the tracker's stability (calibration.references)
+    residual_model: ResidualModelResult | None = None  # residual_model: gp
     timing: Mapping[str, float] = field(default_factory=dict)
 
     @property

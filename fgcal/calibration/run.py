@@ -22,6 +22,7 @@ from .identifiability import Identifiability, analyse, motion_warning
 from .models import compare_models
 from .problem import Detection, Observations, Problem, candidate_parameters, compliant_joints, split
 from .references import reference_check
+from .residual_model import check_residual_model, fit_residual_model
 from .results import SCORES, CalibrationResult, StageReport, primary_score, stats
 from .settings import Noise
 from .solve import solve_stage, stage_parameters
@@ -36,6 +37,8 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     held-out configurations (a separate validation set held out too), the candidate
     parameters and the fitting observations."""
     formulation = registered(config.formulation)
+    if config.residual_model != "none":
+        check_residual_model(formulation, config.path)
     robot = dataset.robot.with_model(config.model)
     for j in compliant_joints(robot, config.compliant_joints):
         if j > robot.n_joints:
@@ -52,7 +55,14 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     settings = dataclasses.replace(
         config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
     )
-    fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
+    if config.split == "ordered":  # the rows are the measurement order: the run's last part held out
+        n_test = round(config.holdout * len(dataset.configs))
+        fit, test = (
+            np.arange(len(dataset.configs) - n_test),
+            np.arange(len(dataset.configs) - n_test, len(dataset.configs)),
+        )
+    else:
+        fit, test = split(len(dataset.configs), config.holdout, config.split_seed)
     if config.complement:
         if not len(test):
             raise InputError(config.path, "validation.complement", "needs a holdout > 0: nothing is held out to fit on")
@@ -245,6 +255,20 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     prediction = None
     if test_observations is not None and covariance is not None and released:
         prediction = formulation.predicted_held_out(problem, test_observations, state, covariance, factor)
+    residual = None
+    if config.residual_model == "gp":
+        t = time.perf_counter()
+        residual = fit_residual_model(problem, state, test_observations)
+        held = (
+            "" if residual.held_out_rms_m is None
+            else f"; held out {residual.held_out_rms_m * 1e3:.4g} mm with it (predicted "
+            f"{residual.predicted_rms_m * 1e3:.4g} mm), {residual.held_out_rms_without_m * 1e3:.4g} mm without"
+        )  # fmt: skip
+        say(
+            f"  residual model (Gaussian process): cross-validated {residual.cv_rms_with_m * 1e3:.4g} mm against "
+            f"{residual.cv_rms_without_m * 1e3:.4g} mm without, {'used' if residual.used else 'not used'}"
+            f"{held} ({time.perf_counter() - t:.1f} s)"
+        )
     references = reference_check(problem.dataset, problem.settings.noise.tracker_m)
     if references is not None:
         misreads = sum(len(t.get("misreads", [])) for t in references["targets"].values())
@@ -272,6 +296,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         measured=measured,
         measured_prediction=prediction,
         references=references,
+        residual_model=residual,
         timing={
             "solve_s": solve_time,
             "total_s": time.perf_counter() - started,

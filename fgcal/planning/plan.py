@@ -2,7 +2,8 @@
 
 Writes ``configurations.csv`` (``config, q1..qn`` in rad and, for camera cells, the block
 each configuration looks at: ``fgcal simulate --configurations`` and a real cell's program
-read it), ``plan.json`` (SI) and ``plan.md`` (mm) with the predicted accuracy, the
+read it; with the unidirectional strategy, ``before_q1..before_qn``: the approach point of
+each, the same offset below on every joint), ``plan.json`` (SI) and ``plan.md`` (mm) with the predicted accuracy, the
 observability indices and the condition number, and ``predicted_accuracy.png``: predicted
 accuracy against N for the planned design beside random and space-filling ones.
 """
@@ -16,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import strict_json
+from .. import kinematics, strict_json
 from ..calibration.config import CalibrationConfig
 from ..calibration.formulations import REGISTRY
 from ..dataset import write_csv
 from ..errors import InputError
+from ..motion import MotionHistory, features
 from ..outputs import output_dir, save_figure, write_text
 from ..robot import MODELS
 from ..simulation.cell import Cell, load_cell
@@ -33,6 +35,10 @@ from .information import Information, build_information
 
 RANDOM_DRAWS = 5
 REFERENCE_SIZE = 300
+APPROACHES = ("previous", "unidirectional")
+APPROACH_OFFSET_RAD = float(np.radians(2.0))
+# The scored point of a camera cell: on the optical axis at the middle of the designs' standoff (m).
+SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
 
 
 @dataclass
@@ -52,6 +58,17 @@ class PlanResult:
     indices: dict[str, float]
     curves: dict[str, list[float]]
     timing_s: dict[str, float] = field(default_factory=dict)
+    approach: str = "previous"  # or "unidirectional": every configuration approached from below
+    approach_offset_rad: float = APPROACH_OFFSET_RAD
+    # With the cell's motion_history: what its lost motion leaves that no static model absorbs (m)
+    lost_motion: dict | None = None
+
+    @property
+    def approach_points(self) -> np.ndarray | None:
+        """(n, joints) the approach point of each planned configuration (unidirectional), or None."""
+        if self.approach != "unidirectional":
+            return None
+        return self.candidates.q[self.chosen] - self.approach_offset_rad
 
     def to_json(self) -> dict:
         return {
@@ -73,6 +90,9 @@ class PlanResult:
             "observability": self.indices,
             "curves": self.curves,
             "cpu_time_s": self.timing_s,
+            "approach": self.approach,
+            "approach_offset_rad": self.approach_offset_rad if self.approach == "unidirectional" else None,
+            "lost_motion": self.lost_motion,
         }
 
 
@@ -172,10 +192,13 @@ def prepare(
     seed: int = 1,
     reference_size: int = REFERENCE_SIZE,
     progress: Callable[[str], None] | None = None,
+    approach_offset_rad: float = 0.0,
 ) -> Planner:
     """Candidates of the cell (seeded) and their information rows on the parameters that a
     space-filling design of ``reference_size`` determines (a parameter the planned design
-    cannot determine keeps its prior, its plausible deviation, in the prediction)."""
+    cannot determine keeps its prior, its plausible deviation, in the prediction). With
+    ``approach_offset_rad``, candidates leave that much room above each lower joint limit, for
+    an approach from below."""
     say = progress or (lambda _msg: None)
     if model not in MODELS:
         raise InputError(None, "--model", f"unknown model {model!r} (one of {MODELS})")
@@ -184,6 +207,12 @@ def prepare(
     cell = load_cell(cell_path)
     formulation = choose_formulation(cell, formulation)
     robot = cell.robot.with_model(model)
+    if approach_offset_rad > 0.0:
+        limits = robot.limits.copy()
+        limits[:, 0] += approach_offset_rad
+        if np.any(limits[:, 0] >= limits[:, 1]):
+            raise InputError(None, "--approach-offset", "leaves no room within a joint's limits")
+        robot = replace(robot, limits=limits)
     cell = replace(cell, robot=robot)
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
@@ -214,16 +243,26 @@ def plan(
     curve_max: int | None = None,
     progress: Callable[[str], None] | None = None,
     planner: Planner | None = None,
+    approach: str = "previous",
+    approach_offset_rad: float = APPROACH_OFFSET_RAD,
 ) -> PlanResult:
     """Plan ``n`` configurations of the cell from ``n_candidates`` (seeded); ``planner``:
-    prepared candidates to reuse (then the cell and candidate options are its own)."""
+    prepared candidates to reuse (then the cell and candidate options are its own).
+    ``approach``: ``previous`` (each configuration reached from the one before, in the plan's
+    order) or ``unidirectional`` (each from ``approach_offset_rad`` below on every joint: its
+    lost motion is then the same everywhere, and the joint offsets absorb it)."""
     say = progress or (lambda _msg: None)
     if criterion not in CRITERIA:
         raise InputError(None, "--criterion", f"unknown criterion {criterion!r} (one of {', '.join(CRITERIA)})")
+    if approach not in APPROACHES:
+        raise InputError(None, "--approach", f"unknown approach {approach!r} (one of {', '.join(APPROACHES)})")
+    if not 0.0 < approach_offset_rad <= np.radians(30.0):
+        raise InputError(None, "--approach-offset", "an approach offset in (0, 30] degrees")
     if planner is None:
         if not 1 <= n <= n_candidates:  # before the candidates are drawn: they take a while
             raise InputError(None, "--n", f"plan 1 to {n_candidates} (the candidates) configurations, got {n}")
-        planner = prepare(cell_path, n_candidates, formulation, model, seed, max(n, REFERENCE_SIZE), say)
+        offset = approach_offset_rad if approach == "unidirectional" else 0.0
+        planner = prepare(cell_path, n_candidates, formulation, model, seed, max(n, REFERENCE_SIZE), say, offset)
         say(f"planning {n} configurations of {cell_path} ({planner.formulation}, {model}) by {criterion}")
     planner.check_size(n)
     info, cand, robot = planner.info, planner.candidates, planner.cell.robot
@@ -258,7 +297,38 @@ def plan(
         indices=observability(M, info, n * n_rows, with_prior=False),
         curves=curves,
         timing_s=timing,
+        approach=approach,
+        approach_offset_rad=float(approach_offset_rad),
+        lost_motion=lost_motion_left(planner.cell, cand.q[chosen], approach_offset_rad),
     )
+
+
+def lost_motion_left(cell: Cell, q: np.ndarray, offset_rad: float) -> dict | None:
+    """What the cell's declared lost motion (motion_history) leaves at the scored point that no
+    static model absorbs, RMS over the plan's configurations (m): visited in the plan's order,
+    and each approached from ``offset_rad`` below. Each joint's offset splits into the constant
+    that the joint offsets absorb (its least-squares value over the plan) and the rest."""
+    if cell.motion is None:
+        return None
+    robot = cell.robot.with_model("DH,s,e,h")
+    params = {**robot.nominal_parameters(), **cell.motion.parameters()}
+    point = cell.tracker_targets[0] if cell.camera is None else SCORED_POINT_C
+    frame = "flange" if cell.camera is None else "tool"
+    J = robot.jacobian(q, [f"q{i}" for i in range(1, robot.n_joints + 1)], params, frame=frame, point=point)
+    vector = robot.parameter_vector(params)
+    out = {}
+    for label, history in (
+        ("in_order_rms_m", MotionHistory.in_order(q)),
+        ("unidirectional_rms_m", MotionHistory(q - offset_rad, np.ones(len(q)))),
+    ):
+        offsets = kinematics.motion_offsets(robot, vector, features(q, history))
+        # The constant joint offsets c that best absorb them: min sum |J (offsets - c)|^2.
+        A = J.reshape(-1, robot.n_joints)
+        c = np.linalg.lstsq(A, np.einsum("nij,nj->ni", J, offsets).reshape(-1), rcond=None)[0]
+        left = np.einsum("nij,nj->ni", J, offsets - c)
+        rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
+        out[label] = rms if rms > 1e-12 else 0.0  # rounding: the offsets are constant
+    return out
 
 
 def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> list[str]:
@@ -270,6 +340,10 @@ def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> li
     if cand.blocks is not None:
         header.append("block")
         rows = [[*row, cand.blocks[c]] for row, c in zip(rows, chosen, strict=True)]
+    approach = result.approach_points
+    if approach is not None:
+        header += [f"before_q{i}" for i in range(1, n_joints + 1)]
+        rows = [[*row, *map(float, before)] for row, before in zip(rows, approach, strict=True)]
     write_csv(out / "configurations.csv", header, rows)
     write_text(out / "plan.json", strict_json.dumps(result.to_json(), indent=2) + "\n")
     write_text(out / "plan.md", _markdown(result, plot))
@@ -322,6 +396,7 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         )
     if plot:
         lines += ["", "![predicted accuracy](predicted_accuracy.png)"]
+    lines += _approach_lines(result)
     t = result.timing_s
     lines += [
         "",
@@ -330,6 +405,34 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _approach_lines(result: PlanResult) -> list[str]:
+    lines = ["", "## Approach", ""]
+    if result.approach == "unidirectional":
+        lines.append(
+            f"Every configuration is approached from {np.degrees(result.approach_offset_rad):.3g} deg below on every "
+            "joint (configurations.csv `before_q1..`: move there first, then to the configuration). Its lost motion "
+            "is then the same at every configuration, and the joint offsets absorb it: calibrate with DH,s,e, and "
+            "run programs that approach their targets the same way."
+        )
+    else:
+        lines.append(
+            "Each configuration is reached from the one before, in the plan's order (`--approach unidirectional` "
+            "inserts approach points)."
+        )
+    lost = result.lost_motion
+    if lost is None:
+        lines += ["", "The cell declares no lost motion (motion_history): what the approach gains is not predicted."]
+    else:
+        lines += [
+            "",
+            "The cell's lost motion (motion_history) leaves at the scored point, beyond what constant joint offsets "
+            f"absorb: **{_mm(lost['in_order_rms_m'])} mm RMS** visiting the plan in order, "
+            f"**{_mm(lost['unidirectional_rms_m'])} mm** with each configuration approached from below. A static "
+            "model (DH,s,e) cannot fit the first; model DH,s,e,h fits it from a plan in order.",
+        ]
+    return lines
 
 
 def _plot(result: PlanResult, path: Path) -> None:

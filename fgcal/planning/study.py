@@ -21,10 +21,7 @@ from ..simulation.design import max_min_selection
 from ..simulation.simulate import simulate
 from ..truth import load_truth
 from .candidates import camera_candidates, joint_space_candidates
-from .plan import PLANNED, plan, prepare, write_plan
-
-# The scored point: on the camera's optical axis at the middle of the designs' standoff (m).
-SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
+from .plan import PLANNED, SCORED_POINT_C, plan, prepare, write_plan
 
 
 def _score(dataset: Path, q_eval: np.ndarray, formulation: str) -> float:

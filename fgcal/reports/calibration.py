@@ -18,6 +18,7 @@ from ..outputs import output_dir, save_figure, write_text
 from ..parameters import unit_of
 from ..robot import Robot
 from ..robot_io import save_robot
+from .diagnostics import motion_terms, plot_residual_diagnostics
 from .estimates import write_estimates
 from .headline import figure, headline, iso9283, worst_configurations
 
@@ -106,6 +107,8 @@ def report_dict(result: CalibrationResult) -> dict:
         "unidentifiable_reasons": result.final_identifiability.unidentifiable,
         "unidentifiable_at_nominal": result.identifiability.unidentifiable,
         "motion_history_warning": motion_warning(result.final_identifiability),
+        "motion_history": motion_terms(result),
+        "residual_model": result.residual_model.as_dict() if result.residual_model is not None else None,
         "identifiability": {
             "min_information": config.min_information,
             "condition_number": result.final_identifiability.condition_number,
@@ -362,7 +365,70 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
         ax.set_title("Correlation of the estimated parameters (blue -1, grey 0, red +1)", y=1.0)
         save_figure(fig, out / "correlation.png", dpi=100, pil_kwargs={"compress_level": 1})
         plots["correlation"] = "correlation.png"
+    diagnostics = plot_residual_diagnostics(result, out)
+    if diagnostics is not None:
+        plots["residual_diagnostics"] = diagnostics
     return plots
+
+
+def _motion_lines(motion: dict | None, diagnostics: str | None) -> list[str]:
+    """The motion history's terms per joint (mdeg, or um for a prismatic joint) and the
+    residual diagnostics."""
+    lines = []
+    if motion is not None:
+        terms = motion["per_joint"]
+        lines += [
+            "", "## Motion history (lost motion and the speed term)", "",
+            "Each joint's offset by how it was reached (docs/model.md, Motion history): lost motion `lm` (half the "
+            "dead band at a reversal) and the speed term `lv` (at the program's speed). Estimate +- sigma; "
+            "fixed: not identifiable from this data.", "",
+            "| joint | lost motion lm | speed term lv |", "|---|---|---|",
+        ]  # fmt: skip
+        for j, prismatic in enumerate(motion["prismatic"]):
+            scale, unit = (1e6, "um") if prismatic else (np.degrees(1.0) * 1e3, "mdeg")
+            cells = []
+            for key in ("lost_motion", "speed"):
+                value, sigma = terms[key][j], terms[f"{key}_sigma"][j]
+                cells.append(
+                    f"{value * scale:.3g} {unit} (fixed)" if sigma is None
+                    else f"{value * scale:.3g} +- {sigma * scale:.2g} {unit}"
+                )  # fmt: skip
+            lines.append(f"| {j + 1} | {cells[0]} | {cells[1]} |")
+    if diagnostics is not None:
+        lines += [
+            "", "## What is left", "",
+            "The held-out error of each configuration against each joint's last move, the order of measurement and "
+            "each joint's angle: a trend in one of them is what the model has not explained.", "",
+            f"![residual diagnostics]({diagnostics})",
+        ]  # fmt: skip
+    return lines
+
+
+def _residual_model_lines(model: dict | None) -> list[str]:
+    if model is None:
+        return []
+    verdict = (
+        "It wins on the fitting data: its held-out figures are below." if model["used"]
+        else "It does not win on the fitting data: it is not used."
+    )  # fmt: skip
+    lines = [
+        "", "## Residual model (Gaussian process)", "",
+        "What the kinematic model leaves, learned from the fitting configurations as a function of the joints and "
+        "how each was reached (docs/calibration.md, Residual model). Cross-validated on the fitting data "
+        f"({model['folds']} folds, seed {model['seed']}): {model['cv_rms_with_m'] * 1e3:.4g} mm RMS with it, "
+        f"{model['cv_rms_without_m'] * 1e3:.4g} mm without. {verdict}",
+    ]  # fmt: skip
+    if model["held_out_rms_m"] is not None:
+        lines += [
+            "",
+            f"Held out: {model['held_out_rms_m'] * 1e3:.4g} mm RMS with it (predicted "
+            f"{model['predicted_rms_m'] * 1e3:.4g} mm), {model['held_out_rms_without_m'] * 1e3:.4g} mm without.",
+        ]
+    lines += [
+        "", f"Kernel: `{model['kernel']}` (lengths in rad and the motion features' units). The headline figures, "
+        "calibrated_robot.yaml and fgcal compensate are the kinematic model's: the correction is not exported.",
+    ]  # fmt: skip
+    return lines
 
 
 def fit_sentence(fit: dict) -> str:
@@ -640,4 +706,6 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
     ]
     if "correlation" in plots:
         lines += ["", "## Correlations", "", f"![correlation]({plots['correlation']})"]
+    lines += _motion_lines(doc["motion_history"], plots.get("residual_diagnostics"))
+    lines += _residual_model_lines(doc["residual_model"])
     return "\n".join(lines) + "\n"

@@ -38,6 +38,7 @@ class View:
     q: np.ndarray
     side: Side | None  # None, and no block, in a tracker cell
     block: tuple[GridPoint, ...]
+    before: np.ndarray | None = None  # the joints it is approached from, when a file says (else the previous)
 
 
 def look_at(camera_position: np.ndarray, target: np.ndarray, roll_rad: np.ndarray | float) -> np.ndarray:
@@ -305,9 +306,9 @@ def blocks_by_label(cell: Cell) -> dict[str, tuple[Side, list[GridPoint]]]:
 def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[View], list[str]]:
     """Exactly the configurations of a CSV (``config, q1..qn, block``; rad; ``block`` the
     label of the block the camera looks at, as fgcal plan writes it; no ``block`` in a
-    tracker cell). Configurations whose block the simulated true camera does not see are left
-    out; their ids are returned."""
-    from ..dataset import parse_numbers, read_csv
+    tracker cell; ``before_q1..before_qn``: each one's approach point). Configurations whose
+    block the simulated true camera does not see are left out; their ids are returned."""
+    from ..dataset import approach_columns, parse_numbers, read_csv
 
     robot = cell.robot
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
@@ -320,6 +321,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     if not body:
         raise InputError(path, None, "no configurations")
     q = parse_numbers(path, header, body, joints, "angle", 1.0)
+    before = approach_columns(path, header, body, robot.n_joints, 1.0)
     outside = np.flatnonzero(np.any((q < robot.limits[:, 0] - 1e-9) | (q > robot.limits[:, 1] + 1e-9), axis=1))
     if outside.size:
         raise InputError(path, f"line {outside[0] + 2}", f"joint values outside {robot.name}'s limits")
@@ -328,15 +330,16 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     views, unseen = [], []
     for i, row in enumerate(body):
         config = row[header.index("config")].strip()
+        approach = before[i] if np.all(np.isfinite(before[i])) else None
         if cell.camera is None:  # a tracker cell: nothing to see
-            views.append(View(q[i], None, ()))
+            views.append(View(q[i], None, (), approach))
             continue
         label = row[header.index("block")].strip()
         if label not in blocks:
             raise InputError(path, f"line {i + 2}, column block", f"no block {label!r} in {cell.name}")
         side, block = blocks[label]
         if sees_block(cell, T_W_C[i], block):
-            views.append(View(q[i], side, tuple(block)))
+            views.append(View(q[i], side, tuple(block), approach))
         else:
             unseen.append(config)
     if not views:

@@ -170,9 +170,15 @@ def simulate(
         )  # fmt: skip
     config_ids = [f"c{i:04d}" for i in range(len(views))]
     say(f"  {len(views)} configurations; measuring")
-    # The configurations are measured in the design's order: that order is their motion history.
-    history = cell.motion.history(q) if cell.motion is not None else None
-    motion = features(q, history) if history is not None else None
+    # The configurations are measured in the design's order: that order is their motion history,
+    # unless the design names a configuration's approach point.
+    history = motion = None
+    if cell.motion is not None:
+        history = cell.motion.history(q)
+        for k, view in enumerate(views):
+            if view.before is not None:
+                history.before[k] = view.before
+        motion = features(q, history)
 
     out = output_dir(out_dir)
     subfolder(out, "truth")
@@ -304,9 +310,11 @@ def _write_configurations(
     n = cell.robot.n_joints
     header = ["config"] + [f"q{i}" for i in range(1, n + 1)]
     rows = [[cid, *map(float, qi)] for cid, qi in zip(config_ids, q, strict=True)]
-    if history is not None and cell.motion is not None and cell.motion.approach != "previous":
+    if history is not None and not np.array_equal(history.before, MotionHistory.in_order(q).before, equal_nan=True):
         header += [f"before_q{i}" for i in range(1, n + 1)]
-        rows = [[*row, *map(float, before)] for row, before in zip(rows, history.before, strict=True)]
+        # An unknown approach (the first configuration's) is empty cells: the previous row, none.
+        rows = [[*row, *(map(float, before) if np.all(np.isfinite(before)) else [""] * n)]
+                for row, before in zip(rows, history.before, strict=True)]  # fmt: skip
     write_csv(out / "configurations.csv", header, rows)
 
 
