@@ -263,13 +263,15 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
     joints = []
     for i in range(robot.n_joints):
         B_in_joint = inverse(frames["joints"][i]) @ frames["bends"][i]
-        joints.append(
-            {
-                "joint": names[i],
-                "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
-                "bending_frame_rpy_rad": [clean(v) for v in rpy_from_rotation(B_in_joint[:3, :3])],
-            }
-        )
+        entry = {
+            "joint": names[i],
+            "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
+            "bending_frame_rpy_rad": [clean(v) for v in rpy_from_rotation(B_in_joint[:3, :3])],
+        }
+        if robot.history:  # which a URDF cannot hold either (fgcal.motion)
+            entry["lost_motion"] = clean(values[f"lm{i + 1}"])
+            entry["speed_term"] = clean(values[f"lv{i + 1}"])
+        joints.append(entry)
 
     def pose(T: np.ndarray) -> dict:
         return {"xyz_m": [clean(v) for v in T[:3, 3]], "rpy_rad": [clean(v) for v in rpy_from_rotation(T[:3, :3])]}
@@ -294,6 +296,17 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
         "base_in_world": pose(frames["base"]),
         "tool_in_flange": pose(inverse(frames["flange"]) @ frames["tool"]),
         "joints": joints,
+        **(
+            {
+                "motion_history": (
+                    "Model DH,s,e,h: joint i is offset by lost_motion tanh(dq_i / 1 deg) + speed_term s dq_i / "
+                    "max_j |dq_j| (rad; dq: its last move, s: the move's speed factor), which fgcal compensate "
+                    "allows for (docs/model.md, Motion history)"
+                )
+            }
+            if robot.history
+            else {}
+        ),
     }
 
 

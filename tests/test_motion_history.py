@@ -241,6 +241,14 @@ def test_compensate_command_allows_for_the_approach(calibrated, tmp_path, capsys
     lm = np.array([params[f"lm{i}"] for i in range(1, 7)])
     lv = np.array([params[f"lv{i}"] for i in range(1, 7)])
     np.testing.assert_allclose(lost[3], direct[0, :6] * lm + direct[0, 6:] * lv, atol=1e-12)
+    # A URDF holds none of it: the sidecar carries the terms.
+    import yaml
+
+    assert main(["export", str(robot_file), "--urdf", str(tmp_path / "arm.urdf")]) == 0
+    sidecar = yaml.safe_load((tmp_path / "arm.compliance.yaml").read_text())
+    assert "motion_history" in sidecar
+    np.testing.assert_allclose([j["lost_motion"] for j in sidecar["joints"]], lm, rtol=1e-12)
+    np.testing.assert_allclose([j["speed_term"] for j in sidecar["joints"]], lv, rtol=1e-12)
 
 
 def test_a_rapid_program_is_corrected_along_its_moves(calibrated, tmp_path, capsys):

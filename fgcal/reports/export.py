@@ -108,7 +108,8 @@ def export_command(
         return 0
     written, sidecar = export_urdf(exported, path, template, accuracy=accuracy or None)
     template_file = template_of(exported, template)
-    say(f"wrote {written} ({robot.name}, {robot.n_joints} joints) and {sidecar} (joint compliances, which URDF cannot")
+    held = "joint compliances and lost motion" if robot.history else "joint compliances"
+    say(f"wrote {written} ({robot.name}, {robot.n_joints} joints) and {sidecar} ({held}, which URDF cannot")
     if template_file is None:
         say(f"  express); links: world, base_link, link_1..link_{robot.n_joints}, flange, tool0")
     else:
