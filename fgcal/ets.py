@@ -10,8 +10,11 @@ or, for ``Rvec``, a rotation by the rotation vector ``p[param:param+3]``. Gravit
 deflections are elements whose parameter (a compliance, rad/(N m)) is scaled by a
 per-configuration gravity moment (N m).
 
-Evaluation is vectorised over N configurations: ``frames[k]`` is the pose, in the chain's
-root frame, of the frame *before* element k (``frames[K]`` is the chain's end).
+Evaluation is vectorised over N configurations: ``frames[k + 1]`` is the pose, in the chain's
+root frame, of the frame *after* element k, and ``frames[0]`` the root. An element starts from
+the frame before it (``frames[k]``) or, with ``parent`` set, from any earlier frame: a sequence
+with parents is a tree (a torso with two arms, a robot and its positioner), each branch starting
+where it leaves the trunk, and a serial chain is the tree without them.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ AXES = ("Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "Rvec")
 
 @dataclass(frozen=True)
 class ET:
-    """One elementary transform. ``param``/``joint``/``moment`` are indices or None."""
+    """One elementary transform. ``param``/``joint``/``moment`` are indices or None;
+    ``parent`` the frame it starts from (None: the frame before it)."""
 
     axis: str
     const: float = 0.0
@@ -35,6 +39,7 @@ class ET:
     joint: int | None = None
     sign: float = 1.0
     moment: int | None = None
+    parent: int | None = None
 
     def __post_init__(self) -> None:
         if self.axis not in AXES:
@@ -68,6 +73,8 @@ class _Layout:
     translations: tuple[np.ndarray, np.ndarray, np.ndarray]
     is_rotation: np.ndarray  # (K,) Rx/Ry/Rz (not Rvec)
     rvecs: tuple[int, ...]
+    start: np.ndarray  # (K,) the frame each element starts from (k for a serial chain)
+    ancestry: np.ndarray  # (K+1, K) element k lies on the path from the root to frame f
 
 
 # Up to this many configurations, evaluation multiplies the elements' 4x4 transforms.
@@ -91,6 +98,14 @@ def _make_layout(chain: tuple[ET, ...]) -> _Layout:
     def indices(axis: str) -> np.ndarray:
         return np.array([k for k, et in enumerate(chain) if et.axis == axis], dtype=int)
 
+    start = np.array([k if et.parent is None else et.parent for k, et in enumerate(chain)], dtype=int)
+    if np.any((start < 0) | (start > np.arange(len(chain)))):
+        raise ValueError("an element starts from a frame that is not before it")
+    ancestry = np.zeros((len(chain) + 1, len(chain)), dtype=bool)
+    for k in range(len(chain)):  # frame k + 1 is reached through element k and the path to its start
+        ancestry[k + 1] = ancestry[start[k]]
+        ancestry[k + 1, k] = True
+
     return _Layout(
         const=np.array([et.const for et in chain], dtype=float),
         param=np.array([et.param or 0 for et in chain], dtype=int),
@@ -104,7 +119,15 @@ def _make_layout(chain: tuple[ET, ...]) -> _Layout:
         translations=tuple(indices(a) for a in ("Tx", "Ty", "Tz")),
         is_rotation=np.array([et.axis in ("Rx", "Ry", "Rz") for et in chain]),
         rvecs=tuple(k for k, et in enumerate(chain) if et.axis == "Rvec"),
+        start=start,
+        ancestry=ancestry,
     )
+
+
+def ancestry(chain: tuple[ET, ...]) -> np.ndarray:
+    """(K+1, K) bool: ``[f, k]`` element k lies on the path from the root to frame f (what
+    moves frame f); for a serial chain, k < f."""
+    return _layout(chain).ancestry
 
 
 def element_values(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> np.ndarray:
@@ -142,31 +165,32 @@ def evaluate(
 ) -> np.ndarray:
     """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints)."""
     n_conf = q.shape[0]
+    layout = _layout(chain)
     frames = np.empty((len(chain) + 1, n_conf, 4, 4))
     frames[0] = np.eye(4) if root is None else root
     if n_conf <= _FEW:
         transforms = element_transforms(chain, params, q, moments)
         for k in range(len(chain)):
-            np.matmul(frames[k], transforms[k], out=frames[k + 1])
+            np.matmul(frames[layout.start[k]], transforms[k], out=frames[k + 1])
         return frames
     # Many configurations: numpy's stacked 4x4 matmul is slow per matrix, so each element
     # updates only what it changes (two columns of the rotation, or the origin).
-    layout = _layout(chain)
     values = element_values(chain, params, q, moments).T[..., None]  # (K, N, 1)
     cosines, sines = np.cos(values), np.sin(values)
     for k, et in enumerate(chain):
+        before = frames[layout.start[k]]
         current = frames[k + 1]
-        current[:] = frames[k]
+        current[:] = before
         if et.axis == "Rvec":
-            current[:, :3, :3] = frames[k][:, :3, :3] @ so3_exp(params[et.param : et.param + 3])
+            current[:, :3, :3] = before[:, :3, :3] @ so3_exp(params[et.param : et.param + 3])
         elif layout.is_rotation[k]:
             i = layout.axis[k]
             j, m = (i + 1) % 3, (i + 2) % 3
-            col_j, col_m = frames[k][:, :3, j], frames[k][:, :3, m]
+            col_j, col_m = before[:, :3, j], before[:, :3, m]
             current[:, :3, j] = cosines[k] * col_j + sines[k] * col_m
             current[:, :3, m] = cosines[k] * col_m - sines[k] * col_j
         else:
-            current[:, :3, 3] += values[k] * frames[k][:, :3, layout.axis[k]]
+            current[:, :3, 3] += values[k] * before[:, :3, layout.axis[k]]
     return frames
 
 
@@ -179,8 +203,8 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
     """
     layout = _layout(chain)
     n_elements = len(chain)
-    origin = frames[:n_elements, :, :3, 3]  # (K, N, 3)
-    axis = frames[np.arange(n_elements), :, :3, layout.axis]  # (K, N, 3)
+    origin = frames[layout.start, :, :3, 3]  # (K, N, 3): each element's own starting frame
+    axis = frames[layout.start, :, :3, layout.axis]  # (K, N, 3)
     twists = np.zeros((n_elements, frames.shape[1], 1, 6))
     rotation = layout.is_rotation
     twists[rotation, :, 0, :3] = axis[rotation]
@@ -188,7 +212,7 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
     twists[~rotation, :, 0, 3:] = axis[~rotation]
     out = list(twists)
     for k in layout.rvecs:
-        rot = frames[k][:, :3, :3]
+        rot = frames[layout.start[k]][:, :3, :3]
         omega = rot @ so3_left_jacobian(params[chain[k].param : chain[k].param + 3])  # (N, 3, 3): columns
         omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
         v0 = -cross(omega, origin[k][:, None, :])

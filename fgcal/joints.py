@@ -4,6 +4,9 @@ A robot is a sequence of joints of either kind, each with its own named paramete
 
 - :class:`DHJoint` (SPEC section 2): ``Rx(sx) Ry(sy) Rz(s q + theta) | Tz(d) Tx(a) Rx(alpha)``;
   parameters ``theta d a alpha sx sy kx ky kz``.
+- :class:`ModifiedDHJoint` (Craig's convention): ``Rx(alpha) Tx(a) Rx(sx) Ry(sy) Rz(s q + theta)
+  | Tz(d)``, where alpha and a are the twist and length of the link before the joint (Craig's
+  alpha_{i-1}, a_{i-1}); the same parameter names.
 - :class:`OriginJoint` (as URDF gives a joint): the nominal origin of the joint frame in
   the previous link's frame, a unit axis and a type. The chain is
   ``origin  T(tx,ty,tz) Exp(rx,ry,rz)  A  Rz(q + theta) | A^-1`` for a revolute joint, with
@@ -75,6 +78,31 @@ class DHJoint:
         return [ET("Tz", param=param("d")), ET("Tx", param=param("a")), ET("Rx", param=param("alpha"))]
 
 
+@dataclass(frozen=True)
+class ModifiedDHJoint:
+    """A revolute joint in modified (Craig) DH form (rad, m): ``alpha`` and ``a`` come before
+    the joint's motion, ``d`` after it."""
+
+    theta: float
+    d: float
+    a: float
+    alpha: float
+
+    kinds = DH_KINDS
+    prismatic = False
+
+    def nominal(self) -> dict[str, float]:
+        return {"theta": self.theta, "d": self.d, "a": self.a, "alpha": self.alpha}
+
+    def before_bend(self, param: ParamIndex, joint: int, sign: float, distortions: bool) -> list[ET]:
+        link = [ET("Rx", param=param("alpha")), ET("Tx", param=param("a"))]
+        tilt = [ET("Rx", param=param("sx")), ET("Ry", param=param("sy"))] if distortions else []
+        return [*link, *tilt, ET("Rz", param=param("theta"), joint=joint, sign=sign)]
+
+    def after_bend(self, param: ParamIndex) -> list[ET]:
+        return [ET("Tz", param=param("d"))]
+
+
 @dataclass(frozen=True, eq=False)
 class OriginJoint:
     """A revolute or prismatic joint given by its origin (4x4 pose of the joint frame in
@@ -120,4 +148,4 @@ class OriginJoint:
         return [et for et in (ET("Ry", -beta), ET("Rz", -phi)) if et.const != 0.0]
 
 
-Joint = DHJoint | OriginJoint
+Joint = DHJoint | ModifiedDHJoint | OriginJoint

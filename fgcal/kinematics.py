@@ -6,8 +6,9 @@ take the robot and that data. Nothing is stored on the robot. ``motion`` are the
 features of the configurations (fgcal.motion): with model DH,s,e,h the chain sees the joint
 values ``q' = q + F_lm lm + F_lv lv`` (N, n), and every derivative goes through q'.
 
-Gravity moment of joint i (bodies b >= i, payload included; all forces are parallel to g,
-so the sum collapses to the first mass moment ``C_i = sum m_b c_b`` and mass ``M_i``)::
+Gravity moment of joint i (the bodies it carries: those its motion moves, payload included;
+on a serial chain, b >= i; on a tree, every branch beyond it; all forces are parallel to g, so
+the sum collapses to the first mass moment ``C_i = sum m_b c_b`` and mass ``M_i``)::
 
     t_i = R_W_Bi^T ((C_i - M_i o_Bi) x g)       (N m, in the bending frame B_i)
 
@@ -24,7 +25,7 @@ from typing import Protocol
 import numpy as np
 
 from .errors import InputError
-from .ets import Chain, element_twists, evaluate
+from .ets import Chain, ancestry, element_twists, evaluate
 from .se3 import cross
 
 
@@ -61,8 +62,8 @@ class KinematicsData:
     frames: np.ndarray  # (K+1, N, 4, 4) deformed chain
     frames_rigid: np.ndarray  # (K+1, N, 4, 4) undeformed chain (g = 0)
     moments: np.ndarray  # (N, 3n) gravity moments t_i, N m
-    first_moment: np.ndarray  # (N, n+2, 3) suffix sums of m_b c_b over bodies >= j, kg m
-    suffix_mass: np.ndarray  # (n+2,) suffix sums of m_b, kg
+    weighted: np.ndarray  # (N, B, 3) m_b c_b of each body, kg m
+    carried_mass: np.ndarray  # (n,) M_i: the mass joint i carries, kg
     torque_world: np.ndarray  # (N, n, 3) tau_i in W, N m
     motion: np.ndarray | None = None  # (N, 2n) motion-history features (fgcal.motion)
     _twists: dict = field(default_factory=dict)
@@ -71,7 +72,7 @@ class KinematicsData:
         """The data of some of the configurations (what forward() would give for them)."""
         return KinematicsData(
             self.params, self.q[rows], self.frames[:, rows], self.frames_rigid[:, rows], self.moments[rows],
-            self.first_moment[rows], self.suffix_mass, self.torque_world[rows],
+            self.weighted[rows], self.carried_mass, self.torque_world[rows],
             None if self.motion is None else self.motion[rows],
         )  # fmt: skip
 
@@ -93,6 +94,13 @@ def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     masses = np.append(robot.masses, robot.payload_mass)
     coms = np.vstack([robot.coms, robot.payload_com])
     return masses, coms
+
+
+def carries(robot: Robot) -> np.ndarray:
+    """(n, B) bool: joint i carries body b (its motion, the element ending at B_i, moves it)."""
+    chain = robot.chain
+    paths = ancestry(chain.elements)[_body_frames(robot)]  # (B, K): what moves each body
+    return paths[:, [b - 1 for b in chain.bend]].T
 
 
 def motion_offsets(robot: Robot, params: np.ndarray, motion: np.ndarray) -> np.ndarray:
@@ -118,27 +126,31 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     rigid = evaluate(chain.elements, params, q, no_moments)
     masses, coms = _body_coms(robot)
     body_frames = _body_frames(robot)
-    # Suffix sums over bodies j..n (body n is the payload); entry n+1 is empty.
     weighted = np.stack(
         [masses[b] * (rigid[f][:, :3, :3] @ coms[b] + rigid[f][:, :3, 3]) for b, f in enumerate(body_frames)], axis=1
     )
-    first_moment = np.zeros((n_conf, n + 2, 3))
-    first_moment[:, :-1] = np.cumsum(weighted[:, ::-1], axis=1)[:, ::-1]
-    suffix_mass = np.zeros(n + 2)
-    suffix_mass[:-1] = np.cumsum(masses[::-1])[::-1]
+    carried = carries(robot).astype(float)  # (n, B)
+    first_moment = np.matmul(carried, weighted)  # (N, n, 3): C_i
+    carried_mass = carried @ masses
     g = robot.gravity
     torque_world = np.empty((n_conf, n, 3))
     moments = np.empty((n_conf, 3 * n))
     for i in range(n):
         bend = rigid[chain.bend[i]]
-        torque_world[:, i] = cross(first_moment[:, i] - suffix_mass[i] * bend[:, :3, 3], g)
+        torque_world[:, i] = cross(first_moment[:, i] - carried_mass[i] * bend[:, :3, 3], g)
         moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
     frames = evaluate(chain.elements, params, q, moments) if robot.compliant else rigid
-    return KinematicsData(params, q, frames, rigid, moments, first_moment, suffix_mass, torque_world, motion)
+    return KinematicsData(params, q, frames, rigid, moments, weighted, carried_mass, torque_world, motion)
 
 
-def frame_index(robot: Robot, frame: str) -> int:
+def frame_index(robot: Robot, frame: str | int) -> int:
+    """The index in the frames of ``frame``: flange, tool, base, or an index itself (a tree's
+    tip, any frame of the chain)."""
     chain = robot.chain
+    if isinstance(frame, (int, np.integer)) and not isinstance(frame, bool):
+        if not 0 <= frame <= len(chain.elements):
+            raise InputError(None, "frame", f"no frame {frame} in a chain of {len(chain.elements)} elements")
+        return int(frame)
     if frame == "flange":
         return chain.flange
     if frame == "tool":
@@ -157,28 +169,28 @@ def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray,
     """Derivatives (N, E, 3n) of all gravity moments w.r.t. E columns of rigid-chain elements.
 
     ``elements`` (E,) are the element indices, ``twists`` (N, E, 6) the columns' spatial
-    twists on the undeformed chain. For bodies S beyond joint i moved by the column::
+    twists on the undeformed chain. For the bodies S that joint i carries and the column moves::
 
         d tau_i = ((omega x C_S + M_S v0) - [upstream of B_i] M_i (omega x o_i + v0)) x g
         d t_i   = R_i^T (d tau_i - [upstream of B_i] omega x tau_i)
     """
     chain = robot.chain
     n = robot.n_joints
+    paths = ancestry(chain.elements)
+    masses, _ = _body_coms(robot)
+    # S: bodies joint i carries that the column moves (on a serial chain, those beyond both).
+    moved_bodies = paths[_body_frames(robot)][:, elements].T  # (E, B)
+    S = (carries(robot)[None, :, :] & moved_bodies[:, None, :]).astype(float)  # (E, n, B)
+    upstream = paths[list(chain.bend)][:, elements].T[None, :, :, None]  # (1, E, n, 1): the column moves B_i
     omega, v0 = twists[..., None, :3], twists[..., None, 3:]  # (N, E, 1, 3)
-    body_frames = np.array(_body_frames(robot))
-    # First body each column moves: bodies are ordered along the chain.
-    first_body = np.searchsorted(body_frames, elements, side="right")
-    joints = np.arange(n)
-    start = np.maximum(joints[None, :], first_body[:, None])  # (E, n)
-    upstream = (elements[:, None] < np.array(chain.bend)[None, :])[None, :, :, None]  # (1, E, n, 1)
-    first_moment = data.first_moment[:, start]  # (N, E, n, 3)
-    moved = cross(omega, first_moment) + data.suffix_mass[start][None, :, :, None] * v0
+    first_moment = np.einsum("enb,Nbd->Nend", S, data.weighted)  # (N, E, n, 3)
+    moved = cross(omega, first_moment) + (S @ masses)[None, :, :, None] * v0
     bends = data.frames_rigid[list(chain.bend)]  # (n, N, 4, 4)
     origins = np.swapaxes(bends[:, :, :3, 3], 0, 1)[:, None]  # (N, 1, n, 3)
     rotations = np.swapaxes(bends[:, :, :3, :3], 0, 1)  # (N, n, 3, 3)
     origin_rate = cross(omega, origins) + v0
     g = robot.gravity
-    lever = moved - np.where(upstream, data.suffix_mass[:n][None, None, :, None] * origin_rate, 0.0)
+    lever = moved - np.where(upstream, data.carried_mass[None, None, :, None] * origin_rate, 0.0)
     d_tau = cross(lever, g) - np.where(upstream, cross(omega, data.torque_world[:, None]), 0.0)
     # (R_i^T d)^T = d^T R_i, as one batched matmul.
     d_t = np.matmul(d_tau[..., None, :], rotations[:, None])[..., 0, :]
@@ -202,7 +214,7 @@ def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, in
         if et.joint is not None:
             by_joint.setdefault(et.joint, []).append((k, et.sign))
     n = robot.n_joints
-    first_motion = index["lm1"]
+    first_motion = index.get("lm1", -1)  # a chain without motion terms has no such names
     entries = []
     for t, name in enumerate(wrt):
         if name.startswith("q") and name[1:].isdigit():
@@ -210,7 +222,7 @@ def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, in
             if not 0 <= joint < n:
                 raise InputError(None, "wrt", f"{robot.name} has no joint {name}")
             entries += [(t, k, 0, sign, -1) for k, sign in by_joint.get(joint, [])]
-        elif name in index and first_motion <= index[name] < first_motion + 2 * n:
+        elif name in index and 0 <= first_motion <= index[name] < first_motion + 2 * n:
             feature = index[name] - first_motion
             entries += [(t, k, 0, sign, feature) for k, sign in by_joint.get(feature % n, [])]
         elif name in index:
@@ -241,10 +253,11 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
         scale[:, motion_entries] *= 0.0 if data.motion is None else data.motion[:, features[motion_entries]]
     coefficient = scale.copy()
     coefficient[:, is_compliance] *= data.moments[:, moment_of[is_compliance]]
-    coefficient[:, elements >= out_index] = 0.0
+    moves_out = ancestry(chain.elements)[out_index]  # (K,) the elements on the frame's path
+    coefficient[:, ~moves_out[elements]] = 0.0
     contribution = twist * coefficient[..., None]
 
-    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and k < out_index]
+    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and moves_out[k]]
     geometric = ~is_compliance
     if deflections and np.any(geometric):
         compliances = np.array([data.params[chain.elements[k].param] for k in deflections])

@@ -31,7 +31,7 @@ import yaml
 
 from .errors import InputError
 from .fields import Fields, read_file_text, read_yaml
-from .joints import DHJoint, OriginJoint
+from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .outputs import write_text
 from .parameters import LENGTH_KINDS, parameter_names, split_name
 from .robot import MODELS, Robot
@@ -42,6 +42,7 @@ ROBOT_KEYS = (
     "name",
     "source",
     "model",
+    "dh_convention",
     "units",
     "joints",
     "base",
@@ -56,7 +57,8 @@ ROBOT_KEYS = (
 )
 DH_KEYS = ("theta", "d", "a", "alpha")
 ORIGIN_KEYS = ("origin", "axis", "type")
-JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "direction", "limits", "mass", "com")
+JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "direction", "limits", "mass", "com")
+CONVENTIONS = ("standard", "modified")  # DH: the SPEC's (standard) or Craig's (modified)
 
 
 def robots_dir() -> Path:
@@ -182,13 +184,14 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     units = parse_units(doc.raw("units", None), source)
     name = doc.string("name")
     doc.string("source")
+    convention = doc.string("dh_convention", "standard", CONVENTIONS)
     joints = doc.sub_list("joints")
     if not joints:
         raise doc.error("joints", "a robot needs at least one joint")
     geometries, directions, limits, masses, coms = [], [], [], [], []
     for joint in joints:
         joint.check_keys(JOINT_KEYS)
-        geometry = _joint_geometry(joint, units)
+        geometry = _joint_geometry(joint, units, convention)
         geometries.append(geometry)
         direction = joint.number("direction", 1.0)
         if direction not in (1.0, -1.0):
@@ -267,14 +270,18 @@ def _urdf_origin(doc: Fields, source: Path) -> tuple[str, str] | None:
     return str((source.parent / file).resolve()), entry.string("tip")
 
 
-def _joint_geometry(joint: Fields, units: Units) -> DHJoint | OriginJoint:
-    """A DH joint (theta, d, a, alpha) or one given by origin, axis and type; not both."""
+def _joint_geometry(joint: Fields, units: Units, convention: str) -> DHJoint | ModifiedDHJoint | OriginJoint:
+    """A DH joint (theta, d, a, alpha; in the robot's ``dh_convention`` or the joint's own
+    ``convention``: standard or modified) or one given by origin, axis and type; not both."""
     dh_keys = [k for k in DH_KEYS if joint.has(k)]
     origin_keys = [k for k in ORIGIN_KEYS if joint.has(k)]
     if dh_keys and origin_keys:
         raise joint.error(origin_keys[0], f"a joint is DH ({', '.join(DH_KEYS)}) or origin/axis/type, not both")
+    if origin_keys and joint.has("convention"):
+        raise joint.error("convention", "a DH convention applies to DH joints, not to origin/axis/type")
     if not origin_keys:
-        return DHJoint(
+        kind = ModifiedDHJoint if joint.string("convention", convention, CONVENTIONS) == "modified" else DHJoint
+        return kind(
             joint.number("theta", 0.0, units.to_rad),
             joint.number("d", 0.0, units.to_m),
             joint.number("a", 0.0, units.to_m),
@@ -304,8 +311,10 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     values.update(params or {})
     joints = []
     for i, geometry in enumerate(robot.joints, start=1):
-        if isinstance(geometry, DHJoint):
+        if isinstance(geometry, (DHJoint, ModifiedDHJoint)):
             entry = {kind: values.pop(f"{kind}{i}") for kind in DH_KEYS}
+            if isinstance(geometry, ModifiedDHJoint):
+                entry["convention"] = "modified"
         else:
             entry = {
                 "origin": _pose_dict(geometry.origin),

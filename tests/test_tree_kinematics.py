@@ -1,0 +1,236 @@
+"""Issue 28 (in part): the elementary transform sequence as a tree. Branches start from any
+earlier frame (ET.parent); frames, gravity moments (a trunk joint carries every branch beyond
+it) and analytic Jacobians (of any frame: only the elements on its path move it) hold for a
+tree as for a serial chain: central differences and direct sums."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcal import kinematics
+from fgcal.ets import ET, Chain, ancestry, evaluate
+from fgcal.se3 import so3_log
+
+
+@dataclass
+class _Tree:
+    """A torso joint, arm A (two joints) and arm B (two joints) from the torso's end; arm A
+    ends at the flange (with the payload), arm B at its own tip."""
+
+    chain: Chain
+    tip_b: int
+    parameter_names: list[str]
+    masses: np.ndarray
+    coms: np.ndarray
+    name: str = "tree"
+    model: str = "DH,s,e"
+    payload_mass: float = 3.0
+    payload_com: np.ndarray = None
+    gravity: np.ndarray = None
+    compliant: bool = True
+    history: bool = False
+    n_joints: int = 5
+
+
+def _tree() -> _Tree:
+    elements, names, bend, link_end = [], [], [], []
+
+    def param(name: str) -> int:
+        names.append(name)
+        return len(names) - 1
+
+    def joint(i: int, axis: str, link: list[ET], parent: int | None = None) -> None:
+        elements.append(ET(axis, param=param(f"theta{i}"), joint=i - 1, parent=parent))
+        bend.append(len(elements))
+        elements.extend(
+            [
+                ET("Rz", param=param(f"kz{i}"), moment=3 * (i - 1) + 2),
+                ET("Ry", param=param(f"ky{i}"), moment=3 * (i - 1) + 1),
+                ET("Rx", param=param(f"kx{i}"), moment=3 * (i - 1)),
+            ]
+        )
+        elements.extend(link)
+        link_end.append(len(elements))
+
+    elements.append(ET("Tz", 0.3))
+    base_end = len(elements)
+    joint(1, "Rz", [ET("Tz", param=param("d1")), ET("Tx", 0.1)])
+    torso_end = len(elements)
+    joint(2, "Ry", [ET("Tx", param=param("a2")), ET("Rx", 0.4)], parent=torso_end)  # arm A
+    joint(3, "Ry", [ET("Tx", param=param("a3"))])
+    flange = len(elements)
+    joint(4, "Ry", [ET("Ty", param=param("a4")), ET("Rz", -0.7)], parent=torso_end)  # arm B, from the torso
+    joint(5, "Rx", [ET("Ty", param=param("a5"))])
+    tip_b = len(elements)
+    chain = Chain(tuple(elements), base_end, tuple(bend), tuple(link_end), flange)
+    rng = np.random.default_rng(3)
+    return _Tree(chain, tip_b, names, rng.uniform(2, 20, 5), rng.uniform(-0.1, 0.1, (5, 3)),
+                 payload_com=np.array([0.01, 0.0, 0.05]), gravity=np.array([0.0, 0.0, -9.81]))  # fmt: skip
+
+
+def _params(tree: _Tree) -> np.ndarray:
+    rng = np.random.default_rng(5)
+    values = []
+    for name in tree.parameter_names:
+        if name[0] == "k":
+            values.append(rng.uniform(1e-4, 5e-4))
+        elif name.startswith("theta"):
+            values.append(rng.normal(0, 0.1))
+        else:
+            values.append(rng.uniform(0.2, 0.5))
+    return np.array(values)
+
+
+def test_branches_start_where_they_leave_the_trunk():
+    tree = _tree()
+    paths = ancestry(tree.chain.elements)
+    torso_end = tree.chain.link_end[0]
+    # Arm B's tip is moved by the torso and arm B, not by arm A; arm A's flange the other way round.
+    arm_a = range(torso_end, tree.chain.flange)
+    arm_b = range(tree.chain.flange, tree.tip_b)
+    assert not paths[tree.tip_b, list(arm_a)].any() and paths[tree.tip_b, list(arm_b)].all()
+    assert not paths[tree.chain.flange, list(arm_b)].any() and paths[tree.chain.flange, :torso_end].all()
+    # Each tip's pose is the product of the transforms along its own path.
+    q = np.random.default_rng(1).uniform(-1, 1, (4, 5))
+    params = _params(tree)
+    frames = evaluate(tree.chain.elements, params, q, np.zeros((4, 15)))
+    for tip in (tree.chain.flange, tree.tip_b):
+        path = [k for k in range(len(tree.chain.elements)) if paths[tip, k]]
+        alone = evaluate(tuple(ET(**{**e.__dict__, "parent": None}) for e in (tree.chain.elements[k] for k in path)),
+                         params, q, np.zeros((4, 15)))  # fmt: skip
+        np.testing.assert_allclose(frames[tip], alone[-1], atol=1e-14)
+
+
+def test_a_trunk_joint_carries_every_branch():
+    tree = _tree()
+    params = _params(tree)
+    q = np.random.default_rng(2).uniform(-1, 1, (3, 5))
+    data = kinematics.forward(tree, params, q)
+    masses = np.append(tree.masses, tree.payload_mass)
+    coms = np.vstack([tree.coms, tree.payload_com])
+    body_frames = [*tree.chain.link_end, tree.chain.flange]
+    carried = {1: [0, 1, 2, 3, 4, 5], 2: [1, 2, 5], 3: [2, 5], 4: [3, 4], 5: [4]}  # body 5 is the payload
+    for i, bodies in carried.items():
+        bend = data.frames_rigid[tree.chain.bend[i - 1]]
+        total = np.zeros((3, 3))
+        for b in bodies:
+            frame = data.frames_rigid[body_frames[b]]
+            c = frame[:, :3, :3] @ coms[b] + frame[:, :3, 3]
+            total += np.cross(c - bend[:, :3, 3], masses[b] * tree.gravity)
+        expected = np.einsum("nji,nj->ni", bend[:, :3, :3], total)
+        np.testing.assert_allclose(data.moments[:, 3 * (i - 1) : 3 * i], expected, rtol=1e-12, atol=1e-9)
+
+
+def _pose_of(tree, params, q, frame):
+    data = kinematics.forward(tree, params, q)
+    return kinematics.frame_pose(tree, data, frame)
+
+
+def test_jacobians_of_both_tips_match_central_differences():
+    tree = _tree()
+    params = _params(tree)
+    q = np.random.default_rng(4).uniform(-1, 1, (3, 5))
+    wrt = tree.parameter_names + [f"q{i}" for i in range(1, 6)]
+    data = kinematics.forward(tree, params, q)
+    for frame in ("flange", tree.tip_b):
+        J = kinematics.jacobian(tree, data, wrt, frame=frame)  # body twists (N, 6, T)
+        T0 = _pose_of(tree, params, q, frame)
+        for col, name in enumerate(wrt):
+            step = 1e-7 if name[0] == "k" else 1e-6
+            shifted = []
+            for sign in (1, -1):
+                p, qq = params.copy(), q.copy()
+                if name.startswith("q"):
+                    qq[:, int(name[1:]) - 1] += sign * step
+                else:
+                    p[wrt.index(name)] += sign * step
+                shifted.append(_pose_of(tree, p, qq, frame))
+            R0t = np.swapaxes(T0[:, :3, :3], 1, 2)
+            d_rot = (so3_log(R0t @ shifted[0][:, :3, :3]) - so3_log(R0t @ shifted[1][:, :3, :3])) / (2 * step)
+            d_pos = np.einsum("nij,nj->ni", R0t, shifted[0][:, :3, 3] - shifted[1][:, :3, 3]) / (2 * step)
+            numeric = np.concatenate([d_rot, d_pos], axis=1)
+            scale = max(np.linalg.norm(numeric), 1e-9)
+            assert np.linalg.norm(J[:, :, col] - numeric) / scale < 1e-6, (frame, name)
+        # Arm A's joints do not move arm B's tip, except through the torso's gravity moment.
+        if frame == tree.tip_b:
+            assert np.linalg.norm(J[:, :, wrt.index("a2")]) > 0  # its weight bends the torso
+            flat = kinematics.forward(tree, np.where([n[0] == "k" for n in tree.parameter_names], 0.0, params), q)
+            rigid = kinematics.jacobian(tree, flat, ["a2", "q3"], frame=frame)
+            assert np.abs(rigid).max() == 0.0
+
+
+PUMA_CRAIG = """\
+name: PUMA 560 (Craig's modified DH)
+source: Craig, Introduction to Robotics, 3rd ed., table 3.4 (a2, d3, a3, d4 in m)
+dh_convention: modified
+units: {length: m, angle: deg}
+joints:
+  - {alpha: 0, a: 0, theta: 0, d: 0, limits: [-160, 160], mass: 10, com: [0, 0, 0.1]}
+  - {alpha: -90, a: 0, theta: 0, d: 0, limits: [-225, 45], mass: 17, com: [0.2, 0, 0]}
+  - {alpha: 0, a: 0.4318, theta: 0, d: 0.15005, limits: [-45, 225], mass: 5, com: [0.02, 0, 0.1]}
+  - {alpha: -90, a: 0.0203, theta: 0, d: 0.4318, limits: [-110, 170], mass: 1, com: [0, 0, 0]}
+  - {alpha: 90, a: 0, theta: 0, d: 0, limits: [-100, 100], mass: 0.5, com: [0, 0, 0]}
+  - {alpha: -90, a: 0, theta: 0, d: 0, convention: modified, limits: [-266, 266], mass: 0.2, com: [0, 0, 0.03]}
+tool: {xyz: [0, 0, 0.1], rpy: [0, 0, 0]}
+"""
+
+
+def _craig_link(alpha: float, a: float, theta: float, d: float) -> np.ndarray:
+    """Craig's eq. (3.6): T = Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i) Tz(d_i), written out."""
+    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
+    return np.array([
+        [ct, -st, 0.0, a],
+        [st * ca, ct * ca, -sa, -sa * d],
+        [st * sa, ct * sa, ca, ca * d],
+        [0.0, 0.0, 0.0, 1.0],
+    ])  # fmt: skip
+
+
+def test_modified_dh_equals_craigs_convention(tmp_path):
+    import fgcal
+    from fgcal.robot_io import load_robot, save_robot
+
+    path = tmp_path / "puma_craig.yaml"
+    path.write_text(PUMA_CRAIG)
+    robot = load_robot(path)
+    table = np.array([[0, 0, 0, 0], [-90, 0, 0, 0], [0, 0.4318, 0, 0.15005], [-90, 0.0203, 0, 0.4318],
+                      [90, 0, 0, 0], [-90, 0, 0, 0]], dtype=float)  # fmt: skip
+    q = np.random.default_rng(8).uniform(-np.pi, np.pi, (20, 6))
+    for k in range(len(q)):
+        T = np.eye(4)
+        for (alpha, a, theta, d), qi in zip(table, q[k], strict=True):
+            T = T @ _craig_link(np.radians(alpha), a, np.radians(theta) + qi, d)
+        np.testing.assert_allclose(robot.fk(q[k]), T, atol=1e-12)
+        np.testing.assert_allclose(robot.fk_tool(q[k])[:3, 3], (T @ [0, 0, 0.1, 1])[:3], atol=1e-12)
+    # Written back, it reads as the same robot.
+    save_robot(tmp_path / "again.yaml", robot)
+    np.testing.assert_allclose(fgcal.load_robot(tmp_path / "again.yaml").fk(q), robot.fk(q), atol=1e-15)
+
+
+def test_modified_dh_jacobians_match_central_differences(tmp_path):
+    from conftest import random_parameters
+
+    import fgcal
+
+    (tmp_path / "puma_craig.yaml").write_text(PUMA_CRAIG)
+    robot = fgcal.load_robot(tmp_path / "puma_craig.yaml").with_tool(np.eye(4), payload_mass=5.0)
+    rng = np.random.default_rng(9)
+    params = random_parameters(robot, rng)
+    q = rng.uniform(-2, 2, (3, 6))
+    wrt = [n for n in robot.parameter_names if not n.startswith(("lm", "lv"))] + [f"q{i}" for i in range(1, 7)]
+    J = robot.jacobian(q, wrt, params, point=np.array([0.05, 0.0, 0.1]))
+    for col, name in enumerate(wrt):
+        step = 1e-7 if name[0] == "k" else 1e-6
+        moved = []
+        for sign in (1, -1):
+            p, qq = dict(params), q.copy()
+            if name.startswith("q"):
+                qq[:, int(name[1:]) - 1] += sign * step
+            else:
+                p[name] += sign * step
+            T = robot.fk(qq, p)
+            moved.append(T[:, :3, :3] @ [0.05, 0.0, 0.1] + T[:, :3, 3])
+        numeric = (moved[0] - moved[1]) / (2 * step)
+        assert np.linalg.norm(J[:, :, col] - numeric) <= 1e-6 * max(np.linalg.norm(numeric), 1e-3), name
