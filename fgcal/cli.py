@@ -522,8 +522,12 @@ def cmd_fk(args: argparse.Namespace) -> int:
             None, f"q{i + 1}", f"{args.q[i]:g} is {q[i]:.4g} {unit}, outside the joint's limits "
             f"[{low[i]:.4g}, {high[i]:.4g}] {unit}{hint}",
         )  # fmt: skip
-    T = robot.fk_tool(q) if args.tool else robot.fk(q)
     np.set_printoptions(precision=6, suppress=True)
+    if robot.tips and not args.tool:  # a tree: every tip
+        for tip in robot.tip_names:
+            print(f"T_W_{tip} (m) of {robot.name}:\n{np.round(robot.fk(q, tip=tip), 12) + 0.0}")
+        return 0
+    T = robot.fk_tool(q) if args.tool else robot.fk(q)
     print(f"T_W_{'C' if args.tool else 'n'} (m) of {robot.name}:\n{np.round(T, 12) + 0.0}")  # no -0.
     return 0
 

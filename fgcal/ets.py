@@ -226,8 +226,8 @@ class Chain:
 
     ``frames[link_end[i]]`` is frame i+1 (after joint i+1, 0-based i), ``frames[bend[i]]``
     the bending frame B_{i+1} right after the joint motion, ``frames[base_end]`` the
-    robot base frame 0, ``frames[flange]`` the flange n and ``frames[len(elements)]`` the
-    tool frame.
+    robot base frame 0, ``frames[flange]`` the flange n and ``frames[tool]`` the tool frame
+    (by default the end of the sequence); ``tips`` the named frames of a tree (name, index).
     """
 
     elements: tuple[ET, ...]
@@ -235,7 +235,9 @@ class Chain:
     bend: tuple[int, ...]
     link_end: tuple[int, ...]
     flange: int
+    tool_frame: int | None = None
+    tips: tuple[tuple[str, int], ...] = ()
 
     @property
     def tool(self) -> int:
-        return len(self.elements)
+        return len(self.elements) if self.tool_frame is None else self.tool_frame

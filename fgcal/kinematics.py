@@ -157,7 +157,11 @@ def frame_index(robot: Robot, frame: str | int) -> int:
         return chain.tool
     if frame == "base":
         return chain.base_end
-    raise InputError(None, "frame", f"unknown frame {frame!r} (flange, tool or base)")
+    named = dict(chain.tips)
+    if frame in named:
+        return named[frame]
+    tips = f", or a tip: {', '.join(named)}" if len(named) > 1 else ""
+    raise InputError(None, "frame", f"unknown frame {frame!r} (flange, tool or base{tips})")
 
 
 def frame_pose(robot: Robot, data: KinematicsData, frame: str = "flange") -> np.ndarray:

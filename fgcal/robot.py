@@ -15,7 +15,7 @@ import numpy as np
 
 from . import kinematics
 from .errors import InputError
-from .ets import ET, Chain
+from .ets import ET, Chain, ancestry
 from .ik import IKResult, inverse_kinematics
 from .joints import DHJoint, Joint, perturbation_elements, pose_elements
 from .parameters import parameter_names
@@ -59,6 +59,13 @@ class Robot:
     model: str = "DH,s,e"
     urdf: tuple[str, str] | None = None  # the URDF (file, tip link) the description came from
     region: np.ndarray | None = None  # (K, n) configurations a calibration was fitted on (rad, m)
+    # A tree (fgcal.ets): the joint whose link each joint hangs from (-1: the base; None: a
+    # serial chain, each from the one before), the joint the flange hangs from (None: the
+    # last), and further named frames: (name, joint it hangs from or -1, pose in that link).
+    parents: tuple[int, ...] | None = None
+    flange_joint: int | None = None
+    tips: tuple[tuple[str, int, np.ndarray], ...] = ()
+    flange_name: str = "flange"  # the flange's name among the tips (a URDF's tip link)
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -77,12 +84,22 @@ class Robot:
         unknown = set(self.overrides) - set(self.parameter_names)
         if unknown:
             raise ValueError(f"unknown parameter names: {sorted(unknown)}")
+        parents = self.parents
+        if parents is not None and (len(parents) != n or any(not -1 <= p < i for i, p in enumerate(parents))):
+            raise ValueError("each joint hangs from an earlier joint (or -1, the base)")
+        hangs = [j for _, j, _ in self.tips] + ([] if self.flange_joint is None else [self.flange_joint])
+        if any(not -1 <= j < n for j in hangs):
+            raise ValueError(f"a tip hangs from a joint the robot does not have (0 to {n - 1}, or -1)")
+        names = [name for name, _, _ in self.tips] + [self.flange_name]
+        if len(set(names)) != len(names):
+            raise ValueError(f"tip names must differ: {names}")
 
     def __repr__(self) -> str:
         kinds = "prismatic and revolute" if self.prismatic.any() else "revolute"
         calibrated = f", {len(self.overrides)} parameters set" if self.overrides else ""
         payload = f", payload {self.payload_mass:g} kg" if self.payload_mass else ""
-        return f"<Robot {self.name!r}: {self.n_joints} {kinds} joints, model {self.model}{calibrated}{payload}>"
+        tree = f", a tree with tips {', '.join(self.tip_names)}" if self.parents is not None or self.tips else ""
+        return f"<Robot {self.name!r}: {self.n_joints} {kinds} joints{tree}, model {self.model}{calibrated}{payload}>"
 
     # -- description -------------------------------------------------------------------
     @property
@@ -173,15 +190,25 @@ class Robot:
         return q2
 
     def fk(
-        self, q: np.ndarray, params: Mapping[str, float] | None = None, motion: np.ndarray | None = None
+        self,
+        q: np.ndarray,
+        params: Mapping[str, float] | None = None,
+        motion: np.ndarray | None = None,
+        tip: str | None = None,
     ) -> np.ndarray:
-        """Flange pose ``T_W_n`` (4x4, m) in the world frame, base pose applied.
+        """Flange pose ``T_W_n`` (4x4, m) in the world frame, base pose applied; with ``tip``,
+        the pose of that named frame of a tree (:attr:`tip_names`).
 
         ``q`` is (n,) or (N, n) in rad; ``params`` a full or partial dict of parameter
         names (missing names are nominal); ``motion`` the motion-history features (N, 2n) of
         the configurations (fgcal.motion.features; model DH,s,e,h). Returns (4, 4) or (N, 4, 4).
         """
-        return self._frame(q, params, "flange", motion)
+        return self._frame(q, params, "flange" if tip is None else tip, motion)
+
+    @property
+    def tip_names(self) -> list[str]:
+        """The named frames: the flange's name, then the tree's other tips."""
+        return [self.flange_name, *(name for name, _, _ in self.tips)]
 
     def fk_tool(
         self, q: np.ndarray, params: Mapping[str, float] | None = None, motion: np.ndarray | None = None
@@ -210,7 +237,10 @@ class Robot:
         data = kinematics.forward(self, p, np.zeros((1, self.n_joints)))
         base_origin = kinematics.frame_pose(self, data, "base")[0, :3, 3]
         total = 0.0
-        for element in chain.elements[chain.base_end : chain.flange]:
+        path = ancestry(chain.elements)[chain.flange]
+        for k, element in enumerate(chain.elements):
+            if not path[k] or k < chain.base_end:
+                continue
             if element.is_rotation or element.axis == "Rvec":
                 continue
             value = element.const + (p[element.param] if element.param is not None else 0.0)
@@ -298,12 +328,23 @@ def build_chain(robot: Robot) -> Chain:
     elements: list[ET] = [*pose_elements(robot.base_pose), *perturbation_elements(index["base.tx"])]
     base_end = len(elements)
     bend, link_end = [], []
+
+    def hung(new: list[ET], start: int) -> list[ET]:
+        """Elements that start from frame ``start`` (a tree's branch point), wherever they go."""
+        if new and start != len(elements):
+            new[0] = replace(new[0], parent=start)
+        return new
+
+    def frame_of(joint: int) -> int:
+        return base_end if joint < 0 else link_end[joint]
+
     for i, joint in enumerate(robot.joints):
 
         def param(kind: str, number: int = i + 1) -> int:
             return index[f"{kind}{number}"]
 
-        elements += joint.before_bend(param, i, float(robot.directions[i]), robot.model != "DH")
+        start = frame_of(robot.parents[i]) if robot.parents is not None else len(elements)
+        elements += hung(joint.before_bend(param, i, float(robot.directions[i]), robot.model != "DH"), start)
         bend.append(len(elements))
         if robot.compliant:
             elements += [
@@ -313,7 +354,19 @@ def build_chain(robot: Robot) -> Chain:
             ]
         elements += joint.after_bend(param)
         link_end.append(len(elements))
-    elements += pose_elements(robot.flange_pose)
-    flange = len(elements)
-    elements += [*pose_elements(robot.tool_pose), *perturbation_elements(index["tool.tx"])]
-    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end), flange)
+    flange = frame_of(robot.n_joints - 1 if robot.flange_joint is None else robot.flange_joint)
+    to_flange = pose_elements(robot.flange_pose)
+    if to_flange:
+        elements += hung(to_flange, flange)
+        flange = len(elements)
+    elements += hung([*pose_elements(robot.tool_pose), *perturbation_elements(index["tool.tx"])], flange)
+    tool = len(elements)
+    tips = [(robot.flange_name, flange)]
+    for name, joint_index, pose in robot.tips:
+        frame = frame_of(joint_index)
+        to_tip = pose_elements(pose)
+        if to_tip:
+            elements += hung(to_tip, frame)
+            frame = len(elements)
+        tips.append((name, frame))
+    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end), flange, tool, tuple(tips))

@@ -30,7 +30,7 @@ import numpy as np
 import yaml
 
 from .errors import InputError
-from .fields import Fields, read_file_text, read_yaml
+from .fields import Fields, check_name, read_file_text, read_yaml
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .outputs import write_text
 from .parameters import LENGTH_KINDS, parameter_names, split_name
@@ -53,11 +53,14 @@ ROBOT_KEYS = (
     "parameters",
     "urdf",
     "calibrated_region",
+    "flange_joint",
+    "flange_name",
+    "tips",
     "notes",
 )
 DH_KEYS = ("theta", "d", "a", "alpha")
 ORIGIN_KEYS = ("origin", "axis", "type")
-JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "direction", "limits", "mass", "com")
+JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "direction", "limits", "mass", "com")
 CONVENTIONS = ("standard", "modified")  # DH: the SPEC's (standard) or Craig's (modified)
 
 
@@ -188,9 +191,11 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     joints = doc.sub_list("joints")
     if not joints:
         raise doc.error("joints", "a robot needs at least one joint")
-    geometries, directions, limits, masses, coms = [], [], [], [], []
-    for joint in joints:
+    geometries, directions, limits, masses, coms, parents = [], [], [], [], [], []
+    for number, joint in enumerate(joints, start=1):
         joint.check_keys(JOINT_KEYS)
+        # A tree: the joint (1-based) whose link this one hangs from, 0 the base; default the one before.
+        parents.append(joint.integer("parent", number - 1, minimum=0, maximum=number - 1) - 1)
         geometry = _joint_geometry(joint, units, convention)
         geometries.append(geometry)
         direction = joint.number("direction", 1.0)
@@ -231,7 +236,34 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         model=doc.string("model", "DH,s,e", MODELS),
         urdf=_urdf_origin(doc, Path(source)),
         region=_region(doc, units, [g.prismatic for g in geometries], np.array(limits)),
+        **_tree(doc, units, parents),
     )
+
+
+def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
+    """A tree's fields of Robot: joints' parents (None if serial), the flange's joint and name,
+    the other tips ``[{name, joint, xyz, rpy}]`` (joint 1-based, 0 the base)."""
+    n = len(parents)
+    serial = all(p == i - 1 for i, p in enumerate(parents))
+    out: dict = {"parents": None if serial else tuple(parents)}
+    if doc.has("flange_joint"):
+        out["flange_joint"] = doc.integer("flange_joint", n, minimum=0, maximum=n) - 1
+    if doc.has("flange_name"):
+        out["flange_name"] = check_name(doc.string("flange_name"), doc.source, "flange_name")
+    tips = []
+    for k, tip in enumerate(doc.sub_list("tips") if doc.has("tips") else []):
+        tip.check_keys(("name", "joint", "xyz", "rpy"))
+        name = check_name(tip.string("name"), doc.source, f"tips[{k}].name")
+        joint = tip.integer("joint", minimum=0, maximum=n) - 1
+        pose = pose_from_xyz_rpy(
+            tip.vector("xyz", 3, [0, 0, 0], units.to_m), tip.vector("rpy", 3, [0, 0, 0], units.to_rad)
+        )
+        tips.append((name, joint, pose))
+    names = [name for name, _, _ in tips] + [out.get("flange_name", "flange")]
+    if len(set(names)) != len(names):
+        raise doc.error("tips", f"tip names must differ (and differ from the flange's): {names}")
+    out["tips"] = tuple(tips)
+    return out
 
 
 MAX_REGION = 10000  # configurations a robot file may list as its calibrated region
@@ -321,6 +353,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
                 "axis": [float(v) for v in geometry.axis],
                 "type": "prismatic" if geometry.prismatic else "revolute",
             }
+        if robot.parents is not None:
+            entry["parent"] = robot.parents[i - 1] + 1
         entry.update(
             {
                 "direction": int(robot.directions[i - 1]),
@@ -348,6 +382,12 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
         doc["urdf"] = {"file": robot.urdf[0], "tip": robot.urdf[1]}
     if robot.region is not None:
         doc["calibrated_region"] = [[float(v) for v in row] for row in robot.region]
+    if robot.flange_joint is not None:
+        doc["flange_joint"] = robot.flange_joint + 1
+    if robot.flange_name != "flange":
+        doc["flange_name"] = robot.flange_name
+    if robot.tips:
+        doc["tips"] = [{"name": name, "joint": joint + 1, **_pose_dict(pose)} for name, joint, pose in robot.tips]
     if notes:
         doc["notes"] = notes
     return doc

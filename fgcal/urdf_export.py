@@ -332,6 +332,12 @@ def export_urdf(
     ``template``, its URDF) is written into that document."""
     import yaml
 
+    if robot.parents is not None or robot.tips:
+        raise InputError(
+            robot.urdf[0] if robot.urdf else None, "--urdf",
+            f"{robot.name} is a tree ({', '.join(robot.tip_names)}): exporting trees "
+            "is not supported yet (a URDF's tip link, robot: {file, tip}, gives one chain of it)",
+        )  # fmt: skip
     path, sidecar = check_outputs(path)  # both outputs checked before either is written
     source = template_of(robot, template)
     if source is None:

@@ -7,7 +7,9 @@ no ``<origin>`` is the identity, a missing ``xyz`` or ``rpy`` is zeros, ``rpy`` 
 Rz(yaw) Ry(pitch) Rx(roll), no ``<axis>`` is (1, 0, 0).
 
 Import (:func:`load_urdf`): the chain from the root link to the tip link becomes a
-:class:`~fgcal.robot.Robot` of :class:`~fgcal.joints.OriginJoint` s. Fixed joints fold into
+:class:`~fgcal.robot.Robot` of :class:`~fgcal.joints.OriginJoint` s. A URDF with several leaf
+links and no tip named (nor a ``tool0``) becomes a tree (:func:`load_urdf_tree`): every moving
+joint, each hanging from the moving joint before it, and every leaf link a named tip. Fixed joints fold into
 the next moving joint's origin (or, after the last one, into the flange pose), so
 ``Robot.fk`` is the tip link's pose in the root link's frame. Every link's inertial, also
 of branches off the chain (their joints at zero), is lumped into the body of the moving
@@ -253,7 +255,7 @@ def _chain_to(path: Path, model, tip: str | None) -> tuple[str, str, list]:
         elif len(leaves) == 1:
             tip = leaves[0]
         else:
-            raise InputError(path, "tip", f"no link tool0 and several leaf links {leaves}: name the tip link")
+            raise _SeveralLeavesError(leaves)
     if tip not in links:
         raise InputError(path, "tip", f"no link {tip!r} (links: {', '.join(sorted(links))})")
     chain, link = [], tip
@@ -274,6 +276,112 @@ def _joint_limits(path: Path, joint) -> np.ndarray:
     if not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
         raise InputError(path, f"joint {joint.name}.limit", f"lower {lower} must be below upper {upper}, both finite")
     return np.array([lower, upper])
+
+
+def _moving_joint(path: Path, joint, pending: np.ndarray) -> OriginJoint:
+    """A moving joint as an OriginJoint whose origin is ``pending`` (the fixed joints before it
+    in its parent's link) times its own."""
+    if joint.type not in MOVING:
+        raise InputError(path, f"joint {joint.name}.type", f"{joint.type!r} joints are not supported")
+    if joint.mimic:
+        raise InputError(path, f"joint {joint.name}.mimic", "mimic joints are not supported yet")
+    axis = np.asarray(joint.axis, dtype=float)
+    if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:
+        raise InputError(path, f"joint {joint.name}.axis", f"must be a non-zero finite 3-vector, got {joint.axis}")
+    origin = _finite_pose(path, f"joint {joint.name}.origin", joint.origin)
+    return OriginJoint(pending @ origin, axis, joint.type == "prismatic")
+
+
+def load_urdf_tree(path: str | Path, tips: list[str] | None = None) -> Robot:
+    """The tree of a URDF: every moving joint (depth first from the root, children in the
+    file's order), each hanging from the moving joint whose link carries it, and the ``tips``
+    (default every leaf link, the deepest first) as named frames; the first tip is the flange.
+    Each link's inertial goes to the body of the moving joint that carries it."""
+    path = Path(path)
+    model = _parse(path)
+    links = {link.name: link for link in model.links}
+    children: dict[str, list] = {}
+    has_parent = set()
+    for joint in model.joints:
+        if joint.child in has_parent:
+            raise InputError(path, f"joint {joint.name}", f"link {joint.child!r} has two parent joints")
+        has_parent.add(joint.child)
+        children.setdefault(joint.parent, []).append(joint)
+    roots = sorted(set(links) - has_parent)
+    if len(roots) != 1:
+        raise InputError(path, None, f"a URDF robot has exactly one root link, found {roots}")
+    for name in tips or []:
+        if name not in links:
+            raise InputError(path, "tips", f"no link {name!r} (links: {', '.join(sorted(links))})")
+    joints, limits, parents, names, where = [], [], [], [], {}
+    body_mass: dict[int, float] = {}
+    body_moment: dict[int, np.ndarray] = {}
+    # Depth first (pre-order, children in the file's order) with a stack of its own: each entry is
+    # a link, the moving joint carrying it (-1: none), its pose in that joint's link frame, and
+    # the moving joint that leads to it (numbered when reached: after the joint it hangs from).
+    stack = [(roots[0], -1, np.eye(4), None)]
+    visited = 0
+    while stack:
+        link_name, body, T_body_link, leading = stack.pop()
+        visited += 1
+        if visited > len(links):
+            raise InputError(path, None, "the joints form a loop")
+        if leading is not None:
+            joints.append(_moving_joint(path, leading, T_body_link))
+            limits.append(_joint_limits(path, leading))
+            parents.append(body)
+            names.append(leading.name)
+            body, T_body_link = len(joints) - 1, np.eye(4)
+        link = links[link_name]
+        where[link_name] = (body, T_body_link)
+        if link.mass is not None:
+            m = link.mass
+            if not np.isfinite(m) or m < 0 or m > 1e6:
+                raise InputError(path, f"link {link_name}.inertial.mass", f"must be finite, 0 to 1e6 kg, got {m}")
+            com = _finite_pose(path, f"link {link_name}.inertial.origin", link.com_origin)[:3, 3]
+            body_mass[body] = body_mass.get(body, 0.0) + m
+            moment = m * (T_body_link[:3, :3] @ com + T_body_link[:3, 3])
+            body_moment[body] = body_moment.get(body, np.zeros(3)) + moment
+        reached = []
+        for joint in children.get(link_name, []):
+            if joint.type == "fixed":
+                origin = _finite_pose(path, f"joint {joint.name}.origin", joint.origin)
+                reached.append((joint.child, body, T_body_link @ origin, None))
+            else:
+                reached.append((joint.child, body, T_body_link, joint))
+        stack.extend(reversed(reached))  # popped in the file's order
+    if not joints:
+        raise InputError(path, None, "the URDF has no moving joint")
+    n = len(joints)
+
+    def depth(link_name: str) -> int:  # moving joints between the root and the link
+        count, joint = 0, where[link_name][0]
+        while joint >= 0:
+            count, joint = count + 1, parents[joint]
+        return count
+
+    # By default every leaf, the deepest first (the flange: the end of the longest chain).
+    leaves = sorted(set(links) - set(children), key=lambda name: (-depth(name), name))
+    wanted = leaves if tips is None else list(tips)
+    masses = np.array([body_mass.get(j, 0.0) for j in range(n)])
+    moments = np.array([body_moment.get(j, np.zeros(3)) for j in range(n)])
+    coms = np.divide(moments, masses[:, None], out=np.zeros_like(moments), where=masses[:, None] > 0)
+    flange_joint, flange_pose = where[wanted[0]]
+    return Robot(
+        name=model.name or path.stem,
+        joints=tuple(joints),
+        directions=np.ones(n),
+        limits=np.array(limits),
+        masses=masses,
+        coms=coms,
+        flange_pose=flange_pose,
+        source=f"URDF {path.name}: tree from {roots[0]}, tips {', '.join(wanted)}; joints {', '.join(names)}",
+        urdf=(str(path.resolve()), wanted[0]),
+        parents=tuple(parents),
+        flange_joint=flange_joint,
+        tips=tuple((name, *where[name]) for name in wanted[1:]),
+        flange_name=wanted[0],
+    )
 
 
 def _lumped_inertials(path: Path, model, chain: list) -> tuple[np.ndarray, np.ndarray]:
@@ -308,14 +416,26 @@ def _lumped_inertials(path: Path, model, chain: list) -> tuple[np.ndarray, np.nd
     return mass[1:], coms[1:]
 
 
+class _SeveralLeavesError(Exception):
+    """A URDF with several leaf links and no tip named: a tree."""
+
+    def __init__(self, leaves: list[str]) -> None:
+        super().__init__(f"several leaf links {leaves}")
+
+
 def load_urdf(path: str | Path, tip: str | None = None) -> Robot:
     """The robot of a URDF file: the chain from its root link to ``tip`` (default ``tool0``,
-    else the only leaf link). Revolute, continuous, prismatic and fixed joints."""
+    else the only leaf link); with several leaves and no tip, the tree of every moving joint
+    with every leaf a named tip (:func:`load_urdf_tree`). Revolute, continuous, prismatic and
+    fixed joints."""
     path = Path(path)
     model = _parse(path)
     if not model.joints:
         raise InputError(path, None, "the URDF has no joints")
-    root, tip, chain = _chain_to(path, model, tip)
+    try:
+        root, tip, chain = _chain_to(path, model, tip)
+    except _SeveralLeavesError:
+        return load_urdf_tree(path)  # every leaf a tip
     joints, limits = [], []
     pending = np.eye(4)
     for joint in chain:

@@ -234,3 +234,85 @@ def test_modified_dh_jacobians_match_central_differences(tmp_path):
             moved.append(T[:, :3, :3] @ [0.05, 0.0, 0.1] + T[:, :3, 3])
         numeric = (moved[0] - moved[1]) / (2 * step)
         assert np.linalg.norm(J[:, :, col] - numeric) <= 1e-6 * max(np.linalg.norm(numeric), 1e-3), name
+
+
+TREE_URDF = """<?xml version="1.0"?>
+<robot name="torso_two_arms">
+  <link name="base"><inertial><mass value="20"/><origin xyz="0 0 0.1"/></inertial></link>
+  <link name="torso"><inertial><mass value="12"/><origin xyz="0 0 0.2"/></inertial></link>
+  <link name="chest"/>
+  <link name="a1"><inertial><mass value="4"/><origin xyz="0.1 0 0"/></inertial></link>
+  <link name="a2"><inertial><mass value="3"/><origin xyz="0.1 0 0"/></inertial></link>
+  <link name="hand_a"/>
+  <link name="b1"><inertial><mass value="4"/><origin xyz="0 0.1 0"/></inertial></link>
+  <link name="hand_b"><inertial><mass value="1"/></inertial></link>
+  <link name="camera"/>
+  <joint name="waist" type="revolute"><parent link="base"/><child link="torso"/>
+    <origin xyz="0 0 0.4"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+  <joint name="chest_fixed" type="fixed"><parent link="torso"/><child link="chest"/>
+    <origin xyz="0 0 0.5" rpy="0 0.1 0"/></joint>
+  <joint name="a_shoulder" type="revolute"><parent link="chest"/><child link="a1"/>
+    <origin xyz="0 0.2 0" rpy="0.3 0 0"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/>
+  </joint>
+  <joint name="a_elbow" type="revolute"><parent link="a1"/><child link="a2"/>
+    <origin xyz="0.3 0 0"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="a_hand" type="fixed"><parent link="a2"/><child link="hand_a"/><origin xyz="0.25 0 0"/></joint>
+  <joint name="b_shoulder" type="revolute"><parent link="chest"/><child link="b1"/>
+    <origin xyz="0 -0.2 0" rpy="-0.3 0 0"/><axis xyz="1 0 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/>
+  </joint>
+  <joint name="b_slide" type="prismatic"><parent link="b1"/><child link="hand_b"/>
+    <origin xyz="0 -0.3 0"/><axis xyz="0 -1 0"/><limit lower="0" upper="0.2" effort="1" velocity="1"/></joint>
+  <joint name="head" type="fixed"><parent link="torso"/><child link="camera"/><origin xyz="0.1 0 0.7"/></joint>
+</robot>
+"""
+
+
+def test_a_urdf_with_several_leaves_is_a_tree_with_named_tips(tmp_path):
+    """Issue 28: no tool0 and three leaves: every moving joint, every leaf a named tip; each
+    tip's FK equals yourdfpy's to 1e-9; written and read back as YAML, the same tree."""
+    import yourdfpy
+
+    import fgcal
+    from fgcal.robot_io import save_robot
+
+    path = tmp_path / "tree.urdf"
+    path.write_text(TREE_URDF)
+    robot = fgcal.load_robot(path)
+    assert robot.n_joints == 5 and robot.parents is not None
+    assert robot.tip_names == ["hand_a", "hand_b", "camera"]  # the deepest leaf is the flange
+    reference = yourdfpy.URDF.load(str(path), build_scene_graph=True, load_meshes=False)
+    order = ["waist", "a_shoulder", "a_elbow", "b_shoulder", "b_slide"]
+    rng = np.random.default_rng(6)
+    q = np.column_stack([rng.uniform(-2, 2, (12, 4)), rng.uniform(0, 0.2, 12)])
+    again_path = tmp_path / "tree.yaml"
+    save_robot(again_path, robot)
+    again = fgcal.load_robot(again_path)
+    for qi in q:
+        reference.update_cfg(dict(zip(order, qi, strict=True)))
+        for tip in robot.tip_names:
+            expected = reference.get_transform(frame_to=tip, frame_from="base")
+            np.testing.assert_allclose(robot.fk(qi, tip=tip), expected, atol=1e-9)
+            np.testing.assert_allclose(again.fk(qi, tip=tip), expected, atol=1e-12)
+    # The waist carries both arms: its body is the torso (chest and camera are fixed to it).
+    np.testing.assert_allclose(robot.masses, [12, 4, 3, 4, 1])
+    assert robot.parents == (-1, 0, 1, 0, 3)
+
+
+def test_two_leaves_one_on_the_root(tmp_path, capsys):
+    """A leaf fixed to the root is a tip that no joint moves; fgcal fk prints every tip."""
+    from fgcal.cli import main
+
+    path = tmp_path / "two.urdf"
+    path.write_text(
+        "<robot name='x'><link name='a'/><link name='b'/><link name='c'/>"
+        "<joint name='j' type='continuous'><parent link='a'/><child link='b'/><origin xyz='0 0 1'/></joint>"
+        "<joint name='k' type='fixed'><parent link='a'/><child link='c'/><origin xyz='0.5 0 0'/></joint></robot>"
+    )
+    assert main(["fk", str(path), "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert "T_W_b" in out and "T_W_c" in out
+    import fgcal
+
+    robot = fgcal.load_robot(path)
+    np.testing.assert_allclose(robot.fk(np.array([0.3]), tip="c")[:3, 3], [0.5, 0, 0])
+    np.testing.assert_allclose(robot.fk(np.array([1.0]), tip="c"), robot.fk(np.array([0.0]), tip="c"))
