@@ -35,8 +35,8 @@ def calibrate(dataset, **settings):
     return run(dataset, **settings)
 
 
-def compensate(robot, targets, hints=None, nominal=None, tcp=None):
+def compensate(robot, targets, hints=None, nominal=None, tcp=None, approach="previous"):
     """Corrected commands for a controller running its nominal model (fgcal.api.compensate)."""
     from .api import compensate as run
 
-    return run(robot, targets, hints, nominal, tcp)
+    return run(robot, targets, hints, nominal, tcp, approach)

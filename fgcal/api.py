@@ -21,6 +21,7 @@ import numpy as np
 
 from .calibration.results import CalibrationResult
 from .compensation import Compensation, nominal_of
+from .errors import InputError
 from .robot import Robot
 
 
@@ -90,14 +91,27 @@ def compensate(
     hints: np.ndarray | None = None,
     nominal: Robot | str | None = None,
     tcp: np.ndarray | None = None,
+    approach: str | np.ndarray = "previous",
 ) -> Compensation:
     """Corrected commands for a controller running its nominal model: ``targets`` are TCP
     positions (N, 3) or poses (N, 4, 4) in the robot's W (m); ``hints`` the program's joints
     (N, n; rad) if known; ``nominal`` the controller's model (a Robot, a robot file, or by
-    default the bundled robot of the same name). Returns the joints reaching each target on
-    the calibrated model, the commands, residuals and a status per target (docs/using.md)."""
+    default the bundled robot of the same name). With a robot calibrated with lost motion
+    (model DH,s,e,h), ``approach`` says how each target is reached: ``"previous"`` (the targets
+    are a path, each from the one before), ``"none"`` (not allowed for) or (N, n) joints each is
+    approached from (NaN rows: the previous). Returns the joints reaching each target on the
+    calibrated model, the commands, residuals and a status per target (docs/using.md)."""
     from .compensation import compensate as run
 
     if not isinstance(nominal, Robot):
         nominal = nominal_of(robot, nominal)
-    return run(robot, nominal, np.asarray(targets, dtype=float), hints, tcp)
+    targets = np.asarray(targets, dtype=float)
+    if isinstance(approach, str):
+        if approach not in ("previous", "none"):
+            raise InputError(None, "approach", f"'previous', 'none' or joints per target, got {approach!r}")
+        joints = None if approach == "none" else np.full((len(targets), robot.n_joints), np.nan)
+    else:
+        joints = np.asarray(approach, dtype=float)
+        if joints.shape != (len(targets), robot.n_joints):
+            raise InputError(None, "approach", f"one row of {robot.n_joints} joints per target, got {joints.shape}")
+    return run(robot, nominal, targets, hints, tcp, approach=joints)

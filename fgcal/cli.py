@@ -245,6 +245,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         approach=approach, speed=targets.speed,
     )  # fmt: skip
     write_compensation(args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic)
+    if result.motion_solved is not None:
+        _unsolved_motion([n for n, ok in zip(targets.names, result.motion_solved, strict=True) if not ok])
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     say(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
     _emit(args, {
@@ -280,6 +282,15 @@ def _approach(args: argparse.Namespace, robot, given: np.ndarray | None, n_targe
         + "; the first gets no allowance (--approach none: none at all)"
     )
     return given if given is not None else np.full((n_targets, robot.n_joints), np.nan)
+
+
+def _unsolved_motion(names: list[str]) -> None:
+    if names:
+        shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+        warn(
+            f"{_count(len(names), 'target')} ({shown}): no lost-motion allowance could be solved (a move of a "
+            "fraction of a degree, where the speed term's model does not hold): commanded without it"
+        )
 
 
 def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np.ndarray:
@@ -348,6 +359,8 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
             say(f"  allowing for lost motion along the path: {assumption} (--approach none: not allowed for)")
     configs = [t.config for t in program.targets]
     result = filter_targets(robot, nominal, poses, configs, program.kind, frames, path)
+    if result.motion_unsolved is not None:
+        _unsolved_motion([t.name for t, bad in zip(program.targets, result.motion_unsolved, strict=True) if bad])
     # A target the calibration leaves where it was (below what the file's digits hold) keeps its text.
     moved = (result.correction_m > UNCHANGED_M) | (result.correction_rad > UNCHANGED_RAD)
     written = np.isin(result.status, WRITTEN) & moved
@@ -450,10 +463,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
     say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
     if result.lost_motion is not None:
         lost = result.lost_motion
+        advice = (
+            "this plan: calibrate it with DH,s,e" if result.approach == "unidirectional"
+            else "--approach unidirectional; visited in order, calibrate with DH,s,e,h"
+        )  # fmt: skip
         say(
-            f"  the cell's lost motion leaves {lost['in_order_rms_m'] * 1e3:.4g} mm RMS that constant joint offsets "
-            f"cannot absorb visiting the plan in order, {lost['unidirectional_rms_m'] * 1e3:.4g} mm approached from "
-            "below" + (" (this plan)" if result.approach == "unidirectional" else " (--approach unidirectional)")
+            f"  the cell's lost motion, beyond what constant joint offsets absorb: {lost['in_order_rms_m'] * 1e3:.4g} "
+            f"mm RMS with the plan visited in order, {lost['unidirectional_rms_m'] * 1e3:.4g} mm with each "
+            f"configuration approached from below ({advice})"
         )
     say(f"wrote {args.out}: {', '.join(written)}")
     _emit(args, {

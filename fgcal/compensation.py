@@ -185,7 +185,7 @@ def read_targets(
     repeat = first_repeat(enumerate(names, start=2))
     if repeat is not None:
         raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
-    approach = approach_columns(path, header, body, n_joints, units.to_rad)
+    approach = approach_columns(path, header, body, n_joints, units.to_rad, prismatic, units.to_m)
     return Targets(names, positions, rotations, hints, approach, speed_column(path, header, body))
 
 
@@ -219,37 +219,87 @@ class Compensation:
     # (N, n) the joint offsets the approach is expected to cause, which the commands allow for
     # (rad or m; None: not allowed for)
     motion_offset: np.ndarray | None = None
+    # (N,) whether each target's allowance was solved (a move of a fraction of a degree may not
+    # be: its command is then the chain's joints; fgcal.compensation.approach_commands)
+    motion_solved: np.ndarray | None = None
 
 
 def approach_commands(
-    robot: Robot, q_chain: np.ndarray, approach: np.ndarray, speed: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+    robot: Robot,
+    q_chain: np.ndarray,
+    approach: np.ndarray,
+    speed: np.ndarray | None = None,
+    predecessor: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Commands (N, n) under which the robot's chain sees ``q_chain`` when each is approached
-    from ``approach`` (N, n; a NaN row: the previous command, none for the first), and the
-    offsets (N, n) the approaches cause: ``q_cmd = q_chain - offsets(q_cmd, before)``, solved
-    by fixed-point iteration (the offsets change by lm / 1 deg per radian of command at most:
-    a contraction for any real lost motion)."""
+    from ``approach`` (N, n; a NaN row: the previous command, none for the first; with
+    ``predecessor``, the command of that earlier row, none for -1), the offsets (N, n) the
+    approaches cause, and (N,) whether each was solved.
+
+    Row after row (each row's approach is the command before it, once final), Newton's method
+    on ``q_cmd + offsets(q_cmd - before) = q_chain`` with a line search. The speed term changes
+    by lv / |move| per radian of a move: for moves of a fraction of a degree the model asks for
+    a step it cannot give (it has the full speed offset at any move), and such a row is left
+    unsolved: its command is the chain's joints, without an allowance."""
     params = robot.parameter_vector()
-    speed = np.ones(len(q_chain)) if speed is None else speed
+    n_rows, n = q_chain.shape
+    speed = np.ones(n_rows) if speed is None else np.asarray(speed, dtype=float)
     given = np.all(np.isfinite(approach), axis=1)
-    q_cmd = q_chain.copy()
-    offsets = np.zeros_like(q_chain)
-    for _ in range(MOTION_ITERATIONS):
-        before = np.vstack([np.full((1, q_cmd.shape[1]), np.nan), q_cmd[:-1]])
-        before[given] = approach[given]
-        offsets = kinematics.motion_offsets(robot, params, features(q_cmd, MotionHistory(before, speed)))
-        updated = q_chain - offsets
-        change = float(np.abs(updated - q_cmd).max())
-        q_cmd = updated
-        if change < 1e-13:
-            return q_cmd, offsets
-    raise InputError(
-        None, "robot", f"{robot.name}'s lost motion (lm) is too large for its commands to converge: check the "
-        "calibrated lm values (hundredths of a degree are usual)",
-    )  # fmt: skip
+    q_cmd, offsets, solved = q_chain.copy(), np.zeros_like(q_chain), np.ones(n_rows, dtype=bool)
+    step = 1e-7 * np.eye(n)
+
+    def residual_and_offsets(q: np.ndarray, before: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """F(q) = q + offsets(q) - q_chain[k] at q (m, n) rows, and the offsets."""
+        history = MotionHistory(np.tile(before, (len(q), 1)), np.full(len(q), speed[k]))
+        off = kinematics.motion_offsets(robot, params, features(q, history))
+        return q + off - q_chain[k], off
+
+    for k in range(n_rows):
+        came_from = (k - 1) if predecessor is None else int(predecessor[k])
+        if not came_from < k:
+            raise ValueError(f"row {k} is approached from row {came_from}, which is not before it")
+        before = approach[k] if given[k] else (q_cmd[came_from] if came_from >= 0 else np.full(n, np.nan))
+        if not np.all(np.isfinite(before)):  # unknown: nothing to allow for
+            continue
+        q = q_chain[k].copy()
+        F, off = residual_and_offsets(q[None], before, k)
+        F, off = F[0], off[0]
+        for _ in range(NEWTON_ITERATIONS):
+            size = float(np.abs(F).max())
+            if size < 1e-13:
+                break
+            probes, _ = residual_and_offsets(q + step, before, k)
+            J = (probes - F).T / 1e-7  # (n, n): column j, the change of F with q_j
+            try:
+                direction = -np.linalg.solve(J, F)
+            except np.linalg.LinAlgError:
+                break
+            for scale in (1.0, 0.5, 0.25, 0.125, 0.0625):  # the largest step that shrinks F
+                trial, trial_off = residual_and_offsets((q + scale * direction)[None], before, k)
+                if np.abs(trial[0]).max() < size:
+                    q, F, off = q + scale * direction, trial[0], trial_off[0]
+                    break
+            else:
+                break
+        # Where the largest move changes joints (equal moves), the speed share has a kink that
+        # Newton's method stalls on: damped fixed-point steps q <- q - a F(q) get through it.
+        for damping in (0.5, 0.25):
+            if float(np.abs(F).max()) < 1e-13:
+                break
+            for _ in range(DAMPED_ITERATIONS):
+                trial, trial_off = residual_and_offsets((q - damping * F)[None], before, k)
+                q, F, off = q - damping * F, trial[0], trial_off[0]
+                if float(np.abs(F).max()) < 1e-13:
+                    break
+        if float(np.abs(F).max()) < 1e-12:
+            q_cmd[k], offsets[k] = q, off
+        else:
+            solved[k] = False
+    return q_cmd, offsets, solved
 
 
-MOTION_ITERATIONS = 60
+NEWTON_ITERATIONS = 30
+DAMPED_ITERATIONS = 200
 
 
 def compensate(
@@ -288,15 +338,15 @@ def compensate(
                 f"{elapsed / done * (len(targets) - done):.0f} s left)"
             )
     q = np.concatenate([p.q for p in parts])
-    motion_offset = None
+    motion_offset = motion_solved = None
     if approach is not None and robot.history:
-        q, motion_offset = approach_commands(robot, q, np.asarray(approach, dtype=float), speed)
+        q, motion_offset, motion_solved = approach_commands(robot, q, np.asarray(approach, dtype=float), speed)
     commands = (nominal.fk_tool if frame == "tool" else nominal.fk)(q).copy()  # (N, 4, 4)
     commands[:, :3, 3] += commands[:, :3, :3] @ tcp
     residual_rad = None if parts[0].residual_rad is None else np.concatenate([p.residual_rad for p in parts])
     return Compensation(
         q, commands, np.concatenate([p.residual_m for p in parts]), residual_rad,
-        np.concatenate([p.status for p in parts]), motion_offset,
+        np.concatenate([p.status for p in parts]), motion_offset, motion_solved,
     )  # fmt: skip
 
 

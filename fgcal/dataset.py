@@ -220,9 +220,19 @@ def parse_numbers(
     return out
 
 
-def approach_columns(path: Path, header: list[str], body: list[list[str]], n: int, to_rad: float) -> np.ndarray:
-    """The optional ``before_q1..before_qn`` columns (N, n) in SI: the joint values each row
-    was approached from; NaN rows where the cells are empty (or the columns absent)."""
+def approach_columns(
+    path: Path,
+    header: list[str],
+    body: list[list[str]],
+    n: int,
+    to_si: float,
+    prismatic: np.ndarray | None = None,
+    to_m: float = 1.0,
+) -> np.ndarray:
+    """The optional ``before_q1..before_qn`` columns (N, n) in SI (``to_si`` for the joints'
+    unit; ``to_m`` for the ``prismatic`` joints when they are in a length unit of their own):
+    the joint values each row was approached from; NaN rows where the cells are empty (or the
+    columns absent)."""
     before = np.full((len(body), n), np.nan)
     before_cols = [f"before_q{i}" for i in range(1, n + 1)]
     present = [c for c in header if c.startswith("before_q")]
@@ -241,15 +251,24 @@ def approach_columns(path: Path, header: list[str], body: list[list[str]], n: in
         columns = [header.index(c) for c in before_cols]
         filled = [row if full else [("0" if c in columns else v) for c, v in enumerate(row)]
                   for row, full in zip(body, rows, strict=True)]  # fmt: skip
-        before[rows] = parse_numbers(path, header, filled, before_cols, "angle", to_rad)[rows]
+        linear = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
+        for j, column in enumerate(before_cols):
+            kind, scale = ("length", to_m) if linear[j] else ("angle", to_si)
+            before[rows, j] = parse_numbers(path, header, filled, [column], kind, scale)[rows, 0]
     return before
 
 
 def speed_column(path: Path, header: list[str], body: list[list[str]]) -> np.ndarray:
-    """The optional ``speed`` column (N,): each move's speed factor (1 without the column)."""
+    """The optional ``speed`` column (N,): each move's speed factor (1 without the column, or in
+    an empty cell)."""
     speed = np.ones(len(body))
+    named = [c for c in header if c.strip().lower() == "speed"]
+    if len(named) > 1 or (named and named[0] != "speed"):
+        raise InputError(path, "header", f"one column 'speed' (lower case) holds the speed factors, got {named}")
     if "speed" in header:
-        speed = parse_numbers(path, header, body, ["speed"], "unitless", 1.0)[:, 0]
+        column = header.index("speed")
+        filled = [row if row[column].strip() else [*row[:column], "1", *row[column + 1 :]] for row in body]
+        speed = parse_numbers(path, header, filled, ["speed"], "unitless", 1.0)[:, 0]
         bad = np.flatnonzero(~((speed > 0) & (speed <= MAX_SPEED_FACTOR)))
         if len(bad):
             raise InputError(

@@ -61,6 +61,7 @@ class Filtered:
     in_region: np.ndarray | None  # (N,) solved, joints within the calibrated region's ranges; None: no region
     payload_mass_kg: float  # the load the deflection was computed for
     motion_offset: np.ndarray | None = None  # (N, n) lost motion allowed for (rad or m); None: not allowed for
+    motion_unsolved: np.ndarray | None = None  # (N,) the allowance could not be solved (a tiny move)
 
 
 def controller_frame(robot: Robot, nominal: Robot, count: int = 2000) -> np.ndarray:
@@ -218,12 +219,12 @@ def filter_targets(
     configs: list[dict[str, int]],
     kind: str,
     frames: Frames,
-    path: np.ndarray | None = None,
+    path: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Filtered:
     """Corrected targets for a program's ``poses`` (N, 4, 4; TCP in its work object, m). With
-    ``path`` (target indices in the order the robot visits them) and a robot calibrated with
-    lost motion, each corrected target allows for its approach from the one before on the path
-    (fgcal.compensation.approach_commands)."""
+    ``path`` (program_path: the target indices in the order the robot first goes to them, and
+    the target each comes from, -1 unknown) and a robot calibrated with lost motion, each
+    corrected target allows for its approach (fgcal.compensation.approach_commands)."""
     # The base frame is the robot's, whatever it carries: placed at the calibration's payload, so
     # that the sag of the tool's load is corrected, not absorbed into the frame.
     T_W_ctrl = controller_frame(robot, nominal)
@@ -241,16 +242,22 @@ def filter_targets(
         q_nominal[within], found[within] = controller_ik(nominal, flange[within], kind, near)
     solved = robot.ik(T_W_ctrl @ flange, q_nominal, frame="flange")
     solved.status[~within] = "unreachable"
-    motion_offset = None
+    motion_offset = motion_unsolved = None
     if path is not None and robot.history:
-        # Along the path, the robot comes to each target it goes to from the one before.
-        visited = np.array([k for k in path if solved.status[k] in SOLVED], dtype=int)
+        # Along the path, each target allows for the approach from the one the robot comes from.
+        order, came_from = path
+        position = {int(k): p for p, k in enumerate(order)}
+        reached = np.isin(solved.status, SOLVED)
+        predecessor = np.array(
+            [position[came_from[k]] if came_from[k] >= 0 and reached[came_from[k]] else -1 for k in order], dtype=int
+        )
+        unknown = np.full((len(order), robot.n_joints), np.nan)
+        commands, offsets, allowed = approach_commands(robot, solved.q[order], unknown, predecessor=predecessor)
         motion_offset = np.zeros_like(solved.q)
-        if len(visited):
-            commands, offsets = approach_commands(
-                robot, solved.q[visited], np.full((len(visited), robot.n_joints), np.nan)
-            )
-            solved.q[visited], motion_offset[visited] = commands, offsets
+        keep = reached[order]  # a target that is not reached keeps its joints (it is not written)
+        solved.q[order[keep]], motion_offset[order[keep]] = commands[keep], offsets[keep]
+        motion_unsolved = np.zeros(len(poses), dtype=bool)
+        motion_unsolved[order[keep & ~allowed]] = True
     corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
     moved = inverse(poses) @ corrected
     after = configurations(nominal, kind, solved.q)
@@ -275,25 +282,40 @@ def filter_targets(
         in_region=in_region,
         payload_mass_kg=float(robot.payload_mass),
         motion_offset=motion_offset,
+        motion_unsolved=motion_unsolved,
     )
 
 
-def program_path(program) -> tuple[np.ndarray, str]:
-    """The order the robot is assumed to visit the program's targets in, and the assumption in
-    words: RAPID, the order of the module's motion instructions in its text (targets no
-    instruction uses last, in declaration order); KRL's .dat, the order of declaration."""
+def program_path(program) -> tuple[tuple[np.ndarray, np.ndarray], str]:
+    """The path the robot is assumed to take through the program's targets: their indices in the
+    order it first goes to them, the target it comes from to each (-1: unknown), and the
+    assumption in words. RAPID: the module's motion instructions in text order; a target is
+    approached from the target of the instruction before its first (plain) use; one reached from
+    an Offs/RelTool point, an inline target or nothing gets no allowance. KRL's .dat: the
+    declaration order, each from the one before."""
     targets = program.targets
-    if program.kind == "rapid":
-        unused = len(targets) + np.arange(len(targets))
-        key = np.array([t.first_move if t.first_move is not None else u for t, u in zip(targets, unused, strict=True)])
-        order = np.argsort(key, kind="stable")
-        again = [t.name for t in targets if t.moves > 1]
-        note = "the targets in the order the module's MoveL/MoveJ/MoveC instructions first use them (text order)"
-        if again:
-            shown = ", ".join(again[:5]) + (", ..." if len(again) > 5 else "")
-            note += f"; {len(again)} used by several instructions ({shown}) allow for their first approach only"
-        return order, note
-    return np.arange(len(targets)), "the targets in the order the .dat file declares them"
+    if program.kind != "rapid":
+        order = np.arange(len(targets))
+        return (order, order - 1), "the targets in the order the .dat file declares them, each from the one before"
+    unused = len(targets) + np.arange(len(targets))
+    key = np.array([t.first_move if t.first_move is not None else u for t, u in zip(targets, unused, strict=True)])
+    order = np.argsort(key, kind="stable")
+    index = {t.name.lower(): k for k, t in enumerate(targets)}
+    came_from = np.array(
+        [index.get(t.approached_from, -1) if t.approached_from is not None else -1 for t in targets], dtype=int
+    )
+    unknown = [t.name for k, t in enumerate(targets) if t.first_move is not None and came_from[k] < 0]
+    again = [t.name for t in targets if t.moves > 1]
+    note = "each target approached from the one the module's motion instruction before its first use goes to"
+    if unknown:
+        note += f"; {len(unknown)} ({_names(unknown)}) come from an Offs/RelTool point or nothing: no allowance"
+    if again:
+        note += f"; {len(again)} used by several instructions ({_names(again)}) allow for their first approach only"
+    return (order, came_from), note
+
+
+def _names(names: list[str]) -> str:
+    return ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
 
 
 REGION_MARGIN_RAD = np.radians(1.0)

@@ -66,8 +66,9 @@ class ProgramTarget:
     spans: Mapping[str, tuple[int, int]] = field(default_factory=dict, repr=False)
     """Character offsets ``[start, end)`` into ``Program.text`` of each value (RAPID: x y z q1..q4
     cf1 cf4 cf6 cfx; KRL: X Y Z A B C and S T when given)."""
-    first_move: int | None = None  # RAPID: ordinal of the first motion instruction using it (text order)
-    moves: int = 0  # RAPID: how many motion instructions use it
+    first_move: int | None = None  # RAPID: ordinal of the first motion to the target itself (text order)
+    moves: int = 0  # RAPID: how many motion instructions use it (Offs/RelTool of it too)
+    approached_from: str | None = None  # RAPID: the target the robot comes from there (None: unknown)
 
 
 @dataclass(frozen=True)
@@ -424,7 +425,10 @@ def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[
 def _with_use(target: ProgramTarget, use: _Use | None) -> ProgramTarget:
     if use is None:
         return target
-    return replace(target, tool=use.tool, work_object=use.work_object, first_move=use.first, moves=use.count)
+    return replace(
+        target, tool=use.tool, work_object=use.work_object, first_move=use.first_plain, moves=use.count,
+        approached_from=use.approached_from,
+    )  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -449,18 +453,22 @@ _OPENING, _CLOSING = frozenset("([{"), frozenset(")]}")
 @dataclass
 class _Use:
     """How a target is used: the tool and work object of the first motion instruction using it,
-    that instruction's ordinal (text order) and the number of motion instructions using it."""
+    the number of motion instructions using it, the ordinal (text order) of the first that goes
+    to the target itself (not to an ``Offs``/``RelTool`` of it), and the target the robot comes
+    from there (lower case; None: unknown, an ``Offs``/``RelTool`` point or nothing before)."""
 
     tool: str | None
     work_object: str | None
-    first: int
     count: int = 1
+    first_plain: int | None = None
+    approached_from: str | None = None
 
 
 def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
     """Lower-case target name -> its use by the module's motion instructions."""
     uses: dict[str, _Use] = {}
     ordinal = 0
+    previous: str | None = None  # the point the robot is at: a plain target, or None (unknown)
     for i, tok in enumerate(tokens):
         spec = _MOTIONS.get(tok.text.lower()) if tok.kind == "name" else None
         if spec is None or (i > 0 and tokens[i - 1].text.lower() == "proc"):
@@ -470,12 +478,13 @@ def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
         tool = _single_name(arguments[tool_index]) if len(arguments) > tool_index else None
         for argument in arguments[:n_targets]:
             name = _target_name(argument)
-            if name is None:
-                continue
-            if name.lower() in uses:
-                uses[name.lower()].count += 1
-            else:
-                uses[name.lower()] = _Use(tool, wobj, ordinal)
+            plain = _single_name(argument)
+            if name is not None:
+                use = uses.setdefault(name.lower(), _Use(tool, wobj, count=0))
+                use.count += 1
+                if plain is not None and use.first_plain is None:
+                    use.first_plain, use.approached_from = ordinal, previous
+            previous = plain.lower() if plain is not None else None
             ordinal += 1
     return uses
 

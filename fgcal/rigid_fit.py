@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import InputError
-from .parameters import COMPLIANCE_KINDS, split_name
+from .parameters import COMPLIANCE_KINDS, MOTION_KINDS, split_name
 from .robot import Robot
 
 # Tool-frame points the fit matches (m): the origin and 0.1 m along each axis.
@@ -38,13 +38,14 @@ class RigidFit:
 
 
 def without_compliances(robot: Robot) -> Robot:
-    """The robot with its compliances at zero (the URDF alone)."""
+    """The robot with its compliances and motion-history terms at zero: what a URDF holds."""
     values = robot.nominal_parameters()
     return replace(robot, overrides={k: (0.0 if _compliance(k) else v) for k, v in values.items()})
 
 
 def _compliance(name: str) -> bool:
-    return split_name(name)[0] in COMPLIANCE_KINDS
+    """Not a rigid parameter: a compliance, or a motion-history term (fgcal.motion)."""
+    return split_name(name)[0] in COMPLIANCE_KINDS or split_name(name)[0] in MOTION_KINDS
 
 
 def _points(robot: Robot, q: np.ndarray, params: dict | None = None) -> np.ndarray:

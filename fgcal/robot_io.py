@@ -33,7 +33,7 @@ from .errors import InputError
 from .fields import Fields, check_name, read_file_text, read_yaml
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .outputs import write_text
-from .parameters import LENGTH_KINDS, parameter_names, split_name
+from .parameters import LENGTH_KINDS, MOTION_KINDS, parameter_names, split_name
 from .robot import MODELS, Robot
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 from .units import Units, parse_units
@@ -61,7 +61,9 @@ ROBOT_KEYS = (
 DH_KEYS = ("theta", "d", "a", "alpha")
 ORIGIN_KEYS = ("origin", "axis", "type")
 JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "direction", "limits", "mass", "com")
-CONVENTIONS = ("standard", "modified")  # DH: the SPEC's (standard) or Craig's (modified)
+CONVENTIONS = ("standard", "modified")
+# DH: the SPEC's (standard) or Craig's (modified)
+MAX_MOTION_TERM = float(np.radians(1.0))  # |lm|, |lv| in a robot file (SI)
 
 
 def robots_dir() -> Path:
@@ -218,6 +220,11 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         if key not in names:
             raise params.error(str(key), f"unknown parameter name for this {len(joints)}-joint robot")
         overrides[key] = params.number(key, scale=parameter_scale(key, units))
+        if split_name(key)[0] in MOTION_KINDS and abs(overrides[key]) > MAX_MOTION_TERM:
+            raise params.error(
+                key, f"{overrides[key]:.3g} is beyond {MAX_MOTION_TERM:.3g} (1 deg or 17 mm): lost motion is "
+                "hundredths of a degree",
+            )  # fmt: skip
     return Robot(
         name=name,
         joints=tuple(geometries),

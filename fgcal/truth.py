@@ -25,6 +25,7 @@ import yaml
 
 from .errors import InputError
 from .fields import Fields, read_yaml
+from .motion import MotionHistory
 from .outputs import subfolder, write_text
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 
@@ -54,6 +55,18 @@ class Truth:
     static_camera_pose: np.ndarray | None = None  # T_W_C
     static_camera_board_mount: np.ndarray | None = None  # T_n_B
     drift: dict | None = None
+    # How the simulator reached each configuration (fgcal.motion): id -> (joints before, rad or
+    # m, NaN: unknown; speed factor). Scores against the truth use it, not the dataset's copy.
+    motion_history: dict[str, tuple[np.ndarray, float]] | None = None
+
+    def history_of(self, config_ids, q: np.ndarray) -> MotionHistory | None:
+        """The true history of these configurations (None: the truth has none, or does not
+        know one of them)."""
+        if self.motion_history is None or any(str(c) not in self.motion_history for c in config_ids):
+            return None
+        entries = [self.motion_history[str(c)] for c in config_ids]
+        return MotionHistory(np.array([b for b, _ in entries], dtype=float).reshape(q.shape),
+                             np.array([s for _, s in entries], dtype=float))  # fmt: skip
 
     def to_document(self) -> dict:
         doc: dict = {
@@ -86,6 +99,11 @@ class Truth:
         doc["deviation_before_calibration_m"] = dict(self.deviation_before_calibration_m)
         if self.drift is not None:
             doc["drift"] = dict(self.drift)
+        if self.motion_history is not None:
+            doc["motion_history"] = {
+                cid: {"before": None if not np.all(np.isfinite(b)) else _vector(b), "speed": s}
+                for cid, (b, s) in self.motion_history.items()
+            }
         return doc
 
     def write(self, dataset_dir: str | Path) -> None:
@@ -128,8 +146,21 @@ def load_truth(dataset_dir: str | Path) -> Truth | None:
         noise_sigma=dict(doc.raw("noise_sigma", {})),
         deviation_before_calibration_m=dict(doc.raw("deviation_before_calibration_m", {})),
         drift=doc.raw("drift", None),
+        motion_history=_history(doc),
         **optional,
     )
+
+
+def _history(doc: Fields) -> dict[str, tuple[np.ndarray, float]] | None:
+    if not doc.has("motion_history"):
+        return None
+    out = {}
+    for cid, entry in doc.sub("motion_history").data.items():
+        before = entry.get("before")
+        values = np.full(0, np.nan) if before is None else np.asarray(before, dtype=float)
+        out[str(cid)] = (values, float(entry.get("speed", 1.0)))
+    n = max((len(b) for b, _ in out.values()), default=0)
+    return {cid: (b if len(b) else np.full(n, np.nan), s) for cid, (b, s) in out.items()}
 
 
 def _pose_doc(T: np.ndarray) -> dict:

@@ -253,7 +253,8 @@ def test_compensate_command_allows_for_the_approach(calibrated, tmp_path, capsys
 
 def test_a_rapid_program_is_corrected_along_its_moves(calibrated, tmp_path, capsys):
     """The targets are declared p0..p7 but moved to in reverse: each corrected target allows for
-    the lost motion of its approach from the one moved to before it (corrections.csv)."""
+    the lost motion of its approach from the one moved to before it (corrections.csv); p2 is
+    reached from an Offs point, which is no target: it gets no allowance."""
     from test_program_filter import RAPID, _quaternion
 
     from fgcal.cli import main
@@ -278,13 +279,16 @@ def test_a_rapid_program_is_corrected_along_its_moves(calibrated, tmp_path, caps
             "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]];"
         )
     moves = [f"        MoveL p{k}, v100, fine, torch\\WObj:=table;" for k in reversed(range(len(q)))]
+    moves.insert(5, "        MoveJ Offs(p2, 0, 0, 50), v100, z10, torch\\WObj:=table;")
     identity = "1,0,0,0"
     text = RAPID.format(n=len(q), tz=100, tq=identity, wx=0, wy=0, wz=0, wq=identity,
                         targets="\n".join(lines), moves="\n".join(moves))  # fmt: skip
     (tmp_path / "cell.mod").write_text(text)
     out = tmp_path / "cell_cal.mod"
     assert main(["compensate", str(robot_file), str(tmp_path / "cell.mod"), "--out", str(out)]) == 0
-    assert "first use them (text order)" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "the module's motion instruction before its first use" in said
+    assert "2 (p2, p7) come from an Offs/RelTool point or nothing: no allowance" in said, said
     table = (tmp_path / "cell_cal.corrections.csv").read_text().splitlines()
     header = table[0].split(",")
     rows = [line.split(",") for line in table[1:]]
@@ -293,13 +297,15 @@ def test_a_rapid_program_is_corrected_along_its_moves(calibrated, tmp_path, caps
     lost = np.radians([[float(row[header.index(f"lost_motion_q{i}_mdeg")]) for i in range(1, 7)] for row in rows])
     lost /= 1e3
     path = np.arange(len(q))[::-1]
-    expected = features(joints[path], MotionHistory.in_order(joints[path]))
+    before = np.vstack([np.full((1, 6), np.nan), joints[path][:-1]])
+    before[path == 2] = np.nan  # after the Offs point
+    expected = features(joints[path], MotionHistory(before, np.ones(len(path))))
     params = calibrated.problem.robot.parameter_dict(calibrated.state.params)
     lm = np.array([params[f"lm{i}"] for i in range(1, 7)])
     lv = np.array([params[f"lv{i}"] for i in range(1, 7)])
     offsets = expected[:, :6] * lm + expected[:, 6:] * lv
     # p7 is moved to first: its approach is unknown; the others follow the moves, not the names.
-    assert np.all(lost[7] == 0.0)
+    assert np.all(lost[7] == 0.0) and np.all(lost[2] == 0.0)
     # The table's joints are rounded to 1e-4 deg, which moves the lost motion's tanh by up to
     # lm * 5e-5 deg / 1 deg: 1e-5 deg is that bound with margin; the offsets are 1e-2 deg.
     np.testing.assert_allclose(lost[path], offsets, atol=np.radians(1e-5))
@@ -349,3 +355,61 @@ def test_an_ordered_split_holds_out_the_end_of_the_run(lost_motion_cell):
         fit, test = (last, first) if complement else (first, last)
         np.testing.assert_array_equal(problem.fit, fit)
         np.testing.assert_array_equal(problem.test, test)
+
+
+def test_close_and_repeated_targets_are_compensated_or_said(calibrated, tmp_path):
+    """Targets 0.2 deg apart and one repeated: every solved command, driven through the
+    calibrated model with the history the commands themselves make, lands on its target; a
+    target whose allowance cannot be solved (the speed term of a tiny move) is flagged, not a
+    failure of the whole file."""
+    import fgcal
+
+    write_report(calibrated, tmp_path / "report", plots=False)
+    robot = fgcal.load_robot(tmp_path / "report" / "calibrated_robot.yaml")
+    q0 = calibrated.problem.dataset.q[20]
+    q = np.array([q0 + k * np.radians(0.2) for k in range(6)] + [q0 + 5 * np.radians(0.2)])
+    targets = robot.fk_tool(q)[:, :3, 3]
+    result = fgcal.compensate(robot, targets, hints=q)
+    assert result.motion_solved is not None and result.motion_solved[1:6].all()
+    landed = robot.fk_tool(result.q, motion=features(result.q, MotionHistory.in_order(result.q)))[:, :3, 3]
+    solved = result.motion_solved
+    assert np.abs(landed - targets)[solved].max() < 1e-9
+    # Without the allowance the same commands miss by the lost motion.
+    plain = fgcal.compensate(robot, targets, hints=q, approach="none")
+    missed = robot.fk_tool(plain.q, motion=features(plain.q, MotionHistory.in_order(plain.q)))[:, :3, 3]
+    assert np.abs(missed - targets)[1:6].max() > 1e-5
+
+
+def test_the_truth_keeps_the_simulated_history(lost_motion_cell, tmp_path):
+    """A dataset whose order is then declared unknown is scored against the true robot as the
+    simulator moved it; and the motion history's model refuses a dataset without a history."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(lost_motion_cell, data)
+    config = CalibrationConfig.defaults(data, formulation="tracker")
+    first = score_with_truth(calibrate(config)).validation["before"]["tool_point"].rms
+    (data / "dataset.yaml").write_text((data / "dataset.yaml").read_text() + "order: unknown\n")
+    assert not load_dataset(data).motion_history.known().any()
+    again = score_with_truth(calibrate(config)).validation["before"]["tool_point"].rms
+    assert again == pytest.approx(first, rel=1e-12)
+    with pytest.raises(InputError, match="gives none"):
+        calibrate(CalibrationConfig.defaults(data, formulation="tracker", model="DH,s,e,h"))
+    # model: auto then compares the models that need no history.
+    small = tmp_path / "small"
+    simulate(DATASETS / "cells" / "irb120_tracker.yaml", small, seed=1, n_configurations=30)
+    (small / "dataset.yaml").write_text((small / "dataset.yaml").read_text() + "order: unknown\n")
+    result = calibrate(CalibrationConfig.defaults(small, formulation="tracker", model="auto"))
+    assert {row.model for row in result.model_comparison} == {"DH", "DH,s", "DH,s,e"}
+
+
+def test_without_scikit_learn_the_residual_model_is_refused_before_calibrating(lost_motion_cell, monkeypatch):
+    import importlib.util
+
+    from fgcal.calibration.run import build_problem
+
+    found = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "sklearn" else found(name, *a))
+    config = CalibrationConfig.defaults(lost_motion_cell, formulation="tracker", residual_model="gp")
+    with pytest.raises(InputError, match=r"residual_model: needs scikit-learn: pip install '\.\[residual\]'"):
+        build_problem(load_dataset(lost_motion_cell), config)

@@ -27,11 +27,12 @@ def compare_models(
     calibrate_one: Callable[[CalibrationConfig], CalibrationResult],
     config: CalibrationConfig,
     say: Callable[[str], None],
+    models: tuple[str, ...] = MODELS,
 ) -> tuple[CalibrationResult, tuple[ModelRow, ...]]:
-    """Calibrate with each model; returns the result of the one with the lowest BIC and the
-    comparison table (one row per model, SI)."""
+    """Calibrate with each of ``models``; returns the result of the one with the lowest BIC and
+    the comparison table (one row per model, SI)."""
     results, rows = {}, []
-    for model in MODELS:
+    for model in models:
         say(f"model comparison: {model}")
         started = time.perf_counter()
         result = calibrate_one(replace(config, model=model, compare_models=False))

@@ -5,10 +5,11 @@ After the calibration, each fitting configuration's mean residual (over its meas
 3-vector in the score's frame, m) is regressed on its joint values and motion-history features
 (fgcal.motion) by a Gaussian process (scikit-learn: an amplitude times an RBF kernel with one
 length scale per input, plus white noise; hyperparameters by maximum likelihood). Whether it
-wins is decided on the fitting data alone, by K-fold cross-validation with those
-hyperparameters: it wins when the points' squared errors shrink by more than twice the standard
-error of their mean change (a paired comparison). The held-out configurations are then scored
-with and without the correction.
+wins is decided on the fitting data alone, by K-fold cross-validation, the hyperparameters fitted
+again in each fold from the same start (never from the whole fit's, which saw the fold): it
+wins when the configurations' squared errors shrink by more than twice the standard error of
+their mean change (a paired comparison, one value per configuration). The held-out
+configurations are then scored with and without the correction.
 
 The predicted held-out RMS with the correction: per scored point, the GP's predictive variance
 of its configuration's mean (noise included, three coordinates) plus the scatter of points about
@@ -26,6 +27,7 @@ from ..errors import InputError
 from .problem import Observations, Problem
 from .state import State
 
+SKLEARN_MISSING = "needs scikit-learn: pip install '.[residual]' in fgcal's folder (or pip install scikit-learn)"
 FOLDS = 5
 SEED = 0  # of the folds and the optimiser's restarts
 
@@ -62,7 +64,12 @@ class ResidualModelResult:
 
 
 def check_residual_model(formulation, source) -> None:
-    """The residual model needs a score that is a point's error vector."""
+    """The residual model needs a score that is a point's error vector, and scikit-learn:
+    checked before the calibration, not after it."""
+    import importlib.util
+
+    if importlib.util.find_spec("sklearn") is None:
+        raise InputError(source, "residual_model", SKLEARN_MISSING)
     if not formulation.score_vectors:
         raise InputError(
             source, "residual_model",
@@ -93,9 +100,7 @@ def _regressor(n_inputs: int):
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
     except ImportError:
-        raise InputError(
-            None, "residual_model", "needs scikit-learn: pip install 'fgcal[residual]' (or scikit-learn)"
-        ) from None
+        raise InputError(None, "residual_model", SKLEARN_MISSING) from None
     kernel = ConstantKernel(1e-8, (1e-14, 1e-2)) * RBF(np.ones(n_inputs), (1e-2, 1e3)) + WhiteKernel(
         1e-8, (1e-14, 1e-2)
     )
@@ -119,24 +124,27 @@ def fit_residual_model(problem: Problem, state: State, test_observations: Observ
         # A length scale at its bound is an input the residual does not depend on: an answer.
         warnings.simplefilter("ignore", category=UserWarning)
         gp = _regressor(X.shape[1]).fit(X, Y)
-    # Cross-validation on the fitting configurations with these hyperparameters: only the
-    # regression is refitted per fold.
+    # Cross-validation on the fitting configurations: the GP, hyperparameters included, fitted
+    # again without each fold and scored on it.
     folds = np.random.default_rng(SEED).permutation(len(X)) % FOLDS
-    fixed = _regressor(X.shape[1]).set_params(kernel=gp.kernel_, optimizer=None)
     configs_present = np.flatnonzero(present)
     where = {c: k for k, c in enumerate(configs_present)}
     point_fold = np.array([folds[where[c]] for c in train.configs])
     corrected = train.errors.copy()
     for fold in range(FOLDS):
         held = folds == fold
-        model = fixed.fit(X[~held], Y[~held])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", category=UserWarning)
+            model = _regressor(X.shape[1]).fit(X[~held], Y[~held])
         predicted = model.predict(X[held])
         rows = point_fold == fold
         lookup = {c: k for k, c in enumerate(configs_present[held])}
         corrected[rows] -= predicted[[lookup[c] for c in train.configs[rows]]]
     cv_without = float(np.sqrt(np.mean(np.sum(train.errors**2, axis=1))))
     cv_with = float(np.sqrt(np.mean(np.sum(corrected**2, axis=1))))
-    gain = np.sum(train.errors**2, axis=1) - np.sum(corrected**2, axis=1)
+    # One paired value per configuration: its points share its correction.
+    per_point = np.sum(train.errors**2, axis=1) - np.sum(corrected**2, axis=1)
+    gain = np.bincount(train.configs, weights=per_point, minlength=n_configs)[present]
     wins = bool(gain.mean() > 2.0 * gain.std(ddof=1) / np.sqrt(len(gain)))
     held_without = held_with = predicted_rms = None
     if test_observations is not None:

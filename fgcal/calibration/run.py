@@ -14,6 +14,7 @@ import numpy as np
 from ..dataset import Dataset, load_dataset
 from ..errors import InputError
 from ..factors import OutsideModelError
+from ..robot import MODELS
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
@@ -40,6 +41,11 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     if config.residual_model != "none":
         check_residual_model(formulation, config.path)
     robot = dataset.robot.with_model(config.model)
+    if robot.history and not dataset.motion_history.known().any():
+        raise InputError(
+            config.path, "model", f"{config.model} fits the motion history, and {dataset.path / 'dataset.yaml'} "
+            "gives none (order: unknown, and no before_q columns): fit DH,s,e, or give the measurement order",
+        )  # fmt: skip
     for j in compliant_joints(robot, config.compliant_joints):
         if j > robot.n_joints:
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
@@ -162,7 +168,9 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     say = progress or (lambda _m: None)
     if config.model == "auto" or config.compare_models:
         started = time.perf_counter()
-        result, table = compare_models(lambda c: calibrate_dataset(dataset, c, progress), config, say)
+        # The motion history's model needs a history: a dataset without one compares the others.
+        models = MODELS if dataset.motion_history.known().any() else tuple(m for m in MODELS if "h" not in m)
+        result, table = compare_models(lambda c: calibrate_dataset(dataset, c, progress), config, say, models)
         timing = {**result.timing, "total_s": time.perf_counter() - started}
         return dataclasses.replace(result, model_comparison=table, timing=timing)
     started, cpu = time.perf_counter(), time.process_time()
@@ -261,7 +269,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         residual = fit_residual_model(problem, state, test_observations)
         held = (
             "" if residual.held_out_rms_m is None
-            else f"; held out {residual.held_out_rms_m * 1e3:.4g} mm with it (predicted "
+            else f"; held out against the measurements {residual.held_out_rms_m * 1e3:.4g} mm with it (predicted "
             f"{residual.predicted_rms_m * 1e3:.4g} mm), {residual.held_out_rms_without_m * 1e3:.4g} mm without"
         )  # fmt: skip
         say(

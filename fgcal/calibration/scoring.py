@@ -36,8 +36,12 @@ def truth_errors(
     ``motion`` says: None, no history), the score's gauge removed: the main score
     ``tool_point`` (every scored point, point-major) and each extra point's. ``points`` (k, 3)
     replace the scored points where they are constants (a camera's)."""
+    true_motion = motion
     if q is None:
         q, motion = problem.dataset.q[problem.test], problem.dataset.motion[problem.test]
+        # The true robot went the way the simulator took it, whatever the dataset now says.
+        history = truth.history_of(problem.dataset.configs[problem.test], q)
+        true_motion = features(q, history) if history is not None else motion
     if not len(q):  # nothing held out: nothing to score
         return {}
     formulation = problem.formulation
@@ -54,7 +58,7 @@ def truth_errors(
     out = {}
     for name, mine, theirs in pairs:
         predicted = scored_positions(problem.robot, problem.frame, state.params, q, motion, mine)
-        reference = scored_positions(true_robot, problem.frame, true_state.params, q, motion, theirs)
+        reference = scored_positions(true_robot, problem.frame, true_state.params, q, true_motion, theirs)
         out[name] = HeldOut(remove_gauge(predicted, reference, gauge), np.tile(np.arange(len(q)), len(mine.points)))
     return out
 

@@ -28,6 +28,7 @@ import gtsam
 import numpy as np
 
 from ..camera import Camera, solve_pnp
+from ..console import warn
 from ..errors import InputError
 from ..factors import BehindCameraError, FactorError, Projections, RandomWalkFactor, gaussian
 from ..parameters import default_compliant_joints, unit_of
@@ -113,6 +114,13 @@ class OnlineCalibrator:
                 "window_images",
                 f"must be at least twice marginalise_every ({s.marginalise_every}), got {s.window_images}",
             )
+        if robot.history:
+            # An inbox's images carry no motion history: the terms cannot be applied here.
+            warn(
+                f"{robot.name} is calibrated with lost motion (model {robot.model}); online recalibration applies "
+                "no motion-history offsets (its images carry no history) and fits model DH,s,e"
+            )
+            robot = robot.with_model("DH,s,e")
         self.robot = robot
         self.camera = camera
         self.points_F = {name: np.asarray(p, dtype=float) for name, p in points_F.items()}

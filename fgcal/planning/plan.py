@@ -368,7 +368,8 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         f"formulation and model {result.model}.",
         "",
         f"- Predicted position accuracy over the region: **{_mm(result.predicted_sigma_m)} mm RMS** "
-        f"(scored point, {info.gauge} gauge removed; measurement sigma {info.sigma_m * 1e3:g} mm); a "
+        f"(scored point, {'no' if info.gauge == 'none' else info.gauge} gauge removed; measurement sigma "
+        f"{info.sigma_m * 1e3:g} mm); a "
         f"space-filling design of the same size: {_mm(result.space_filling_sigma_m)} mm.",
         f"- {info.n_params} identifiable parameters: {', '.join(info.names)}.",
         f"- Auxiliary unknowns: {', '.join(info.aux_labels)}.",

@@ -421,7 +421,8 @@ def _residual_model_lines(model: dict | None) -> list[str]:
     if model["held_out_rms_m"] is not None:
         lines += [
             "",
-            f"Held out: {model['held_out_rms_m'] * 1e3:.4g} mm RMS with it (predicted "
+            f"Held out, against the held-out measurements (not a simulation's truth): "
+            f"{model['held_out_rms_m'] * 1e3:.4g} mm RMS with it (predicted "
             f"{model['predicted_rms_m'] * 1e3:.4g} mm), {model['held_out_rms_without_m'] * 1e3:.4g} mm without.",
         ]
     lines += [

@@ -98,7 +98,7 @@ def export_command(
         )
         if gap.max() > 0:
             say(
-                f"the URDF alone (compliances dropped) is {np.sqrt(np.mean(gap**2)) * 1e3:.3f} mm RMS "
+                f"the URDF alone ({_dropped(robot)}) is {np.sqrt(np.mean(gap**2)) * 1e3:.3f} mm RMS "
                 f"({gap.max() * 1e3:.3f} max) from the full model over {where} {len(region)} configurations: "
                 "--calibration CONFIG states it on the data, --rigid-fit folds what it can into the URDF"
             )
@@ -127,7 +127,7 @@ def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[
     write_text(path, yaml.safe_dump(result.document, sort_keys=False))
     say(
         f"wrote {path}: {robot.name}'s calibrated kinematics as the UR description's default_kinematics.yaml "
-        f"(compliances dropped); what that layout cannot hold of the flange: {residual_text(result)}"
+        f"({_dropped(robot)}); what that layout cannot hold of the flange: {residual_text(result)}"
     )
     if result.tool0_tilt_rad > 1e-5 or result.tool0_offset_m > 1e-5:
         warn("the calibrated flange is not square to axis 6: the file puts tool0 off by that much")
@@ -137,7 +137,7 @@ def _on_data(result, robot, exported, refitted: bool, say: Callable[[str], None]
     from ..calibration.model_accuracy import model_accuracy
 
     rows = {"full model (with the compliances)": model_accuracy(result, robot)}
-    rows["URDF alone (compliances dropped)"] = model_accuracy(result, without_compliances(robot))
+    rows[f"URDF alone ({_dropped(robot)})"] = model_accuracy(result, without_compliances(robot))
     if refitted:
         rows["URDF alone, rigid fit"] = model_accuracy(result, exported)
     say("accuracy on the calibration's data, mm (each model with the instrument registered to it on the fitting data):")
@@ -167,3 +167,8 @@ def _on_data(result, robot, exported, refitted: bool, say: Callable[[str], None]
             + "; for the full accuracy, correct the commands with fgcal compensate (docs/using.md)"
         )
     return out
+
+
+def _dropped(robot) -> str:
+    """What a URDF cannot hold of the robot's model."""
+    return "compliances and lost motion dropped" if robot.history else "compliances dropped"

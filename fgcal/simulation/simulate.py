@@ -239,6 +239,11 @@ def simulate(
             if drift is not None
             else None
         ),
+        motion_history=(
+            {cid: (before, float(s)) for cid, before, s in zip(config_ids, history.before, history.speed, strict=True)}
+            if history is not None
+            else None
+        ),
     ).write(out)
     return SimulationResult(
         out,

@@ -115,7 +115,8 @@ class MeasuredPoses(Formulation):
         """Per measured pose Z: the error vector (m) of the predicted origin of E, ``L X E``, in
         the instrument's frame, and the angle (rad) between the predicted and measured
         orientations."""
-        flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(state.params))
+        motion = problem.dataset.motion_of(observations.config_ids)
+        flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(state.params), motion)
         predicted = state.value("tracker") @ flange[observations.configs] @ state.value("tool_frame")
         measured = observations.measured
         relative = np.einsum("oji,ojk->oik", measured[:, :3, :3], predicted[:, :3, :3])

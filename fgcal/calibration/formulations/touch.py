@@ -170,8 +170,9 @@ class Touch(Formulation):
             errors.append(known.errors)
             configs.append(known.configs)
         for _, at in observations.test_points:
-            probe = transform_points(problem.robot.fk(observations.q[at], problem.robot.parameter_dict(state.params)),
-                                     state.value("tool_points")[0])  # fmt: skip
+            motion = problem.dataset.motion_of(observations.config_ids[at])
+            flange = problem.robot.fk(observations.q[at], problem.robot.parameter_dict(state.params), motion)
+            probe = transform_points(flange, state.value("tool_points")[0])
             errors.append(probe - (probe.sum(axis=0) - probe) / (len(at) - 1))
             configs.append(at)
         return {"tool_point": HeldOut(np.concatenate(errors), np.concatenate(configs))} if errors else {}

@@ -144,7 +144,8 @@ class Tracker(Formulation):
             errors.append(known.errors)
             configs.append(known.configs)
         for target, at, measured in observations.test_points:
-            errors.append(_test_point_errors(problem, state, target, observations.q[at], measured))
+            motion = problem.dataset.motion_of(observations.config_ids[at])
+            errors.append(_test_point_errors(problem, state, target, observations.q[at], motion, measured))
             configs.append(at)
         if not errors:
             return {}
@@ -273,11 +274,13 @@ def declared_test_point(problem: Problem, state: State, target: str) -> np.ndarr
     return R @ point + t
 
 
-def _test_point_errors(problem: Problem, state: State, target: str, q: np.ndarray, measured: np.ndarray) -> np.ndarray:
+def _test_point_errors(
+    problem: Problem, state: State, target: str, q: np.ndarray, motion: np.ndarray, measured: np.ndarray
+) -> np.ndarray:
     """Error vectors (m, tracker frame) at a tool point the fit never saw, measured at ``q``:
     at its declared position, else at its leave-one-out position (its position is then not
     scored, only how the robot moves it)."""
-    T_T_n = state.value("tracker") @ problem.robot.fk(q, problem.robot.parameter_dict(state.params))
+    T_T_n = state.value("tracker") @ problem.robot.fk(q, problem.robot.parameter_dict(state.params), motion)
     declared = declared_test_point(problem, state, target)
     if declared is not None:
         return transform_points(T_T_n, declared) - measured
