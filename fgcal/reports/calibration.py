@@ -371,6 +371,10 @@ def _plots(result: CalibrationResult, out: Path) -> dict[str, str]:
     return plots
 
 
+def _released_text(released: list[str]) -> str:
+    return f"{len(released)}: {', '.join(released)}" if released else "none (the auxiliary unknowns alone)"
+
+
 def _motion_lines(motion: dict | None, diagnostics: str | None) -> list[str]:
     """The motion history's terms per joint (mdeg, or um for a prismatic joint) and the
     residual diagnostics."""
@@ -660,7 +664,7 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             if key in s
         )  # fmt: skip
         lines.append(
-            f"| {s['stage']} | {len(s['released'])}: {', '.join(s['released'])} | {rms_text} | "
+            f"| {s['stage']} | {_released_text(s['released'])} | {rms_text} | "
             f"{s['chi2']:.4g} / {s['dof']} = {s['chi2_per_dof']:.3g} | {s['chi2_p_value']:.2g} | "
             f"{s['iterations']} | {s['time_s']:.2f} |"
         )

@@ -55,7 +55,7 @@ class SimulationResult:
             f"  observations: {obs}\n"
             f"  true robot vs nominal model, flange position in the base frame over these configurations:\n"
             f"    deviation mean {self.deviation_mean_m * 1e3:#.4g} mm, max {self.deviation_max_m * 1e3:#.4g} mm\n"
-            f"  time {self.time_s:.1f} s"
+            f"  time {self.time_s:.2g} s"
         )
 
 
