@@ -56,8 +56,8 @@ def perturbation_elements(first_param: int) -> list[ET]:
 
 
 @dataclass(frozen=True)
-class DHJoint:
-    """A revolute joint in Denavit-Hartenberg form (rad, m)."""
+class _DHRow:
+    """The four numbers of a DH row (rad, m), in either convention."""
 
     theta: float
     d: float
@@ -69,6 +69,11 @@ class DHJoint:
 
     def nominal(self) -> dict[str, float]:
         return {"theta": self.theta, "d": self.d, "a": self.a, "alpha": self.alpha}
+
+
+@dataclass(frozen=True)
+class DHJoint(_DHRow):
+    """A revolute joint in Denavit-Hartenberg form (rad, m)."""
 
     def before_bend(self, param: ParamIndex, joint: int, sign: float, distortions: bool) -> list[ET]:
         elements = [ET("Rx", param=param("sx")), ET("Ry", param=param("sy"))] if distortions else []
@@ -79,20 +84,9 @@ class DHJoint:
 
 
 @dataclass(frozen=True)
-class ModifiedDHJoint:
+class ModifiedDHJoint(_DHRow):
     """A revolute joint in modified (Craig) DH form (rad, m): ``alpha`` and ``a`` come before
     the joint's motion, ``d`` after it."""
-
-    theta: float
-    d: float
-    a: float
-    alpha: float
-
-    kinds = DH_KINDS
-    prismatic = False
-
-    def nominal(self) -> dict[str, float]:
-        return {"theta": self.theta, "d": self.d, "a": self.a, "alpha": self.alpha}
 
     def before_bend(self, param: ParamIndex, joint: int, sign: float, distortions: bool) -> list[ET]:
         link = [ET("Rx", param=param("alpha")), ET("Tx", param=param("a"))]

@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import InputError
-from .parameters import COMPLIANCE_KINDS, MOTION_KINDS, split_name
+from .parameters import COMPLIANCE_KINDS, is_motion, split_name
 from .robot import Robot
 
 # Tool-frame points the fit matches (m): the origin and 0.1 m along each axis.
@@ -45,7 +45,7 @@ def without_compliances(robot: Robot) -> Robot:
 
 def _compliance(name: str) -> bool:
     """Not a rigid parameter: a compliance, or a motion-history term (fgcal.motion)."""
-    return split_name(name)[0] in COMPLIANCE_KINDS or split_name(name)[0] in MOTION_KINDS
+    return split_name(name)[0] in COMPLIANCE_KINDS or is_motion(name)
 
 
 def _points(robot: Robot, q: np.ndarray, params: dict | None = None) -> np.ndarray:

@@ -33,7 +33,7 @@ from .errors import InputError
 from .fields import Fields, check_name, read_file_text, read_yaml
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .outputs import write_text
-from .parameters import LENGTH_KINDS, MOTION_KINDS, parameter_names, split_name
+from .parameters import LENGTH_KINDS, is_motion, parameter_names, split_name
 from .robot import MODELS, Robot
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 from .units import Units, parse_units
@@ -220,7 +220,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         if key not in names:
             raise params.error(str(key), f"unknown parameter name for this {len(joints)}-joint robot")
         overrides[key] = params.number(key, scale=parameter_scale(key, units))
-        if split_name(key)[0] in MOTION_KINDS and abs(overrides[key]) > MAX_MOTION_TERM:
+        if is_motion(key) and abs(overrides[key]) > MAX_MOTION_TERM:
             raise params.error(
                 key, f"{overrides[key]:.3g} is beyond {MAX_MOTION_TERM:.3g} (1 deg or 17 mm): lost motion is "
                 "hundredths of a degree",

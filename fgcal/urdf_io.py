@@ -439,18 +439,10 @@ def load_urdf(path: str | Path, tip: str | None = None) -> Robot:
     joints, limits = [], []
     pending = np.eye(4)
     for joint in chain:
-        origin = _finite_pose(path, f"joint {joint.name}.origin", joint.origin)
         if joint.type == "fixed":
-            pending = pending @ origin
+            pending = pending @ _finite_pose(path, f"joint {joint.name}.origin", joint.origin)
             continue
-        if joint.type not in MOVING:
-            raise InputError(path, f"joint {joint.name}.type", f"{joint.type!r} joints are not supported in the chain")
-        if joint.mimic:
-            raise InputError(path, f"joint {joint.name}.mimic", "mimic joints are not supported in the chain")
-        axis = np.asarray(joint.axis, dtype=float)
-        if axis.shape != (3,) or not np.all(np.isfinite(axis)) or np.linalg.norm(axis) < 1e-9:
-            raise InputError(path, f"joint {joint.name}.axis", f"must be a non-zero finite 3-vector, got {joint.axis}")
-        joints.append(OriginJoint(pending @ origin, axis, joint.type == "prismatic"))
+        joints.append(_moving_joint(path, joint, pending))
         limits.append(_joint_limits(path, joint))
         pending = np.eye(4)
     if not joints:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..parameters import MOTION_KINDS, split_name
+from ..parameters import MOTION_KINDS, is_motion, split_name
 from .graph import StageGraph
 
 GROUPS = (
@@ -160,7 +160,7 @@ def select(
 def motion_warning(identifiability: Identifiability) -> str | None:
     """What a design that cannot separate the motion history's terms from the joint offsets
     must be told (fgcal.motion): every configuration was reached the same way."""
-    hidden = [n for n in identifiability.unidentifiable if split_name(n)[0] in MOTION_KINDS]
+    hidden = [n for n in identifiability.unidentifiable if is_motion(n)]
     if not hidden:
         return None
     absorbing = sorted({p for n in hidden for p in identifiability.absorbed_by.get(n, [])})
