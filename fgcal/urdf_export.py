@@ -332,12 +332,7 @@ def export_urdf(
     ``template``, its URDF) is written into that document."""
     import yaml
 
-    if robot.parents is not None or robot.tips:
-        raise InputError(
-            robot.urdf[0] if robot.urdf else None, "--urdf",
-            f"{robot.name} is a tree ({', '.join(robot.tip_names)}): exporting trees "
-            "is not supported yet (a URDF's tip link, robot: {file, tip}, gives one chain of it)",
-        )  # fmt: skip
+    refuse_tree(robot)
     path, sidecar = check_outputs(path)  # both outputs checked before either is written
     source = template_of(robot, template)
     if source is None:
@@ -352,6 +347,16 @@ def export_urdf(
         document["accuracy"] = accuracy
     write_text(sidecar, yaml.safe_dump(document, sort_keys=False))
     return path, sidecar
+
+
+def refuse_tree(robot: Robot) -> None:
+    """A tree is not exported yet (issue 28): said before any work."""
+    if robot.parents is not None or robot.tips:
+        raise InputError(
+            robot.urdf[0] if robot.urdf else None, "--urdf",
+            f"{robot.name} is a tree ({', '.join(robot.tip_names)}): exporting trees "
+            "is not supported yet (a URDF's tip link, robot: {file, tip}, gives one chain of it)",
+        )  # fmt: skip
 
 
 def template_of(robot: Robot, template: str | Path | None) -> tuple[Path, str] | None:

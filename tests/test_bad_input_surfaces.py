@@ -715,6 +715,11 @@ CASES = [
     ("config_residual_model_of_pairs", _prepare_then(_text("c.yaml", "dataset: data\nformulation: pairs\n"
      "residual_model: gp\n"), ["calibrate", "c.yaml", "--out", "out", "--no-plots"]), "c.yaml", "residual_model"),
     ("robot_model_unknown", _robot_edit("model: DH,h"), "robot.yaml", "model"),
+    # Trees (issue 28): tips on joints that exist, named apart from the flange.
+    ("robot_tip_on_no_joint", _robot_edit("tips: [{name: t, joint: 99}]"), "robot.yaml", "tips[0].joint"),
+    ("robot_tip_named_flange", _robot_edit("tips: [{name: flange, joint: 2}]"), "robot.yaml", "tips"),
+    ("robot_flange_on_no_joint", _robot_edit("flange_joint: 9"), "robot.yaml", "flange_joint"),
+    ("robot_tips_not_a_list", _robot_edit("tips: 3"), "robot.yaml", "tips"),
     ("region_too_few_for_a_fit", _prepare_then(lambda root: (root / "robot.yaml").write_text(
      (root / "robot.yaml").read_text() + "\ncalibrated_region: [[0, 0, 0, 0, 0, 0]]\n"),
      ["export", "robot.yaml", "--urdf", "r.urdf", "--rigid-fit"]), "--rigid-fit", "distinct configurations"),

@@ -6,6 +6,7 @@ tree as for a serial chain: central differences and direct sums."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -316,3 +317,25 @@ def test_two_leaves_one_on_the_root(tmp_path, capsys):
     robot = fgcal.load_robot(path)
     np.testing.assert_allclose(robot.fk(np.array([0.3]), tip="c")[:3, 3], [0.5, 0, 0])
     np.testing.assert_allclose(robot.fk(np.array([1.0]), tip="c"), robot.fk(np.array([0.0]), tip="c"))
+
+
+def test_a_tree_calibrates_on_its_flange_and_is_not_exported_yet(tmp_path, capsys):
+    """A tree robot in a tracker cell: the flange's chain calibrates (the other branches'
+    parameters are not identifiable from it); fgcal export refuses the tree before any work."""
+    import yaml
+
+    from fgcal.cli import main
+
+    (tmp_path / "tree.urdf").write_text(TREE_URDF)
+    cell = yaml.safe_load((Path(__file__).parent.parent / "datasets" / "cells" / "irb120_tracker.yaml").read_text())
+    cell["robot"] = "tree.urdf"
+    cell["perturbation"]["compliant_joints"] = [1]
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "data"), "--n", "60"]) == 0
+    assert main(["calibrate", str(tmp_path / "data" / "calibration.yaml"), "--out", str(tmp_path / "out"),
+                 "--no-plots", "--json"]) == 0  # fmt: skip
+    capsys.readouterr()
+    calibrated = tmp_path / "out" / "calibrated_robot.yaml"
+    assert main(["export", str(calibrated), "--urdf", str(tmp_path / "x.urdf")]) == 2
+    error = capsys.readouterr()
+    assert "is a tree" in error.err and "URDF alone" not in error.out + error.err

@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..outputs import distinct, output_file, write_text
 from ..rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
 from ..robot_io import load_robot
-from ..urdf_export import check_outputs, export_urdf, template_of
+from ..urdf_export import check_outputs, export_urdf, refuse_tree, template_of
 
 LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held-out accuracy is warned of
 
@@ -47,6 +47,8 @@ def export_command(
             raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
         output_file(ur_kinematics, "--ur-kinematics")
     robot = load_robot(robot_file, tip)
+    if path is not None:
+        refuse_tree(robot)  # before any work
     if payload_mass is not None or payload_com is not None:
         mass = robot.payload_mass if payload_mass is None else payload_mass
         com = robot.payload_com if payload_com is None else np.array(payload_com, dtype=float)
