@@ -96,11 +96,38 @@ def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     return masses, coms
 
 
+@dataclass(frozen=True)
+class _Bodies:
+    """What moves what, per chain: ``carried`` (n, B) bool, joint i carries body b (its motion,
+    the element ending at B_i, moves it); ``moved`` (B, K) the elements that move each body;
+    ``moves_bend`` (n, K) those that move each bending frame."""
+
+    carried: np.ndarray
+    moved: np.ndarray
+    moves_bend: np.ndarray
+
+
+_BODIES: dict[int, tuple[Chain, _Bodies]] = {}
+
+
+def _bodies(robot: Robot) -> _Bodies:
+    # Cached on the chain's identity (the entry keeps it alive): a single configuration's
+    # evaluation costs tens of microseconds, which rebuilding these masks would add to.
+    chain = robot.chain
+    entry = _BODIES.get(id(chain))
+    if entry is None or entry[0] is not chain:
+        if len(_BODIES) > 256:
+            _BODIES.clear()
+        paths = ancestry(chain.elements)
+        moved = paths[_body_frames(robot)]
+        bodies = _Bodies(moved[:, [b - 1 for b in chain.bend]].T, moved, paths[list(chain.bend)])
+        entry = _BODIES[id(chain)] = (chain, bodies)
+    return entry[1]
+
+
 def carries(robot: Robot) -> np.ndarray:
     """(n, B) bool: joint i carries body b (its motion, the element ending at B_i, moves it)."""
-    chain = robot.chain
-    paths = ancestry(chain.elements)[_body_frames(robot)]  # (B, K): what moves each body
-    return paths[:, [b - 1 for b in chain.bend]].T
+    return _bodies(robot).carried
 
 
 def motion_offsets(robot: Robot, params: np.ndarray, motion: np.ndarray) -> np.ndarray:
@@ -180,14 +207,15 @@ def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray,
     """
     chain = robot.chain
     n = robot.n_joints
-    paths = ancestry(chain.elements)
+    bodies = _bodies(robot)
     masses, _ = _body_coms(robot)
     # S: bodies joint i carries that the column moves (on a serial chain, those beyond both).
-    moved_bodies = paths[_body_frames(robot)][:, elements].T  # (E, B)
-    S = (carries(robot)[None, :, :] & moved_bodies[:, None, :]).astype(float)  # (E, n, B)
-    upstream = paths[list(chain.bend)][:, elements].T[None, :, :, None]  # (1, E, n, 1): the column moves B_i
+    moved_bodies = bodies.moved[:, elements].T  # (E, B)
+    S = (bodies.carried[None, :, :] & moved_bodies[:, None, :]).astype(float)  # (E, n, B)
+    upstream = bodies.moves_bend[:, elements].T[None, :, :, None]  # (1, E, n, 1): the column moves B_i
     omega, v0 = twists[..., None, :3], twists[..., None, 3:]  # (N, E, 1, 3)
-    first_moment = np.einsum("enb,Nbd->Nend", S, data.weighted)  # (N, E, n, 3)
+    E = len(elements)
+    first_moment = np.matmul(S.reshape(E * n, -1), data.weighted).reshape(-1, E, n, 3)  # (N, E, n, 3)
     moved = cross(omega, first_moment) + (S @ masses)[None, :, :, None] * v0
     bends = data.frames_rigid[list(chain.bend)]  # (n, N, 4, 4)
     origins = np.swapaxes(bends[:, :, :3, 3], 0, 1)[:, None]  # (N, 1, n, 3)
