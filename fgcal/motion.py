@@ -24,7 +24,7 @@ import numpy as np
 
 from .parameters import MOTION_KINDS
 
-__all__ = ["LOST_MOTION_WIDTH_RAD", "MOTION_KINDS", "MotionHistory", "features", "offsets"]
+__all__ = ["LOST_MOTION_WIDTH_RAD", "MOTION_KINDS", "MotionHistory", "features"]
 
 LOST_MOTION_WIDTH_RAD = float(np.radians(1.0))
 # Below this, a move is no move (rad or m): the configuration was measured twice in a row.
@@ -83,9 +83,3 @@ def features(q: np.ndarray, history: MotionHistory | None) -> np.ndarray:
     out[:, :n] = np.tanh(move / LOST_MOTION_WIDTH_RAD)
     out[moved, n:] = history.speed[moved, None] * move[moved] / largest[moved]
     return out
-
-
-def offsets(params_lm: np.ndarray, params_lv: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """Joint offsets (N, n) from the features (N, 2n) and the per-joint lm and lv (n,)."""
-    n = len(params_lm)
-    return motion[:, :n] * params_lm + motion[:, n:] * params_lv

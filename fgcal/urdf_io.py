@@ -335,12 +335,8 @@ def load_urdf_tree(path: str | Path, tips: list[str] | None = None) -> Robot:
         link = links[link_name]
         where[link_name] = (body, T_body_link)
         if link.mass is not None:
-            m = link.mass
-            if not np.isfinite(m) or m < 0 or m > 1e6:
-                raise InputError(path, f"link {link_name}.inertial.mass", f"must be finite, 0 to 1e6 kg, got {m}")
-            com = _finite_pose(path, f"link {link_name}.inertial.origin", link.com_origin)[:3, 3]
+            m, moment = _link_inertial(path, link, T_body_link)
             body_mass[body] = body_mass.get(body, 0.0) + m
-            moment = m * (T_body_link[:3, :3] @ com + T_body_link[:3, 3])
             body_moment[body] = body_moment.get(body, np.zeros(3)) + moment
         reached = []
         for joint in children.get(link_name, []):
@@ -384,6 +380,16 @@ def load_urdf_tree(path: str | Path, tips: list[str] | None = None) -> Robot:
     )
 
 
+def _link_inertial(path: Path, link, T_body_link: np.ndarray) -> tuple[float, np.ndarray]:
+    """A link's mass (kg, checked) and first mass moment (kg m) in the body frame it is lumped
+    into, the link at ``T_body_link`` there."""
+    m = link.mass
+    if not np.isfinite(m) or m < 0 or m > 1e6:
+        raise InputError(path, f"link {link.name}.inertial.mass", f"must be finite, 0 to 1e6 kg, got {m}")
+    com = _finite_pose(path, f"link {link.name}.inertial.origin", link.com_origin)[:3, 3]
+    return m, m * (T_body_link[:3, :3] @ com + T_body_link[:3, 3])
+
+
 def _lumped_inertials(path: Path, model, chain: list) -> tuple[np.ndarray, np.ndarray]:
     """Mass (kg) and centre of mass (m, in the body frame) of each moving joint's body."""
     moving = [joint.name for joint in chain if joint.type in MOVING]
@@ -400,12 +406,9 @@ def _lumped_inertials(path: Path, model, chain: list) -> tuple[np.ndarray, np.nd
         link_name, body, T_body_link = stack.pop()
         link = links[link_name]
         if link.mass is not None:
-            m = link.mass
-            if not np.isfinite(m) or m < 0 or m > 1e6:
-                raise InputError(path, f"link {link_name}.inertial.mass", f"must be finite, 0 to 1e6 kg, got {m}")
-            com = _finite_pose(path, f"link {link_name}.inertial.origin", link.com_origin)[:3, 3]
+            m, moment = _link_inertial(path, link, T_body_link)
             mass[body] += m
-            first_moment[body] += m * (T_body_link[:3, :3] @ com + T_body_link[:3, 3])
+            first_moment[body] += moment
         for joint in children.get(link_name, []):
             origin = _finite_pose(path, f"joint {joint.name}.origin", joint.origin)
             if joint.name in moving:
