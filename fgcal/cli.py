@@ -227,7 +227,12 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     nominal = nominal_of(robot, args.nominal)
     from .programs import KRL_SUFFIXES, RAPID_SUFFIXES
 
+    if args.tip is not None and args.tip not in robot.tip_names:
+        raise InputError(args.robot, "--tip", f"{robot.name} has no tip {args.tip!r} (its tips: "
+                         f"{', '.join(robot.tip_names)})")  # fmt: skip
     if Path(args.targets).suffix.lower() in RAPID_SUFFIXES + KRL_SUFFIXES:
+        if args.tip is not None:
+            raise InputError(args.targets, "--tip", "a robot program drives its robot's flange: --tip is for a CSV")
         return _compensate_program(args, robot, nominal)
     if args.tool is not None or args.base is not None:
         print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
@@ -241,8 +246,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     wanted = _in_calibration_frame(targets.as_ik_targets(), calibrated, nominal, args.targets_frame)
     approach = _approach(args, robot, targets.approach, len(targets.names))
     result = compensate(
-        robot, nominal, wanted, targets.hints, tcp, tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter(),
-        approach=approach, speed=targets.speed,
+        robot, nominal, wanted, targets.hints, tcp, "tool" if args.tip is None else args.tip,
+        tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter(), approach=approach, speed=targets.speed,
     )  # fmt: skip
     write_compensation(args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic)
     if result.motion_solved is not None:
@@ -521,9 +526,13 @@ def cmd_robots(args: argparse.Namespace) -> int:
 
 def cmd_fk(args: argparse.Namespace) -> int:
     from .errors import InputError
-    from .robot_io import load_robot
+    from .robot_io import is_urdf_reference, load_robot
 
-    robot = load_robot(args.robot, args.tip)
+    is_urdf = is_urdf_reference(args.robot)
+    robot = load_robot(args.robot, args.tip if is_urdf or args.tip is None else None)
+    if args.tip is not None and not is_urdf and args.tip not in robot.tip_names:
+        raise InputError(args.robot, "--tip", f"{robot.name} has no tip {args.tip!r} (its tips: "
+                         f"{', '.join(robot.tip_names)}; a URDF's tip link applies to URDF files)")  # fmt: skip
     q = np.array(args.q, dtype=float)
     if len(q) != robot.n_joints:
         raise InputError(None, "q", f"{robot.name} has {robot.n_joints} joints: {robot.n_joints} values, got {len(q)}")
@@ -540,8 +549,8 @@ def cmd_fk(args: argparse.Namespace) -> int:
             f"[{low[i]:.4g}, {high[i]:.4g}] {unit}{hint}",
         )  # fmt: skip
     np.set_printoptions(precision=6, suppress=True)
-    if robot.tips and not args.tool:  # a tree: every tip
-        for tip in robot.tip_names:
+    if robot.tips and not args.tool:  # a tree: every tip, or the one asked for
+        for tip in robot.tip_names if args.tip is None or is_urdf else [args.tip]:
             print(f"T_W_{tip} (m) of {robot.name}:\n{np.round(robot.fk(q, tip=tip), 12) + 0.0}")
         return 0
     T = robot.fk_tool(q) if args.tool else robot.fk(q)
@@ -705,6 +714,11 @@ def build_parser() -> argparse.ArgumentParser:
         "robot's base frame; default each target's \\WObj, else the base frame",
     )  # fmt: skip
     p.add_argument("--tcp", type=LENGTH_M, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
+    p.add_argument(
+        "--tip", metavar="NAME",
+        help="a tree's tip the targets are for (the robot's tip names, fgcal fk lists them; --tcp is then in that "
+        "tip's frame); default the tool on the flange",
+    )  # fmt: skip
     p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
     p.add_argument(
         "--payload-mass",
@@ -848,7 +862,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("fk", help="forward kinematics of a robot (bundled, or a robot file) at one configuration")
     p.add_argument("robot", help="bundled robot name, robot YAML file or URDF")
-    p.add_argument("--tip", help="tip link of a URDF (default tool0, else its only leaf)")
+    p.add_argument(
+        "--tip", help="tip link of a URDF (default tool0, else its only leaf), or the one tip of a tree to print"
+    )
     p.add_argument("q", nargs="+", type=_real(-1e6, 1e6, "rad, deg or m"), help="joint angles (rad, or deg with --deg)")
     p.add_argument("--deg", action="store_true", help="joint angles in degrees")
     p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")

@@ -317,7 +317,7 @@ def compensate(
 ) -> Compensation:
     """Joints on the calibrated ``robot`` for ``targets`` (N, 3) or (N, 4, 4), and the
     commands (the ``nominal`` model's TCP pose there); the TCP ``tcp`` is fixed in ``frame``
-    (tool or flange). A target counts as reached within ``tol_m`` (m) and ``tol_rad``. Without
+    (tool, flange, or a tree's tip by name). A target counts as reached within ``tol_m`` (m) and ``tol_rad``. Without
     hints each target starts from default_hints. ``progress`` hears of each chunk solved.
     ``approach`` (N, n): the joints each target is approached from (NaN rows: the previous
     target's command), allowed for when the robot's model has the motion history's terms;
@@ -341,7 +341,7 @@ def compensate(
     motion_offset = motion_solved = None
     if approach is not None and robot.history:
         q, motion_offset, motion_solved = approach_commands(robot, q, np.asarray(approach, dtype=float), speed)
-    commands = (nominal.fk_tool if frame == "tool" else nominal.fk)(q).copy()  # (N, 4, 4)
+    commands = nominal.fk(q, tip=None if frame == "flange" else frame).copy()  # (N, 4, 4)
     commands[:, :3, 3] += commands[:, :3, :3] @ tcp
     residual_rad = None if parts[0].residual_rad is None else np.concatenate([p.residual_rad for p in parts])
     return Compensation(

@@ -10,7 +10,7 @@ Header fields (documented in docs/formats.md)::
     camera: {image_size, intrinsics, distortion, mounting: {xyz, rpy}}   # when a camera was used
     payload: {mass, com}           # kg; com in the flange frame (gravity moments need it)
     fixture: {xyz, rpy}            # nominal T_W_F of the calibration objects (drawing)
-    tracker: {targets: [names]}    # when a tracker was used
+    tracker: {targets: [names]}    # when a tracker was used; on a tree, tips: {target: tip name}
     noise: {tracker_sigma: 1.5e-5, ...}  # the instrument's stated noise (a calibration config's noise keys)
     order: measured                # the configurations' rows are in measurement order (default), or unknown
     source: free text (simulation seed, converter, instrument)
@@ -134,6 +134,8 @@ class Dataset:
     header: dict = field(default_factory=dict)
     noise: dict[str, float] = field(default_factory=dict)  # the instrument's stated sigmas (fgcal.noise), SI
     history: MotionHistory | None = None  # how each configuration was reached (None: in row order)
+    # The tip of a tree each tracker target is on (dataset.yaml tracker.tips); absent: the flange.
+    target_tips: dict[str, str] = field(default_factory=dict)
 
     @property
     def motion_history(self) -> MotionHistory:
@@ -424,8 +426,9 @@ def load_dataset(path: str | Path) -> Dataset:
             )
     if doc.has("tracker") and "tracker_points" in dataset.tables:
         tracker = doc.sub("tracker")
-        tracker.check_keys(("targets",))
+        tracker.check_keys(("targets", "tips"))
         declared = {str(t) for t in tracker.items("targets")}
+        dataset.target_tips = _target_tips(tracker, declared, dataset.robot)
         bad = [t for t in dataset.tables["tracker_points"].ids["target"] if t not in declared]
         if bad:
             raise InputError(
@@ -475,6 +478,23 @@ def _check_distances(dataset: Dataset, path: Path) -> None:
             raise InputError(path, f"line {line}", f"a distance joins two different points, got {a!r} twice")
         if not d > 0:
             raise InputError(path, f"line {line}, column distance", f"must be > 0, got {d}")
+
+
+def _target_tips(tracker: Fields, declared: set[str], robot: Robot) -> dict[str, str]:
+    """``tracker.tips: {target: tip}``: the named frame of a tree (Robot.tip_names) each
+    target is fixed to; targets not listed are on the flange."""
+    if not tracker.has("tips"):
+        return {}
+    tips = tracker.sub("tips")
+    out = {}
+    for target in tips.data:
+        if str(target) not in declared:
+            raise tips.error(str(target), f"not one of tracker.targets ({', '.join(sorted(declared))})")
+        tip = tips.string(target)
+        if tip not in robot.tip_names:
+            raise tips.error(str(target), f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+        out[str(target)] = tip
+    return out
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:

@@ -26,6 +26,7 @@ import numpy as np
 
 from .errors import InputError
 from .ets import Chain, ancestry, element_twists, evaluate
+from .parameters import MASS_KIND
 from .se3 import cross
 
 
@@ -50,6 +51,11 @@ class Robot(Protocol):
     def n_joints(self) -> int: ...
 
     @property
+    def n_links(self) -> int: ...
+
+    mass_groups: tuple[tuple[str, tuple[int, ...]], ...]
+
+    @property
     def parameter_names(self) -> list[str]: ...
 
 
@@ -61,9 +67,12 @@ class KinematicsData:
     q: np.ndarray  # (N, n) the joint values the chain sees: commanded plus motion offsets
     frames: np.ndarray  # (K+1, N, 4, 4) deformed chain
     frames_rigid: np.ndarray  # (K+1, N, 4, 4) undeformed chain (g = 0)
-    moments: np.ndarray  # (N, 3n) gravity moments t_i, N m
-    weighted: np.ndarray  # (N, B, 3) m_b c_b of each body, kg m
-    carried_mass: np.ndarray  # (n,) M_i: the mass joint i carries, kg
+    moments: np.ndarray  # (N, 3L) gravity moments t_i of the L joints of the geometry, N m
+    weighted: np.ndarray  # (N, B, 3) m_b c_b of each body (mass scales applied), kg m
+    com_world: np.ndarray  # (N, B, 3) c_b, each body's centre of mass in W, m
+    carried_mass: np.ndarray  # (L,) M_i: the mass joint i carries, kg
+    body_masses: np.ndarray  # (B,) m_b, mass scales applied, kg
+    body_scale: np.ndarray  # (B,) each body's mass scale (mass.{group}; 1 outside the groups)
     torque_world: np.ndarray  # (N, n, 3) tau_i in W, N m
     motion: np.ndarray | None = None  # (N, 2n) motion-history features (fgcal.motion)
     _twists: dict = field(default_factory=dict)
@@ -72,7 +81,8 @@ class KinematicsData:
         """The data of some of the configurations (what forward() would give for them)."""
         return KinematicsData(
             self.params, self.q[rows], self.frames[:, rows], self.frames_rigid[:, rows], self.moments[rows],
-            self.weighted[rows], self.carried_mass, self.torque_world[rows],
+            self.weighted[rows], self.com_world[rows], self.carried_mass, self.body_masses, self.body_scale,
+            self.torque_world[rows],
             None if self.motion is None else self.motion[rows],
         )  # fmt: skip
 
@@ -130,6 +140,24 @@ def carries(robot: Robot) -> np.ndarray:
     return _bodies(robot).carried
 
 
+def path_parameters(robot: Robot, frame: str | int) -> set[str]:
+    """The parameters of the elements on the path from the root to ``frame`` (a tip's chain:
+    what moves it geometrically; a mass scale, which moves it only through the moments, is not
+    among them) and the motion terms of the joints on that path."""
+    chain = robot.chain
+    on_path = ancestry(chain.elements)[frame_index(robot, frame)]
+    names = robot.parameter_names
+    out = set()
+    for k, et in enumerate(chain.elements):
+        if not on_path[k]:
+            continue
+        if et.param is not None:
+            out.update(names[et.param : et.param + (3 if et.axis == "Rvec" else 1)])
+        if et.joint is not None and robot.history:
+            out.update({f"lm{et.joint + 1}", f"lv{et.joint + 1}"})
+    return out
+
+
 def motion_offsets(robot: Robot, params: np.ndarray, motion: np.ndarray) -> np.ndarray:
     """The joint offsets (N, n) of the motion history (fgcal.motion), rad or m."""
     first = robot.parameter_names.index("lm1")
@@ -148,14 +176,17 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
             raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
         q = q + motion_offsets(robot, params, motion)
     chain = robot.chain
-    n, n_conf = robot.n_joints, q.shape[0]
+    n, n_conf = robot.n_links, q.shape[0]
     no_moments = np.zeros((n_conf, 3 * n))
     rigid = evaluate(chain.elements, params, q, no_moments)
     masses, coms = _body_coms(robot)
+    scale = body_scales(robot, params)
+    masses = masses * scale
     body_frames = _body_frames(robot)
-    weighted = np.stack(
-        [masses[b] * (rigid[f][:, :3, :3] @ coms[b] + rigid[f][:, :3, 3]) for b, f in enumerate(body_frames)], axis=1
+    com_world = np.stack(
+        [rigid[f][:, :3, :3] @ coms[b] + rigid[f][:, :3, 3] for b, f in enumerate(body_frames)], axis=1
     )
+    weighted = masses[None, :, None] * com_world
     carried = carries(robot).astype(float)  # (n, B)
     first_moment = np.matmul(carried, weighted)  # (N, n, 3): C_i
     carried_mass = carried @ masses
@@ -167,7 +198,20 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
         torque_world[:, i] = cross(first_moment[:, i] - carried_mass[i] * bend[:, :3, 3], g)
         moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
     frames = evaluate(chain.elements, params, q, moments) if robot.compliant else rigid
-    return KinematicsData(params, q, frames, rigid, moments, weighted, carried_mass, torque_world, motion)
+    return KinematicsData(
+        params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, scale, torque_world, motion
+    )
+
+
+def body_scales(robot: Robot, params: np.ndarray) -> np.ndarray:
+    """(B,) each body's mass scale: its group's mass.{group} parameter, 1 outside the groups
+    (the payload's mass is the robot file's)."""
+    scale = np.ones(robot.n_links + 1)
+    if robot.mass_groups:
+        index = {name: k for k, name in enumerate(robot.parameter_names)}
+        for group, members in robot.mass_groups:
+            scale[list(members)] = params[index[f"{MASS_KIND}.{group}"]]
+    return scale
 
 
 def frame_index(robot: Robot, frame: str | int) -> int:
@@ -206,9 +250,9 @@ def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray,
         d t_i   = R_i^T (d tau_i - [upstream of B_i] omega x tau_i)
     """
     chain = robot.chain
-    n = robot.n_joints
+    n = robot.n_links
     bodies = _bodies(robot)
-    masses, _ = _body_coms(robot)
+    masses = data.body_masses
     # S: bodies joint i carries that the column moves (on a serial chain, those beyond both).
     moved_bodies = bodies.moved[:, elements].T  # (E, B)
     S = (bodies.carried[None, :, :] & moved_bodies[:, None, :]).astype(float)  # (E, n, B)
@@ -270,8 +314,12 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     out_index = frame_index(robot, frame)
     n_conf = data.q.shape[0]
     entries = _direct_columns(robot, wrt)
+    moves_out = ancestry(chain.elements)[out_index]  # (K,) the elements on the frame's path
+    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and moves_out[k]]
     if not entries:
-        return np.zeros((n_conf, len(wrt), 6))
+        out = np.zeros((n_conf, len(wrt), 6))
+        _add_mass_columns(robot, data, wrt, deflections, out)
+        return out
     targets, elements, columns, scales, features = (np.array(v) for v in zip(*entries, strict=True))
     deformed = data.twists(chain.elements, rigid=False)
     twist = np.stack([deformed[k][:, c] for k, c in zip(elements, columns, strict=True)], axis=1)  # (N, E, 6)
@@ -285,11 +333,9 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
         scale[:, motion_entries] *= 0.0 if data.motion is None else data.motion[:, features[motion_entries]]
     coefficient = scale.copy()
     coefficient[:, is_compliance] *= data.moments[:, moment_of[is_compliance]]
-    moves_out = ancestry(chain.elements)[out_index]  # (K,) the elements on the frame's path
     coefficient[:, ~moves_out[elements]] = 0.0
     contribution = twist * coefficient[..., None]
 
-    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and moves_out[k]]
     geometric = ~is_compliance
     if deflections and np.any(geometric):
         compliances = np.array([data.params[chain.elements[k].param] for k in deflections])
@@ -306,7 +352,39 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     # Sum the entries into their targets (a name may enter through several elements).
     selection = np.zeros((len(wrt), len(entries)))
     selection[targets, np.arange(len(entries))] = 1.0
-    return np.matmul(selection, contribution)
+    out = np.matmul(selection, contribution)
+    _add_mass_columns(robot, data, wrt, deflections, out)
+    return out
+
+
+def _add_mass_columns(robot: Robot, data: KinematicsData, wrt: Sequence[str], deflections: list[int], out) -> None:
+    """Add to ``out`` (N, T, 6) the twists of the mass scales in ``wrt``: a group's mass scale
+    mu_g changes the gravity moments, ``d t_i / d mu_g = R_i^T sum_b m_b (c_b - o_i) x g`` over
+    the group's bodies b that joint i carries, and the moments bend the deflections."""
+    names = [(t, name) for t, name in enumerate(wrt) if name.startswith(f"{MASS_KIND}.")]
+    if not names or not deflections:
+        return
+    chain = robot.chain
+    compliances = np.array([data.params[chain.elements[k].param] for k in deflections])
+    if not np.any(compliances != 0.0):
+        return
+    moment_index = [chain.elements[k].moment for k in deflections]
+    deformed = data.twists(chain.elements, rigid=False)
+    deflection_twists = np.stack([deformed[k][:, 0] for k in deflections], axis=1)  # (N, M, 6)
+    masses, _ = _body_coms(robot)
+    carried = carries(robot)
+    bends = data.frames_rigid[list(chain.bend)]  # (L, N, 4, 4)
+    origins = np.swapaxes(bends[:, :, :3, 3], 0, 1)  # (N, L, 3)
+    rotations = np.swapaxes(bends[:, :, :3, :3], 0, 1)  # (N, L, 3, 3)
+    groups = dict(robot.mass_groups)
+    for t, name in names:
+        in_group = np.zeros(len(masses), dtype=bool)
+        in_group[list(groups[name.split(".", 1)[1]])] = True
+        A = carried * (in_group * masses)[None, :]  # (L, B)
+        lever = np.matmul(A, data.com_world) - A.sum(axis=1)[None, :, None] * origins
+        rate = np.matmul(cross(lever, robot.gravity)[:, :, None, :], rotations)[:, :, 0, :]  # (N, L, 3)
+        rates = rate.reshape(rate.shape[0], -1)[:, moment_index] * compliances  # (N, M)
+        out[:, t] += np.einsum("nm,nmk->nk", rates, deflection_twists)
 
 
 def jacobian(

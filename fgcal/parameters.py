@@ -4,9 +4,11 @@ A DH joint i (1-based) has ``theta{i} d{i} a{i} alpha{i} sx{i} sy{i} kx{i} ky{i}
 joint given by its origin (URDF) has ``theta{i}`` (``d{i}`` if prismatic), the origin
 correction ``tx{i} ty{i} tz{i} rx{i} ry{i} rz{i}`` and the compliances (fgcal.joints).
 Every joint also has the motion-history terms ``lm{i} lv{i}`` (fgcal.motion: lost motion and
-the speed term, rad or m), listed after all the joints' geometry. ``base.*`` and ``tool.*`` are
-local perturbations of the nominal base and tool poses,
-translation (m) then rotation vector (rad).
+the speed term, rad or m), listed after all the joints' geometry: one pair per joint the
+controller moves (a coupled joint follows others and has none). ``mass.{group}`` scales the masses
+of a group of bodies the robot file names (1 = as declared; model DH,s,e: the gravity moments the
+compliances bend under). ``base.*`` and ``tool.*`` are local perturbations of the nominal base and
+tool poses, translation (m) then rotation vector (rad).
 """
 
 from __future__ import annotations
@@ -20,15 +22,22 @@ POSE_KINDS = ("tx", "ty", "tz", "rx", "ry", "rz")
 LENGTH_KINDS = frozenset({"d", "a", "tx", "ty", "tz"})
 COMPLIANCE_KINDS = frozenset({"kx", "ky", "kz"})
 MOTION_KINDS = ("lm", "lv")  # fgcal.motion
+MASS_KIND = "mass"  # a body group's mass scale (1)
 _JOINT_NAME = re.compile(r"^(theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz|lm|lv)([1-9][0-9]*)$")
 _POSE_NAME = re.compile(r"^(base|tool)\.(tx|ty|tz|rx|ry|rz)$")
+_MASS_NAME = re.compile(r"^mass\.([A-Za-z_][A-Za-z0-9_]*)$")
 
 
-def parameter_names(joint_kinds: Sequence[Sequence[str]]) -> list[str]:
+def parameter_names(
+    joint_kinds: Sequence[Sequence[str]], n_moved: int | None = None, mass_groups: Sequence[str] = ()
+) -> list[str]:
     """All parameter names, in the order of the parameter vector: the kinds of each joint
-    (fgcal.joints), the motion-history terms of each joint, then base and tool."""
+    (fgcal.joints), the motion-history terms of each of the ``n_moved`` joints the controller
+    moves (default: every joint), the mass scales of the body groups, then base and tool."""
+    n_moved = len(joint_kinds) if n_moved is None else n_moved
     names = [f"{kind}{i}" for i, kinds in enumerate(joint_kinds, start=1) for kind in kinds]
-    names += [f"{kind}{i}" for kind in MOTION_KINDS for i in range(1, len(joint_kinds) + 1)]
+    names += [f"{kind}{i}" for kind in MOTION_KINDS for i in range(1, n_moved + 1)]
+    names += [f"{MASS_KIND}.{group}" for group in mass_groups]
     names += [f"{pose}.{kind}" for pose in ("base", "tool") for kind in POSE_KINDS]
     return names
 
@@ -41,14 +50,30 @@ def is_joint_length(name: str) -> bool:
 
 
 def split_name(name: str) -> tuple[str, int | str]:
-    """``'alpha3' -> ('alpha', 3)``, ``'base.rx' -> ('rx', 'base')``; ValueError otherwise."""
+    """``'alpha3' -> ('alpha', 3)``, ``'base.rx' -> ('rx', 'base')``, ``'mass.arms' ->
+    ('mass', 'arms')``; ValueError otherwise."""
     match = _JOINT_NAME.match(name)
     if match:
         return match.group(1), int(match.group(2))
     match = _POSE_NAME.match(name)
     if match:
         return match.group(2), match.group(1)
+    match = _MASS_NAME.match(name)
+    if match:
+        return MASS_KIND, match.group(1)
     raise ValueError(f"unknown parameter name {name!r}")
+
+
+def kind_label(name: str) -> str:
+    """What a stage or a group calls a parameter: its kind (``theta``, ``kx``, ``mass``), or
+    ``base``/``tool`` for a pose's perturbation."""
+    kind, owner = split_name(name)
+    return owner if isinstance(owner, str) and kind != MASS_KIND else kind
+
+
+def is_mass(name: str) -> bool:
+    """A body group's mass scale."""
+    return name.startswith(f"{MASS_KIND}.")
 
 
 def unit_of(name: str) -> str:
@@ -58,6 +83,8 @@ def unit_of(name: str) -> str:
         return "m"
     if kind in COMPLIANCE_KINDS:
         return "rad/(N m)"
+    if kind == MASS_KIND:
+        return "1"
     return "rad"
 
 

@@ -18,7 +18,7 @@ from .errors import InputError
 from .ets import ET, Chain, ancestry
 from .ik import IKResult, inverse_kinematics
 from .joints import DHJoint, Joint, perturbation_elements, pose_elements
-from .parameters import parameter_names
+from .parameters import MASS_KIND, parameter_names
 
 # Each model adds terms to the one before: axis distortions (s), gravity compliances (e) and
 # the motion history's joint offsets (h: lost motion and the speed term, fgcal.motion).
@@ -66,6 +66,14 @@ class Robot:
     flange_joint: int | None = None
     tips: tuple[tuple[str, int, np.ndarray], ...] = ()
     flange_name: str = "flange"  # the flange's name among the tips (a URDF's tip link)
+    # Coupled joints, which the controller does not move on their own (a parallelogram, a
+    # torso's last joint): (joint, ((joint it follows, coefficient), ...), offset rad or m), so
+    # that q_k = sum_i c_i q_i + c_0. ``joints``, ``masses`` and ``coms`` count them;
+    # ``directions``, ``limits`` and joint values do not.
+    coupled: tuple[tuple[int, tuple[tuple[int, float], ...], float], ...] = ()
+    # Body groups whose masses are scaled by a parameter mass.{name}: (name, joints whose
+    # links are the group's bodies).
+    mass_groups: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -73,9 +81,19 @@ class Robot:
         n = len(self.joints)
         if n == 0:
             raise ValueError("a robot needs at least one joint")
+        followers = [k for k, _, _ in self.coupled]
+        for k, sources, _ in self.coupled:
+            if not 0 <= k < n or not sources or any(s in followers or not 0 <= s < n for s, _ in sources):
+                raise ValueError(f"coupled joint {k + 1}: it follows joints the controller moves, of the robot's {n}")
+        if len(set(followers)) != len(followers) or len(followers) >= n:
+            raise ValueError("each joint is coupled once, and at least one joint is not")
+        for group, members in self.mass_groups:
+            if not members or any(not 0 <= b < n for b in members):
+                raise ValueError(f"mass group {group!r}: the joints of its bodies, of the robot's {n}")
+        moved = n - len(followers)
         for name, arr, shape in (
-            ("directions", self.directions, (n,)),
-            ("limits", self.limits, (n, 2)),
+            ("directions", self.directions, (moved,)),
+            ("limits", self.limits, (moved, 2)),
             ("masses", self.masses, (n,)),
             ("coms", self.coms, (n, 3)),
         ):
@@ -99,7 +117,11 @@ class Robot:
         calibrated = f", {len(self.overrides)} parameters set" if self.overrides else ""
         payload = f", payload {self.payload_mass:g} kg" if self.payload_mass else ""
         tree = f", a tree with tips {', '.join(self.tip_names)}" if self.parents is not None or self.tips else ""
-        return f"<Robot {self.name!r}: {self.n_joints} {kinds} joints{tree}, model {self.model}{calibrated}{payload}>"
+        coupled = f" ({len(self.coupled)} more coupled)" if self.coupled else ""
+        return (
+            f"<Robot {self.name!r}: {self.n_joints} {kinds} joints{coupled}{tree}, model {self.model}"
+            f"{calibrated}{payload}>"
+        )
 
     # -- description -------------------------------------------------------------------
     @property
@@ -114,7 +136,45 @@ class Robot:
 
     @property
     def n_joints(self) -> int:
+        """The joints the controller moves: the width of joint values (coupled joints follow)."""
+        return len(self.joints) - len(self.coupled)
+
+    @property
+    def n_links(self) -> int:
+        """Every joint of the geometry, coupled ones included (what parameters are numbered by)."""
         return len(self.joints)
+
+    def geometry_values(self, q: np.ndarray) -> np.ndarray:
+        """(N, L) the value of every joint of the geometry at joint values ``q`` (N, n): a joint
+        the controller moves, its own (rad or m); a coupled one, ``sum c_i q_i + c_0``."""
+        q2 = self.check_q(q)
+        out = np.empty((len(q2), self.n_links))
+        coupled = {k for k, _, _ in self.coupled}
+        for k, (sources, offset) in enumerate(self.drives):
+            if k in coupled:
+                out[:, k] = sum(c * q2[:, column] for column, c in sources) + offset
+            else:
+                out[:, k] = q2[:, sources[0][0]]
+        return out
+
+    @cached_property
+    def drives(self) -> tuple[tuple[tuple[tuple[int, float], ...], float], ...]:
+        """Per joint of the geometry, how the joint values move it: ((column of q, coefficient),
+        ...) and a constant offset (rad or m); a joint the controller moves is its own column
+        times its direction."""
+        coupled = {k: (sources, offset) for k, sources, offset in self.coupled}
+        column = {}
+        for k in range(self.n_links):
+            if k not in coupled:
+                column[k] = len(column)
+        out = []
+        for k in range(self.n_links):
+            if k in coupled:
+                sources, offset = coupled[k]
+                out.append((tuple((column[s], float(c)) for s, c in sources), float(offset)))
+            else:
+                out.append((((column[k], float(self.directions[column[k]])),), 0.0))
+        return tuple(out)
 
     @property
     def dh(self) -> np.ndarray:
@@ -125,18 +185,20 @@ class Robot:
 
     @property
     def prismatic(self) -> np.ndarray:
-        """(n,) True for each prismatic joint (its values are m, not rad)."""
-        return np.array([j.prismatic for j in self.joints], dtype=bool)
+        """(n,) True for each prismatic joint the controller moves (its values are m, not rad)."""
+        followers = {k for k, _, _ in self.coupled}
+        return np.array([j.prismatic for k, j in enumerate(self.joints) if k not in followers], dtype=bool)
 
     @cached_property
     def parameter_names(self) -> list[str]:
-        return parameter_names([j.kinds for j in self.joints])
+        return parameter_names([j.kinds for j in self.joints], self.n_joints, [name for name, _ in self.mass_groups])
 
     def nominal_parameters(self) -> dict[str, float]:
         """Every SPEC parameter name with its nominal value (SI): the manufacturer's DH,
         zero distortions and compliances, zero base/tool perturbations, then any values
         the robot file sets (a calibrated robot file sets its estimates)."""
         values = dict.fromkeys(self.parameter_names, 0.0)
+        values.update({f"{MASS_KIND}.{name}": 1.0 for name, _ in self.mass_groups})
         for i, joint in enumerate(self.joints, start=1):
             values.update({f"{kind}{i}": float(v) for kind, v in joint.nominal().items()})
         values.update({k: float(v) for k, v in self.overrides.items()})
@@ -344,7 +406,13 @@ def build_chain(robot: Robot) -> Chain:
             return index[f"{kind}{number}"]
 
         start = frame_of(robot.parents[i]) if robot.parents is not None else len(elements)
-        elements += hung(joint.before_bend(param, i, float(robot.directions[i]), robot.model != "DH"), start)
+        (first, *more), offset = robot.drives[i]
+        elements += hung(joint.before_bend(param, first[0], first[1], robot.model != "DH"), start)
+        if more or offset:
+            # A coupled joint: one motion per joint it follows, about the same axis (they commute).
+            motion = elements[-1]
+            elements[-1] = replace(motion, const=motion.const + offset)
+            elements += [ET(motion.axis, joint=column, sign=c) for column, c in more]
         bend.append(len(elements))
         if robot.compliant:
             elements += [
@@ -354,7 +422,7 @@ def build_chain(robot: Robot) -> Chain:
             ]
         elements += joint.after_bend(param)
         link_end.append(len(elements))
-    flange = frame_of(robot.n_joints - 1 if robot.flange_joint is None else robot.flange_joint)
+    flange = frame_of(robot.n_links - 1 if robot.flange_joint is None else robot.flange_joint)
     to_flange = pose_elements(robot.flange_pose)
     if to_flange:
         elements += hung(to_flange, flange)

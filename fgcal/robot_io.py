@@ -33,7 +33,7 @@ from .errors import InputError
 from .fields import Fields, check_name, read_file_text, read_yaml
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .outputs import write_text
-from .parameters import LENGTH_KINDS, is_motion, parameter_names, split_name
+from .parameters import LENGTH_KINDS, MASS_KIND, is_motion, parameter_names, split_name
 from .robot import MODELS, Robot
 from .se3 import pose_from_xyz_rpy, rpy_from_rotation
 from .units import Units, parse_units
@@ -56,11 +56,12 @@ ROBOT_KEYS = (
     "flange_joint",
     "flange_name",
     "tips",
+    "mass_groups",
     "notes",
 )
 DH_KEYS = ("theta", "d", "a", "alpha")
 ORIGIN_KEYS = ("origin", "axis", "type")
-JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "direction", "limits", "mass", "com")
+JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "coupling", "direction", "limits", "mass", "com")
 CONVENTIONS = ("standard", "modified")
 # DH: the SPEC's (standard) or Craig's (modified)
 MAX_MOTION_TERM = float(np.radians(1.0))  # |lm|, |lv| in a robot file (SI)
@@ -98,6 +99,14 @@ def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
 
 
 ROBOT_FILE_SUFFIXES = (".yaml", ".yml", ".urdf")
+
+
+def is_urdf_reference(name_or_path: str | Path) -> bool:
+    """A URDF file, or a bundled robot given by a URDF (as load_robot resolves it)."""
+    path = Path(name_or_path)
+    if path.suffix.lower() in ROBOT_FILE_SUFFIXES:
+        return path.suffix.lower() == ".urdf"
+    return (robots_dir() / f"{name_or_path}.urdf").exists()
 
 
 def robot_reference(
@@ -179,6 +188,8 @@ def parameter_scale(name: str, units: Units) -> float:
     kind, _ = split_name(name)
     if kind in LENGTH_KINDS:
         return units.to_m
+    if kind == MASS_KIND:
+        return 1.0
     return units.to_rad
 
 
@@ -193,13 +204,18 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     joints = doc.sub_list("joints")
     if not joints:
         raise doc.error("joints", "a robot needs at least one joint")
-    geometries, directions, limits, masses, coms, parents = [], [], [], [], [], []
+    geometries, directions, limits, masses, coms, parents, coupled = [], [], [], [], [], [], []
     for number, joint in enumerate(joints, start=1):
         joint.check_keys(JOINT_KEYS)
         # A tree: the joint (1-based) whose link this one hangs from, 0 the base; default the one before.
         parents.append(joint.integer("parent", number - 1, minimum=0, maximum=number - 1) - 1)
         geometry = _joint_geometry(joint, units, convention)
         geometries.append(geometry)
+        masses.append(joint.number("mass", 0.0, nonnegative=True))
+        coms.append(joint.vector("com", 3, [0, 0, 0], units.to_m))
+        if joint.has("coupling"):
+            coupled.append(_coupling(joint, number, len(joints), units.to_m if geometry.prismatic else units.to_rad))
+            continue
         direction = joint.number("direction", 1.0)
         if direction not in (1.0, -1.0):
             raise joint.error("direction", f"must be +1 or -1, got {direction}")
@@ -208,13 +224,18 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         if not lim[0] < lim[1]:
             raise joint.error("limits", "lower limit must be below upper limit")
         limits.append(lim)
-        masses.append(joint.number("mass", 0.0, nonnegative=True))
-        coms.append(joint.vector("com", 3, [0, 0, 0], units.to_m))
+    followers = {k for k, _, _ in coupled}
+    for k, sources, _ in coupled:
+        for leader, _ in sources:
+            if leader in followers or leader == k:
+                raise joints[k].error("coupling.joints", f"joint {leader + 1} is coupled itself: a coupled joint "
+                                      "follows joints the controller moves")  # fmt: skip
+    mass_groups = _mass_groups(doc, len(joints))
     payload = doc.sub("payload", {})
     payload.check_keys(("mass", "com"))
     gravity = doc.vector("gravity", 3, [0.0, 0.0, -9.81])
     overrides = {}
-    names = set(parameter_names([g.kinds for g in geometries]))
+    names = set(parameter_names([g.kinds for g in geometries], len(directions), [g for g, _ in mass_groups]))
     params = doc.sub("parameters", {})
     for key in params.data:
         if key not in names:
@@ -242,9 +263,59 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         source=str(doc.raw("source")),
         model=doc.string("model", "DH,s,e", MODELS),
         urdf=_urdf_origin(doc, Path(source)),
-        region=_region(doc, units, [g.prismatic for g in geometries], np.array(limits)),
+        region=_region(
+            doc, units, [g.prismatic for k, g in enumerate(geometries) if k not in followers], np.array(limits)
+        ),
+        coupled=tuple(coupled),
+        mass_groups=mass_groups,
         **_tree(doc, units, parents),
     )
+
+
+def _coupling(joint: Fields, number: int, n: int, to_si: float) -> tuple[int, tuple[tuple[int, float], ...], float]:
+    """A coupled joint's ``coupling: {joints: [..], coefficients: [..], offset}``: its value is
+    ``sum c_i q_i + offset`` of the joints (1-based) it follows; it has no direction or limits."""
+    for key in ("direction", "limits"):
+        if joint.has(key):
+            raise joint.error(key, "a coupled joint follows others: its direction and limits are theirs")
+    entry = joint.sub("coupling")
+    entry.check_keys(("joints", "coefficients", "offset"))
+    sources = entry.items("joints")
+    if not sources:
+        raise entry.error("joints", "the joints (1-based) this one follows, at least one")
+    for k, source in enumerate(sources):
+        if isinstance(source, bool) or not isinstance(source, int) or not 1 <= source <= n or source == number:
+            raise entry.error(f"joints[{k}]", f"another joint's number, 1 to {n}, got {source!r}")
+    if len(set(sources)) != len(sources):
+        raise entry.error("joints", f"each joint once, got {sources}")
+    coefficients = entry.vector("coefficients", len(sources))
+    if np.any(coefficients == 0.0):
+        raise entry.error("coefficients", "non-zero coefficients (a joint it does not follow is left out)")
+    offset = entry.number("offset", 0.0, scale=to_si)
+    return number - 1, tuple((s - 1, float(c)) for s, c in zip(sources, coefficients, strict=True)), offset
+
+
+def _mass_groups(doc: Fields, n: int) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    """``mass_groups: {name: [joints]}``: bodies (the links of the joints, 1-based) whose masses
+    one parameter mass.{name} scales; each body in one group at most."""
+    if not doc.has("mass_groups"):
+        return ()
+    groups = doc.sub("mass_groups")
+    out, seen = [], set()
+    for name in groups.data:
+        if not isinstance(name, str) or not name.isidentifier():
+            raise groups.error(str(name), "a group's name is a plain identifier (letters, digits, _)")
+        members = groups.items(name)
+        for k, member in enumerate(members):
+            if isinstance(member, bool) or not isinstance(member, int) or not 1 <= member <= n:
+                raise groups.error(f"{name}[{k}]", f"a joint's number, 1 to {n}, got {member!r}")
+            if member in seen:
+                raise groups.error(f"{name}[{k}]", f"joint {member}'s body is in another group already")
+            seen.add(member)
+        if not members:
+            raise groups.error(name, "a group has at least one body")
+        out.append((name, tuple(m - 1 for m in members)))
+    return tuple(out)
 
 
 def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
@@ -349,6 +420,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     values = robot.nominal_parameters()
     values.update(params or {})
     joints = []
+    coupling = {k: (sources, offset) for k, sources, offset in robot.coupled}
+    columns = iter(range(robot.n_joints))
     for i, geometry in enumerate(robot.joints, start=1):
         if isinstance(geometry, (DHJoint, ModifiedDHJoint)):
             entry = {kind: values.pop(f"{kind}{i}") for kind in DH_KEYS}
@@ -362,14 +435,18 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
             }
         if robot.parents is not None:
             entry["parent"] = robot.parents[i - 1] + 1
-        entry.update(
-            {
-                "direction": int(robot.directions[i - 1]),
-                "limits": [float(v) for v in robot.limits[i - 1]],
-                "mass": float(robot.masses[i - 1]),
-                "com": [float(v) for v in robot.coms[i - 1]],
+        if i - 1 in coupling:
+            sources, offset = coupling[i - 1]
+            entry["coupling"] = {
+                "joints": [s + 1 for s, _ in sources],
+                "coefficients": [c for _, c in sources],
+                "offset": offset,
             }
-        )
+        else:
+            column = next(columns)
+            entry["direction"] = int(robot.directions[column])
+            entry["limits"] = [float(v) for v in robot.limits[column]]
+        entry.update({"mass": float(robot.masses[i - 1]), "com": [float(v) for v in robot.coms[i - 1]]})
         joints.append(entry)
     doc = {
         "name": robot.name,
@@ -393,6 +470,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
         doc["flange_joint"] = robot.flange_joint + 1
     if robot.flange_name != "flange":
         doc["flange_name"] = robot.flange_name
+    if robot.mass_groups:
+        doc["mass_groups"] = {name: [m + 1 for m in members] for name, members in robot.mass_groups}
     if robot.tips:
         doc["tips"] = [{"name": name, "joint": joint + 1, **_pose_dict(pose)} for name, joint, pose in robot.tips]
     if notes:

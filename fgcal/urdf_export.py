@@ -29,7 +29,7 @@ from .errors import InputError
 from .joints import OriginJoint
 from .outputs import output_dir, output_file, write_text
 from .robot import Robot
-from .se3 import inverse, rpy_from_rotation
+from .se3 import inverse, rpy_from_rotation, so3_exp
 
 TINY = 1e-12  # m or rad: below this a value is written as 0
 
@@ -77,32 +77,52 @@ def joint_frames(robot: Robot) -> dict:
     """Frames of the exported URDF in W at q = 0, at the robot's parameter values with the
     compliances zero: ``base`` (T_W_0), ``joints`` (n, 4, 4: joint i's frame, its motion's
     axis through the origin), ``axes`` (n, 3: in the joint frame, signed by the joint
-    direction), ``bodies`` (n, 4, 4: the frames the link masses are given in), ``bends``
+    direction), ``origins`` (n, 4, 4: where each joint's URDF origin puts its frame: the joint
+    frame, a coupled joint's offset undone, which its URDF value carries), ``bodies`` (n, 4, 4:
+    the frames the link masses are given in), ``bends``
     (n, 4, 4: the bending frames), ``flange`` and ``tool``."""
     chain = robot.chain
     data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
     frames = data.frames_rigid[:, 0]
-    motion = [next(k for k, et in enumerate(chain.elements) if et.joint == i) for i in range(robot.n_joints)]
-    joints, axes = [], []
-    for i, k in enumerate(motion):
+    joints, origins, axes = [], [], []
+    for i in range(robot.n_links):
+        # The joint's motion is the element(s) right before its bending frame (a coupled joint's:
+        # one per joint it follows, about one axis); at q = 0 the frame after them is B_i.
+        k = chain.bend[i] - 1
+        while (
+            k > 0 and chain.elements[k - 1].joint is not None and chain.elements[k - 1].axis == chain.elements[k].axis
+        ):
+            k -= 1
+        (_, direction), *more = robot.drives[i][0]
+        sign = 1.0 if more or i in {c for c, _, _ in robot.coupled} else direction
         # A joint given by its origin keeps its link frame (after the axis alignment is undone).
-        child = chain.link_end[i] if isinstance(robot.joints[i], OriginJoint) else k + 1
-        J = frames[child]
-        after_motion = frames[k + 1]
+        J = frames[chain.link_end[i]] if isinstance(robot.joints[i], OriginJoint) else frames[chain.bend[i]]
+        after_motion = frames[chain.bend[i]]
         if np.linalg.norm(J[:3, 3] - after_motion[:3, 3]) > 1e-12:
             raise ValueError(f"joint {i + 1}: the link frame is not on the joint axis")
         et = chain.elements[k]
-        axis_world = et.sign * after_motion[:3, "xyz".index(et.axis[1])]
+        axis_world = sign * after_motion[:3, "xyz".index(et.axis[1])]
+        axis = J[:3, :3].T @ axis_world
+        back = np.eye(4)
+        offset = robot.drives[i][1]
+        if offset:  # a coupled joint's: in its URDF value (mimic offset), not in its origin
+            if robot.joints[i].prismatic:
+                back[:3, 3] = -offset * axis
+            else:
+                back[:3, :3] = so3_exp(-offset * axis)
         joints.append(J)
-        axes.append(J[:3, :3].T @ axis_world)
+        origins.append(J @ back)
+        axes.append(axis)
     return {
         "base": frames[chain.base_end],
         "joints": np.array(joints),
+        "origins": np.array(origins),
         "axes": np.array(axes),
         "bodies": frames[list(chain.link_end)],
         "bends": frames[list(chain.bend)],
         "flange": frames[chain.flange],
         "tool": frames[chain.tool],
+        "tips": {name: frames[index] for name, index in chain.tips},
     }
 
 
@@ -131,7 +151,6 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
     """The URDF (text) of ``robot`` at its parameter values (a calibrated robot's estimates),
     with the ROS-Industrial link names."""
     f = joint_frames(robot)
-    n = robot.n_joints
     parts = [
         '<?xml version="1.0"?>',
         _comment(
@@ -144,29 +163,60 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
     parts.append(f"<robot name={quoteattr(robot.name)}>")
     parts += [_link_xml("world"), _link_xml("base_link")]
     parts.append(_fixed_xml("world-base_link", "world", "base_link", f["base"]))
-    parent, T_parent = "base_link", f["base"]
-    for i in range(n):
-        link = f"link_{i + 1}"
-        J = f["joints"][i]
+
+    def link_of(joint: int) -> tuple[str, np.ndarray]:
+        return ("base_link", f["base"]) if joint < 0 else (f"link_{joint + 1}", f["joints"][joint])
+
+    coupled = {k: sources for k, sources, _ in robot.coupled}
+    masses = robot.masses * kinematics.body_scales(robot, robot.parameter_vector())[: robot.n_links]
+    for i in range(robot.n_links):
+        parent, T_parent = link_of(robot.parents[i] if robot.parents is not None else i - 1)
+        link, J = link_of(i)
         com_in_joint = inverse(J) @ f["bodies"][i] @ np.append(robot.coms[i], 1.0)
-        parts.append(_link_xml(link, float(robot.masses[i]), com_in_joint[:3]))
+        parts.append(_link_xml(link, float(masses[i]), com_in_joint[:3]))
         kind = "prismatic" if robot.joints[i].prismatic else "revolute"
-        lower, upper = (number(v) for v in robot.limits[i])
+        low, high = _joint_range(robot, i)
+        follows = ""
+        if i in coupled and len(coupled[i]) == 1:
+            ((leader, c),) = coupled[i]
+            offset = number(robot.drives[i][1])
+            follows = f'\n    <mimic joint="joint_{leader + 1}" multiplier="{number(c)}" offset="{offset}"/>'
+        elif i in coupled:  # URDF's mimic follows one joint
+            terms = " ".join(f"{c:+g} joint_{s + 1}" for s, c in coupled[i])
+            if robot.drives[i][1]:
+                terms += f" {robot.drives[i][1]:+g}"
+            parts.append(_comment(f"joint_{i + 1} follows several joints: set its value to {terms}"))
         parts.append(
             f'  <joint name="joint_{i + 1}" type="{kind}">\n'
             f'    <parent link="{parent}"/>\n    <child link="{link}"/>\n'
-            f"    {_origin_xml(inverse(T_parent) @ J)}\n"
+            f"    {_origin_xml(inverse(T_parent) @ f['origins'][i])}\n"
             f'    <axis xyz="{_vector(_unit(f["axes"][i]))}"/>\n'
-            f'    <limit lower="{lower}" upper="{upper}" effort="0" velocity="0"/>\n'
+            f'    <limit lower="{number(low)}" upper="{number(high)}" effort="0" velocity="0"/>{follows}\n'
             "  </joint>"
         )
-        parent, T_parent = link, J
+    flange_parent, T_parent = link_of(robot.n_links - 1 if robot.flange_joint is None else robot.flange_joint)
     parts.append(_link_xml("flange", float(robot.payload_mass), robot.payload_com))
-    parts.append(_fixed_xml(f"{parent}-flange", parent, "flange", inverse(T_parent) @ f["flange"]))
+    parts.append(_fixed_xml(f"{flange_parent}-flange", flange_parent, "flange", inverse(T_parent) @ f["flange"]))
     parts.append(_link_xml("tool0"))
     parts.append(_fixed_xml("flange-tool0", "flange", "tool0", inverse(f["flange"]) @ f["tool"]))
+    for name, joint, _ in robot.tips:  # a tree's other tips, by their names
+        parent, T_parent = link_of(joint)
+        parts.append(_link_xml(name))
+        parts.append(_fixed_xml(f"{parent}-{name}", parent, name, inverse(T_parent) @ f["tips"][name]))
     parts.append("</robot>")
     return "\n".join(parts) + "\n"
+
+
+def _joint_range(robot: Robot, link: int) -> tuple[float, float]:
+    """The URDF joint's range: the controller's limits, or for a coupled joint the range of
+    sum c_i q_i + c_0 over its leaders' limits."""
+    (first, *more), _ = robot.drives[link]
+    if not more and link not in {k for k, _, _ in robot.coupled}:
+        low, high = robot.limits[first[0]]
+        return float(low), float(high)
+    ends = [sorted((c * robot.limits[column, 0], c * robot.limits[column, 1])) for column, c in (first, *more)]
+    offset = robot.drives[link][1]
+    return float(sum(e[0] for e in ends) + offset), float(sum(e[1] for e in ends) + offset)
 
 
 # -- a robot that came from a URDF -------------------------------------------------------------
@@ -259,18 +309,24 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
     the URDF's root in the calibration's frame W and the calibration's tool on the flange."""
     values = robot.nominal_parameters()
     frames = joint_frames(robot)
-    names = joint_names or [f"joint_{i + 1}" for i in range(robot.n_joints)]
+    names = joint_names or [f"joint_{i + 1}" for i in range(robot.n_links)]
+    coupled = {k: (sources, offset) for k, sources, offset in robot.coupled}
     joints = []
-    for i in range(robot.n_joints):
+    for i in range(robot.n_links):
         B_in_joint = inverse(frames["joints"][i]) @ frames["bends"][i]
         entry = {
             "joint": names[i],
             "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
             "bending_frame_rpy_rad": [clean(v) for v in rpy_from_rotation(B_in_joint[:3, :3])],
         }
-        if robot.history:  # which a URDF cannot hold either (fgcal.motion)
-            entry["lost_motion"] = clean(values[f"lm{i + 1}"])
-            entry["speed_term"] = clean(values[f"lv{i + 1}"])
+        if i in coupled:  # its URDF value is sum c q; the offset is in its origin
+            sources, offset = coupled[i]
+            entry["follows"] = {names[s]: float(c) for s, c in sources}
+            entry["offset"] = clean(offset)  # rad or m, in the joint's URDF value
+        elif robot.history:  # which a URDF cannot hold either (fgcal.motion)
+            column = robot.drives[i][0][0][0]
+            entry["lost_motion"] = clean(values[f"lm{column + 1}"])
+            entry["speed_term"] = clean(values[f"lv{column + 1}"])
         joints.append(entry)
 
     def pose(T: np.ndarray) -> dict:
@@ -296,6 +352,14 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
         "base_in_world": pose(frames["base"]),
         "tool_in_flange": pose(inverse(frames["flange"]) @ frames["tool"]),
         "joints": joints,
+        **(
+            {
+                "mass_scales": {name: float(values[f"mass.{name}"]) for name, _ in robot.mass_groups},
+                "mass_scales_note": "the calibrated mass scales of the body groups, applied to the URDF's link masses",
+            }
+            if robot.mass_groups
+            else {}
+        ),
         **(
             {
                 "motion_history": (
@@ -332,9 +396,10 @@ def export_urdf(
     ``template``, its URDF) is written into that document."""
     import yaml
 
-    refuse_tree(robot)
     path, sidecar = check_outputs(path)  # both outputs checked before either is written
-    source = template_of(robot, template)
+    source = None if is_tree(robot) else template_of(robot, template)
+    if is_tree(robot) and template is not None:
+        raise InputError(template, "--template", f"{robot.name} is a tree: it is written in fgcal's own layout")
     if source is None:
         text, names = urdf_document(robot, sidecar.name), None
     else:
@@ -349,14 +414,10 @@ def export_urdf(
     return path, sidecar
 
 
-def refuse_tree(robot: Robot) -> None:
-    """A tree is not exported yet (issue 28): said before any work."""
-    if robot.parents is not None or robot.tips:
-        raise InputError(
-            robot.urdf[0] if robot.urdf else None, "--urdf",
-            f"{robot.name} is a tree ({', '.join(robot.tip_names)}): exporting trees "
-            "is not supported yet (a URDF's tip link, robot: {file, tip}, gives one chain of it)",
-        )  # fmt: skip
+def is_tree(robot: Robot) -> bool:
+    """A robot with branches, several tips or coupled joints: written in fgcal's own layout
+    (links ``link_i``, each tip a link by its name), whatever URDF it came from."""
+    return robot.parents is not None or bool(robot.tips) or bool(robot.coupled)
 
 
 def template_of(robot: Robot, template: str | Path | None) -> tuple[Path, str] | None:

@@ -17,7 +17,12 @@ def test_bundled_library():
     assert {"kuka_kr125_2", "abb_irb120", "ur10e", "puma560", "seven_axis"} <= set(bundled_robots())
     for name in bundled_robots():
         robot = fgcal.load_robot(name)
-        assert robot.n_joints == {"seven_axis": 7, "positioner_2axis": 2}.get(name, 6)
+        assert robot.n_joints == {
+            "seven_axis": 7,
+            "positioner_2axis": 2,
+            "dual_arm_torso": 17,
+            "irb120_positioner": 8,
+        }.get(name, 6)
         assert robot.source.strip(), f"{name} must name its source"
         assert np.all(robot.limits[:, 0] < robot.limits[:, 1])
 

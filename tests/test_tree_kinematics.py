@@ -9,7 +9,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yourdfpy
+from yaml import safe_load as yaml_load
 
+import fgcal
 from fgcal import kinematics
 from fgcal.ets import ET, Chain, ancestry, evaluate
 from fgcal.se3 import so3_log
@@ -33,6 +36,8 @@ class _Tree:
     compliant: bool = True
     history: bool = False
     n_joints: int = 5
+    n_links: int = 5
+    mass_groups: tuple = ()
 
 
 def _tree() -> _Tree:
@@ -319,9 +324,10 @@ def test_two_leaves_one_on_the_root(tmp_path, capsys):
     np.testing.assert_allclose(robot.fk(np.array([1.0]), tip="c"), robot.fk(np.array([0.0]), tip="c"))
 
 
-def test_a_tree_calibrates_on_its_flange_and_is_not_exported_yet(tmp_path, capsys):
+def test_a_tree_calibrates_on_its_flange_and_exports_in_fgcals_layout(tmp_path, capsys):
     """A tree robot in a tracker cell: the flange's chain calibrates (the other branches'
-    parameters are not identifiable from it); fgcal export refuses the tree before any work."""
+    parameters are not identifiable from it); fgcal export writes the tree in fgcal's own
+    layout (each tip a link by its name), and refuses to write it into a template."""
     import yaml
 
     from fgcal.cli import main
@@ -336,6 +342,127 @@ def test_a_tree_calibrates_on_its_flange_and_is_not_exported_yet(tmp_path, capsy
                  "--no-plots", "--json"]) == 0  # fmt: skip
     capsys.readouterr()
     calibrated = tmp_path / "out" / "calibrated_robot.yaml"
-    assert main(["export", str(calibrated), "--urdf", str(tmp_path / "x.urdf")]) == 2
+    template = ["--template", str(tmp_path / "tree.urdf")]
+    assert main(["export", str(calibrated), "--urdf", str(tmp_path / "x.urdf"), *template]) == 2
     error = capsys.readouterr()
     assert "is a tree" in error.err and "URDF alone" not in error.out + error.err
+    assert main(["export", str(calibrated), "--urdf", str(tmp_path / "x.urdf")]) == 0
+    robot = fgcal.load_robot(calibrated).with_model("DH,s")  # what a URDF holds: no compliances
+    urdf = yourdfpy.URDF.load(str(tmp_path / "x.urdf"), load_meshes=False, build_collision_scene_graph=False)
+    q = np.random.default_rng(2).uniform(robot.limits[:, 0], robot.limits[:, 1], (4, robot.n_joints))
+    for row in q:
+        urdf.update_cfg(dict(zip(urdf.actuated_joint_names, row, strict=True)))
+        for tip in robot.tip_names:
+            link = "flange" if tip == robot.flange_name else tip
+            np.testing.assert_allclose(urdf.get_transform(link, "world"), robot.fk(row, tip=tip), atol=1e-9)
+
+
+def test_the_dual_arm_tree_exports_with_its_coupled_joint(tmp_path, capsys):
+    """The bundled dual-arm torso as a URDF: every link, the coupled joint said in a comment
+    (URDF's mimic follows one joint), both hands; FK equals fgcal's rigid model to 1e-9 with the
+    coupled joint set to its value."""
+    from fgcal.cli import main
+
+    assert main(["export", "dual_arm_torso", "--urdf", str(tmp_path / "d.urdf")]) == 0
+    capsys.readouterr()
+    text = (tmp_path / "d.urdf").read_text()
+    assert "joint_4 follows several joints: set its value to -1 joint_2 -1 joint_3" in text
+    sidecar = yaml_load((tmp_path / "d.compliance.yaml").read_text())
+    assert sidecar["joints"][3]["follows"] == {"joint_2": -1.0, "joint_3": -1.0}
+    assert sidecar["mass_scales"] == {"arms": 1.0}
+    robot = fgcal.load_robot("dual_arm_torso").with_model("DH,s")
+    urdf = yourdfpy.URDF.load(str(tmp_path / "d.urdf"), load_meshes=False, build_collision_scene_graph=False)
+    for q in np.random.default_rng(4).uniform(robot.limits[:, 0], robot.limits[:, 1], (4, robot.n_joints)):
+        values = robot.geometry_values(q)[0]
+        np.testing.assert_allclose(values[3], -q[1] - q[2])
+        urdf.update_cfg({f"joint_{i + 1}": v for i, v in enumerate(values)})
+        np.testing.assert_allclose(urdf.get_transform("flange", "world"), robot.fk(q), atol=1e-9)
+        np.testing.assert_allclose(urdf.get_transform("right_hand", "world"), robot.fk(q, tip="right_hand"), atol=1e-9)
+
+
+def test_coupled_joint_follows_its_leaders():
+    """The bundled dual-arm torso: q4 = -q2 - q3 keeps the torso's top level, whatever q2, q3."""
+    import fgcal
+
+    robot = fgcal.load_robot("dual_arm_torso")
+    assert (robot.n_joints, robot.n_links) == (17, 18)
+    assert robot.tip_names == ["left_hand", "right_hand"]
+    rng = np.random.default_rng(3)
+    q = rng.uniform(robot.limits[:, 0], robot.limits[:, 1], (6, robot.n_joints))
+    data = kinematics.forward(robot, robot.parameter_vector(), q)
+    top = data.frames[robot.chain.link_end[3]]
+    np.testing.assert_allclose(top[:, 2, 2], 1.0, atol=1e-12)  # z stays vertical
+    # The top's orientation does not change with q2 or q3 (their motions cancel through joint
+    # 4), and the coupled joint's own offset turns it.
+    J = kinematics.jacobian(robot, data, ["theta4", "q2", "q3"], frame=robot.chain.link_end[3])
+    np.testing.assert_allclose(J[:, :3, 1:], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(J[:, :3, 0], axis=1), 1.0, atol=1e-12)
+
+
+def test_dual_arm_jacobians_with_coupling_and_mass_scale_match_central_differences():
+    """Every parameter of the tree (the coupled joint's, the mass scale, the motion terms) and
+    every joint, on both hands: analytic columns against central differences."""
+    from conftest import random_parameters
+
+    import fgcal
+    from fgcal.motion import MotionHistory, features
+
+    robot = fgcal.load_robot("dual_arm_torso").with_model("DH,s,e,h")
+    rng = np.random.default_rng(5)
+    params = random_parameters(robot, rng)
+    params["mass.arms"] = 1.3
+    q = rng.uniform(robot.limits[:, 0], robot.limits[:, 1], (3, robot.n_joints))
+    motion = features(q, MotionHistory(q - rng.uniform(-0.5, 0.5, q.shape), rng.uniform(0.2, 1.0, 3)))
+    wrt = robot.parameter_names + [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    moments = kinematics.forward(robot, robot.parameter_vector(params), q, motion).moments
+    for tip in robot.tip_names:
+        J = robot.jacobian(q, wrt, params, frame=tip, motion=motion)
+        worst = {}
+        for col, name in enumerate(wrt):
+            # 1e-4: one arm's parameters move the other hand by 1e-5 of theirs (through the
+            # torso's compliance), where a 1e-6 step's rounding is already 1e-5 of the column;
+            # the truncation error of 1e-4 is 1e-8 of a column.
+            step = 1e-4
+            if name[0] == "k":
+                component = 3 * (int(name[2:]) - 1) + "xyz".index(name[1])
+                step = 1e-4 / max(1.0, np.abs(moments[:, component]).max())
+
+            def pose(h, name=name, tip=tip):
+                if name.startswith("q"):
+                    qq = q.copy()
+                    qq[:, int(name[1:]) - 1] += h
+                    return robot.fk(qq, params, motion, tip=tip)
+                return robot.fk(q, {**params, name: params[name] + h}, motion, tip=tip)
+
+            T0, Tp, Tm = pose(0.0), pose(step), pose(-step)
+            R0t = np.swapaxes(T0[:, :3, :3], 1, 2)
+            d_rot = (so3_log(R0t @ Tp[:, :3, :3]) - so3_log(R0t @ Tm[:, :3, :3])) / (2 * step)
+            d_pos = np.einsum("nij,nj->ni", R0t, (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * step))
+            numeric = np.concatenate([d_rot, d_pos], axis=1)
+            # Relative to the column, or to 1e-3 for the tiny ones (a hand moved by the other
+            # arm through the torso's compliance), whose differences are at rounding's floor.
+            worst[name] = np.linalg.norm(J[:, :, col] - numeric) / max(np.linalg.norm(numeric), 1e-3)
+        bad = {k: v for k, v in worst.items() if v > 1e-6}
+        assert not bad, f"{tip}: Jacobian columns off by more than 1e-6 relative: {bad}"
+        # The mass scale moves both hands (the torso's compliances carry the arms).
+        assert np.linalg.norm(J[:, :, wrt.index("mass.arms")]) > 1e-4
+
+
+def test_a_joint_coupled_to_one_other_exports_as_a_mimic(tmp_path, capsys):
+    """q4 = -q2 + 10 deg: URDF's mimic (multiplier, offset), which yourdfpy follows; FK of both
+    hands equals fgcal's rigid model to 1e-9."""
+    from fgcal.cli import main
+
+    doc = yaml_load((Path(__file__).parent.parent / "datasets" / "robots" / "dual_arm_torso.yaml").read_text())
+    doc["joints"][3]["coupling"] = {"joints": [2], "coefficients": [-1], "offset": 10}
+    (tmp_path / "robot.yaml").write_text(__import__("yaml").safe_dump(doc))
+    assert main(["export", str(tmp_path / "robot.yaml"), "--urdf", str(tmp_path / "m.urdf")]) == 0
+    capsys.readouterr()
+    assert '<mimic joint="joint_2" multiplier="-1" offset="0.174532925199433"/>' in (tmp_path / "m.urdf").read_text()
+    robot = fgcal.load_robot(tmp_path / "robot.yaml").with_model("DH,s")
+    urdf = yourdfpy.URDF.load(str(tmp_path / "m.urdf"), load_meshes=False, build_collision_scene_graph=False)
+    assert "joint_4" not in urdf.actuated_joint_names and len(urdf.actuated_joint_names) == robot.n_joints
+    for q in np.random.default_rng(6).uniform(robot.limits[:, 0], robot.limits[:, 1], (4, robot.n_joints)):
+        urdf.update_cfg(q)
+        np.testing.assert_allclose(urdf.get_transform("flange", "world"), robot.fk(q), atol=1e-9)
+        np.testing.assert_allclose(urdf.get_transform("right_hand", "world"), robot.fk(q, tip="right_hand"), atol=1e-9)

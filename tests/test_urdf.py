@@ -74,7 +74,7 @@ def test_exported_urdf_matches_tool_pose_for_every_bundled_robot(tmp_path):
         urdf, _ = export_urdf(robot, tmp_path / f"{name}.urdf")
         reference = _yourdfpy(urdf)
         for q in rng.uniform(robot.limits[:, 0], robot.limits[:, 1], (10, robot.n_joints)):
-            reference.update_cfg(q)
+            reference.update_cfg(robot.geometry_values(q)[0])  # a coupled joint is a joint of the URDF
             if robot.urdf is None:  # fgcal's own layout: world is W, tool0 the tool
                 assert _pose_error(reference.get_transform("tool0", "world"), robot.fk_tool(q)) < 1e-9, name
             else:  # the robot's own URDF: its root is the base frame, its tip the flange

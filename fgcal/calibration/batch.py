@@ -13,7 +13,9 @@ from ..robot import Robot
 class BatchKinematics:
     """FK (N, 4, 4) and body Jacobians (N, 6, m) of ``frame`` at all configurations ``q``,
     reached as their motion-history features ``motion`` (N, 2n) say (None: no history), as
-    functions of the m released parameters; the others stay at ``full_params``.
+    functions of the m released parameters; the others stay at ``full_params``. ``frame`` may
+    name several frames (the tips of a tree): the poses are then (F N, 4, 4), frame-major (row
+    ``f N + j`` is frame f at configuration j), and so are the Jacobians.
 
     Results are cached on the released values: when GTSAM evaluates or linearises the
     graph, the first measurement set to ask triggers one vectorised evaluation and the
@@ -26,7 +28,7 @@ class BatchKinematics:
         full_params: np.ndarray,
         released: Sequence[str],
         q: np.ndarray,
-        frame: str,
+        frame: str | Sequence[str],
         motion: np.ndarray | None,
     ) -> None:
         self.robot = robot
@@ -35,6 +37,7 @@ class BatchKinematics:
         self.index = np.array([robot.parameter_names.index(name) for name in self.released], dtype=int)
         self.q = np.asarray(q, dtype=float)
         self.frame = frame
+        self.frames = (frame,) if isinstance(frame, str) else tuple(frame)
         self.motion = motion
         self._cache: dict[bytes, dict] = {}
 
@@ -55,7 +58,8 @@ class BatchKinematics:
             if len(self._cache) >= 4:  # LM alternates between a few trial points
                 self._cache.pop(next(iter(self._cache)))
             data = kinematics.forward(self.robot, self.full(values), self.q, self.motion)
-            entry = {"data": data, "poses": kinematics.frame_pose(self.robot, data, self.frame)}
+            poses = [kinematics.frame_pose(self.robot, data, frame) for frame in self.frames]
+            entry = {"data": data, "poses": poses[0] if len(poses) == 1 else np.concatenate(poses)}
             self._cache[key] = entry
         return entry
 
@@ -69,5 +73,8 @@ class BatchKinematics:
     def jacobians(self, released_values: np.ndarray) -> np.ndarray:
         entry = self._entry(released_values)
         if "jacobians" not in entry:
-            entry["jacobians"] = kinematics.jacobian(self.robot, entry["data"], self.released, frame=self.frame)
+            jacobians = [
+                kinematics.jacobian(self.robot, entry["data"], self.released, frame=frame) for frame in self.frames
+            ]
+            entry["jacobians"] = jacobians[0] if len(jacobians) == 1 else np.concatenate(jacobians)
         return entry["jacobians"]

@@ -8,21 +8,21 @@ from pathlib import Path
 
 from ..fields import Fields, read_yaml
 from ..noise import parse_noise
-from ..parameters import JOINT_KINDS, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
+from ..parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
 from ..robot import MODELS
 from ..units import parse_units
 from .formulations import NAMES
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
-KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, "base", "tool")
+KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
 # DH angles and their translation corrections (tx, ty, tz) with the lengths.
 SEED_STAGES = (
     ("theta",),
     ("alpha", "sx", "sy", "rx", "ry", "rz"),
-    ("kx", "ky", "kz"),
+    ("kx", "ky", "kz", MASS_KIND),
     ("theta", "alpha", "sx", "sy", "rx", "ry", "rz", "kx", "ky", "kz", "d", "a", "tx", "ty", "tz", "base", "tool",
-     "lm", "lv"),
+     "lm", "lv", MASS_KIND),
 )  # fmt: skip
 ONE_SHOT = (SEED_STAGES[-1],)
 CONFIG_KEYS = (

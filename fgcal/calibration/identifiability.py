@@ -11,23 +11,25 @@ reported with the selected parameters it is (nearly) a combination of.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import gtsam
 import numpy as np
 
-from ..parameters import MOTION_KINDS, is_motion, split_name
+from ..parameters import MASS_KIND, MOTION_KINDS, is_motion, kind_label, split_name
 from .graph import StageGraph
 
 GROUPS = (
     ("theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"),
     ("sx", "sy"),
     ("kx", "ky", "kz"),
+    (MASS_KIND,),
     ("lm", "lv"),
     ("tool",),
     ("base",),
 )
 # Plausible deviations: m, rad; a joint's lost motion is hundredths of a degree.
-SCALE = {"length": 1e-2, "angle": 1e-2, "motion": 1e-3}
+SCALE = {"length": 1e-2, "angle": 1e-2, "motion": 1e-3, "mass": 0.1}
 
 
 @dataclass
@@ -54,12 +56,13 @@ def parameter_scale(name: str, moments_rms: np.ndarray) -> float:
         return SCALE["length"]
     if kind in MOTION_KINDS:
         return SCALE["motion"]
+    if kind == MASS_KIND:
+        return SCALE["mass"]
     return SCALE["angle"]
 
 
 def group_of(name: str) -> int:
-    kind, owner = split_name(name)
-    label = owner if isinstance(owner, str) else kind
+    label = kind_label(name)
     return next(i for i, group in enumerate(GROUPS) if label in group)
 
 
@@ -90,7 +93,27 @@ def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
     J_p, J_aux = reduced_jacobian(stage)
     kinematics = stage.kinematics
     moments = kinematics.data(kinematics.base[kinematics.index]).moments
+    _mass_columns_with_compliance(stage, J_p, moments)
     return select(J_p, J_aux, stage.released, moments, min_information)
+
+
+def _mass_columns_with_compliance(stage: StageGraph, J_p: np.ndarray, moments: np.ndarray) -> None:
+    """A mass scale moves the robot only through the compliances: at zero compliance (the
+    nominal start) its column is zero whatever the data. Its columns are taken where every
+    released compliance still at zero has its plausible value instead (a 10 mrad deflection)."""
+    released = stage.released
+    masses = [i for i, name in enumerate(released) if split_name(name)[0] == MASS_KIND]
+    if not masses or stage.keys.params is None:
+        return
+    values = np.array(stage.values.atVector(stage.keys.params), dtype=float)
+    moments_rms = np.sqrt(np.mean(moments**2, axis=0))
+    for i, name in enumerate(released):
+        if split_name(name)[0] in ("kx", "ky", "kz") and values[i] == 0.0:
+            values[i] = parameter_scale(name, moments_rms)
+    trial = gtsam.Values(stage.values)
+    trial.update(stage.keys.params, values)
+    J_trial, _ = reduced_jacobian(replace(stage, values=trial))
+    J_p[:, masses] = J_trial[:, masses]
 
 
 def select(

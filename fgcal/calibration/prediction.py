@@ -28,13 +28,14 @@ def _model(kinematics: BatchKinematics, scored: Scored, n_configs: int, variable
     then the next), with L and S variables where ``variables`` names them."""
     k = len(scored.points)
     tracker = scored.instrument if scored.instrument is not None else np.eye(4)
+    tips = np.zeros(k, dtype=int) if scored.tips is None else np.asarray(scored.tips, dtype=int)
     return TrackerPoints(
         kinematics,
         _P if kinematics.n_released else None,
         _L if "instrument" in variables else None,
         _S if "points" in variables else None,
         k,
-        np.tile(np.arange(n_configs), k),
+        (tips[:, None] * n_configs + np.arange(n_configs)[None, :]).reshape(-1),  # frame-major rows
         np.repeat(np.arange(k), n_configs),
         np.zeros((k * n_configs, 3)),
         1.0,
@@ -44,7 +45,12 @@ def _model(kinematics: BatchKinematics, scored: Scored, n_configs: int, variable
 
 
 def scored_positions(
-    robot: Robot, frame: str, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None, scored: Scored
+    robot: Robot,
+    frame: str | tuple[str, ...],
+    params: np.ndarray,
+    q: np.ndarray,
+    motion: np.ndarray | None,
+    scored: Scored,
 ) -> np.ndarray:
     """The scored points (k * N, 3) at configurations q, point-major, in the score's frame."""
     model = _model(BatchKinematics(robot, params, [], q, frame, motion), scored, len(q))

@@ -32,7 +32,7 @@ import numpy as np
 from ..dataset import Dataset, Table
 from ..errors import InputError
 from ..factors import MeasurementSet, RobustLoss
-from ..parameters import MOTION_KINDS, default_compliant_joints, split_name
+from ..parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
 from ..robot import Robot
 from ..truth import Truth
 from .batch import BatchKinematics
@@ -133,8 +133,19 @@ class Problem:
     validation_sets: tuple[tuple[str, np.ndarray], ...] = ()
 
     @property
-    def frame(self) -> str:
-        return self.formulation.frame
+    def frame(self) -> str | tuple[str, ...]:
+        """What the kinematics give the measurements: a frame (flange, tool) or several tips of
+        a tree (BatchKinematics: then frame-major)."""
+        return self.formulation.frames(self)
+
+    def scored_frame(self, state: State) -> str:
+        """The frame of the first scored point (what a report's tool point is in, and a
+        compensation drives)."""
+        frames = self.frame
+        if isinstance(frames, str):
+            return frames
+        tips = self.formulation.scored(self, state).tips
+        return frames[0 if tips is None else int(tips[0])]
 
     @property
     def n_residuals(self) -> int:
@@ -206,6 +217,7 @@ class Scored:
     points_from: str | None = None
     instrument_from: str | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    tips: np.ndarray | None = None  # (k,) per point, its frame among the problem's frames (None: the one)
 
 
 @dataclass(frozen=True)
@@ -296,6 +308,14 @@ class Formulation(ABC):
     def gauge(self, settings: MeasurementSettings) -> str:
         """What a score against the truth removes first: none, translation or rigid."""
         return "none"
+
+    def frames(self, problem: Problem) -> str | tuple[str, ...]:
+        """The frame the kinematics give the measurements, or the tips of a tree they are on."""
+        return self.frame
+
+    def unit_tips(self, problem: Problem, observations: Observations) -> np.ndarray | None:
+        """Per robust unit of ``observations``, the tree's tip it measures (None: all one frame)."""
+        return None
 
     def fixture_rotation_unknown(self, settings: MeasurementSettings) -> bool:
         """Whether the calibration objects' orientation in W is an unknown (fgcal plan's camera
@@ -502,7 +522,7 @@ def source_of(settings: MeasurementSettings) -> Path:
 
 def compliant_joints(robot: Robot, joints: tuple[int, ...] | None) -> tuple[int, ...]:
     """The config's compliant joints, or by default the seed's 1-3 that the robot has."""
-    return default_compliant_joints(robot.n_joints) if joints is None else joints
+    return default_compliant_joints(robot.n_links) if joints is None else joints
 
 
 def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | None) -> list[str]:
@@ -515,12 +535,14 @@ def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | Non
         kinds |= {"sx", "sy"}
     if "h" in terms:
         kinds |= set(MOTION_KINDS)
+    if "e" in terms:
+        kinds.add(MASS_KIND)  # mass scales: only the compliances' moments see them
     compliant = compliant_joints(robot, joints)
     names = []
     for name in robot.parameter_names:
         kind, owner = split_name(name)
         if (
-            isinstance(owner, str)
+            owner in ("base", "tool")
             or kind in kinds
             or ("e" in terms and kind in ("kx", "ky", "kz") and owner in compliant)
         ):

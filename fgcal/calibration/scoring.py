@@ -54,7 +54,8 @@ def truth_errors(
     gauge = formulation.gauge(problem.settings)
     pairs = [("tool_point", estimated, true)]
     for name, point in estimated.extra.items():
-        pairs.append((name, replace(estimated, points=point[None, :]), replace(true, points=point[None, :])))
+        one = {"points": point[None, :], "tips": None}
+        pairs.append((name, replace(estimated, **one), replace(true, **one)))
     out = {}
     for name, mine, theirs in pairs:
         predicted = scored_positions(problem.robot, problem.frame, state.params, q, motion, mine)
@@ -134,30 +135,27 @@ def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: in
     low, high = robot.limits[:, 0], robot.limits[:, 1]
     q_target = np.clip(q_data + rng.uniform(-0.1, 0.1, q_data.shape), low, high)
     estimated = formulation.scored(problem, result.state)
-    first = replace(estimated, points=estimated.points[:1])
+    frame = problem.scored_frame(result.state)
+    first = replace(estimated, points=estimated.points[:1], tips=None)
     tcp = first.points[0]
-    targets = scored_positions(
-        robot, problem.frame, result.state.params, q_target, None, replace(first, instrument=None)
-    )
+    targets = scored_positions(robot, frame, result.state.params, q_target, None, replace(first, instrument=None))
     hints = np.clip(q_target + rng.normal(0.0, 0.05, q_target.shape), low, high)
     nominal = nominal_of(problem.dataset.robot, None)
     approach = np.full(q_target.shape, np.nan) if robot.history else None
-    solved = compensate(
-        replace(robot, overrides=params), nominal, targets, hints, tcp, problem.frame, approach=approach
-    )
-    controller = nominal.ik(targets, hints, tcp=tcp, frame=problem.frame)
+    solved = compensate(replace(robot, overrides=params), nominal, targets, hints, tcp, frame, approach=approach)
+    controller = nominal.ik(targets, hints, tcp=tcp, frame=frame)
     usable = np.isin(solved.status, ("ok", "near singularity")) & np.isin(controller.status, ("ok", "near singularity"))
     true_robot, true_state = formulation.true_state(problem, truth)
     true = formulation.scored(problem, true_state)
-    true = replace(true, points=true.points[:1])
-    wanted = scored_positions(robot, problem.frame, result.state.params, q_target[usable], None, first)
+    true = replace(true, points=true.points[:1], tips=None)
+    wanted = scored_positions(robot, frame, result.state.params, q_target[usable], None, first)
     gauge = formulation.gauge(problem.settings)
 
     def landed(q: np.ndarray) -> np.ndarray:
         """Where the true robot lands under the commands q (all targets, in order)."""
         motion = features(q, MotionHistory.in_order(q))[usable]
         return remove_gauge(
-            scored_positions(true_robot, problem.frame, true_state.params, q[usable], motion, true), wanted, gauge
+            scored_positions(true_robot, frame, true_state.params, q[usable], motion, true), wanted, gauge
         )
 
     without = None

@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 import gtsam
 import numpy as np
 
-from ..parameters import split_name
+from ..parameters import kind_label
 from .graph import StageGraph, build_graph, robust_scale
 from .problem import Problem, read_state
 from .results import StageReport
@@ -17,11 +17,6 @@ from .state import State
 # GTSAM's defaults for lambda; the stopping rule is scipy.optimize.least_squares' default ftol:
 # a relative cost change below 1e-8.
 RELATIVE_TOLERANCE, ABSOLUTE_TOLERANCE = 1e-8, 1e-14
-
-
-def kind_label(name: str) -> str:
-    kind, owner = split_name(name)
-    return owner if isinstance(owner, str) else kind
 
 
 def stage_parameters(kinds: Sequence[str], identifiable: Sequence[str]) -> list[str]:

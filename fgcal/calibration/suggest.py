@@ -28,7 +28,7 @@ def suggested_formulation(cell: Cell) -> str:
 
 
 def suggested_config(cell: Cell, dataset: Dataset) -> dict:
-    joints = [j for j in cell.perturbation.compliant_joints if j <= dataset.robot.n_joints]
+    joints = [j for j in cell.perturbation.compliant_joints if j <= dataset.robot.n_links]
     return {
         "dataset": ".",
         "formulation": suggested_formulation(cell),

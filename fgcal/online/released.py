@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import kinematics
 from ..calibration.identifiability import Identifiability, select
-from ..parameters import MOTION_KINDS, split_name
+from ..parameters import MASS_KIND, MOTION_KINDS, split_name
 from ..robot import Robot
 from ..se3 import inverse, skew
 
@@ -25,12 +25,13 @@ IMAGE_POSE_SIGMA = (1e-4, 3e-5)
 
 
 def candidates(robot: Robot, compliant_joints: tuple[int, ...]) -> list[str]:
-    """Every parameter except the base (which defines W) and the motion history's terms (an
-    inbox's images carry no history), with compliances only for ``compliant_joints``."""
+    """Every parameter except the base (which defines W), the motion history's terms (an
+    inbox's images carry no history) and mass scales (which need many configurations' gravity
+    moments), with compliances only for ``compliant_joints``."""
 
     def wanted(name: str) -> bool:
         kind, owner = split_name(name)
-        if owner == "base" or kind in MOTION_KINDS:
+        if owner == "base" or kind in (*MOTION_KINDS, MASS_KIND):
             return False
         return owner in compliant_joints if kind in ("kx", "ky", "kz") else True
 

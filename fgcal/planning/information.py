@@ -82,14 +82,15 @@ def _camera_rows(
 def _tracker_rows(
     robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
 ) -> tuple[np.ndarray, np.ndarray]:
-    T_W_n = kinematics.frame_pose(robot, data, "flange")
     R_T_W = cell.tracker_pose[:3, :3].T
     n_conf, n_targets = len(cand.q), len(cell.tracker_targets)
+    tips = cell.tracker_target_tips or ("flange",) * n_targets  # a tree's reflectors: on their tips
     J_p = np.zeros((n_conf, 3 * n_targets, len(names)))
     J_aux = np.zeros((n_conf, 3 * n_targets, 6 + 3 * n_targets))
     for t, s in enumerate(cell.tracker_targets):
         rows = slice(3 * t, 3 * t + 3)
-        J_p[:, rows] = R_T_W @ kinematics.jacobian(robot, data, names, frame="flange", point=s)
+        T_W_n = kinematics.frame_pose(robot, data, tips[t])
+        J_p[:, rows] = R_T_W @ kinematics.jacobian(robot, data, names, frame=tips[t], point=s)
         p_W = transform_points(T_W_n, s)
         # The tracker moves in W by (w, t): d p_T = R_T_W (p_W x w - t); the reflector by d s.
         J_aux[:, rows, :3] = R_T_W @ skew(p_W)
@@ -121,7 +122,8 @@ def build_information(
         aux_labels += [f"reflector{t + 1}.{a}" for t in range(len(cell.tracker_targets)) for a in "xyz"]
         aux_sigma = [PRIOR_SIGMA_AUX["rotation"]] * 3 + [PRIOR_SIGMA_AUX["translation"]] * 3
         aux_sigma += [PRIOR_SIGMA_AUX["reflector"]] * (3 * len(cell.tracker_targets))
-        gauge, point, frame = "none", cell.tracker_targets[0], "flange"
+        frame = cell.tracker_target_tips[0] if cell.tracker_target_tips else "flange"
+        gauge, point = "none", cell.tracker_targets[0]
     else:
         rotation = formulation.fixture_rotation_unknown(config.measurement)
         J_p, J_aux, p_C = _camera_rows(robot, data, cell, cand, names, rotation)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import kinematics, strict_json
+from ..calibration.chains import chain_sigmas
 from ..calibration.covariance import correlation
 from ..calibration.goodness import Fit
 from ..calibration.identifiability import motion_warning
@@ -108,6 +109,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "unidentifiable_at_nominal": result.identifiability.unidentifiable,
         "motion_history_warning": motion_warning(result.final_identifiability),
         "motion_history": motion_terms(result),
+        "chains": chain_sigmas(result),
         "residual_model": result.residual_model.as_dict() if result.residual_model is not None else None,
         "identifiability": {
             "min_information": config.min_information,
@@ -119,7 +121,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "validation": {
             **validation,
             "scored_point_m": [float(v) for v in result.tool_point],
-            "scored_point_frame": formulation.frame,
+            "scored_point_frame": result.problem.scored_frame(result.state),
             "reference": "ground truth" if result.truth is not None else "held-out measurements",
             "gauge_removed": result.gauge,
             "predicted_position_sigma_m": predicted_sigma(result),
@@ -239,7 +241,8 @@ def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
     if not names:
         return {}
     data = kinematics.forward(problem.robot, result.state.params, problem.observations.q)
-    J = kinematics.jacobian(problem.robot, data, names, frame=problem.frame, point=result.tool_point)  # (N, 3, k)
+    frame = problem.scored_frame(result.state)
+    J = kinematics.jacobian(problem.robot, data, names, frame=frame, point=result.tool_point)  # (N, 3, k)
     values = np.array([result.state.params[problem.robot.parameter_names.index(n)] for n in names])
     return {n: float(np.linalg.norm(J[:, :, i] * values[i], axis=1).max()) for i, n in enumerate(names)}
 
@@ -408,6 +411,32 @@ def _motion_lines(motion: dict | None, diagnostics: str | None) -> list[str]:
     return lines
 
 
+def _chain_lines(chains: dict | None) -> list[str]:
+    """The shared parameters' sigmas from each tip's measurements alone and from all of them."""
+    if chains is None:
+        return []
+    tips = chains["tips"]
+    if not chains["parameters"]:
+        return [
+            "", "## Shared by the chains", "",
+            f"No estimated parameter moves more than one tip's measurements ({', '.join(tips)}): each chain is "
+            "determined by its own (what they share, such as the base, is fixed by the instrument's frame).",
+        ]  # fmt: skip
+    lines = [
+        "", "## Shared by the chains", "",
+        "Parameters that move more than one tip's measurements (a shared torso, where a positioner stands): their "
+        "sigma from each tip's measurements alone and from all of them, at the estimate under the declared noise "
+        "(mm, mdeg, urad/(N m)); -: not identifiable from that tip alone.", "",
+        "| parameter | " + " | ".join(f"{tip} alone" for tip in tips) + " | all |",
+        "|---|" + "---|" * (len(tips) + 1),
+    ]  # fmt: skip
+    for name, entry in chains["parameters"].items():
+        _, fmt = _units(unit_of(name))
+        cells = [fmt(entry["sigma_by_tip"][tip]) for tip in tips] + [fmt(entry["sigma_all"])]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _residual_model_lines(model: dict | None) -> list[str]:
     if model is None:
         return []
@@ -451,6 +480,8 @@ def _units(unit: str):
         return fmt(1e3, ".4f"), fmt(1e3, ".4g")
     if unit == "rad":
         return fmt(180.0 / np.pi, ".5f"), fmt(180e3 / np.pi, ".4g")
+    if unit == "1":  # a mass scale
+        return fmt(1.0, ".4f"), fmt(1.0, ".3g")
     return fmt(1e6, ".4g"), fmt(1e6, ".4g")
 
 
@@ -673,7 +704,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         "",
         "## Parameters",
         "",
-        "Lengths in mm, angles in deg (differences and sigmas in mdeg), compliances in urad/(N m); "
+        "Lengths in mm, angles in deg (differences and sigmas in mdeg), compliances in urad/(N m), mass scales as "
+        "factors; "
         "report.json has every value in SI.",
         "",
         "| name | nominal | estimate | estimate - nominal | sigma | "
@@ -713,4 +745,5 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         lines += ["", "## Correlations", "", f"![correlation]({plots['correlation']})"]
     lines += _motion_lines(doc["motion_history"], plots.get("residual_diagnostics"))
     lines += _residual_model_lines(doc["residual_model"])
+    lines += _chain_lines(doc["chains"])
     return "\n".join(lines) + "\n"

@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..outputs import distinct, output_file, write_text
 from ..rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
 from ..robot_io import load_robot
-from ..urdf_export import check_outputs, export_urdf, refuse_tree, template_of
+from ..urdf_export import check_outputs, export_urdf, is_tree, template_of
 
 LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held-out accuracy is warned of
 
@@ -47,8 +47,8 @@ def export_command(
             raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
         output_file(ur_kinematics, "--ur-kinematics")
     robot = load_robot(robot_file, tip)
-    if path is not None:
-        refuse_tree(robot)  # before any work
+    if path is not None and template is not None and is_tree(robot):  # before any work
+        raise InputError(template, "--template", f"{robot.name} is a tree: it is written in fgcal's own layout")
     if payload_mass is not None or payload_com is not None:
         mass = robot.payload_mass if payload_mass is None else payload_mass
         com = robot.payload_com if payload_com is None else np.array(payload_com, dtype=float)
@@ -109,11 +109,12 @@ def export_command(
     if path is None:
         return 0
     written, sidecar = export_urdf(exported, path, template, accuracy=accuracy or None)
-    template_file = template_of(exported, template)
+    template_file = None if is_tree(exported) else template_of(exported, template)
     held = "joint compliances and lost motion" if robot.history else "joint compliances"
-    say(f"wrote {written} ({robot.name}, {robot.n_joints} joints) and {sidecar} ({held}, which URDF cannot")
+    say(f"wrote {written} ({robot.name}, {robot.n_links} joints) and {sidecar} ({held}, which URDF cannot")
     if template_file is None:
-        say(f"  express); links: world, base_link, link_1..link_{robot.n_joints}, flange, tool0")
+        tips = "".join(f", {name}" for name in robot.tip_names[1:])
+        say(f"  express); links: world, base_link, link_1..link_{robot.n_links}, flange, tool0{tips}")
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0

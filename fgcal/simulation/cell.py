@@ -98,6 +98,7 @@ class Perturbation:
     base_tilt_rad: float  # about the horizontal axes: unmeasured tilt against gravity
     tool_length_m: float
     tool_angle_rad: float
+    mass_scale: float = 0.0  # half-width of the true mass scales' deviation from 1 (robot mass_groups)
 
 
 @dataclass(frozen=True)
@@ -189,7 +190,7 @@ class Cell:
     sides: list[Side]
     camera: Camera | None  # None: a tracker cell (no camera, no objects)
     tracker_pose: np.ndarray  # T_W_T
-    tracker_targets: np.ndarray  # (m, 3) in the flange frame, m
+    tracker_targets: np.ndarray  # (m, 3) in the flange frame (or their tips' frames), m
     camera_point_sigma_m: float
     pixel_sigma_px: float
     tracker_sigma_m: float
@@ -204,6 +205,7 @@ class Cell:
     distance_sigma_m: float = 0.0
     static_camera: StaticCameraSetup | None = None
     has_tracker: bool = True  # a laser tracker measures the reflectors (tracker_targets)
+    tracker_target_tips: tuple[str, ...] = ()  # per target, the tree's tip it is on (empty: all on the flange)
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
 
     @property
@@ -422,13 +424,7 @@ def load_cell(path: str | Path) -> Cell:
 
     tracker = doc.sub("tracker", {})
     tracker.check_keys(("pose", "targets", "probe"))
-    raw_targets = tracker.items("targets", [[0, 0, 0.1 / to_m]])
-    targets = [
-        Fields({"t": t}, path, tracker.path(f"targets[{i}]")).vector("t", 3, scale=to_m)
-        for i, t in enumerate(raw_targets)
-    ]
-    if not targets:
-        raise tracker.error("targets", "at least one reflector on the flange (the tracker has nothing to measure)")
+    targets, target_tips = _tracker_targets(tracker, robot, to_m)
 
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
@@ -462,15 +458,19 @@ def load_cell(path: str | Path) -> Cell:
             "base_tilt",
             "tool_length",
             "tool_angle",
+            "mass_scale",
         )
     )
+    mass_scale = pert.number("mass_scale", 0.0, nonnegative=True)
+    if mass_scale >= 1.0 or (mass_scale and not robot.mass_groups):
+        raise pert.error("mass_scale", "a half-width below 1, for a robot whose file declares mass_groups")
     compliance = pert.vector("compliance", 2, [1e-6, 1e-5])
     if not 0 <= compliance[0] <= compliance[1]:
         raise pert.error("compliance", "expected [low, high] with 0 <= low <= high, rad/(N m)")
-    joints = tuple(int(j) for j in pert.items("compliant_joints", list(default_compliant_joints(robot.n_joints))))
+    joints = tuple(int(j) for j in pert.items("compliant_joints", list(default_compliant_joints(robot.n_links))))
     for j in joints:
-        if not 1 <= j <= robot.n_joints:
-            raise pert.error("compliant_joints", f"joint {j} does not exist on a {robot.n_joints}-joint robot")
+        if not 1 <= j <= robot.n_links:
+            raise pert.error("compliant_joints", f"joint {j} does not exist on a {robot.n_links}-joint robot")
 
     motion = _motion_truth(doc, robot.n_joints, to_rad)
     if motion is not None:
@@ -498,6 +498,7 @@ def load_cell(path: str | Path) -> Cell:
         camera=camera,
         tracker_pose=_pose(tracker, "pose", to_m, to_rad),
         tracker_targets=np.array(targets),
+        tracker_target_tips=target_tips,
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, nonnegative=True),
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, nonnegative=True),
         tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, nonnegative=True),
@@ -523,6 +524,7 @@ def load_cell(path: str | Path) -> Cell:
             base_tilt_rad=pert.number("base_tilt", 0.0, to_rad, nonnegative=True),
             tool_length_m=pert.number("tool_length", 1e-3 / to_m, to_m, nonnegative=True),
             tool_angle_rad=pert.number("tool_angle", 1e-3 / to_rad, to_rad, nonnegative=True),
+            mass_scale=mass_scale,
         ),
         design=Design(
             kind=design_kind,
@@ -533,3 +535,25 @@ def load_cell(path: str | Path) -> Cell:
             max_view_angle_rad=design.number("max_view_angle", 30.0 * np.pi / 180 / to_rad, to_rad, positive=True),
         ),
     )
+
+
+def _tracker_targets(tracker: Fields, robot: Robot, to_m: float) -> tuple[list[np.ndarray], tuple[str, ...]]:
+    """``tracker.targets``: reflectors on the flange ``[[x, y, z], ...]``, or on the tips of a
+    tree ``{tip: [[x, y, z], ...]}`` (Robot.tip_names); and each one's tip (empty: the flange)."""
+    raw = tracker.raw("targets", [[0, 0, 0.1 / to_m]])
+    groups = raw.items() if isinstance(raw, dict) else [(None, raw)]
+    targets, tips = [], []
+    for tip, points in groups:
+        where = "targets" if tip is None else f"targets.{tip}"
+        if tip is not None and tip not in robot.tip_names:
+            raise tracker.error(where, f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+        if not isinstance(points, list):
+            raise tracker.error(where, f"expected a list of [x, y, z] points, got {points!r}")
+        for i, point in enumerate(points):
+            targets.append(
+                Fields({"t": point}, tracker.source, tracker.path(f"{where}[{i}]")).vector("t", 3, scale=to_m)
+            )
+            tips.append(robot.flange_name if tip is None else str(tip))
+    if not targets:
+        raise tracker.error("targets", "at least one reflector on the flange (the tracker has nothing to measure)")
+    return targets, tuple(tips) if isinstance(raw, dict) else ()

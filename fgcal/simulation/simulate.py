@@ -333,11 +333,13 @@ def _write_tracker_points(
     motion: np.ndarray | None = None,
 ) -> dict[str, int]:
     T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion)
+    tips = cell.tracker_target_tips or (cell.robot.flange_name,) * len(cell.tracker_targets)
+    T_T_tip = {tip: inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion, tip=tip) for tip in set(tips)}
     trk_rows, trk_noise = [], []
-    for cid, T in zip(config_ids, T_T_n, strict=True):
+    for j, cid in enumerate(config_ids):
         for i, target in enumerate(cell.tracker_targets):
             n = rng.normal(0.0, cell.tracker_sigma_m, 3)
-            trk_rows.append([cid, f"t{i + 1}", *map(float, transform_points(T, target) + n)])
+            trk_rows.append([cid, f"t{i + 1}", *map(float, transform_points(T_T_tip[tips[i]][j], target) + n)])
             trk_noise.append([cid, f"t{i + 1}", *map(float, n)])
     write_csv(out / "tracker_points.csv", ["config", "target", "x", "y", "z"], trk_rows)
     write_csv(out / "truth" / "tracker_points_noise.csv", ["config", "target", "x", "y", "z"], trk_noise)
@@ -472,7 +474,14 @@ def _write_header(
         **({"camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)}} if camera else {}),
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         **({"fixture": _pose_doc(cell.fixture_pose)} if camera else {}),
-        "tracker": {"targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))]},
+        "tracker": {
+            "targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))],
+            **(
+                {"tips": {f"t{i + 1}": tip for i, tip in enumerate(cell.tracker_target_tips)}}
+                if cell.tracker_target_tips
+                else {}
+            ),
+        },
         "noise": noise,
         "source": source + f"{camera_noise}tracker {cell.tracker_sigma_m} m",
     }

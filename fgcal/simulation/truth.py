@@ -4,20 +4,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..parameters import MOTION_KINDS, split_name
+from ..parameters import MASS_KIND, MOTION_KINDS, split_name
 from ..robot import Robot
 from .cell import Perturbation
 
 
 def perturb_parameters(robot: Robot, pert: Perturbation, rng: np.random.Generator) -> dict[str, float]:
     """True parameter values (SI): uniform deviations of +-half-width on lengths and angles,
-    uniform compliances in [low, high] on the compliant joints, zero compliance elsewhere. The
+    uniform compliances in [low, high] on the compliant joints, zero compliance elsewhere, mass
+    scales within 1 +- the cell's mass_scale (no draw without one: seeded cells keep their truth). The
     motion terms are not drawn (nominal zero; a cell's motion_history sets them)."""
     true = robot.nominal_parameters()
     low, high = pert.compliance_range
     for name in robot.parameter_names:
         kind, owner = split_name(name)
         if kind in MOTION_KINDS:
+            continue
+        if kind == MASS_KIND:  # a body group's mass scale, nominal 1
+            true[name] += float(rng.uniform(-pert.mass_scale, pert.mass_scale)) if pert.mass_scale else 0.0
             continue
         if owner == "base":
             # A base is leveled at installation (or its measured tilt is in the robot file):

@@ -46,6 +46,7 @@ class TrackerObservations(Observations):
     targets: np.ndarray  # (O,) index into names
     measured: np.ndarray  # (O, 3) m, tracker frame
     names: tuple[str, ...]  # the reflectors the fit estimates
+    tips: tuple[str, ...] = ()  # per name, the frame it is fixed to (a tree's tip; empty: the flange)
     # Reflectors only a validation set measured: (name, configurations, measured points).
     test_points: tuple[tuple[str, np.ndarray, np.ndarray], ...] = ()
 
@@ -58,8 +59,19 @@ class TrackerObservations(Observations):
 
     def select(self, keep: np.ndarray) -> TrackerObservations:
         return TrackerObservations(
-            self.config_ids, self.q, **take(self, keep, ("configs", "targets", "measured")), names=self.names
+            self.config_ids,
+            self.q,
+            **take(self, keep, ("configs", "targets", "measured")),
+            names=self.names,
+            tips=self.tips,
         )
+
+    def frame_rows(self, frames: str | tuple[str, ...]) -> np.ndarray:
+        """Per point, its row among the kinematics' poses of ``frames`` (frame-major)."""
+        if isinstance(frames, str):
+            return self.configs
+        tip = np.array([frames.index(t) for t in self.tips], dtype=int)
+        return tip[self.targets] * len(self.q) + self.configs
 
 
 class Tracker(Formulation):
@@ -76,6 +88,13 @@ class Tracker(Formulation):
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.tracker_m
+
+    def frames(self, problem: Problem) -> str | tuple[str, ...]:
+        """The flange, or the tips of a tree the reflectors are on (dataset.yaml tracker.tips)."""
+        tips = problem.observations.tips
+        if not tips or set(tips) == {problem.robot.flange_name}:
+            return self.frame
+        return tuple(t for t in problem.robot.tip_names if t in tips)
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         rows = list(rows_of(dataset, measured_table(dataset, "tracker_points", self.name), "target", fit))
@@ -129,7 +148,7 @@ class Tracker(Formulation):
                 keys["tracker"],
                 keys["tool_points"],
                 len(state.value("tool_points")),
-                observations.configs,
+                observations.frame_rows(problem.frame),
                 observations.targets,
                 observations.measured,
                 problem.settings.noise.tracker_m,
@@ -171,7 +190,17 @@ class Tracker(Formulation):
         return {name: "declared" if name in declared else "leave-one-out" for name, _, _ in observations.test_points}
 
     def scored(self, problem: Problem, state: State) -> Scored:
-        return Scored(state.value("tool_points"), state.value("tracker"), "tool_points", "tracker")
+        frames, tips = problem.frame, problem.observations.tips
+        on = None if isinstance(frames, str) else np.array([frames.index(t) for t in tips], dtype=int)
+        return Scored(state.value("tool_points"), state.value("tracker"), "tool_points", "tracker", tips=on)
+
+    def unit_tips(self, problem: Problem, observations: Observations) -> np.ndarray | None:
+        if isinstance(problem.frame, str):
+            return None
+        return np.array(observations.tips, dtype=object)[observations.targets]
+
+    def score_configs(self, main: MeasurementSet) -> np.ndarray:
+        return np.asarray(main.configs) % len(main.kinematics.q)
 
     def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
         robot = problem.dataset.robot.with_model(truth.model)
@@ -185,12 +214,14 @@ class Tracker(Formulation):
 
 def _observations(dataset: Dataset, subset: np.ndarray, rows: list, names: tuple[str, ...]) -> TrackerObservations:
     index = {name: i for i, name in enumerate(names)}
+    flange = dataset.robot.flange_name
     return TrackerObservations(
         **subset_of(dataset, subset),
         configs=np.array([r[0] for r in rows], dtype=int),
         targets=np.array([index[r[1]] for r in rows], dtype=int),
         measured=np.array([r[2] for r in rows], dtype=float).reshape(-1, 3),
         names=names,
+        tips=tuple(dataset.target_tips.get(name, flange) for name in names),
     )
 
 
@@ -207,10 +238,13 @@ def initial_tracker(
     not enough: when the flange origin barely moves (a positioner's table centre on its
     axes) the flange origins say nothing about the tracker's orientation, and the alternation
     from a wrong one settles in a false minimum half a metre off."""
-    flange = robot.fk(observations.q, robot.parameter_dict(params))
     j, t, measured = observations.configs, observations.targets, observations.measured
+    values = robot.parameter_dict(params)
+    tips = observations.tips or (robot.flange_name,) * len(observations.names)
+    poses = {tip: robot.fk(observations.q, values, tip=tip) for tip in set(tips)}
+    T_obs = np.stack([poses[tips[target]][config] for config, target in zip(j, t, strict=True)])
     n_targets = len(observations.names)
-    R_j, p_j = flange[j, :3, :3], flange[j, :3, 3]
+    R_j, p_j = T_obs[:, :3, :3], T_obs[:, :3, 3]
 
     def fit_points(R_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # m - R_L p_j = R_L R_j s_t + t_L: linear in the tool points and t_L.
@@ -226,7 +260,7 @@ def initial_tracker(
     def refine(R_L: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         for _ in range(rounds):
             points, t_L = fit_points(R_L)
-            R_L, t_L = kabsch(transform_points(flange[j], points[t]), measured)
+            R_L, t_L = kabsch(transform_points(T_obs, points[t]), measured)
         points, t_L = fit_points(R_L)
         world = np.einsum("oij,oj->oi", R_j, points[t]) + p_j
         cost = float(np.sum((world @ R_L.T + t_L - measured) ** 2))
