@@ -233,3 +233,22 @@ def test_compensate_addresses_a_tip_by_name(dual_arm, tmp_path, capsys):
     capsys.readouterr()
     assert main([*argv, "--out", str(tmp_path / "d.csv"), "--tip", "left_foot"]) == 2
     assert "--tip" in capsys.readouterr().err
+
+
+def test_one_mass_scale_of_every_body_is_found_a_combination_of_the_compliances(tmp_path, capsys):
+    """k mu t is one product: a mass scale of every body trades exactly against the compliances,
+    and the identifiability analysis says so (and fixes it), where a ratio between groups is
+    estimated (test above)."""
+    robot = yaml.safe_load(DUAL_ARM.read_text())
+    robot["mass_groups"] = {"all": list(range(1, 19))}
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump(robot, sort_keys=False))
+    cell = yaml.safe_load(DUAL_CELL.read_text())
+    cell["robot"] = "robot.yaml"
+    cell["design"]["n_configurations"] = 120
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell, sort_keys=False))
+    assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "data"), "--seed", "1"]) == 0
+    report = _calibrate(tmp_path / "data", tmp_path / "out", capsys)
+    assert report["parameters"]["mass.all"]["status"] == "fixed"
+    reason = report["unidentifiable_reasons"]["mass.all"]
+    assert reason.startswith("a combination of other parameters (") and " k" in reason, reason
+    assert float(reason.rsplit("information left ", 1)[1]) < 1e-6, reason

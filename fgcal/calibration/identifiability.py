@@ -99,21 +99,25 @@ def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
 
 def _mass_columns_with_compliance(stage: StageGraph, J_p: np.ndarray, moments: np.ndarray) -> None:
     """A mass scale moves the robot only through the compliances: at zero compliance (the
-    nominal start) its column is zero whatever the data. Its columns are taken where every
-    released compliance still at zero has its plausible value instead (a 10 mrad deflection)."""
+    nominal start) its column is zero whatever the data. Its columns and the compliances' are
+    taken where each released compliance still at zero has its plausible value instead (a 10
+    mrad deflection): at one point, so that a mass scale of every body is exactly the
+    combination of the compliances it is (k mu t is one product); the geometry's columns stay
+    at the start."""
     released = stage.released
     masses = [i for i, name in enumerate(released) if split_name(name)[0] == MASS_KIND]
     if not masses or stage.keys.params is None:
         return
     values = np.array(stage.values.atVector(stage.keys.params), dtype=float)
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
-    for i, name in enumerate(released):
-        if split_name(name)[0] in ("kx", "ky", "kz") and values[i] == 0.0:
-            values[i] = parameter_scale(name, moments_rms)
+    compliances = [i for i, name in enumerate(released) if split_name(name)[0] in ("kx", "ky", "kz")]
+    for i in compliances:
+        if values[i] == 0.0:
+            values[i] = parameter_scale(released[i], moments_rms)
     trial = gtsam.Values(stage.values)
     trial.update(stage.keys.params, values)
     J_trial, _ = reduced_jacobian(replace(stage, values=trial))
-    J_p[:, masses] = J_trial[:, masses]
+    J_p[:, masses + compliances] = J_trial[:, masses + compliances]
 
 
 def select(
