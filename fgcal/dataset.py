@@ -11,6 +11,7 @@ Header fields (documented in docs/formats.md)::
     payload: {mass, com}           # kg; com in the flange frame (gravity moments need it)
     fixture: {xyz, rpy}            # nominal T_W_F of the calibration objects (drawing)
     tracker: {targets: [names]}    # when a tracker was used; on a tree, tips: {target: tip name}
+    tip: name                      # a tree: the tip carrying what is measured (default the flange)
     noise: {tracker_sigma: 1.5e-5, ...}  # the instrument's stated noise (a calibration config's noise keys)
     order: measured                # the configurations' rows are in measurement order (default), or unknown
     source: free text (simulation seed, converter, instrument)
@@ -70,6 +71,7 @@ HEADER_KEYS = (
     "images",
     "markers",
     "tracker",
+    "tip",
     "noise",
     "order",
     "source",
@@ -136,6 +138,9 @@ class Dataset:
     history: MotionHistory | None = None  # how each configuration was reached (None: in row order)
     # The tip of a tree each tracker target is on (dataset.yaml tracker.tips); absent: the flange.
     target_tips: dict[str, str] = field(default_factory=dict)
+    # The tip of a tree that carries what is measured (a probe, a ball, a board, reflectors not
+    # listed in tracker.tips): dataset.yaml tip; None: the flange.
+    tip: str | None = None
 
     @property
     def motion_history(self) -> MotionHistory:
@@ -444,6 +449,12 @@ def load_dataset(path: str | Path) -> Dataset:
         # camera may be fixed in the cell (static_camera) and the tool stays at the flange.
         dataset.camera_mounting = _pose(cam.sub("mounting"), units) if cam.has("mounting") else None
         dataset.robot = dataset.robot.with_tool(_pose(cam.sub("mounting", {}), units))
+    if doc.has("tip"):
+        tip = doc.string("tip")
+        if tip not in dataset.robot.tip_names:
+            raise doc.error("tip", f"{dataset.robot.name} has no tip {tip!r} (its tips: "
+                            f"{', '.join(dataset.robot.tip_names)})")  # fmt: skip
+        dataset.tip = tip
     if doc.has("payload"):
         payload = doc.sub("payload")
         payload.check_keys(("mass", "com"))

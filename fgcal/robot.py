@@ -289,8 +289,8 @@ class Robot:
         q = np.random.default_rng(0).uniform(low, np.maximum(low, high), (count, self.n_joints))
         return float(np.linalg.norm(self.fk(q)[:, :3, 3] - other.fk(q)[:, :3, 3], axis=1).max())
 
-    def reach_m(self, params: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-        """The base origin in W (m) and a sure bound on how far the flange gets from it (m):
+    def reach_m(self, params: np.ndarray | None = None, tip: str = "flange") -> tuple[np.ndarray, float]:
+        """The base origin in W (m) and a sure bound on how far the flange (or a tree's ``tip``) gets from it (m):
         the sum of the chain's largest translations over the joint ranges (rotations keep
         lengths). A point farther than this plus the tool's length is out of reach.
         ``params``: the full parameter vector (default nominal)."""
@@ -299,7 +299,7 @@ class Robot:
         data = kinematics.forward(self, p, np.zeros((1, self.n_joints)))
         base_origin = kinematics.frame_pose(self, data, "base")[0, :3, 3]
         total = 0.0
-        path = ancestry(chain.elements)[chain.flange]
+        path = ancestry(chain.elements)[kinematics.frame_index(self, tip)]
         for k, element in enumerate(chain.elements):
             if not path[k] or k < chain.base_end:
                 continue

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 import yaml
@@ -252,3 +253,70 @@ def test_one_mass_scale_of_every_body_is_found_a_combination_of_the_compliances(
     reason = report["unidentifiable_reasons"]["mass.all"]
     assert reason.startswith("a combination of other parameters (") and " k" in reason, reason
     assert float(reason.rsplit("information left ", 1)[1]) < 1e-6, reason
+
+
+def _variant(tmp_path, source: str, change) -> Path:
+    cell = yaml.safe_load((REPO / "datasets" / "cells" / f"{source}.yaml").read_text())
+    change(cell)
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell, sort_keys=False))
+    assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "data"), "--seed", "1"]) == 0
+    return tmp_path / "data"
+
+
+def test_a_static_camera_watches_a_board_on_the_positioners_table(tmp_path, capsys):
+    """cell tip: table, a static camera and the board on the positioner's table (the robot's
+    joints never move the board): the static-camera formulation on that tip."""
+
+    def change(cell: dict) -> None:
+        cell.update(robot="irb120_positioner", tip="table")
+        cell.pop("payload")
+        cell["static_camera"]["pose"] = {"xyz": [600, 0, 1900], "rpy": [180, 0, 0]}
+        cell["perturbation"].update(compliant_joints=[7], compliance=[1e-6, 5e-6])
+        cell["design"]["n_configurations"] = 80
+
+    data = _variant(tmp_path, "positioner_static_camera", change)
+    assert yaml.safe_load((data / "dataset.yaml").read_text())["tip"] == "table"
+    report = _calibrate(data, tmp_path / "out", capsys)
+    before, after, predicted = _held_out(report)
+    assert report["formulation"] == "static_camera" and before / after >= 10.0, (before, after)
+    assert 1 / 1.5 <= after / predicted <= 1.5, (after, predicted)
+    assert report["parameters"]["theta1"]["status"] == "fixed"  # the robot's joints do not move the board
+
+
+def test_a_6d_probe_on_the_right_hand(tmp_path, capsys):
+    """cell tip: right_hand with a 6D probe: the poses formulation on the dual-arm's right hand."""
+
+    def change(cell: dict) -> None:
+        cell["tip"] = "right_hand"
+        cell["tracker"].update(targets=[[0, 0, 50]], probe={"xyz": [0, 0, 80], "rpy": [0, 0, 0]})
+
+    report = _calibrate(_variant(tmp_path, "dual_arm_tracker", change), tmp_path / "out", capsys)
+    before, after, predicted = _held_out(report)
+    assert report["formulation"] == "poses" and before / after >= 50.0, (before, after)
+    assert 1 / 1.5 <= after / predicted <= 1.5, (after, predicted)
+    assert report["validation"]["scored_point_frame"] == "right_hand"
+
+
+def test_a_tip_the_robot_lacks_or_a_camera_on_a_tip_is_refused(dual_arm, tmp_path, capsys):
+    cell = yaml.safe_load(DUAL_CELL.read_text())
+    cell["tip"] = "left_foot"
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "sim")]) == 2
+    error = capsys.readouterr().err
+    assert "cell.yaml" in error and "tip" in error and "left_foot" in error, error
+    seed = yaml.safe_load((REPO / "datasets" / "cells" / "kr125_seed.yaml").read_text())
+    seed["tip"] = "flange2"
+    (tmp_path / "seed.yaml").write_text(yaml.safe_dump(seed))
+    assert main(["simulate", str(tmp_path / "seed.yaml"), "--out", str(tmp_path / "sim")]) == 2
+    assert "tip" in capsys.readouterr().err
+    data = tmp_path / "data"
+    data.mkdir()
+    for source in (dual_arm / "data").iterdir():
+        if source.is_file():
+            (data / source.name).write_bytes(source.read_bytes())
+    header = yaml.safe_load((data / "dataset.yaml").read_text())
+    header["tip"] = "nose"
+    (data / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False))
+    assert main(["calibrate", str(data / "calibration.yaml"), "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert "dataset.yaml" in error and "tip" in error and "nose" in error, error

@@ -310,7 +310,17 @@ class Formulation(ABC):
         return "none"
 
     def frames(self, problem: Problem) -> str | tuple[str, ...]:
-        """The frame the kinematics give the measurements, or the tips of a tree they are on."""
+        """The frame the kinematics give the measurements, or the tips of a tree they are on: a
+        flange formulation's measured target (probe, ball, board) is on the dataset's ``tip``."""
+        tip = problem.dataset.tip
+        if tip is not None and self.frame == "flange":
+            return tip
+        if tip is not None and tip != problem.robot.flange_name:
+            raise InputError(
+                problem.dataset.path / "dataset.yaml", "tip",
+                f"the {self.name} formulation's camera is the flange's tool: a tree's other tips carry targets "
+                "(tracker, poses, touch, ballbar, static camera), not the camera",
+            )  # fmt: skip
         return self.frame
 
     def unit_tips(self, problem: Problem, observations: Observations) -> np.ndarray | None:

@@ -32,6 +32,7 @@ CELL_KEYS = (
     "camera",
     "payload",
     "tracker",
+    "tip",
     "touch",
     "ballbar",
     "static_camera",
@@ -206,6 +207,7 @@ class Cell:
     static_camera: StaticCameraSetup | None = None
     has_tracker: bool = True  # a laser tracker measures the reflectors (tracker_targets)
     tracker_target_tips: tuple[str, ...] = ()  # per target, the tree's tip it is on (empty: all on the flange)
+    tip: str = "flange"  # the tree's tip carrying the probe, ball, board or reflectors (cell tip:)
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
 
     @property
@@ -408,6 +410,11 @@ def load_cell(path: str | Path) -> Cell:
     )
     if doc.has("base"):
         robot = replace(robot, base_pose=_pose(doc, "base", to_m, to_rad))
+    tip = doc.string("tip", robot.flange_name)
+    if tip not in robot.tip_names:
+        raise doc.error("tip", f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+    if tip != robot.flange_name and camera_fields is not None:
+        raise doc.error("tip", "a flange camera is the flange's tool: a tree's other tips carry targets, not cameras")
 
     grid = doc.sub("grid", {})
     grid.check_keys(("pitch", "margin"))
@@ -424,7 +431,7 @@ def load_cell(path: str | Path) -> Cell:
 
     tracker = doc.sub("tracker", {})
     tracker.check_keys(("pose", "targets", "probe"))
-    targets, target_tips = _tracker_targets(tracker, robot, to_m)
+    targets, target_tips = _tracker_targets(tracker, robot, to_m, tip)
 
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
@@ -499,6 +506,7 @@ def load_cell(path: str | Path) -> Cell:
         tracker_pose=_pose(tracker, "pose", to_m, to_rad),
         tracker_targets=np.array(targets),
         tracker_target_tips=target_tips,
+        tip=tip,
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, nonnegative=True),
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, nonnegative=True),
         tracker_sigma_m=noise.number("tracker_sigma", 1e-5 / to_m, to_m, nonnegative=True),
@@ -537,9 +545,12 @@ def load_cell(path: str | Path) -> Cell:
     )
 
 
-def _tracker_targets(tracker: Fields, robot: Robot, to_m: float) -> tuple[list[np.ndarray], tuple[str, ...]]:
-    """``tracker.targets``: reflectors on the flange ``[[x, y, z], ...]``, or on the tips of a
-    tree ``{tip: [[x, y, z], ...]}`` (Robot.tip_names); and each one's tip (empty: the flange)."""
+def _tracker_targets(
+    tracker: Fields, robot: Robot, to_m: float, default_tip: str
+) -> tuple[list[np.ndarray], tuple[str, ...]]:
+    """``tracker.targets``: reflectors on the cell's tip (the flange) ``[[x, y, z], ...]``, or on
+    the tips of a tree ``{tip: [[x, y, z], ...]}`` (Robot.tip_names); and each one's tip (empty:
+    all on the flange)."""
     raw = tracker.raw("targets", [[0, 0, 0.1 / to_m]])
     groups = raw.items() if isinstance(raw, dict) else [(None, raw)]
     targets, tips = [], []
@@ -553,7 +564,7 @@ def _tracker_targets(tracker: Fields, robot: Robot, to_m: float) -> tuple[list[n
             targets.append(
                 Fields({"t": point}, tracker.source, tracker.path(f"{where}[{i}]")).vector("t", 3, scale=to_m)
             )
-            tips.append(robot.flange_name if tip is None else str(tip))
+            tips.append(default_tip if tip is None else str(tip))
     if not targets:
         raise tracker.error("targets", "at least one reflector on the flange (the tracker has nothing to measure)")
-    return targets, tuple(tips) if isinstance(raw, dict) else ()
+    return targets, tuple(tips) if set(tips) != {robot.flange_name} else ()

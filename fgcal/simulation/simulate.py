@@ -192,7 +192,7 @@ def simulate(
         if n_pivot:
             counts = write_ballbar_table(out, cell, config_ids[:n_pivot], bar_pivots, bar_lengths, noise_rng)
         if cell.ballbar.pairs:
-            ball_W = transform_points(robot.fk(q[n_pivot:], true_params), cell.ballbar.ball)
+            ball_W = transform_points(robot.fk(q[n_pivot:], true_params, tip=cell.tip), cell.ballbar.ball)
             counts |= write_pairs_table(out, cell, config_ids[n_pivot:], ball_W, noise_rng)
     elif cell.static_camera is not None:
         _write_configurations(out, cell, q, config_ids)
@@ -323,6 +323,11 @@ def _write_configurations(
     write_csv(out / "configurations.csv", header, rows)
 
 
+def _tip_entry(cell: Cell) -> dict:
+    """dataset.yaml's ``tip``: the tree's tip carrying what is measured, when not the flange."""
+    return {"tip": cell.tip} if cell.tip not in ("flange", cell.robot.flange_name) else {}
+
+
 def _write_tracker_points(
     out: Path,
     cell: Cell,
@@ -332,7 +337,7 @@ def _write_tracker_points(
     rng,
     motion: np.ndarray | None = None,
 ) -> dict[str, int]:
-    T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion)
+    T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion, tip=cell.tip)  # the probe's tip
     tips = cell.tracker_target_tips or (cell.robot.flange_name,) * len(cell.tracker_targets)
     T_T_tip = {tip: inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion, tip=tip) for tip in set(tips)}
     trk_rows, trk_noise = [], []
@@ -443,6 +448,7 @@ def _write_header(
                 },
                 **({"camera": cell.static_camera.camera.to_document()} if cell.static_camera is not None else {}),
                 "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
+                **_tip_entry(cell),
                 "noise": noise,
                 "source": source + noise_text,
             },
@@ -452,6 +458,7 @@ def _write_header(
         "format": FORMAT,
         "robot": embed_robot(cell.robot_reference, out),
         "units": {"length": "m", "angle": "rad"},
+        **_tip_entry(cell),
         "measured": [k for k in counts if k != "images"],
         "files": {
             "configurations": "configurations.csv",

@@ -21,7 +21,7 @@ DRAWS = 200  # random configurations drawn per wanted one before the board is de
 def board_in_camera(cell: Cell, q: np.ndarray, true_params: dict[str, float]) -> np.ndarray:
     """T_C_B (N, 4, 4): the board's pose in the camera at each configuration, on the true robot."""
     setup = cell.static_camera
-    return inverse(setup.pose) @ cell.robot.fk(q, true_params) @ setup.board_mount
+    return inverse(setup.pose) @ cell.robot.fk(q, true_params, tip=cell.tip) @ setup.board_mount
 
 
 def static_camera_design(cell: Cell, true_params: dict[str, float], rng: np.random.Generator) -> list[View]:

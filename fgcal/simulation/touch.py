@@ -81,7 +81,7 @@ def reach_all(
     kinematics from random starts; or an error on the cell's ``field`` saying which it could
     not reach (``unreachable(indices of the positions not reached)`` says why)."""
     robot = cell.robot
-    base_origin, reach = robot.reach_m(true_params)
+    base_origin, reach = robot.reach_m(true_params, cell.tip)
     beyond = np.flatnonzero(np.linalg.norm(positions - base_origin, axis=1) > reach + np.linalg.norm(tool_point))
     if len(beyond):  # no search: the arm is not that long
         raise InputError(
@@ -102,7 +102,7 @@ def reach_all(
             left = ~solved
             if not left.any():
                 break
-            q_try, ok = solve_ik(robot, true_params, targets[left], start[left], frame="flange", freeze_converged=True)
+            q_try, ok = solve_ik(robot, true_params, targets[left], start[left], frame=cell.tip, freeze_converged=True)
             rows = np.flatnonzero(left)[ok]
             q[pending[rows]] = q_try[ok]
             solved[rows] = True

@@ -191,7 +191,7 @@ def initial_ballbar(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, n
     from scipy.optimize import least_squares
 
     observations = problem.observations
-    flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params))
+    flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params), tip=problem.frame)
     j, k, d, b = observations.configs, observations.pivots, observations.distances, observations.others
     R, t = flange[j, :3, :3], flange[j, :3, 3]
     R_b, t_b = flange[np.maximum(b, 0), :3, :3], flange[np.maximum(b, 0), :3, 3]

@@ -83,7 +83,7 @@ class MeasuredPoses(Formulation):
     def initial_state(self, problem: Problem) -> State:
         params = problem.robot.parameter_vector()
         observations = problem.observations
-        flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params))
+        flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params), tip=problem.frame)
         L, E = initial_pose_chain(flange[observations.configs], observations.measured)
         return State(params, {"tracker": Auxiliary("pose3", L), "tool_frame": Auxiliary("pose3", E)})
 
@@ -116,7 +116,7 @@ class MeasuredPoses(Formulation):
         the instrument's frame, and the angle (rad) between the predicted and measured
         orientations."""
         motion = problem.dataset.motion_of(observations.config_ids)
-        flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(state.params), motion)
+        flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(state.params), motion, tip=problem.frame)
         predicted = state.value("tracker") @ flange[observations.configs] @ state.value("tool_frame")
         measured = observations.measured
         relative = np.einsum("oji,ojk->oik", measured[:, :3, :3], predicted[:, :3, :3])

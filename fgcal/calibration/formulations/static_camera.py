@@ -66,7 +66,7 @@ class StaticCamera(Formulation):
     def initial_state(self, problem: Problem) -> State:
         # The board's pose in the camera per image (solvePnP), then the chain through the robot.
         T_C_B = pnp_per_image(problem.dataset, problem.observations)
-        flange = problem.robot.fk(problem.observations.q)
+        flange = problem.robot.fk(problem.observations.q, tip=problem.frame)
         images = sorted(T_C_B)
         L, E = initial_pose_chain(flange[images], np.array([T_C_B[j] for j in images]))
         aux = {"static_camera": Auxiliary("pose3", L), "tool_frame": Auxiliary("pose3", E)}

@@ -171,7 +171,9 @@ class Touch(Formulation):
             configs.append(known.configs)
         for _, at in observations.test_points:
             motion = problem.dataset.motion_of(observations.config_ids[at])
-            flange = problem.robot.fk(observations.q[at], problem.robot.parameter_dict(state.params), motion)
+            flange = problem.robot.fk(
+                observations.q[at], problem.robot.parameter_dict(state.params), motion, tip=problem.frame
+            )
             probe = transform_points(flange, state.value("tool_points")[0])
             errors.append(probe - (probe.sum(axis=0) - probe) / (len(at) - 1))
             configs.append(at)
@@ -247,7 +249,7 @@ def initial_touch(problem: Problem, params: np.ndarray) -> tuple[np.ndarray, np.
     """Touch probe s (flange frame) and touch points a_k (W) from the nominal model, no guess
     needed: ``R_j s - a_k = -p_j`` is linear in both, solved by least squares (m)."""
     observations = problem.observations
-    flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params))
+    flange = problem.robot.fk(observations.q, problem.robot.parameter_dict(params), tip=problem.frame)
     n_points = len(observations.names)
     n_touches = len(observations.configs)
     A = np.zeros((3 * n_touches, 3 + 3 * n_points))

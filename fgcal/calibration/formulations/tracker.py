@@ -214,7 +214,7 @@ class Tracker(Formulation):
 
 def _observations(dataset: Dataset, subset: np.ndarray, rows: list, names: tuple[str, ...]) -> TrackerObservations:
     index = {name: i for i, name in enumerate(names)}
-    flange = dataset.robot.flange_name
+    flange = dataset.tip or dataset.robot.flange_name
     return TrackerObservations(
         **subset_of(dataset, subset),
         configs=np.array([r[0] for r in rows], dtype=int),
