@@ -92,6 +92,7 @@ def compensate(
     nominal: Robot | str | None = None,
     tcp: np.ndarray | None = None,
     approach: str | np.ndarray = "previous",
+    tip: str | None = None,
 ) -> Compensation:
     """Corrected commands for a controller running its nominal model: ``targets`` are TCP
     positions (N, 3) or poses (N, 4, 4) in the robot's W (m); ``hints`` the program's joints
@@ -100,7 +101,9 @@ def compensate(
     (model DH,s,e,h), ``approach`` says how each target is reached: ``"previous"`` (the targets
     are a path, each from the one before), ``"none"`` (not allowed for) or (N, n) joints each is
     approached from (NaN rows: the previous). Returns the joints reaching each target on the
-    calibrated model, the commands, residuals and a status per target (docs/using.md)."""
+    calibrated model, the commands, residuals and a status per target (docs/using.md). ``tip``:
+    a tree's tip the targets (and ``tcp``) are for (Robot.tip_names; default the tool on the
+    flange)."""
     from .compensation import compensate as run
 
     if not isinstance(nominal, Robot):
@@ -114,4 +117,6 @@ def compensate(
         joints = np.asarray(approach, dtype=float)
         if joints.shape != (len(targets), robot.n_joints):
             raise InputError(None, "approach", f"one row of {robot.n_joints} joints per target, got {joints.shape}")
-    return run(robot, nominal, targets, hints, tcp, approach=joints)
+    if tip is not None and tip not in (*robot.tip_names, "flange"):
+        raise InputError(None, "tip", f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+    return run(robot, nominal, targets, hints, tcp, "tool" if tip is None else tip, approach=joints)

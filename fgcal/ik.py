@@ -43,14 +43,18 @@ class IKResult:
     residual_rad: np.ndarray | None  # (N,) orientation error left, for pose targets
 
 
-def _tcp_state(robot: kinematics.Robot, params: np.ndarray, q: np.ndarray, frame: str, tcp: np.ndarray):
+def _tcp_state(
+    robot: kinematics.Robot, params: np.ndarray, q: np.ndarray, frame: str, tcp: np.ndarray, moving: np.ndarray
+):
     """TCP poses (N, 4, 4) and body Jacobians (N, 6, n) w.r.t. the joints: a point's body
-    twist is [omega, v + omega x tcp]."""
+    twist is [omega, v + omega x tcp]. On a tree, the joints off the frame's path (the other
+    arm's) have no column: they move it only by bending the trunk under their weight, and stay
+    where they are (at the hints): ``moving`` (n,) marks the others (kinematics.path_joints)."""
     data = kinematics.forward(robot, params, q)
     T = kinematics.frame_pose(robot, data, frame).copy()
     J = kinematics.jacobian(robot, data, [f"q{i + 1}" for i in range(robot.n_joints)], frame=frame)
     T[:, :3, 3] += T[:, :3, :3] @ tcp
-    J = J.copy()
+    J = J * moving[None, None, :]
     J[:, 3:] -= skew(tcp) @ J[:, :3]
     return T, J
 
@@ -119,6 +123,7 @@ def inverse_kinematics(
     hint = q.copy()
     tcp = np.zeros(3) if tcp is None else np.asarray(tcp, dtype=float)
     rows = slice(0, 6) if pose else slice(3, 6)
+    moving = kinematics.path_joints(robot, frame)
     active = np.arange(len(q))  # the targets still iterating: only they are evaluated
     best = np.full(len(q), np.inf)  # each target's smallest error so far, and when it last improved
     improved_at = np.zeros(len(q), dtype=int)
@@ -128,7 +133,7 @@ def inverse_kinematics(
             break
         if k == iterations:
             pulling[:] = False
-        T, J = _tcp_state(robot, params, q[active], frame, tcp)
+        T, J = _tcp_state(robot, params, q[active], frame, tcp, moving)
         error = _errors(T, targets[active], pose)
         done = np.linalg.norm(error[:, -3:], axis=1) < CONVERGED_M
         if pose:
@@ -162,7 +167,7 @@ def inverse_kinematics(
         q[active] += step * np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))
         if clamp:
             q[active] = np.clip(q[active], robot.limits[:, 0], robot.limits[:, 1])
-    T, J = _tcp_state(robot, params, q, frame, tcp)
+    T, J = _tcp_state(robot, params, q, frame, tcp, moving)
     error = _errors(T, targets, pose)
     residual_m = np.linalg.norm(error[:, -3:], axis=1)
     residual_rad = np.linalg.norm(error[:, :3], axis=1) if pose else None

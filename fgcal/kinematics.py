@@ -158,6 +158,18 @@ def path_parameters(robot: Robot, frame: str | int) -> set[str]:
     return out
 
 
+def path_joints(robot: Robot, frame: str | int) -> np.ndarray:
+    """(n,) bool: the joints the controller moves whose motion lies on ``frame``'s path (all of
+    a serial chain's, for its flange or tool)."""
+    chain = robot.chain
+    on_path = ancestry(chain.elements)[frame_index(robot, frame)]
+    out = np.zeros(robot.n_joints, dtype=bool)
+    for k, et in enumerate(chain.elements):
+        if et.joint is not None and on_path[k]:
+            out[et.joint] = True
+    return out
+
+
 def motion_offsets(robot: Robot, params: np.ndarray, motion: np.ndarray) -> np.ndarray:
     """The joint offsets (N, n) of the motion history (fgcal.motion), rad or m."""
     first = robot.parameter_names.index("lm1")

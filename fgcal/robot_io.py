@@ -230,6 +230,9 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
             if leader in followers or leader == k:
                 raise joints[k].error("coupling.joints", f"joint {leader + 1} is coupled itself: a coupled joint "
                                       "follows joints the controller moves")  # fmt: skip
+            if geometries[leader].prismatic != geometries[k].prismatic:
+                raise joints[k].error("coupling.joints", f"joint {leader + 1} is of another kind (revolute, "
+                                      "prismatic): a coupled joint follows joints of its own kind")  # fmt: skip
     mass_groups = _mass_groups(doc, len(joints))
     payload = doc.sub("payload", {})
     payload.check_keys(("mass", "com"))
@@ -241,6 +244,8 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         if key not in names:
             raise params.error(str(key), f"unknown parameter name for this {len(joints)}-joint robot")
         overrides[key] = params.number(key, scale=parameter_scale(key, units))
+        if key.startswith(f"{MASS_KIND}.") and not overrides[key] > 0:
+            raise params.error(key, f"a mass scale is a positive factor, got {overrides[key]!r}")
         if is_motion(key) and abs(overrides[key]) > MAX_MOTION_TERM:
             raise params.error(
                 key, f"{overrides[key]:.3g} is beyond {MAX_MOTION_TERM:.3g} (1 deg or 17 mm): lost motion is "
@@ -284,8 +289,10 @@ def _coupling(joint: Fields, number: int, n: int, to_si: float) -> tuple[int, tu
     if not sources:
         raise entry.error("joints", "the joints (1-based) this one follows, at least one")
     for k, source in enumerate(sources):
-        if isinstance(source, bool) or not isinstance(source, int) or not 1 <= source <= n or source == number:
+        if isinstance(source, bool) or not isinstance(source, int) or not 1 <= source <= n:
             raise entry.error(f"joints[{k}]", f"another joint's number, 1 to {n}, got {source!r}")
+        if source == number:
+            raise entry.error(f"joints[{k}]", f"joint {number} cannot follow itself")
     if len(set(sources)) != len(sources):
         raise entry.error("joints", f"each joint once, got {sources}")
     coefficients = entry.vector("coefficients", len(sources))

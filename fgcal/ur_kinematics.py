@@ -47,7 +47,8 @@ class URKinematics:
 def ur_kinematics(robot: Robot, nominal: Robot) -> URKinematics:
     """The document for ``robot`` (calibrated), the controller's base frame fitted against
     ``nominal``. A 6-axis arm of revolute joints, each turning with its joint value (direction +1)."""
-    if robot.n_joints != 6 or robot.prismatic.any() or np.any(robot.directions != 1):
+    tree = robot.parents is not None or bool(robot.tips) or bool(robot.coupled)
+    if tree or robot.n_joints != 6 or robot.prismatic.any() or np.any(robot.directions != 1):
         raise InputError(
             None, "--ur-kinematics", f"{robot.name} is not laid out as a UR arm (six revolute joints, directions +1)"
         )

@@ -182,9 +182,9 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
             offset = number(robot.drives[i][1])
             follows = f'\n    <mimic joint="joint_{leader + 1}" multiplier="{number(c)}" offset="{offset}"/>'
         elif i in coupled:  # URDF's mimic follows one joint
-            terms = " ".join(f"{c:+g} joint_{s + 1}" for s, c in coupled[i])
+            terms = " ".join(f"{'-' if c < 0 else '+'}{number(abs(c))} joint_{s + 1}" for s, c in coupled[i])
             if robot.drives[i][1]:
-                terms += f" {robot.drives[i][1]:+g}"
+                terms += f" {'-' if robot.drives[i][1] < 0 else '+'}{number(abs(robot.drives[i][1]))}"
             parts.append(_comment(f"joint_{i + 1} follows several joints: set its value to {terms}"))
         parts.append(
             f'  <joint name="joint_{i + 1}" type="{kind}">\n'
@@ -194,15 +194,21 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
             f'    <limit lower="{number(low)}" upper="{number(high)}" effort="0" velocity="0"/>{follows}\n'
             "  </joint>"
         )
+    # A tree's tips are links by their names (the flange's too), unless a name is the layout's own.
+    taken = {"world", "base_link", "tool0", *(f"link_{i + 1}" for i in range(robot.n_links))}
+    tip_links = {name: f"{name}_tip" if name in taken else name for name in robot.tip_names}
+    flange = tip_links[robot.flange_name] if is_tree(robot) else "flange"
     flange_parent, T_parent = link_of(robot.n_links - 1 if robot.flange_joint is None else robot.flange_joint)
-    parts.append(_link_xml("flange", float(robot.payload_mass), robot.payload_com))
-    parts.append(_fixed_xml(f"{flange_parent}-flange", flange_parent, "flange", inverse(T_parent) @ f["flange"]))
+    parts.append(_link_xml(flange, float(robot.payload_mass), robot.payload_com))
+    parts.append(_fixed_xml(f"{flange_parent}-{flange}", flange_parent, flange, inverse(T_parent) @ f["flange"]))
     parts.append(_link_xml("tool0"))
-    parts.append(_fixed_xml("flange-tool0", "flange", "tool0", inverse(f["flange"]) @ f["tool"]))
-    for name, joint, _ in robot.tips:  # a tree's other tips, by their names
+    parts.append(_fixed_xml(f"{flange}-tool0", flange, "tool0", inverse(f["flange"]) @ f["tool"]))
+    for name, joint, _ in robot.tips:  # a tree's other tips
         parent, T_parent = link_of(joint)
-        parts.append(_link_xml(name))
-        parts.append(_fixed_xml(f"{parent}-{name}", parent, name, inverse(T_parent) @ f["tips"][name]))
+        parts.append(_link_xml(tip_links[name]))
+        parts.append(
+            _fixed_xml(f"{parent}-{tip_links[name]}", parent, tip_links[name], inverse(T_parent) @ f["tips"][name])
+        )
     parts.append("</robot>")
     return "\n".join(parts) + "\n"
 

@@ -158,6 +158,8 @@ ROBOT_CASES = [
     ("mass_group_empty", _top("mass_groups", {"arms": []}), "mass_groups.arms"),
     ("mass_group_name", _top("mass_groups", {"the arms": [5]}), "mass_groups.the arms"),
     ("mass_scale_unknown_group", _top("parameters", {"mass.legs": 1.1}), "parameters.mass.legs"),
+    ("mass_scale_negative", _top("parameters", {"mass.arms": -1.0}), "parameters.mass.arms"),
+    ("coupling_self", _joint(3, "coupling", {"joints": [4], "coefficients": [1]}), "joints[3].coupling.joints[0]"),
 ]  # fmt: skip
 
 
@@ -231,6 +233,9 @@ def test_compensate_addresses_a_tip_by_name(dual_arm, tmp_path, capsys):
     assert [r["status"] for r in rows] == ["ok"] * 5
     solved = np.array([[float(r[f"q{i + 1}"]) for i in range(robot.n_joints)] for r in rows])
     np.testing.assert_allclose(robot.fk(solved, tip="right_hand")[:, :3, 3], targets, atol=2e-6)
+    # The left arm (joints 4-10: off the right hand's path) stays at its hints, exactly, though
+    # its weight bends the torso the right hand hangs from.
+    np.testing.assert_allclose(solved[:, 3:10], q[:, 3:10] + 0.01, rtol=0, atol=1e-12)
     capsys.readouterr()
     assert main([*argv, "--out", str(tmp_path / "d.csv"), "--tip", "left_foot"]) == 2
     assert "--tip" in capsys.readouterr().err
@@ -320,3 +325,40 @@ def test_a_tip_the_robot_lacks_or_a_camera_on_a_tip_is_refused(dual_arm, tmp_pat
     assert main(["calibrate", str(data / "calibration.yaml"), "--out", str(tmp_path / "out")]) == 2
     error = capsys.readouterr().err
     assert "dataset.yaml" in error and "tip" in error and "nose" in error, error
+
+
+def test_a_test_point_on_the_right_hand_is_scored_on_it(dual_arm, tmp_path, capsys):
+    """A reflector only the held-out configurations measure (t3, leave-one-out), on the right
+    hand: scored through the right hand's chain, to its prediction (before the fix: 818 mm)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    for source in (dual_arm / "data").iterdir():
+        if source.is_file():
+            (data / source.name).write_bytes(source.read_bytes())
+    configs = [row[0] for row in csv.reader((data / "configurations.csv").open())][1:]
+    test = set(configs[225:])  # split: ordered holds out the last quarter
+    rows = list(csv.reader((data / "tracker_points.csv").open()))
+    rows[1:] = [[r[0], "t3" if r[1] == "t2" and r[0] in test else r[1], *r[2:]] for r in rows[1:]]
+    with open(data / "tracker_points.csv", "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    header = yaml.safe_load((data / "dataset.yaml").read_text())
+    header["tracker"]["targets"].append("t3")
+    header["tracker"]["tips"]["t3"] = "right_hand"
+    (data / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False))
+    config = yaml.safe_load((data / "calibration.yaml").read_text())
+    config["validation"] = {"split": "ordered"}
+    (data / "calibration.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    (data / "truth").mkdir()  # scored against the measurements: no truth
+    report = _calibrate(data, tmp_path / "out", capsys)
+    assert report["validation"]["test_points"] == {"t3": "leave-one-out"}
+    measured = report["validation"]["after"]["position_error_m"]["rms"]
+    predicted = report["validation"]["predicted_position_sigma_m"]["rms"]
+    assert measured < 1e-4 and 1 / 1.5 <= measured / predicted <= 1.5, (measured, predicted)
+
+
+def test_what_scores_the_flange_alone_is_refused_for_a_tree(tmp_path, capsys):
+    for option in (["--rigid-fit"], ["--calibration", str(tmp_path / "none.yaml")]):
+        assert main(["export", "dual_arm_torso", "--urdf", str(tmp_path / "d.urdf"), *option]) == 2
+        assert f"{option[0]}: dual-arm torso is a tree" in capsys.readouterr().err
+    assert main(["export", "dual_arm_torso", "--ur-kinematics", str(tmp_path / "k.yaml")]) == 2
+    assert "not laid out as a UR arm" in capsys.readouterr().err

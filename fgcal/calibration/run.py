@@ -47,7 +47,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
             "gives none (order: unknown, and no before_q columns): fit DH,s,e, or give the measurement order",
         )  # fmt: skip
     for j in compliant_joints(robot, config.compliant_joints):
-        if j > robot.n_joints:
+        if j > robot.n_links:
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
     detection = None
     if config.pixels_from == "images":

@@ -426,7 +426,7 @@ def _chain_lines(chains: dict | None) -> list[str]:
         "", "## Shared by the chains", "",
         "Parameters that move more than one tip's measurements (a shared torso, where a positioner stands): their "
         "sigma from each tip's measurements alone and from all of them, at the estimate under the declared noise "
-        "(mm, mdeg, urad/(N m)); -: not identifiable from that tip alone.", "",
+        "(mm, mdeg, urad/(N m), mass scales as factors); -: not identifiable from that tip alone.", "",
         "| parameter | " + " | ".join(f"{tip} alone" for tip in tips) + " | all |",
         "|---|" + "---|" * (len(tips) + 1),
     ]  # fmt: skip

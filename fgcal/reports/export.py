@@ -49,6 +49,11 @@ def export_command(
     robot = load_robot(robot_file, tip)
     if path is not None and template is not None and is_tree(robot):  # before any work
         raise InputError(template, "--template", f"{robot.name} is a tree: it is written in fgcal's own layout")
+    if is_tree(robot) and (rigid_fit or calibration is not None):
+        # Both score and refit the flange's tool alone; a tree's other tips would go unchecked.
+        option = "--rigid-fit" if rigid_fit else "--calibration"
+        raise InputError(robot_file, option, f"{robot.name} is a tree: {option} fits and scores the flange's tool "
+                         "only, not every tip; export it without (the sidecar keeps the compliances)")  # fmt: skip
     if payload_mass is not None or payload_com is not None:
         mass = robot.payload_mass if payload_mass is None else payload_mass
         com = robot.payload_com if payload_com is None else np.array(payload_com, dtype=float)

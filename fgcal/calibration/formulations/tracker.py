@@ -90,9 +90,12 @@ class Tracker(Formulation):
         return settings.noise.tracker_m
 
     def frames(self, problem: Problem) -> str | tuple[str, ...]:
-        """The flange, or the tips of a tree the reflectors are on (dataset.yaml tracker.tips)."""
-        tips = problem.observations.tips
-        if not tips or set(tips) == {problem.robot.flange_name}:
+        """The flange, or the tips of a tree the reflectors are on (dataset.yaml tracker.tips and
+        tip), those of the test points a validation set measures among them."""
+        tips = {
+            target_tip(problem.dataset, name) for name in set(problem.dataset.tables["tracker_points"].ids["target"])
+        }
+        if tips == {problem.robot.flange_name}:
             return self.frame
         return tuple(t for t in problem.robot.tip_names if t in tips)
 
@@ -164,7 +167,8 @@ class Tracker(Formulation):
             configs.append(known.configs)
         for target, at, measured in observations.test_points:
             motion = problem.dataset.motion_of(observations.config_ids[at])
-            errors.append(_test_point_errors(problem, state, target, observations.q[at], motion, measured))
+            tip = target_tip(problem.dataset, target)
+            errors.append(_test_point_errors(problem, state, target, observations.q[at], motion, measured, tip))
             configs.append(at)
         if not errors:
             return {}
@@ -214,15 +218,19 @@ class Tracker(Formulation):
 
 def _observations(dataset: Dataset, subset: np.ndarray, rows: list, names: tuple[str, ...]) -> TrackerObservations:
     index = {name: i for i, name in enumerate(names)}
-    flange = dataset.tip or dataset.robot.flange_name
     return TrackerObservations(
         **subset_of(dataset, subset),
         configs=np.array([r[0] for r in rows], dtype=int),
         targets=np.array([index[r[1]] for r in rows], dtype=int),
         measured=np.array([r[2] for r in rows], dtype=float).reshape(-1, 3),
         names=names,
-        tips=tuple(dataset.target_tips.get(name, flange) for name in names),
+        tips=tuple(target_tip(dataset, name) for name in names),
     )
+
+
+def target_tip(dataset: Dataset, name: str) -> str:
+    """The tip a tracker target is on: dataset.yaml tracker.tips, else tip, else the flange."""
+    return dataset.target_tips.get(name, dataset.tip or dataset.robot.flange_name)
 
 
 # -- starting values ------------------------------------------------------------------------
@@ -309,12 +317,12 @@ def declared_test_point(problem: Problem, state: State, target: str) -> np.ndarr
 
 
 def _test_point_errors(
-    problem: Problem, state: State, target: str, q: np.ndarray, motion: np.ndarray, measured: np.ndarray
+    problem: Problem, state: State, target: str, q: np.ndarray, motion: np.ndarray, measured: np.ndarray, tip: str
 ) -> np.ndarray:
     """Error vectors (m, tracker frame) at a tool point the fit never saw, measured at ``q``:
     at its declared position, else at its leave-one-out position (its position is then not
     scored, only how the robot moves it)."""
-    T_T_n = state.value("tracker") @ problem.robot.fk(q, problem.robot.parameter_dict(state.params), motion)
+    T_T_n = state.value("tracker") @ problem.robot.fk(q, problem.robot.parameter_dict(state.params), motion, tip=tip)
     declared = declared_test_point(problem, state, target)
     if declared is not None:
         return transform_points(T_T_n, declared) - measured
@@ -345,14 +353,17 @@ def _test_point_variances(
     T_L = state.value("tracker")
     block = covariance.block(["P", "tracker"])
     sigma2 = 3.0 * factor * problem.settings.noise.tracker_m**2
+    frames = problem.frame
     for target, at, measured in observations.test_points:
+        # Its tip's rows among the kinematics' (frame-major on a tree).
+        rows = at if isinstance(frames, str) else frames.index(target_tip(problem.dataset, target)) * len(model.q) + at
         declared = declared_test_point(problem, state, target)
         # Where the point is on the flange: declared, or as the measurements put it (for A_j only).
-        s = declared if declared is not None else back_projections(T_L @ T_X[at], measured).mean(axis=0)
-        R_X = T_X[at, :3, :3]
-        p_W = np.einsum("oij,j->oi", R_X, s) + T_X[at, :3, 3]
+        s = declared if declared is not None else back_projections(T_L @ T_X[rows], measured).mean(axis=0)
+        R_X = T_X[rows, :3, :3]
+        p_W = np.einsum("oij,j->oi", R_X, s) + T_X[rows, :3, 3]
         A = np.concatenate(
-            [T_L[:3, :3] @ point_jacobian(R_X, np.broadcast_to(s, (len(at), 3))) @ J_P[at],
+            [T_L[:3, :3] @ point_jacobian(R_X, np.broadcast_to(s, (len(at), 3))) @ J_P[rows],
              np.broadcast_to(point_jacobian(T_L[:3, :3], p_W), (len(at), 3, 6))],
             axis=2,
         )  # fmt: skip
