@@ -32,6 +32,7 @@ import scipy.optimize
 import scipy.sparse
 
 from . import kinematics
+from .bench_kernel import kernel_bench
 from .calibration.config import CalibrationConfig
 from .calibration.formulations.pairs import fixture_rotation
 from .calibration.graph import StageGraph, build_graph
@@ -476,6 +477,8 @@ def run_bench(
         result["sizes"][str(n)] = {**batch, **online}
     say("planning:")
     result.update(plan_bench(repeats, say))
+    say("kinematics:")
+    result.update(kernel_bench(repeats, say))
     if faro is not None:
         say(f"FARO set ({faro}): whole calibrate command against a plain scipy DH fit")
         result.update(faro_bench(Path(faro), out / "faro", repeats, say))

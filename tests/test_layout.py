@@ -98,7 +98,8 @@ LAYERS = (
     ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),
     ("calibration", ("fgcal.calibration",)),
     ("online and planning", ("fgcal.online", "fgcal.planning")),
-    ("reports and commands", ("fgcal.reports", "fgcal.bench", "fgcal.cli", "fgcal.__main__", "fgcal.api")),
+    ("reports and commands", ("fgcal.reports", "fgcal.bench", "fgcal.bench_kernel", "fgcal.cli", "fgcal.__main__",
+                              "fgcal.api")),
 )  # fmt: skip
 
 

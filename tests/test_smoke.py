@@ -5,6 +5,7 @@ and behaviour cannot drift apart."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 import shutil
@@ -246,6 +247,8 @@ def test_import_convert_and_bench_as_documented(ws, capsys):
         printed = _run(argv, ws, capsys)
     bench = json.loads(printed)
     assert bench["sizes"]["20"]["cpu_s"]["fgcal"] > 0 and (FARO.exists() == ("faro_wall_s" in bench))
+    assert bench["kernel_fk_param_jacobian_batched_us"] > 0 and bench["kernel_fk_joint_jacobian_single_us"] > 0
+    assert (bench["pinocchio_fk_joint_jacobian_us"] is None) == (importlib.util.find_spec("pinocchio") is None)
     assert (ws / "imported" / "dataset.yaml").exists()
 
 
