@@ -117,6 +117,6 @@ def compensate(
         joints = np.asarray(approach, dtype=float)
         if joints.shape != (len(targets), robot.n_joints):
             raise InputError(None, "approach", f"one row of {robot.n_joints} joints per target, got {joints.shape}")
-    if tip is not None and tip not in (*robot.tip_names, "flange"):
-        raise InputError(None, "tip", f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+    if tip is not None and robot.tip_error(tip):
+        raise InputError(None, "tip", robot.tip_error(tip))
     return run(robot, nominal, targets, hints, tcp, "tool" if tip is None else tip, approach=joints)

@@ -227,9 +227,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     nominal = nominal_of(robot, args.nominal)
     from .programs import KRL_SUFFIXES, RAPID_SUFFIXES
 
-    if args.tip is not None and args.tip not in (*robot.tip_names, "flange"):
-        raise InputError(args.robot, "--tip", f"{robot.name} has no tip {args.tip!r} (its tips: "
-                         f"{', '.join(robot.tip_names)})")  # fmt: skip
+    if args.tip is not None and robot.tip_error(args.tip):
+        raise InputError(args.robot, "--tip", robot.tip_error(args.tip))
     if Path(args.targets).suffix.lower() in RAPID_SUFFIXES + KRL_SUFFIXES:
         if args.tip is not None:
             raise InputError(args.targets, "--tip", "a robot program drives its robot's flange: --tip is for a CSV")
@@ -530,9 +529,8 @@ def cmd_fk(args: argparse.Namespace) -> int:
 
     is_urdf = is_urdf_reference(args.robot)
     robot = load_robot(args.robot, args.tip if is_urdf or args.tip is None else None)
-    if args.tip is not None and not is_urdf and args.tip not in (*robot.tip_names, "flange"):
-        raise InputError(args.robot, "--tip", f"{robot.name} has no tip {args.tip!r} (its tips: "
-                         f"{', '.join(robot.tip_names)}; a URDF's tip link applies to URDF files)")  # fmt: skip
+    if args.tip is not None and not is_urdf and robot.tip_error(args.tip):
+        raise InputError(args.robot, "--tip", f"{robot.tip_error(args.tip)}; a URDF's tip link applies to URDF files")
     if args.tool and args.tip is not None and not is_urdf and args.tip not in ("flange", robot.flange_name):
         raise InputError(args.robot, "--tool", f"the tool is on the flange ({robot.flange_name}), not on {args.tip}")
     q = np.array(args.q, dtype=float)

@@ -451,10 +451,9 @@ def load_dataset(path: str | Path) -> Dataset:
         dataset.robot = dataset.robot.with_tool(_pose(cam.sub("mounting", {}), units))
     if doc.has("tip"):
         tip = doc.string("tip")
-        if tip not in dataset.robot.tip_names:
-            raise doc.error("tip", f"{dataset.robot.name} has no tip {tip!r} (its tips: "
-                            f"{', '.join(dataset.robot.tip_names)})")  # fmt: skip
-        dataset.tip = tip
+        if dataset.robot.tip_error(tip):
+            raise doc.error("tip", dataset.robot.tip_error(tip))
+        dataset.tip = dataset.robot.flange_name if tip == "flange" else tip
     if doc.has("payload"):
         payload = doc.sub("payload")
         payload.check_keys(("mass", "com"))
@@ -502,9 +501,9 @@ def _target_tips(tracker: Fields, declared: set[str], robot: Robot) -> dict[str,
         if str(target) not in declared:
             raise tips.error(str(target), f"not one of tracker.targets ({', '.join(sorted(declared))})")
         tip = tips.string(target)
-        if tip not in robot.tip_names:
-            raise tips.error(str(target), f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
-        out[str(target)] = tip
+        if robot.tip_error(tip):
+            raise tips.error(str(target), robot.tip_error(tip))
+        out[str(target)] = robot.flange_name if tip == "flange" else tip
     return out
 
 

@@ -72,8 +72,7 @@ class KinematicsData:
     com_world: np.ndarray  # (N, B, 3) c_b, each body's centre of mass in W, m
     carried_mass: np.ndarray  # (L,) M_i: the mass joint i carries, kg
     body_masses: np.ndarray  # (B,) m_b, mass scales applied, kg
-    body_scale: np.ndarray  # (B,) each body's mass scale (mass.{group}; 1 outside the groups)
-    torque_world: np.ndarray  # (N, n, 3) tau_i in W, N m
+    torque_world: np.ndarray  # (N, L, 3) tau_i in W, N m
     motion: np.ndarray | None = None  # (N, 2n) motion-history features (fgcal.motion)
     _twists: dict = field(default_factory=dict)
 
@@ -81,8 +80,7 @@ class KinematicsData:
         """The data of some of the configurations (what forward() would give for them)."""
         return KinematicsData(
             self.params, self.q[rows], self.frames[:, rows], self.frames_rigid[:, rows], self.moments[rows],
-            self.weighted[rows], self.com_world[rows], self.carried_mass, self.body_masses, self.body_scale,
-            self.torque_world[rows],
+            self.weighted[rows], self.com_world[rows], self.carried_mass, self.body_masses, self.torque_world[rows],
             None if self.motion is None else self.motion[rows],
         )  # fmt: skip
 
@@ -211,7 +209,7 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
         moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
     frames = evaluate(chain.elements, params, q, moments) if robot.compliant else rigid
     return KinematicsData(
-        params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, scale, torque_world, motion
+        params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, torque_world, motion
     )
 
 

@@ -272,6 +272,13 @@ class Robot:
         """The named frames: the flange's name, then the tree's other tips."""
         return [self.flange_name, *(name for name, _, _ in self.tips)]
 
+    def tip_error(self, tip: str) -> str | None:
+        """What is wrong with ``tip`` as a tip of this robot (None: one of :attr:`tip_names`, or
+        ``flange``, which always names the flange)."""
+        if tip in self.tip_names or tip == "flange":
+            return None
+        return f"{self.name} has no tip {tip!r} (its tips: {', '.join(self.tip_names)})"
+
     def fk_tool(
         self, q: np.ndarray, params: Mapping[str, float] | None = None, motion: np.ndarray | None = None
     ) -> np.ndarray:

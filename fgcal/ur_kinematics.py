@@ -27,7 +27,7 @@ from .joints import DHJoint
 from .program_filter import controller_frame
 from .robot import Robot
 from .se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation, so3_exp
-from .urdf_export import clean, joint_frames
+from .urdf_export import clean, is_tree, joint_frames
 
 JOINTS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
 # wrist_3_link -> tool0 in the UR description: the flange (0, -pi/2, -pi/2), then tool0 (pi/2, pi, pi/2).
@@ -47,8 +47,7 @@ class URKinematics:
 def ur_kinematics(robot: Robot, nominal: Robot) -> URKinematics:
     """The document for ``robot`` (calibrated), the controller's base frame fitted against
     ``nominal``. A 6-axis arm of revolute joints, each turning with its joint value (direction +1)."""
-    tree = robot.parents is not None or bool(robot.tips) or bool(robot.coupled)
-    if tree or robot.n_joints != 6 or robot.prismatic.any() or np.any(robot.directions != 1):
+    if is_tree(robot) or robot.n_joints != 6 or robot.prismatic.any() or np.any(robot.directions != 1):
         raise InputError(
             None, "--ur-kinematics", f"{robot.name} is not laid out as a UR arm (six revolute joints, directions +1)"
         )

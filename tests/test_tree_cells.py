@@ -31,6 +31,16 @@ def dual_arm(tmp_path_factory):
     return root
 
 
+def _copy_dataset(source: Path, data: Path, truth: bool = False) -> Path:
+    """A copy of a simulated dataset's files (and its truth: scored against it) to change."""
+    for folder in ("", "truth") if truth else ("",):
+        (data / folder).mkdir(parents=True)
+        for file in (source / folder).iterdir():
+            if file.is_file():
+                (data / folder / file.name).write_bytes(file.read_bytes())
+    return data
+
+
 def _held_out(report: dict) -> tuple[float, float, float]:
     validation = report["validation"]
     return (
@@ -73,14 +83,7 @@ def test_each_arm_alone_knows_the_torso_less_than_both(dual_arm, hand, capsys):
     both = dual_arm / "both" / "report.json"
     if not both.exists():
         _calibrate(dual_arm / "data", dual_arm / "both", capsys)
-    data = dual_arm / f"only_{hand}"
-    data.mkdir()
-    for source in (dual_arm / "data").iterdir():
-        if source.is_file():
-            (data / source.name).write_bytes(source.read_bytes())
-    (data / "truth").mkdir()
-    for source in (dual_arm / "data" / "truth").iterdir():
-        (data / "truth" / source.name).write_bytes(source.read_bytes())
+    data = _copy_dataset(dual_arm / "data", dual_arm / f"only_{hand}", truth=True)
     with open(dual_arm / "data" / "tracker_points.csv", newline="") as f:
         rows = list(csv.reader(f))
     with open(data / "tracker_points.csv", "w", newline="") as f:
@@ -196,11 +199,7 @@ def test_a_mass_scale_needs_mass_groups_and_a_dataset_tip_must_exist(dual_arm, t
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
     assert main(["simulate", str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "sim")]) == 2
     assert "perturbation.mass_scale" in capsys.readouterr().err
-    data = tmp_path / "data"
-    data.mkdir()
-    for source in (dual_arm / "data").iterdir():
-        if source.is_file():
-            (data / source.name).write_bytes(source.read_bytes())
+    data = _copy_dataset(dual_arm / "data", tmp_path / "data")
     header = yaml.safe_load((data / "dataset.yaml").read_text())
     header["tracker"]["tips"]["t2"] = "right_foot"
     (data / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False))
@@ -314,11 +313,7 @@ def test_a_tip_the_robot_lacks_or_a_camera_on_a_tip_is_refused(dual_arm, tmp_pat
     (tmp_path / "seed.yaml").write_text(yaml.safe_dump(seed))
     assert main(["simulate", str(tmp_path / "seed.yaml"), "--out", str(tmp_path / "sim")]) == 2
     assert "tip" in capsys.readouterr().err
-    data = tmp_path / "data"
-    data.mkdir()
-    for source in (dual_arm / "data").iterdir():
-        if source.is_file():
-            (data / source.name).write_bytes(source.read_bytes())
+    data = _copy_dataset(dual_arm / "data", tmp_path / "data")
     header = yaml.safe_load((data / "dataset.yaml").read_text())
     header["tip"] = "nose"
     (data / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False))
@@ -330,11 +325,7 @@ def test_a_tip_the_robot_lacks_or_a_camera_on_a_tip_is_refused(dual_arm, tmp_pat
 def test_a_test_point_on_the_right_hand_is_scored_on_it(dual_arm, tmp_path, capsys):
     """A reflector only the held-out configurations measure (t3, leave-one-out), on the right
     hand: scored through the right hand's chain, to its prediction (before the fix: 818 mm)."""
-    data = tmp_path / "data"
-    data.mkdir()
-    for source in (dual_arm / "data").iterdir():
-        if source.is_file():
-            (data / source.name).write_bytes(source.read_bytes())
+    data = _copy_dataset(dual_arm / "data", tmp_path / "data")
     configs = [row[0] for row in csv.reader((data / "configurations.csv").open())][1:]
     test = set(configs[225:])  # split: ordered holds out the last quarter
     rows = list(csv.reader((data / "tracker_points.csv").open()))

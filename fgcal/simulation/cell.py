@@ -411,8 +411,9 @@ def load_cell(path: str | Path) -> Cell:
     if doc.has("base"):
         robot = replace(robot, base_pose=_pose(doc, "base", to_m, to_rad))
     tip = doc.string("tip", robot.flange_name)
-    if tip not in robot.tip_names:
-        raise doc.error("tip", f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+    if robot.tip_error(tip):
+        raise doc.error("tip", robot.tip_error(tip))
+    tip = robot.flange_name if tip == "flange" else tip
     if tip != robot.flange_name and camera_fields is not None:
         raise doc.error("tip", "a flange camera is the flange's tool: a tree's other tips carry targets, not cameras")
 
@@ -556,8 +557,9 @@ def _tracker_targets(
     targets, tips = [], []
     for tip, points in groups:
         where = "targets" if tip is None else f"targets.{tip}"
-        if tip is not None and tip not in robot.tip_names:
-            raise tracker.error(where, f"{robot.name} has no tip {tip!r} (its tips: {', '.join(robot.tip_names)})")
+        if tip is not None and robot.tip_error(str(tip)):
+            raise tracker.error(where, robot.tip_error(str(tip)))
+        tip = robot.flange_name if tip == "flange" else tip
         if not isinstance(points, list):
             raise tracker.error(where, f"expected a list of [x, y, z] points, got {points!r}")
         for i, point in enumerate(points):
