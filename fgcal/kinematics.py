@@ -283,6 +283,9 @@ def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray,
     return d_t.reshape(d_t.shape[0], d_t.shape[1], 3 * n)
 
 
+MOMENT_BLOCK_VALUES = 1_000_000  # floats in one of moment_derivatives' temporaries (8 MB)
+
+
 def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float, int]]:
     """Entries (target, element, column, scale, feature) through which each name enters
     directly; ``feature`` >= 0: a motion term, which enters through its joint scaled by that
@@ -352,13 +355,17 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
         moment_index = [chain.elements[k].moment for k in deflections]
         if np.any(compliances != 0.0):
             rigid = data.twists(chain.elements, rigid=True)
-            rigid_twist = np.stack(
-                [rigid[k][:, c] for k, c in zip(elements[geometric], columns[geometric], strict=True)], axis=1
-            )
-            rates = moment_derivatives(robot, data, elements[geometric], rigid_twist)[:, :, moment_index]
             deflection_twists = np.stack([deformed[k][:, 0] for k in deflections], axis=1)  # (N, M, 6)
-            weighted = rates * (compliances[None, None, :] * scale[:, geometric][:, :, None])
-            contribution[:, geometric] += np.matmul(weighted, deflection_twists)
+            # In blocks of columns: the moments' derivatives hold (N, columns, L, 3) temporaries,
+            # hundreds of MB for thousands of configurations at once.
+            where = np.flatnonzero(geometric)
+            block = max(1, MOMENT_BLOCK_VALUES // (n_conf * 3 * robot.n_links))
+            for start in range(0, len(where), block):
+                some = where[start : start + block]
+                rigid_twist = np.stack([rigid[k][:, c] for k, c in zip(elements[some], columns[some], strict=True)], 1)
+                rates = moment_derivatives(robot, data, elements[some], rigid_twist)[:, :, moment_index]
+                weighted = rates * (compliances[None, None, :] * scale[:, some][:, :, None])
+                contribution[:, some] += np.matmul(weighted, deflection_twists)
     # Sum the entries into their targets (a name may enter through several elements).
     selection = np.zeros((len(wrt), len(entries)))
     selection[targets, np.arange(len(entries))] = 1.0

@@ -9,6 +9,10 @@ import numpy as np
 from .. import kinematics
 from ..robot import Robot
 
+# Evaluations kept: Levenberg-Marquardt linearises at its point and evaluates a trial or two
+# beside it; each evaluation holds every frame of the chain at every configuration.
+CACHED_POINTS = 2
+
 
 class BatchKinematics:
     """FK (N, 4, 4) and body Jacobians (N, 6, m) of ``frame`` at all configurations ``q``,
@@ -55,13 +59,19 @@ class BatchKinematics:
         key = values.tobytes()
         entry = self._cache.get(key)
         if entry is None:
-            if len(self._cache) >= 4:  # LM alternates between a few trial points
+            if len(self._cache) >= CACHED_POINTS:
                 self._cache.pop(next(iter(self._cache)))
             data = kinematics.forward(self.robot, self.full(values), self.q, self.motion)
             poses = [kinematics.frame_pose(self.robot, data, frame) for frame in self.frames]
             entry = {"data": data, "poses": poses[0] if len(poses) == 1 else np.concatenate(poses)}
             self._cache[key] = entry
         return entry
+
+    def keep_only(self, released_values: np.ndarray | None) -> None:
+        """Forget every evaluation but the one at these values (if there is one)."""
+        values = self.base[self.index] if released_values is None else np.asarray(released_values, dtype=float)
+        kept = self._cache.get(values.tobytes())
+        self._cache = {} if kept is None else {values.tobytes(): kept}
 
     def data(self, released_values: np.ndarray | None) -> kinematics.KinematicsData:
         """The full kinematics evaluation (frames, gravity moments) at these values."""

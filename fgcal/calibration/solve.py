@@ -92,4 +92,7 @@ def solve_stage(
     )
     say(f"  stage {name}: {len(released)} parameters, {iterations} iterations, residual RMS {report.rms_text()}, "
         f"{report.time_s:.2f} s")  # fmt: skip
+    # What later steps ask of a solved stage is at its solution (covariance, rejection): the
+    # optimiser's trial points go, tens of MB each at thousands of configurations.
+    stage.kinematics.keep_only(result.atVector(stage.keys.params) if stage.keys.params is not None else None)
     return new_state, report, stage, result
