@@ -40,6 +40,8 @@ MAPPING_KEYS = (
     "tool_distances",
     "payload",
     "order",
+    "tip",
+    "target_tips",
     "source",
     "notes",
 )
@@ -351,6 +353,23 @@ def _quaternion(source: SourceTable, row: int, values: list[float], sequence: st
     return [float(w), float(x), float(y), float(z)]
 
 
+def _target_tips(doc: Fields, robot, targets: list[str]) -> dict[str, str]:
+    """``target_tips: {target: tip}``: the tree's tip each named reflector is on (the others on
+    ``tip``, or the flange)."""
+    if not doc.has("target_tips"):
+        return {}
+    tips = doc.sub("target_tips")
+    out = {}
+    for target in tips.data:
+        if str(target) not in targets:
+            raise tips.error(str(target), f"no tracker target of that name (the targets: {', '.join(targets)})")
+        tip = tips.string(target)
+        if robot.tip_error(tip):
+            raise tips.error(str(target), robot.tip_error(tip))
+        out[str(target)] = tip
+    return out
+
+
 def import_tables(mapping_path: str | Path, out: str | Path) -> dict[str, int]:
     """Write the dataset a mapping file describes into ``out``; returns row and dropped counts.
     The mapping's relative file names are relative to its directory."""
@@ -407,6 +426,15 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     }
     if "tracker_points" in tables:
         header["tracker"] = {"targets": sorted({row[1] for row in tables["tracker_points"].rows})}
+        tips = _target_tips(doc, robot, header["tracker"]["targets"])
+        if tips:
+            header["tracker"]["tips"] = tips
+    elif doc.has("target_tips"):
+        raise doc.error("target_tips", "the tips of tracker targets: tracker_points are needed too")
+    if doc.has("tip"):
+        if robot.tip_error(doc.string("tip")):
+            raise doc.error("tip", robot.tip_error(doc.string("tip")))
+        header["tip"] = doc.string("tip")
     if doc.has("payload"):
         header["payload"] = doc.raw("payload")
     header["order"] = doc.string("order", "measured", ("measured", "unknown"))

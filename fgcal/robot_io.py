@@ -242,7 +242,8 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     params = doc.sub("parameters", {})
     for key in params.data:
         if key not in names:
-            raise params.error(str(key), f"unknown parameter name for this {len(joints)}-joint robot")
+            moved = f", {len(directions)} moved by the controller" if coupled else ""
+            raise params.error(str(key), f"unknown parameter name for this {len(joints)}-joint robot{moved}")
         overrides[key] = params.number(key, scale=parameter_scale(key, units))
         if key.startswith(f"{MASS_KIND}.") and not overrides[key] > 0:
             raise params.error(key, f"a mass scale is a positive factor, got {overrides[key]!r}")

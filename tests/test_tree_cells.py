@@ -353,3 +353,28 @@ def test_what_scores_the_flange_alone_is_refused_for_a_tree(tmp_path, capsys):
         assert f"{option[0]}: dual-arm torso is a tree" in capsys.readouterr().err
     assert main(["export", "dual_arm_torso", "--ur-kinematics", str(tmp_path / "k.yaml")]) == 2
     assert "not laid out as a UR arm" in capsys.readouterr().err
+
+
+def test_import_csv_puts_reflectors_on_their_tips(dual_arm, tmp_path, capsys):
+    """A tracker export and a joint log of the dual-arm robot: the mapping's target_tips put each
+    reflector on its hand in the imported dataset (which the importer reads back); an unknown tip
+    is refused naming the mapping's field."""
+    data = dual_arm / "data"
+    joints = [f"q{i}" for i in range(1, 18)]
+    mapping = {
+        "format": "fgcal-import/1", "robot": "dual_arm_torso", "units": {"length": "m", "angle": "rad"},
+        "configurations": {"file": str(data / "configurations.csv"), "config": "config", "joints": joints},
+        "tracker_points": {"file": str(data / "tracker_points.csv"), "config": "config", "target": "target",
+                           "xyz": ["x", "y", "z"]},
+        "target_tips": {"t1": "left_hand", "t2": "right_hand"},
+    }  # fmt: skip
+    (tmp_path / "mapping.yaml").write_text(yaml.safe_dump(mapping, sort_keys=False))
+    assert main(["import-csv", str(tmp_path / "mapping.yaml"), "--out", str(tmp_path / "imported")]) == 0
+    header = yaml.safe_load((tmp_path / "imported" / "dataset.yaml").read_text())
+    assert header["tracker"]["tips"] == {"t1": "left_hand", "t2": "right_hand"}
+    mapping["target_tips"] = {"t2": "left_foot"}
+    (tmp_path / "mapping.yaml").write_text(yaml.safe_dump(mapping, sort_keys=False))
+    capsys.readouterr()
+    assert main(["import-csv", str(tmp_path / "mapping.yaml"), "--out", str(tmp_path / "again")]) == 2
+    error = capsys.readouterr().err
+    assert "mapping.yaml" in error and "target_tips.t2" in error and "left_foot" in error, error
