@@ -23,7 +23,10 @@ def project(intrinsics: np.ndarray, p_C: np.ndarray, jacobians: bool = False):
     radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
     xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
     yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-    pixel = np.stack([fx * xd + cx, fy * yd + cy], axis=-1)
+    # Filled in place: a projection set is a few dozen points, where np.stack's overhead is most
+    # of the cost (the online update projects every image's set several times).
+    pixel = np.empty((*z.shape, 2))
+    pixel[..., 0], pixel[..., 1] = fx * xd + cx, fy * yd + cy
     if not jacobians:
         return pixel
     d_radial = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r2 * r2  # d radial / d r2
@@ -32,51 +35,22 @@ def project(intrinsics: np.ndarray, p_C: np.ndarray, jacobians: bool = False):
     dxd_dyn = 2.0 * xn * yn * d_radial + 2.0 * p1 * xn + 2.0 * p2 * yn
     dyd_dxn = dxd_dyn
     dyd_dyn = radial + 2.0 * yn * yn * d_radial + 6.0 * p1 * yn + 2.0 * p2 * xn
-    zero, inv_z = np.zeros_like(z), 1.0 / z
+    inv_z = 1.0 / z
     # d pixel / d p_C = d pixel / d normalised  @  d normalised / d p_C
     a, b, c, d = fx * dxd_dxn, fx * dxd_dyn, fy * dyd_dxn, fy * dyd_dyn
-    d_point = np.stack(
-        [
-            np.stack([a * inv_z, b * inv_z, -(a * xn + b * yn) * inv_z], axis=-1),
-            np.stack([c * inv_z, d * inv_z, -(c * xn + d * yn) * inv_z], axis=-1),
-        ],
-        axis=-2,
-    )
-    one = np.ones_like(z)
+    d_point = np.empty((*z.shape, 2, 3))
+    d_point[..., 0, 0], d_point[..., 0, 1], d_point[..., 0, 2] = a * inv_z, b * inv_z, -(a * xn + b * yn) * inv_z
+    d_point[..., 1, 0], d_point[..., 1, 1], d_point[..., 1, 2] = c * inv_z, d * inv_z, -(c * xn + d * yn) * inv_z
     r4 = r2 * r2
-    d_intrinsics = np.stack(
-        [
-            np.stack(
-                [
-                    xd,
-                    zero,
-                    one,
-                    zero,
-                    fx * xn * r2,
-                    fx * xn * r4,
-                    fx * 2.0 * xn * yn,
-                    fx * (r2 + 2.0 * xn * xn),
-                    fx * xn * r4 * r2,
-                ],
-                axis=-1,
-            ),
-            np.stack(
-                [
-                    zero,
-                    yd,
-                    zero,
-                    one,
-                    fy * yn * r2,
-                    fy * yn * r4,
-                    fy * (r2 + 2.0 * yn * yn),
-                    fy * 2.0 * xn * yn,
-                    fy * yn * r4 * r2,
-                ],
-                axis=-1,
-            ),
-        ],
-        axis=-2,
-    )
+    d_intrinsics = np.zeros((*z.shape, 2, 9))  # columns fx fy cx cy k1 k2 p1 p2 k3
+    row = d_intrinsics[..., 0, :]
+    row[..., 0], row[..., 2] = xd, 1.0
+    row[..., 4], row[..., 5], row[..., 8] = fx * xn * r2, fx * xn * r4, fx * xn * r4 * r2
+    row[..., 6], row[..., 7] = fx * 2.0 * xn * yn, fx * (r2 + 2.0 * xn * xn)
+    row = d_intrinsics[..., 1, :]
+    row[..., 1], row[..., 3] = yd, 1.0
+    row[..., 4], row[..., 5], row[..., 8] = fy * yn * r2, fy * yn * r4, fy * yn * r4 * r2
+    row[..., 6], row[..., 7] = fy * (r2 + 2.0 * yn * yn), fy * 2.0 * xn * yn
     return pixel, d_point, d_intrinsics
 
 
