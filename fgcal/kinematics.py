@@ -286,6 +286,28 @@ def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray,
 MOMENT_BLOCK_VALUES = 1_000_000  # floats in one of moment_derivatives' temporaries (8 MB)
 
 
+_ENTRIES: dict[tuple[int, tuple[str, ...]], tuple] = {}
+
+
+def _entry_arrays(robot: Robot, wrt: Sequence[str]) -> tuple[list, tuple[np.ndarray, ...]]:
+    """_direct_columns' entries and, as arrays, their targets, elements, columns, scales,
+    features and the moment of each element (-1: none): cached per chain and names, since an
+    IK or an online update asks for the same columns at every evaluation."""
+    chain, key = robot.chain, tuple(wrt)
+    entry = _ENTRIES.get((id(chain), key))
+    if entry is None or entry[0] is not chain:
+        if len(_ENTRIES) > 256:
+            _ENTRIES.clear()
+        entries = _direct_columns(robot, wrt)
+        arrays = tuple(np.array(v) for v in zip(*entries, strict=True)) if entries else (np.zeros(0, int),) * 5
+        moments = np.array([-1 if chain.elements[k].moment is None else chain.elements[k].moment for k in arrays[1]])
+        arrays = (*arrays, moments.astype(int))
+        for array in arrays:
+            array.flags.writeable = False  # shared by every later evaluation
+        entry = _ENTRIES[(id(chain), key)] = (chain, entries, arrays)
+    return entry[1], entry[2]
+
+
 def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float, int]]:
     """Entries (target, element, column, scale, feature) through which each name enters
     directly; ``feature`` >= 0: a motion term, which enters through its joint scaled by that
@@ -326,17 +348,15 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     chain = robot.chain
     out_index = frame_index(robot, frame)
     n_conf = data.q.shape[0]
-    entries = _direct_columns(robot, wrt)
+    entries, (targets, elements, columns, scales, features, moment_of) = _entry_arrays(robot, wrt)
     moves_out = ancestry(chain.elements)[out_index]  # (K,) the elements on the frame's path
     deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and moves_out[k]]
     if not entries:
         out = np.zeros((n_conf, len(wrt), 6))
         _add_mass_columns(robot, data, wrt, deflections, out)
         return out
-    targets, elements, columns, scales, features = (np.array(v) for v in zip(*entries, strict=True))
     deformed = data.twists(chain.elements, rigid=False)
     twist = np.stack([deformed[k][:, c] for k, c in zip(elements, columns, strict=True)], axis=1)  # (N, E, 6)
-    moment_of = np.array([-1 if chain.elements[k].moment is None else chain.elements[k].moment for k in elements])
     is_compliance = moment_of >= 0
     # Each entry's factor per configuration: its scale, times its motion feature if it has one
     # (with no history given, a motion term moves nothing).
