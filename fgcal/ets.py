@@ -20,10 +20,37 @@ where it leaves the trunk, and a serial chain is the tree without them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from .se3 import cross, so3_exp, so3_left_jacobian
+
+# An Rvec element's rotation and its left Jacobian depend on its three parameters alone (a base
+# or tool perturbation), which stay the same over an IK's or an online update's evaluations.
+
+
+@lru_cache(maxsize=256)
+def _rotation_of(key: bytes) -> np.ndarray:
+    out = so3_exp(np.frombuffer(key))
+    out.flags.writeable = False
+    return out
+
+
+@lru_cache(maxsize=256)
+def _left_jacobian_of(key: bytes) -> np.ndarray:
+    out = so3_left_jacobian(np.frombuffer(key))
+    out.flags.writeable = False
+    return out
+
+
+def _rotation(rotation_vector: np.ndarray) -> np.ndarray:
+    return _rotation_of(np.ascontiguousarray(rotation_vector, dtype=float).tobytes())
+
+
+def _left_jacobian(rotation_vector: np.ndarray) -> np.ndarray:
+    return _left_jacobian_of(np.ascontiguousarray(rotation_vector, dtype=float).tobytes())
+
 
 AXES = ("Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "Rvec")
 
@@ -156,7 +183,7 @@ def element_transforms(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray,
         if rows.size:
             transforms[rows, :, i, 3] = values[rows]
     for k in layout.rvecs:
-        transforms[k, :, :3, :3] = so3_exp(params[chain[k].param : chain[k].param + 3])
+        transforms[k, :, :3, :3] = _rotation(params[chain[k].param : chain[k].param + 3])
     return transforms
 
 
@@ -182,7 +209,7 @@ def evaluate(
         current = frames[k + 1]
         current[:] = before
         if et.axis == "Rvec":
-            current[:, :3, :3] = before[:, :3, :3] @ so3_exp(params[et.param : et.param + 3])
+            current[:, :3, :3] = before[:, :3, :3] @ _rotation(params[et.param : et.param + 3])
         elif layout.is_rotation[k]:
             i = layout.axis[k]
             j, m = (i + 1) % 3, (i + 2) % 3
@@ -213,7 +240,7 @@ def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray
     out = list(twists)
     for k in layout.rvecs:
         rot = frames[layout.start[k]][:, :3, :3]
-        omega = rot @ so3_left_jacobian(params[chain[k].param : chain[k].param + 3])  # (N, 3, 3): columns
+        omega = rot @ _left_jacobian(params[chain[k].param : chain[k].param + 3])  # (N, 3, 3): columns
         omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
         v0 = -cross(omega, origin[k][:, None, :])
         out[k] = np.concatenate([omega, v0], axis=-1)
