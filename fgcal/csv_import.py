@@ -20,7 +20,16 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .dataset import FORMAT, LIMITS, QUATERNION_TOLERANCE, UNORDERED, load_dataset, write_csv, write_header
+from .dataset import (
+    FORMAT,
+    LIMITS,
+    QUATERNION_TOLERANCE,
+    UNORDERED,
+    load_dataset,
+    target_tips,
+    write_csv,
+    write_header,
+)
 from .errors import InputError
 from .fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
 from .outputs import output_dir
@@ -353,23 +362,6 @@ def _quaternion(source: SourceTable, row: int, values: list[float], sequence: st
     return [float(w), float(x), float(y), float(z)]
 
 
-def _target_tips(doc: Fields, robot, targets: list[str]) -> dict[str, str]:
-    """``target_tips: {target: tip}``: the tree's tip each named reflector is on (the others on
-    ``tip``, or the flange)."""
-    if not doc.has("target_tips"):
-        return {}
-    tips = doc.sub("target_tips")
-    out = {}
-    for target in tips.data:
-        if str(target) not in targets:
-            raise tips.error(str(target), f"no tracker target of that name (the targets: {', '.join(targets)})")
-        tip = tips.string(target)
-        if robot.tip_error(tip):
-            raise tips.error(str(target), robot.tip_error(tip))
-        out[str(target)] = tip
-    return out
-
-
 def import_tables(mapping_path: str | Path, out: str | Path) -> dict[str, int]:
     """Write the dataset a mapping file describes into ``out``; returns row and dropped counts.
     The mapping's relative file names are relative to its directory."""
@@ -426,9 +418,8 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     }
     if "tracker_points" in tables:
         header["tracker"] = {"targets": sorted({row[1] for row in tables["tracker_points"].rows})}
-        tips = _target_tips(doc, robot, header["tracker"]["targets"])
-        if tips:
-            header["tracker"]["tips"] = tips
+        if doc.has("target_tips"):
+            header["tracker"]["tips"] = target_tips(doc.sub("target_tips"), set(header["tracker"]["targets"]), robot)
     elif doc.has("target_tips"):
         raise doc.error("target_tips", "the tips of tracker targets: tracker_points are needed too")
     if doc.has("tip"):

@@ -433,7 +433,7 @@ def load_dataset(path: str | Path) -> Dataset:
         tracker = doc.sub("tracker")
         tracker.check_keys(("targets", "tips"))
         declared = {str(t) for t in tracker.items("targets")}
-        dataset.target_tips = _target_tips(tracker, declared, dataset.robot)
+        dataset.target_tips = target_tips(tracker.sub("tips"), declared, dataset.robot) if tracker.has("tips") else {}
         bad = [t for t in dataset.tables["tracker_points"].ids["target"] if t not in declared]
         if bad:
             raise InputError(
@@ -490,16 +490,14 @@ def _check_distances(dataset: Dataset, path: Path) -> None:
             raise InputError(path, f"line {line}, column distance", f"must be > 0, got {d}")
 
 
-def _target_tips(tracker: Fields, declared: set[str], robot: Robot) -> dict[str, str]:
-    """``tracker.tips: {target: tip}``: the named frame of a tree (Robot.tip_names) each
-    target is fixed to; targets not listed are on the flange."""
-    if not tracker.has("tips"):
-        return {}
-    tips = tracker.sub("tips")
+def target_tips(tips: Fields, declared: set[str], robot: Robot) -> dict[str, str]:
+    """``{target: tip}`` (a dataset's tracker.tips, an import mapping's target_tips): the
+    named frame of a tree (Robot.tip_names) each target is fixed to, checked against the
+    targets measured and the robot's tips; targets not listed are on the dataset's tip."""
     out = {}
     for target in tips.data:
         if str(target) not in declared:
-            raise tips.error(str(target), f"not one of tracker.targets ({', '.join(sorted(declared))})")
+            raise tips.error(str(target), f"not one of the tracker's targets ({', '.join(sorted(declared))})")
         tip = tips.string(target)
         if robot.tip_error(tip):
             raise tips.error(str(target), robot.tip_error(tip))
