@@ -508,18 +508,24 @@ def cmd_list(args: argparse.Namespace) -> int:
         return cmd_robots(args)
     from .simulation.cell import load_cell
 
-    for name in bundled_cells():
+    names = bundled_cells()
+    width = max(map(len, names)) + 2
+    for name in names:
         cell = load_cell(_bundled_cell(name))
-        print(f"{name:26s} {cell.name} ({cell.robot.name})")
+        print(f"{name:{width}s} {cell.name} ({cell.robot.name})")
     return 0
 
 
 def cmd_robots(args: argparse.Namespace) -> int:
     from .robot_io import bundled_robots, load_robot
 
-    for name in bundled_robots():
+    names = bundled_robots()
+    width = max(map(len, names)) + 2
+    for name in names:
         robot = load_robot(name)
-        print(f"{name:16s} {robot.name} ({robot.n_joints} joints)")
+        coupled = f", {len(robot.coupled)} more coupled" if robot.coupled else ""
+        tips = f"; tips {', '.join(robot.tip_names)}" if robot.tips else ""
+        print(f"{name:{width}s} {robot.name} ({robot.n_joints} joints{coupled}{tips})")
     return 0
 
 
