@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import InputError
 from .ets import Chain, ancestry, element_twists, evaluate
-from .parameters import MASS_KIND
+from .parameters import MASS_KIND, is_mass, split_name
 from .se3 import cross
 
 
@@ -217,10 +217,8 @@ def body_scales(robot: Robot, params: np.ndarray) -> np.ndarray:
     """(B,) each body's mass scale: its group's mass.{group} parameter, 1 outside the groups
     (the payload's mass is the robot file's)."""
     scale = np.ones(robot.n_links + 1)
-    if robot.mass_groups:
-        index = {name: k for k, name in enumerate(robot.parameter_names)}
-        for group, members in robot.mass_groups:
-            scale[list(members)] = params[index[f"{MASS_KIND}.{group}"]]
+    for group, members in robot.mass_groups:
+        scale[list(members)] = params[robot.parameter_names.index(f"{MASS_KIND}.{group}")]
     return scale
 
 
@@ -398,7 +396,7 @@ def _add_mass_columns(robot: Robot, data: KinematicsData, wrt: Sequence[str], de
     """Add to ``out`` (N, T, 6) the twists of the mass scales in ``wrt``: a group's mass scale
     mu_g changes the gravity moments, ``d t_i / d mu_g = R_i^T sum_b m_b (c_b - o_i) x g`` over
     the group's bodies b that joint i carries, and the moments bend the deflections."""
-    names = [(t, name) for t, name in enumerate(wrt) if name.startswith(f"{MASS_KIND}.")]
+    names = [(t, name) for t, name in enumerate(wrt) if is_mass(name)]
     if not names or not deflections:
         return
     chain = robot.chain
@@ -416,7 +414,7 @@ def _add_mass_columns(robot: Robot, data: KinematicsData, wrt: Sequence[str], de
     groups = dict(robot.mass_groups)
     for t, name in names:
         in_group = np.zeros(len(masses), dtype=bool)
-        in_group[list(groups[name.split(".", 1)[1]])] = True
+        in_group[list(groups[split_name(name)[1]])] = True
         A = carried * (in_group * masses)[None, :]  # (L, B)
         lever = np.matmul(A, data.com_world) - A.sum(axis=1)[None, :, None] * origins
         rate = np.matmul(cross(lever, robot.gravity)[:, :, None, :], rotations)[:, :, 0, :]  # (N, L, 3)

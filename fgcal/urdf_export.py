@@ -85,16 +85,13 @@ def joint_frames(robot: Robot) -> dict:
     data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
     frames = data.frames_rigid[:, 0]
     joints, origins, axes = [], [], []
+    followers = {k for k, _, _ in robot.coupled}
     for i in range(robot.n_links):
-        # The joint's motion is the element(s) right before its bending frame (a coupled joint's:
-        # one per joint it follows, about one axis); at q = 0 the frame after them is B_i.
+        # The joint's motion ends right before its bending frame (a coupled joint's: one element
+        # per joint it follows, all about one axis); at q = 0 the frame after it is B_i. A
+        # coupled joint's URDF value is its own, sum c q + c_0: its axis is not signed.
         k = chain.bend[i] - 1
-        while (
-            k > 0 and chain.elements[k - 1].joint is not None and chain.elements[k - 1].axis == chain.elements[k].axis
-        ):
-            k -= 1
-        (_, direction), *more = robot.drives[i][0]
-        sign = 1.0 if more or i in {c for c, _, _ in robot.coupled} else direction
+        sign = 1.0 if i in followers else robot.drives[i][0][0][1]
         # A joint given by its origin keeps its link frame (after the axis alignment is undone).
         J = frames[chain.link_end[i]] if isinstance(robot.joints[i], OriginJoint) else frames[chain.bend[i]]
         after_motion = frames[chain.bend[i]]

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from ..parameters import MASS_KIND, MOTION_KINDS, is_motion, kind_label, split_name
+from ..parameters import COMPLIANCE_KINDS, MASS_KIND, MOTION_KINDS, is_mass, is_motion, kind_label, split_name
 from .graph import StageGraph
 
 GROUPS = (
@@ -105,12 +105,12 @@ def _mass_columns_with_compliance(stage: StageGraph, J_p: np.ndarray, moments: n
     combination of the compliances it is (k mu t is one product); the geometry's columns stay
     at the start."""
     released = stage.released
-    masses = [i for i, name in enumerate(released) if split_name(name)[0] == MASS_KIND]
+    masses = [i for i, name in enumerate(released) if is_mass(name)]
     if not masses or stage.keys.params is None:
         return
     values = np.array(stage.values.atVector(stage.keys.params), dtype=float)
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
-    compliances = [i for i, name in enumerate(released) if split_name(name)[0] in ("kx", "ky", "kz")]
+    compliances = [i for i, name in enumerate(released) if split_name(name)[0] in COMPLIANCE_KINDS]
     for i in compliances:
         if values[i] == 0.0:
             values[i] = parameter_scale(released[i], moments_rms)
