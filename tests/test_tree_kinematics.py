@@ -403,6 +403,7 @@ def test_dual_arm_jacobians_with_coupling_and_mass_scale_match_central_differenc
     """Every parameter of the tree (the coupled joint's, the mass scale, the motion terms) and
     every joint, on both hands: analytic columns against central differences."""
     from conftest import random_parameters
+    from test_kinematics import _fd_columns
 
     import fgcal
     from fgcal.motion import MotionHistory, features
@@ -426,19 +427,7 @@ def test_dual_arm_jacobians_with_coupling_and_mass_scale_match_central_differenc
             if name[0] == "k":
                 component = 3 * (int(name[2:]) - 1) + "xyz".index(name[1])
                 step = 1e-4 / max(1.0, np.abs(moments[:, component]).max())
-
-            def pose(h, name=name, tip=tip):
-                if name.startswith("q"):
-                    qq = q.copy()
-                    qq[:, int(name[1:]) - 1] += h
-                    return robot.fk(qq, params, motion, tip=tip)
-                return robot.fk(q, {**params, name: params[name] + h}, motion, tip=tip)
-
-            T0, Tp, Tm = pose(0.0), pose(step), pose(-step)
-            R0t = np.swapaxes(T0[:, :3, :3], 1, 2)
-            d_rot = (so3_log(R0t @ Tp[:, :3, :3]) - so3_log(R0t @ Tm[:, :3, :3])) / (2 * step)
-            d_pos = np.einsum("nij,nj->ni", R0t, (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * step))
-            numeric = np.concatenate([d_rot, d_pos], axis=1)
+            numeric, _ = _fd_columns(robot, q, params, name, tip, np.zeros(3), step, motion)
             # Relative to the column, or to 1e-3 for the tiny ones (a hand moved by the other
             # arm through the torso's compliance), whose differences are at rounding's floor.
             worst[name] = np.linalg.norm(J[:, :, col] - numeric) / max(np.linalg.norm(numeric), 1e-3)
