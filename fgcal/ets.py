@@ -10,11 +10,12 @@ or, for ``Rvec``, a rotation by the rotation vector ``p[param:param+3]``. Gravit
 deflections are elements whose parameter (a compliance, rad/(N m)) is scaled by a
 per-configuration gravity moment (N m).
 
-Evaluation is vectorised over N configurations: ``frames[k + 1]`` is the pose, in the chain's
-root frame, of the frame *after* element k, and ``frames[0]`` the root. An element starts from
-the frame before it (``frames[k]``) or, with ``parent`` set, from any earlier frame: a sequence
-with parents is a tree (a torso with two arms, a robot and its positioner), each branch starting
-where it leaves the trunk, and a serial chain is the tree without them.
+Evaluation (the compiled loops of fgcal.chain_kernel) covers N configurations: ``frames[k + 1]``
+is the pose, in the chain's root frame, of the frame *after* element k, and ``frames[0]`` the
+root. An element starts from the frame before it (``frames[k]``) or, with ``parent`` set, from
+any earlier frame: a sequence with parents is a tree (a torso with two arms, a robot and its
+positioner), each branch starting where it leaves the trunk, and a serial chain is the tree
+without them.
 """
 
 from __future__ import annotations
@@ -24,32 +25,20 @@ from functools import lru_cache
 
 import numpy as np
 
-from .se3 import cross, so3_exp, so3_left_jacobian
+from . import chain_kernel
+from .se3 import so3_exp, so3_left_jacobian
 
-# An Rvec element's rotation and its left Jacobian depend on its three parameters alone (a base
-# or tool perturbation), which stay the same over an IK's or an online update's evaluations.
-
-
-@lru_cache(maxsize=256)
-def _rotation_of(key: bytes) -> np.ndarray:
-    out = so3_exp(np.frombuffer(key))
-    out.flags.writeable = False
-    return out
+# The rotation-vector elements' rotations and left Jacobians depend on their parameters alone (a
+# base or tool perturbation), which stay the same over an IK's or an online update's evaluations.
 
 
 @lru_cache(maxsize=256)
-def _left_jacobian_of(key: bytes) -> np.ndarray:
-    out = so3_left_jacobian(np.frombuffer(key))
-    out.flags.writeable = False
-    return out
-
-
-def _rotation(rotation_vector: np.ndarray) -> np.ndarray:
-    return _rotation_of(np.ascontiguousarray(rotation_vector, dtype=float).tobytes())
-
-
-def _left_jacobian(rotation_vector: np.ndarray) -> np.ndarray:
-    return _left_jacobian_of(np.ascontiguousarray(rotation_vector, dtype=float).tobytes())
+def _rvec_tables_of(key: bytes) -> tuple[np.ndarray, np.ndarray]:
+    vectors = np.frombuffer(key).reshape(-1, 3)
+    rotations = np.stack([so3_exp(v) for v in vectors])
+    left = np.stack([so3_left_jacobian(v) for v in vectors])
+    rotations.flags.writeable = left.flags.writeable = False
+    return rotations, left
 
 
 AXES = ("Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "Rvec")
@@ -85,32 +74,26 @@ class ET:
 
 @dataclass(frozen=True)
 class _Layout:
-    """Static index arrays of a chain, so that evaluation loops over elements only where
-    it must (the cumulative product)."""
+    """A chain as the compiled kernel's tables (fgcal.chain_kernel): one entry per element,
+    -1 for "none"."""
 
+    kind: np.ndarray  # (K,) 0..2 Rx..Rz, 3..5 Tx..Tz, 6 Rvec
     const: np.ndarray  # (K,)
-    param: np.ndarray  # (K,) parameter index, or 0 with has_param False
-    has_param: np.ndarray
-    moment: np.ndarray  # (K,) moment index, or 0 with has_moment False
-    has_moment: np.ndarray
-    joint: np.ndarray
-    joint_sign: np.ndarray  # (K,) sign, or 0 without a joint
-    axis: np.ndarray  # (K,) 0, 1, 2 (0 for Rvec)
-    rotations: tuple[np.ndarray, np.ndarray, np.ndarray]  # element indices of Rx, Ry, Rz
-    translations: tuple[np.ndarray, np.ndarray, np.ndarray]
-    is_rotation: np.ndarray  # (K,) Rx/Ry/Rz (not Rvec)
-    rvecs: tuple[int, ...]
+    param: np.ndarray  # (K,) parameter index (an Rvec's first of three)
+    moment: np.ndarray  # (K,) the gravity moment that scales the parameter
+    joint: np.ndarray  # (K,)
+    sign: np.ndarray  # (K,) the joint's sign
     start: np.ndarray  # (K,) the frame each element starts from (k for a serial chain)
+    rvec_slot: np.ndarray  # (K,) the element's row in the rotation-vector tables
+    rvec_params: tuple[int, ...]  # each rotation vector's first parameter
+    rvec_indices: np.ndarray  # (3R,) the rotation vectors' parameters
     ancestry: np.ndarray  # (K+1, K) element k lies on the path from the root to frame f
 
-
-# Up to this many configurations, evaluation multiplies the elements' 4x4 transforms.
-_FEW = 8
 
 _LAYOUTS: dict[int, tuple[tuple[ET, ...], _Layout]] = {}
 
 
-def _layout(chain: tuple[ET, ...]) -> _Layout:
+def layout(chain: tuple[ET, ...]) -> _Layout:
     # Keyed on identity: hashing a chain hashes every element, which costs more than a
     # single-configuration evaluation. The entry keeps the chain alive, so ids stay unique.
     entry = _LAYOUTS.get(id(chain))
@@ -122,128 +105,93 @@ def _layout(chain: tuple[ET, ...]) -> _Layout:
 
 
 def _make_layout(chain: tuple[ET, ...]) -> _Layout:
-    def indices(axis: str) -> np.ndarray:
-        return np.array([k for k, et in enumerate(chain) if et.axis == axis], dtype=int)
-
-    start = np.array([k if et.parent is None else et.parent for k, et in enumerate(chain)], dtype=int)
+    start = np.array([k if et.parent is None else et.parent for k, et in enumerate(chain)], dtype=np.int64)
     if np.any((start < 0) | (start > np.arange(len(chain)))):
         raise ValueError("an element starts from a frame that is not before it")
     ancestry = np.zeros((len(chain) + 1, len(chain)), dtype=bool)
     for k in range(len(chain)):  # frame k + 1 is reached through element k and the path to its start
         ancestry[k + 1] = ancestry[start[k]]
         ancestry[k + 1, k] = True
+    rvecs = [k for k, et in enumerate(chain) if et.axis == "Rvec"]
+    slot = np.full(len(chain), -1, dtype=np.int64)
+    slot[rvecs] = np.arange(len(rvecs))
 
-    return _Layout(
+    def indices(field: str) -> np.ndarray:
+        return np.array([-1 if getattr(et, field) is None else getattr(et, field) for et in chain], dtype=np.int64)
+
+    layout = _Layout(
+        kind=np.array([AXES.index(et.axis) for et in chain], dtype=np.int64),
         const=np.array([et.const for et in chain], dtype=float),
-        param=np.array([et.param or 0 for et in chain], dtype=int),
-        has_param=np.array([et.param is not None and et.axis != "Rvec" for et in chain]),
-        moment=np.array([et.moment or 0 for et in chain], dtype=int),
-        has_moment=np.array([et.moment is not None for et in chain]),
-        joint=np.array([et.joint or 0 for et in chain], dtype=int),
-        joint_sign=np.array([et.sign if et.joint is not None else 0.0 for et in chain], dtype=float),
-        axis=np.array([max(et.axis_index, 0) for et in chain], dtype=int),
-        rotations=tuple(indices(a) for a in ("Rx", "Ry", "Rz")),
-        translations=tuple(indices(a) for a in ("Tx", "Ty", "Tz")),
-        is_rotation=np.array([et.axis in ("Rx", "Ry", "Rz") for et in chain]),
-        rvecs=tuple(k for k, et in enumerate(chain) if et.axis == "Rvec"),
+        param=indices("param"),
+        moment=indices("moment"),
+        joint=indices("joint"),
+        sign=np.array([et.sign if et.joint is not None else 0.0 for et in chain], dtype=float),
         start=start,
+        rvec_slot=slot,
+        rvec_params=tuple(chain[k].param for k in rvecs),
+        rvec_indices=np.array([chain[k].param + c for k in rvecs for c in range(3)], dtype=np.int64),
         ancestry=ancestry,
     )
+    for array in (layout.kind, layout.const, layout.param, layout.moment, layout.joint, layout.sign, start, slot):
+        array.flags.writeable = False  # shared by every evaluation of the chain
+    return layout
 
 
 def ancestry(chain: tuple[ET, ...]) -> np.ndarray:
     """(K+1, K) bool: ``[f, k]`` element k lies on the path from the root to frame f (what
     moves frame f); for a serial chain, k < f."""
-    return _layout(chain).ancestry
+    return layout(chain).ancestry
 
 
-def element_values(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> np.ndarray:
-    """Scalar values (N, K) of the chain's elements (0 for Rvec elements)."""
-    layout = _layout(chain)
-    scale = np.where(layout.has_moment, moments[:, layout.moment], 1.0) if moments.shape[1] else 1.0
-    by_param = np.where(layout.has_param, params[layout.param], 0.0) * scale
-    return layout.const + by_param + layout.joint_sign * q[:, layout.joint]
+_NO_RVECS = np.zeros((1, 3, 3))
 
 
-def element_transforms(chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> np.ndarray:
-    """Local transforms (K, N, 4, 4) of the chain's elements."""
-    layout = _layout(chain)
-    values = element_values(chain, params, q, moments).T  # (K, N)
-    transforms = np.zeros((len(chain), q.shape[0], 4, 4))
-    transforms[..., [0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
-    for i, rows in enumerate(layout.rotations):
-        if rows.size:
-            j, m = (i + 1) % 3, (i + 2) % 3
-            c, s = np.cos(values[rows]), np.sin(values[rows])
-            transforms[rows, :, j, j] = c
-            transforms[rows, :, m, m] = c
-            transforms[rows, :, j, m] = -s
-            transforms[rows, :, m, j] = s
-    for i, rows in enumerate(layout.translations):
-        if rows.size:
-            transforms[rows, :, i, 3] = values[rows]
-    for k in layout.rvecs:
-        transforms[k, :, :3, :3] = _rotation(params[chain[k].param : chain[k].param + 3])
-    return transforms
+def rvec_tables(chain: tuple[ET, ...], params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations and left Jacobians (R, 3, 3) of the chain's rotation-vector elements."""
+    tables = layout(chain)
+    if not tables.rvec_params:
+        return _NO_RVECS, _NO_RVECS
+    return _rvec_tables_of(np.ascontiguousarray(params[tables.rvec_indices], dtype=float).tobytes())
+
+
+def _as_floats(array: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(array, dtype=float)
 
 
 def evaluate(
     chain: tuple[ET, ...], params: np.ndarray, q: np.ndarray, moments: np.ndarray, root: np.ndarray | None = None
 ) -> np.ndarray:
-    """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints)."""
-    n_conf = q.shape[0]
-    layout = _layout(chain)
-    frames = np.empty((len(chain) + 1, n_conf, 4, 4))
-    frames[0] = np.eye(4) if root is None else root
-    if n_conf <= _FEW:
-        transforms = element_transforms(chain, params, q, moments)
-        for k in range(len(chain)):
-            np.matmul(frames[layout.start[k]], transforms[k], out=frames[k + 1])
-        return frames
-    # Many configurations: numpy's stacked 4x4 matmul is slow per matrix, so each element
-    # updates only what it changes (two columns of the rotation, or the origin).
-    values = element_values(chain, params, q, moments).T[..., None]  # (K, N, 1)
-    cosines, sines = np.cos(values), np.sin(values)
-    for k, et in enumerate(chain):
-        before = frames[layout.start[k]]
-        current = frames[k + 1]
-        current[:] = before
-        if et.axis == "Rvec":
-            current[:, :3, :3] = before[:, :3, :3] @ _rotation(params[et.param : et.param + 3])
-        elif layout.is_rotation[k]:
-            i = layout.axis[k]
-            j, m = (i + 1) % 3, (i + 2) % 3
-            col_j, col_m = before[:, :3, j], before[:, :3, m]
-            current[:, :3, j] = cosines[k] * col_j + sines[k] * col_m
-            current[:, :3, m] = cosines[k] * col_m - sines[k] * col_j
-        else:
-            current[:, :3, 3] += values[k] * before[:, :3, layout.axis[k]]
+    """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints); the
+    gravity moments (N, 3L) scale the deflections (with none, (N, 0), each deflection is its
+    parameter's value)."""
+    tables = layout(chain)
+    params, q = _as_floats(params), _as_floats(q)
+    frames = np.empty((len(chain) + 1, q.shape[0], 4, 4))
+    rotations, _ = rvec_tables(chain, params)
+    chain_kernel.frames(
+        tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
+        tables.rvec_slot, rotations, params, q, _as_floats(moments), _IDENTITY if root is None else _as_floats(root),
+        frames,
+    )  # fmt: skip
     return frames
 
 
-def element_twists(chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray) -> list[np.ndarray]:
-    """Spatial unit twists of each element in the root frame.
+_IDENTITY = np.eye(4)
 
-    For element k the entry has shape (N, c, 6) with c = 1 (c = 3 for Rvec): rows
-    ``[omega, v0]`` such that a point p downstream of the element moves by
-    ``dp = omega x p + v0`` per unit change of the element's value.
-    """
-    layout = _layout(chain)
-    n_elements = len(chain)
-    origin = frames[layout.start, :, :3, 3]  # (K, N, 3): each element's own starting frame
-    axis = frames[layout.start, :, :3, layout.axis]  # (K, N, 3)
-    twists = np.zeros((n_elements, frames.shape[1], 1, 6))
-    rotation = layout.is_rotation
-    twists[rotation, :, 0, :3] = axis[rotation]
-    twists[rotation, :, 0, 3:] = -cross(axis[rotation], origin[rotation])
-    twists[~rotation, :, 0, 3:] = axis[~rotation]
-    out = list(twists)
-    for k in layout.rvecs:
-        rot = frames[layout.start[k]][:, :3, :3]
-        omega = rot @ _left_jacobian(params[chain[k].param : chain[k].param + 3])  # (N, 3, 3): columns
-        omega = np.swapaxes(omega, 1, 2)  # (N, 3 columns, 3)
-        v0 = -cross(omega, origin[k][:, None, :])
-        out[k] = np.concatenate([omega, v0], axis=-1)
+
+def element_twists(
+    chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray, elements: np.ndarray, columns: np.ndarray
+) -> np.ndarray:
+    """Spatial unit twists (N, E, 6) in the root frame of the elements' columns (0, or 0..2 of a
+    rotation vector): rows ``[omega, v0]`` such that a point p downstream of the element moves
+    by ``dp = omega x p + v0`` per unit change of the element's value."""
+    tables = layout(chain)
+    _, left = rvec_tables(chain, params)
+    out = np.empty((frames.shape[1], len(elements), 6))
+    chain_kernel.element_twists(
+        tables.kind, tables.start, tables.rvec_slot, left, _as_floats(frames),
+        np.asarray(elements, dtype=np.int64), np.asarray(columns, dtype=np.int64), out,
+    )  # fmt: skip
     return out
 
 

@@ -19,13 +19,14 @@ evaluated on the undeformed chain. Every element's derivative is its spatial twi
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
+from . import chain_kernel
 from .errors import InputError
-from .ets import Chain, ancestry, element_twists, evaluate
+from .ets import Chain, ancestry, element_twists, evaluate, layout, rvec_tables
 from .parameters import MASS_KIND, is_mass, split_name
 from .se3 import cross
 
@@ -74,7 +75,6 @@ class KinematicsData:
     body_masses: np.ndarray  # (B,) m_b, mass scales applied, kg
     torque_world: np.ndarray  # (N, L, 3) tau_i in W, N m
     motion: np.ndarray | None = None  # (N, 2n) motion-history features (fgcal.motion)
-    _twists: dict = field(default_factory=dict)
 
     def subset(self, rows: np.ndarray) -> KinematicsData:
         """The data of some of the configurations (what forward() would give for them)."""
@@ -84,13 +84,6 @@ class KinematicsData:
             None if self.motion is None else self.motion[rows],
         )  # fmt: skip
 
-    def twists(self, chain_elements, rigid: bool) -> list[np.ndarray]:
-        key = "rigid" if rigid else "deformed"
-        if key not in self._twists:
-            frames = self.frames_rigid if rigid else self.frames
-            self._twists[key] = element_twists(chain_elements, self.params, frames)
-        return self._twists[key]
-
 
 def _body_frames(robot: Robot) -> list[int]:
     """Frame index of each body: links 1..n, then the payload (on the flange)."""
@@ -98,21 +91,35 @@ def _body_frames(robot: Robot) -> list[int]:
     return [*list(chain.link_end), chain.flange]
 
 
+_BODY_COMS: dict[int, tuple[Robot, np.ndarray, np.ndarray]] = {}
+
+
 def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
-    masses = np.append(robot.masses, robot.payload_mass)
-    coms = np.vstack([robot.coms, robot.payload_com])
-    return masses, coms
+    """Each body's mass (B,) and centre of mass (B, 3) in its frame: the links, then the payload.
+    Cached on the (frozen) robot's identity, as the chain's tables are."""
+    entry = _BODY_COMS.get(id(robot))
+    if entry is None or entry[0] is not robot:
+        if len(_BODY_COMS) > 256:
+            _BODY_COMS.clear()
+        masses = np.append(robot.masses, robot.payload_mass).astype(float)
+        coms = np.ascontiguousarray(np.vstack([robot.coms, robot.payload_com]), dtype=float)
+        masses.flags.writeable = coms.flags.writeable = False
+        entry = _BODY_COMS[id(robot)] = (robot, masses, coms)
+    return entry[1], entry[2]
 
 
 @dataclass(frozen=True)
 class _Bodies:
     """What moves what, per chain: ``carried`` (n, B) bool, joint i carries body b (its motion,
     the element ending at B_i, moves it); ``moved`` (B, K) the elements that move each body;
-    ``moves_bend`` (n, K) those that move each bending frame."""
+    ``moves_bend`` (n, K) those that move each bending frame; ``body_frame`` (B,) and ``bend``
+    (n,) the frames of the bodies and of the bending frames."""
 
     carried: np.ndarray
     moved: np.ndarray
     moves_bend: np.ndarray
+    body_frame: np.ndarray
+    bend: np.ndarray
 
 
 _BODIES: dict[int, tuple[Chain, _Bodies]] = {}
@@ -120,15 +127,17 @@ _BODIES: dict[int, tuple[Chain, _Bodies]] = {}
 
 def _bodies(robot: Robot) -> _Bodies:
     # Cached on the chain's identity (the entry keeps it alive): a single configuration's
-    # evaluation costs tens of microseconds, which rebuilding these masks would add to.
+    # evaluation costs microseconds, which rebuilding these masks would add to.
     chain = robot.chain
     entry = _BODIES.get(id(chain))
     if entry is None or entry[0] is not chain:
         if len(_BODIES) > 256:
             _BODIES.clear()
         paths = ancestry(chain.elements)
-        moved = paths[_body_frames(robot)]
-        bodies = _Bodies(moved[:, [b - 1 for b in chain.bend]].T, moved, paths[list(chain.bend)])
+        body_frame = np.array(_body_frames(robot), dtype=np.int64)
+        moved = paths[body_frame]
+        bend = np.array(chain.bend, dtype=np.int64)
+        bodies = _Bodies(np.ascontiguousarray(moved[:, bend - 1].T), moved, paths[bend], body_frame, bend)
         entry = _BODIES[id(chain)] = (chain, bodies)
     return entry[1]
 
@@ -185,29 +194,18 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
         if motion.shape != (q.shape[0], 2 * robot.n_joints):
             raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
         q = q + motion_offsets(robot, params, motion)
-    chain = robot.chain
     n, n_conf = robot.n_links, q.shape[0]
-    no_moments = np.zeros((n_conf, 3 * n))
-    rigid = evaluate(chain.elements, params, q, no_moments)
+    rigid = evaluate(robot.chain.elements, params, q, np.zeros((n_conf, 3 * n)))
     masses, coms = _body_coms(robot)
-    scale = body_scales(robot, params)
-    masses = masses * scale
-    body_frames = _body_frames(robot)
-    com_world = np.stack(
-        [rigid[f][:, :3, :3] @ coms[b] + rigid[f][:, :3, 3] for b, f in enumerate(body_frames)], axis=1
-    )
-    weighted = masses[None, :, None] * com_world
-    carried = carries(robot).astype(float)  # (n, B)
-    first_moment = np.matmul(carried, weighted)  # (N, n, 3): C_i
-    carried_mass = carried @ masses
-    g = robot.gravity
-    torque_world = np.empty((n_conf, n, 3))
-    moments = np.empty((n_conf, 3 * n))
-    for i in range(n):
-        bend = rigid[chain.bend[i]]
-        torque_world[:, i] = cross(first_moment[:, i] - carried_mass[i] * bend[:, :3, 3], g)
-        moments[:, 3 * i : 3 * i + 3] = np.einsum("nji,nj->ni", bend[:, :3, :3], torque_world[:, i])
-    frames = evaluate(chain.elements, params, q, moments) if robot.compliant else rigid
+    masses = masses * body_scales(robot, params)
+    bodies = _bodies(robot)
+    com_world, weighted = np.empty((n_conf, len(masses), 3)), np.empty((n_conf, len(masses), 3))
+    torque_world, moments = np.empty((n_conf, n, 3)), np.empty((n_conf, 3 * n))
+    carried_mass = chain_kernel.gravity(
+        rigid, bodies.body_frame, coms, masses, bodies.carried, bodies.bend, np.asarray(robot.gravity, dtype=float),
+        com_world, weighted, torque_world, moments,
+    )  # fmt: skip
+    frames = evaluate(robot.chain.elements, params, q, moments) if robot.compliant else rigid
     return KinematicsData(
         params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, torque_world, motion
     )
@@ -248,48 +246,13 @@ def frame_pose(robot: Robot, data: KinematicsData, frame: str = "flange") -> np.
     return data.frames[frame_index(robot, frame)]
 
 
-def moment_derivatives(robot: Robot, data: KinematicsData, elements: np.ndarray, twists: np.ndarray) -> np.ndarray:
-    """Derivatives (N, E, 3n) of all gravity moments w.r.t. E columns of rigid-chain elements.
-
-    ``elements`` (E,) are the element indices, ``twists`` (N, E, 6) the columns' spatial
-    twists on the undeformed chain. For the bodies S that joint i carries and the column moves::
-
-        d tau_i = ((omega x C_S + M_S v0) - [upstream of B_i] M_i (omega x o_i + v0)) x g
-        d t_i   = R_i^T (d tau_i - [upstream of B_i] omega x tau_i)
-    """
-    chain = robot.chain
-    n = robot.n_links
-    bodies = _bodies(robot)
-    masses = data.body_masses
-    # S: bodies joint i carries that the column moves (on a serial chain, those beyond both).
-    moved_bodies = bodies.moved[:, elements].T  # (E, B)
-    S = (bodies.carried[None, :, :] & moved_bodies[:, None, :]).astype(float)  # (E, n, B)
-    upstream = bodies.moves_bend[:, elements].T[None, :, :, None]  # (1, E, n, 1): the column moves B_i
-    omega, v0 = twists[..., None, :3], twists[..., None, 3:]  # (N, E, 1, 3)
-    E = len(elements)
-    first_moment = np.matmul(S.reshape(E * n, -1), data.weighted).reshape(-1, E, n, 3)  # (N, E, n, 3)
-    moved = cross(omega, first_moment) + (S @ masses)[None, :, :, None] * v0
-    bends = data.frames_rigid[list(chain.bend)]  # (n, N, 4, 4)
-    origins = np.swapaxes(bends[:, :, :3, 3], 0, 1)[:, None]  # (N, 1, n, 3)
-    rotations = np.swapaxes(bends[:, :, :3, :3], 0, 1)  # (N, n, 3, 3)
-    origin_rate = cross(omega, origins) + v0
-    g = robot.gravity
-    lever = moved - np.where(upstream, data.carried_mass[None, None, :, None] * origin_rate, 0.0)
-    d_tau = cross(lever, g) - np.where(upstream, cross(omega, data.torque_world[:, None]), 0.0)
-    # (R_i^T d)^T = d^T R_i, as one batched matmul.
-    d_t = np.matmul(d_tau[..., None, :], rotations[:, None])[..., 0, :]
-    return d_t.reshape(d_t.shape[0], d_t.shape[1], 3 * n)
-
-
-MOMENT_BLOCK_VALUES = 1_000_000  # floats in one of moment_derivatives' temporaries (8 MB)
-
-
 _ENTRIES: dict[tuple[int, tuple[str, ...]], tuple] = {}
 
 
-def _entry_arrays(robot: Robot, wrt: Sequence[str]) -> tuple[list, tuple[np.ndarray, ...]]:
+def _entry_arrays(robot: Robot, wrt: Sequence[str]) -> tuple[list, tuple[np.ndarray, ...], tuple]:
     """_direct_columns' entries and, as arrays, their targets, elements, columns, scales,
-    features and the moment of each element (-1: none): cached per chain and names, since an
+    features and the moment of each element (-1: none), and the mass scales among the names
+    (position, name): cached per chain and names, since an
     IK or an online update asks for the same columns at every evaluation."""
     chain, key = robot.chain, tuple(wrt)
     entry = _ENTRIES.get((id(chain), key))
@@ -302,8 +265,9 @@ def _entry_arrays(robot: Robot, wrt: Sequence[str]) -> tuple[list, tuple[np.ndar
         arrays = (*arrays, moments.astype(int))
         for array in arrays:
             array.flags.writeable = False  # shared by every later evaluation
-        entry = _ENTRIES[(id(chain), key)] = (chain, entries, arrays)
-    return entry[1], entry[2]
+        masses = tuple((t, name) for t, name in enumerate(wrt) if is_mass(name))
+        entry = _ENTRIES[(id(chain), key)] = (chain, entries, arrays, masses)
+    return entry[1], entry[2], entry[3]
 
 
 def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float, int]]:
@@ -341,71 +305,88 @@ def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, in
     return entries
 
 
-def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], frame: str = "flange") -> np.ndarray:
-    """Spatial twists (N, len(wrt), 6) of ``frame`` w.r.t. each name in ``wrt``."""
-    chain = robot.chain
-    out_index = frame_index(robot, frame)
-    n_conf = data.q.shape[0]
-    entries, (targets, elements, columns, scales, features, moment_of) = _entry_arrays(robot, wrt)
-    moves_out = ancestry(chain.elements)[out_index]  # (K,) the elements on the frame's path
-    deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and moves_out[k]]
-    if not entries:
-        out = np.zeros((n_conf, len(wrt), 6))
-        _add_mass_columns(robot, data, wrt, deflections, out)
-        return out
-    deformed = data.twists(chain.elements, rigid=False)
-    twist = np.stack([deformed[k][:, c] for k, c in zip(elements, columns, strict=True)], axis=1)  # (N, E, 6)
-    is_compliance = moment_of >= 0
-    # Each entry's factor per configuration: its scale, times its motion feature if it has one
-    # (with no history given, a motion term moves nothing).
-    scale = np.broadcast_to(scales, (n_conf, len(entries))).copy()
-    motion_entries = features >= 0
-    if np.any(motion_entries):
-        scale[:, motion_entries] *= 0.0 if data.motion is None else data.motion[:, features[motion_entries]]
-    coefficient = scale.copy()
-    coefficient[:, is_compliance] *= data.moments[:, moment_of[is_compliance]]
-    coefficient[:, ~moves_out[elements]] = 0.0
-    contribution = twist * coefficient[..., None]
+@dataclass(frozen=True)
+class _Path:
+    """What moves a frame: ``moves`` (K,) the elements on its path, and the deflections among
+    them (element, its parameter, its moment)."""
 
-    geometric = ~is_compliance
-    if deflections and np.any(geometric):
-        compliances = np.array([data.params[chain.elements[k].param] for k in deflections])
-        moment_index = [chain.elements[k].moment for k in deflections]
-        if np.any(compliances != 0.0):
-            rigid = data.twists(chain.elements, rigid=True)
-            deflection_twists = np.stack([deformed[k][:, 0] for k in deflections], axis=1)  # (N, M, 6)
-            # In blocks of columns: the moments' derivatives hold (N, columns, L, 3) temporaries,
-            # hundreds of MB for thousands of configurations at once.
-            where = np.flatnonzero(geometric)
-            block = max(1, MOMENT_BLOCK_VALUES // (n_conf * 3 * robot.n_links))
-            for start in range(0, len(where), block):
-                some = where[start : start + block]
-                rigid_twist = np.stack([rigid[k][:, c] for k, c in zip(elements[some], columns[some], strict=True)], 1)
-                rates = moment_derivatives(robot, data, elements[some], rigid_twist)[:, :, moment_index]
-                weighted = rates * (compliances[None, None, :] * scale[:, some][:, :, None])
-                contribution[:, some] += np.matmul(weighted, deflection_twists)
-    # Sum the entries into their targets (a name may enter through several elements).
-    selection = np.zeros((len(wrt), len(entries)))
-    selection[targets, np.arange(len(entries))] = 1.0
-    out = np.matmul(selection, contribution)
-    _add_mass_columns(robot, data, wrt, deflections, out)
+    moves: np.ndarray
+    deflections: np.ndarray
+    deflection_param: np.ndarray
+    deflection_moment: np.ndarray
+
+
+_PATHS: dict[tuple[int, int], tuple[Chain, _Path]] = {}
+
+
+def _path(robot: Robot, out_index: int) -> _Path:
+    chain = robot.chain
+    entry = _PATHS.get((id(chain), out_index))
+    if entry is None or entry[0] is not chain:
+        if len(_PATHS) > 256:
+            _PATHS.clear()
+        moves = ancestry(chain.elements)[out_index]
+        deflections = [k for k, et in enumerate(chain.elements) if et.moment is not None and moves[k]]
+
+        def array(values: list) -> np.ndarray:
+            return np.array(values, dtype=np.int64).reshape(-1)
+
+        path = _Path(
+            moves, array(deflections), array([chain.elements[k].param for k in deflections]),
+            array([chain.elements[k].moment for k in deflections]),
+        )  # fmt: skip
+        entry = _PATHS[(id(chain), out_index)] = (chain, path)
+    return entry[1]
+
+
+_NO_MOTION = np.zeros((1, 0))
+
+
+def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], frame: str = "flange") -> np.ndarray:
+    """Spatial twists (N, len(wrt), 6) of ``frame`` w.r.t. each name in ``wrt``.
+
+    Each name enters through its elements' twists on the deformed chain (a compliance times its
+    gravity moment, a motion term times its motion feature). A geometric parameter or a joint
+    also changes the gravity moments of the undeformed chain, which bend every deflection on
+    the frame's path: for the bodies S that joint i carries and the column (omega, v0) moves::
+
+        d tau_i = ((omega x C_S + M_S v0) - [upstream of B_i] M_i (omega x o_i + v0)) x g
+        d t_i   = R_i^T (d tau_i - [upstream of B_i] omega x tau_i)
+    """
+    chain = robot.chain
+    path = _path(robot, frame_index(robot, frame))
+    entries, (targets, elements, columns, scales, features, moment_of), masses = _entry_arrays(robot, wrt)
+    out = np.zeros((data.q.shape[0], len(wrt), 6))
+    if entries:
+        tables = layout(chain.elements)
+        _, left = rvec_tables(chain.elements, data.params)
+        bodies = _bodies(robot)
+        chain_kernel.spatial_columns(
+            tables.kind, tables.start, tables.rvec_slot, left, data.frames, data.frames_rigid,
+            targets, elements, columns, scales, features, moment_of, path.moves,
+            _NO_MOTION if data.motion is None else data.motion, data.moments,
+            path.deflections, path.deflection_moment, data.params[path.deflection_param],
+            bodies.carried, bodies.moved, bodies.moves_bend, bodies.bend, data.weighted, data.body_masses,
+            data.carried_mass, data.torque_world, np.asarray(robot.gravity, dtype=float), out,
+        )  # fmt: skip
+    if masses:
+        _add_mass_columns(robot, data, masses, path, out)
     return out
 
 
-def _add_mass_columns(robot: Robot, data: KinematicsData, wrt: Sequence[str], deflections: list[int], out) -> None:
-    """Add to ``out`` (N, T, 6) the twists of the mass scales in ``wrt``: a group's mass scale
+def _add_mass_columns(robot: Robot, data: KinematicsData, names: tuple, path: _Path, out: np.ndarray) -> None:
+    """Add to ``out`` (N, T, 6) the twists of the mass scales ``names`` ((position, name)): a group's mass scale
     mu_g changes the gravity moments, ``d t_i / d mu_g = R_i^T sum_b m_b (c_b - o_i) x g`` over
     the group's bodies b that joint i carries, and the moments bend the deflections."""
-    names = [(t, name) for t, name in enumerate(wrt) if is_mass(name)]
-    if not names or not deflections:
+    if not path.deflections.size:
         return
     chain = robot.chain
-    compliances = np.array([data.params[chain.elements[k].param] for k in deflections])
+    compliances = data.params[path.deflection_param]
     if not np.any(compliances != 0.0):
         return
-    moment_index = [chain.elements[k].moment for k in deflections]
-    deformed = data.twists(chain.elements, rigid=False)
-    deflection_twists = np.stack([deformed[k][:, 0] for k in deflections], axis=1)  # (N, M, 6)
+    deflection_twists = element_twists(
+        chain.elements, data.params, data.frames, path.deflections, np.zeros_like(path.deflections)
+    )  # (N, M, 6)
     masses, _ = _body_coms(robot)
     carried = carries(robot)
     bends = data.frames_rigid[list(chain.bend)]  # (L, N, 4, 4)
@@ -418,7 +399,7 @@ def _add_mass_columns(robot: Robot, data: KinematicsData, wrt: Sequence[str], de
         A = carried * (in_group * masses)[None, :]  # (L, B)
         lever = np.matmul(A, data.com_world) - A.sum(axis=1)[None, :, None] * origins
         rate = np.matmul(cross(lever, robot.gravity)[:, :, None, :], rotations)[:, :, 0, :]  # (N, L, 3)
-        rates = rate.reshape(rate.shape[0], -1)[:, moment_index] * compliances  # (N, M)
+        rates = rate.reshape(rate.shape[0], -1)[:, path.deflection_moment] * compliances  # (N, M)
         out[:, t] += np.einsum("nm,nmk->nk", rates, deflection_twists)
 
 
@@ -428,14 +409,11 @@ def jacobian(
     """Body twist Jacobian (N, 6, T) of ``frame``, or, with ``point`` (3,) fixed in that
     frame, the Jacobian (N, 3, T) of the point's world position. See Robot.jacobian."""
     spatial = spatial_jacobian(robot, data, wrt, frame)
-    omega, v0 = spatial[..., :3], spatial[..., 3:]
-    T = frame_pose(robot, data, frame)
+    pose = frame_pose(robot, data, frame)
     if point is not None:
-        p_world = T[:, :3, :3] @ np.asarray(point, float) + T[:, :3, 3]
-        return np.swapaxes(cross(omega, p_world[:, None, :]) + v0, 1, 2)
-    origin_velocity = cross(omega, T[:, None, :3, 3]) + v0
-    # One batched matmul (einsum is several times slower on these shapes).
-    stacked = np.concatenate([omega, origin_velocity], axis=1)  # (N, 2T, 3)
-    body = np.matmul(stacked, T[:, :3, :3])  # rows: (R^T w)^T = w^T R
-    n_wrt = omega.shape[1]
-    return np.concatenate([np.swapaxes(body[:, :n_wrt], 1, 2), np.swapaxes(body[:, n_wrt:], 1, 2)], axis=1)
+        out = np.empty((spatial.shape[0], 3, spatial.shape[1]))
+        chain_kernel.point_rates(spatial, pose, np.asarray(point, dtype=float), out)
+    else:
+        out = np.empty((spatial.shape[0], 6, spatial.shape[1]))
+        chain_kernel.body_twists(spatial, pose, out)
+    return out

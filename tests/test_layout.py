@@ -90,8 +90,9 @@ LAYERS = (
               "fgcal.noise", "fgcal.outputs", "fgcal.console")),
     (
         "model",
-        ("fgcal.ets", "fgcal.joints", "fgcal.motion", "fgcal.kinematics", "fgcal.robot", "fgcal.robot_io",
-         "fgcal.urdf_io", "fgcal.urdf_export", "fgcal.rigid_fit", "fgcal.ik", "fgcal.camera", "fgcal.boards"),
+        ("fgcal.chain_kernel", "fgcal.ets", "fgcal.joints", "fgcal.motion", "fgcal.kinematics", "fgcal.robot",
+         "fgcal.robot_io", "fgcal.urdf_io", "fgcal.urdf_export", "fgcal.rigid_fit", "fgcal.ik", "fgcal.camera",
+         "fgcal.boards"),
     ),
     ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensation", "fgcal.programs",
               "fgcal.program_filter", "fgcal.ur_kinematics")),

@@ -141,7 +141,9 @@ def select(
         while members:
             residual = scaled[:, members] - basis @ (basis.T @ scaled[:, members])
             norms = np.linalg.norm(residual, axis=0)
-            best = int(np.argmax(norms))
+            # Ties (equivalent columns, such as a link length before and after a coupled joint)
+            # go to the first in priority order, so that rounding at 1e-16 cannot flip the choice.
+            best = int(np.flatnonzero(norms >= (1.0 - 1e-9) * norms.max())[0])
             if norms[best] < min_information:
                 rejected += members
                 break
