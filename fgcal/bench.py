@@ -20,7 +20,6 @@ the repeats per image, then its median and 99th percentile.
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Callable
 from importlib import resources
@@ -230,12 +229,64 @@ def _timed(function: Callable, *args) -> tuple[object, float, float]:
     return out, time.process_time() - cpu, time.perf_counter() - wall
 
 
+SEED_CELL = robots_dir().parent / "cells" / "kr125_seed.yaml"
+
+
+def child_usage(command: list[str]) -> tuple[float, float, float]:
+    """Run ``command``; its CPU seconds (user + system), wall seconds and peak RSS (MB), read
+    from the kernel's accounting of that one child (os.wait4)."""
+    import os
+    import subprocess
+
+    started = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - started
+    child.returncode = os.waitstatus_to_exitcode(status)
+    errors = child.stderr.read().decode(errors="replace") if child.stderr else ""
+    if child.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} exited with {child.returncode}: {errors[-2000:]}")
+    return usage.ru_utime + usage.ru_stime, wall, usage.ru_maxrss / 1024.0  # ru_maxrss: kB on Linux
+
+
+def _fgcal_command(*arguments: str) -> list[str]:
+    import sys
+
+    # -P: from a source checkout's root, the current folder must not hide the installed package.
+    return [sys.executable, "-P", "-m", "fgcal.cli", *arguments]
+
+
+def demo_bench(out: Path, repeats: int, say: Callable[[str], None]) -> dict:
+    """``fgcal demo`` as a whole command (simulation, calibration, report with plots): its CPU
+    seconds, the best of ``repeats``."""
+    cpu, wall = [], []
+    for _ in range(repeats):
+        c, w, _ = child_usage(_fgcal_command("demo", "--out", str(out / "demo"), "-q"))
+        cpu.append(c)
+        wall.append(w)
+    say(f"  fgcal demo: {min(cpu):.2f} s CPU, {min(wall):.2f} s wall")
+    return {"demo_cpu_s": min(cpu), "demo_wall_s": min(wall)}
+
+
+def memory_bench(out: Path, seed: int, n: int, say: Callable[[str], None]) -> dict:
+    """Peak RSS of ``fgcal calibrate`` (report and plots included) on the seed cell at ``n``
+    configurations."""
+    from .calibration.suggest import write_suggested_config
+    from .simulation.cell import load_cell
+
+    data_dir = simulated_case(out, seed, n, say)
+    config = write_suggested_config(load_cell(SEED_CELL), load_dataset(data_dir))  # as fgcal simulate does
+    cpu, _, rss = child_usage(_fgcal_command("calibrate", str(config), "--out", str(out / f"memory_n{n}"), "-q"))
+    say(f"  fgcal calibrate, seed cell at {n} configurations: peak RSS {rss:.0f} MB, {cpu:.1f} s CPU")
+    return {"memory_n_configurations": n, "memory_peak_rss_mb": rss, "memory_calibrate_cpu_s": cpu}
+
+
 def simulated_case(out: Path, seed: int, n: int, say: Callable[[str], None]) -> Path:
     data_dir = out / f"seed{seed}_n{n}"
     if not (data_dir / "dataset.yaml").exists():
         say(f"simulating the seed cell, space-filling design of {n} configurations (seed {seed}) -> {data_dir}")
         simulate(
-            robots_dir().parent / "cells" / "kr125_seed.yaml",
+            SEED_CELL,
             data_dir,
             seed,
             design="space_filling",
@@ -386,8 +437,6 @@ def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], 
     loading, calibration, report with plots) against the plain scipy DH fit of the same
     fitting half (in this process), interleaved, best wall time of each."""
     import json
-    import subprocess
-    import sys
 
     import yaml
 
@@ -399,28 +448,16 @@ def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], 
     problem = build_problem(dataset, dh_config)
     stage = build_graph(problem, problem.candidates, problem.formulation.initial_state(problem))
     released = [n for n in analyse(stage, dh_config.min_information).identifiable if "." not in n]
-    # -P: from a source checkout's root, the current folder must not hide the installed package.
-    command = [
-        sys.executable,
-        "-P",
-        "-m",
-        "fgcal.cli",
-        "calibrate",
-        str(config_path),
-        "--out",
-        str(out / "faro_report"),
-    ]
+    command = _fgcal_command("calibrate", str(config_path), "--out", str(out / "faro_report"))
     wall = {"fgcal_calibrate_command": [], "scipy_dh_fit": [], "calibrate_dataset": []}
-    report_share = []  # the command's report time (its last line) over its wall time
+    cpu = {"fgcal_calibrate_command": [], "scipy_dh_fit": []}
     fgcal_config = CalibrationConfig.defaults(dataset_dir, **FARO_CONFIG)
     for r in range(repeats):
-        started = time.perf_counter()
-        printed = subprocess.run(command, check=True, capture_output=True, text=True).stdout
-        wall["fgcal_calibrate_command"].append(time.perf_counter() - started)
-        report_s = re.search(r"report ([0-9.]+) s\)", printed)
-        if report_s:
-            report_share.append(float(report_s.group(1)) / wall["fgcal_calibrate_command"][-1])
-        (dh_problem, dh_state), _, w = _timed(scipy_dh_fit, dataset_dir, released)
+        c, w, _ = child_usage(command)
+        cpu["fgcal_calibrate_command"].append(c)
+        wall["fgcal_calibrate_command"].append(w)
+        (dh_problem, dh_state), c, w = _timed(scipy_dh_fit, dataset_dir, released)
+        cpu["scipy_dh_fit"].append(c)
         wall["scipy_dh_fit"].append(w)
         wall["calibrate_dataset"].append(_timed(calibrate_dataset, dataset, fgcal_config)[2])  # in this process
         say(f"  round {r + 1}/{repeats}: " + ", ".join(f"{n} {v[-1]:.2f} s" for n, v in wall.items()))
@@ -429,22 +466,21 @@ def faro_bench(dataset_dir: Path, out: Path, repeats: int, say: Callable[[str], 
     dh_errors = stats(dh_problem.formulation.held_out_errors(dh_problem, test, dh_state)["tool_point"].errors).errors
     result = {
         "faro_wall_s": {n: min(v) for n, v in wall.items()},
+        "faro_cpu_s": {n: min(v) for n, v in cpu.items()},
         "faro_dh_released": len(released),
-        "faro_report_share_of_command": float(np.median(report_share)) if report_share else None,
         "faro_held_out_mean_m": {
             "fgcal": report["validation"]["after"]["position_error_m"]["mean"],
             "scipy_dh_fit": float(dh_errors.mean()),
         },
     }
+    command_cpu, fit_cpu = result["faro_cpu_s"]["fgcal_calibrate_command"], result["faro_cpu_s"]["scipy_dh_fit"]
     say(
-        f"  whole fgcal calibrate command {result['faro_wall_s']['fgcal_calibrate_command']:.2f} s wall, "
-        f"plain scipy DH fit ({len(released)} DH parameters, finite differences) "
-        f"{result['faro_wall_s']['scipy_dh_fit']:.2f} s; held-out mean: fgcal "
+        f"  whole fgcal calibrate command {command_cpu:.2f} s CPU "
+        f"({result['faro_wall_s']['fgcal_calibrate_command']:.2f} s wall), plain scipy DH fit ({len(released)} DH "
+        f"parameters, finite differences) {fit_cpu:.2f} s CPU: {command_cpu / fit_cpu:.1f}x; held-out mean: fgcal "
         f"{result['faro_held_out_mean_m']['fgcal'] * 1e3:.3f} mm, DH fit "
         f"{result['faro_held_out_mean_m']['scipy_dh_fit'] * 1e3:.3f} mm"
     )
-    if report_share:
-        say(f"  the report (with plots) took {100 * np.median(report_share):.0f} % of the command (median)")
     say(f"  calibrate_dataset alone (no start-up, no report): {result['faro_wall_s']['calibrate_dataset']:.2f} s")
     return result
 
@@ -456,6 +492,7 @@ def run_bench(
     repeats: int = 3,
     say=print,
     faro: Path | None = None,
+    memory_n: int = 3000,
 ) -> dict:
     """Every figure of ``fgcal bench``; ``say`` gets the human-readable lines. ``faro``: a
     dataset converted from the IRB 120 / FARO set (``fgcal convert-faro``), timed too."""
@@ -479,6 +516,9 @@ def run_bench(
     result.update(plan_bench(repeats, say))
     say("kinematics:")
     result.update(kernel_bench(repeats, say))
+    say("whole commands:")
+    result.update(demo_bench(out, repeats, say))
+    result.update(memory_bench(out, seed, memory_n, say))
     if faro is not None:
         say(f"FARO set ({faro}): whole calibrate command against a plain scipy DH fit")
         result.update(faro_bench(Path(faro), out / "faro", repeats, say))
