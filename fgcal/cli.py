@@ -902,31 +902,6 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
-# Up to this size, the command's arrays come from the heap and freed memory stays for the next.
-_HEAP_ARRAYS_BYTES = 64 * 2**20
-
-
-def keep_freed_memory() -> None:
-    """Have glibc keep freed memory for reuse instead of returning it to the system.
-
-    By default glibc maps each array over 128 kB to fresh pages and unmaps it when freed, so the
-    next evaluation of the chain's frames (a few MB) faults every page in again: at 300
-    configurations, FK then takes 4.8 us per configuration instead of 1.2. Applied by the
-    command only (a library should not change its host's allocator); elsewhere than glibc, a
-    no-op."""
-    import ctypes
-
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):  # musl, or no C library by that name
-        return
-    M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
-    mallopt(M_MMAP_THRESHOLD, _HEAP_ARRAYS_BYTES)
-    mallopt(M_TRIM_THRESHOLD, 2 * _HEAP_ARRAYS_BYTES)
-
-
 def main(argv: list[str] | None = None) -> int:
     from .console import setup
 
@@ -935,7 +910,6 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else 2
     setup(getattr(args, "verbose", 0) - getattr(args, "quiet", 0), to_stderr=getattr(args, "json", False))
-    keep_freed_memory()
     from threadpoolctl import threadpool_limits
 
     try:
