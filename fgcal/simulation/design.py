@@ -90,11 +90,14 @@ def solve_views(
     starts: int = 6,
     iterations: int = 80,
     tol: float = 1e-9,
-    freeze_converged: bool = False,
+    freeze_converged: bool = True,
     solved: Callable[[int, int], None] | None = None,
 ) -> list[View]:
     """IK for one random viewpoint per request (``iterations``, ``tol``: of the IK); keep
-    the reachable, visible ones. ``solved(done, total)`` hears of the IK starts solved."""
+    the reachable, visible ones. Each start stops iterating once within ``tol`` (rad, m):
+    ``freeze_converged=False`` iterates every start to the end, which moved the configurations
+    by at most 3e-9 rad on the demo and took 0.9 s more of its 3.4 s CPU.
+    ``solved(done, total)`` hears of the IK starts solved."""
     robot: Robot = cell.robot
     nominal = robot.parameter_vector()
     if not requests:
