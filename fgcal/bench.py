@@ -20,6 +20,7 @@ the repeats per image, then its median and 99th percentile.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from importlib import resources
@@ -232,9 +233,29 @@ def _timed(function: Callable, *args) -> tuple[object, float, float]:
 SEED_CELL = robots_dir().parent / "cells" / "kr125_seed.yaml"
 
 
+_PEAK_MARK = "fgcal-bench-peak-rss-kB:"
+
+# Runs the fgcal command and, at exit, prints the process's own peak RSS (VmHWM). wait4's
+# ru_maxrss is no measure here: Linux carries the forking parent's peak across exec into it.
+_REPORTING_CLI = f"""import atexit, sys
+def _peak():
+    try:
+        status = open('/proc/self/status').read().splitlines()
+    except OSError:  # not Linux: no figure
+        return
+    for line in status:
+        if line.startswith('VmHWM:'):
+            print('{_PEAK_MARK}', line.split()[1], file=sys.stderr)
+atexit.register(_peak)
+import fgcal.cli
+sys.exit(fgcal.cli.main(sys.argv[1:]))
+"""
+
+
 def child_usage(command: list[str]) -> tuple[float, float, float]:
-    """Run ``command``; its CPU seconds (user + system), wall seconds and peak RSS (MB), read
-    from the kernel's accounting of that one child (os.wait4)."""
+    """Run ``command``; its CPU seconds (user + system, the kernel's accounting of that one
+    child: os.wait4) and wall seconds, and its peak RSS (MB) as it reports it (NaN when it
+    does not: see ``_fgcal_command``)."""
     import os
     import subprocess
 
@@ -246,14 +267,16 @@ def child_usage(command: list[str]) -> tuple[float, float, float]:
     errors = child.stderr.read().decode(errors="replace") if child.stderr else ""
     if child.returncode != 0:
         raise RuntimeError(f"{' '.join(command)} exited with {child.returncode}: {errors[-2000:]}")
-    return usage.ru_utime + usage.ru_stime, wall, usage.ru_maxrss / 1024.0  # ru_maxrss: kB on Linux
+    peaks = [line.split()[1] for line in errors.splitlines() if line.startswith(_PEAK_MARK)]
+    peak_mb = float(peaks[-1]) / 1024.0 if peaks else math.nan
+    return usage.ru_utime + usage.ru_stime, wall, peak_mb
 
 
 def _fgcal_command(*arguments: str) -> list[str]:
     import sys
 
     # -P: from a source checkout's root, the current folder must not hide the installed package.
-    return [sys.executable, "-P", "-m", "fgcal.cli", *arguments]
+    return [sys.executable, "-P", "-c", _REPORTING_CLI, *arguments]
 
 
 def demo_bench(out: Path, repeats: int, say: Callable[[str], None]) -> dict:
@@ -278,7 +301,9 @@ def memory_bench(out: Path, seed: int, n: int, say: Callable[[str], None]) -> di
     config = write_suggested_config(load_cell(SEED_CELL), load_dataset(data_dir))  # as fgcal simulate does
     cpu, _, rss = child_usage(_fgcal_command("calibrate", str(config), "--out", str(out / f"memory_n{n}"), "-q"))
     say(f"  fgcal calibrate, seed cell at {n} configurations: peak RSS {rss:.0f} MB, {cpu:.1f} s CPU")
-    return {"memory_n_configurations": n, "memory_peak_rss_mb": rss, "memory_calibrate_cpu_s": cpu}
+    # None (JSON null) where the platform has no /proc to report the peak from.
+    peak = None if math.isnan(rss) else rss
+    return {"memory_n_configurations": n, "memory_peak_rss_mb": peak, "memory_calibrate_cpu_s": cpu}
 
 
 def simulated_case(out: Path, seed: int, n: int, say: Callable[[str], None]) -> Path:
