@@ -76,6 +76,10 @@ class BatchKinematics:
         kept = self._cache.get(values.tobytes())
         self._cache = {} if kept is None else {values.tobytes(): kept}
 
+    def forget(self) -> None:
+        """Forget every evaluation (a graph not in use: its next use evaluates again)."""
+        self._cache = {}
+
     def data(self, released_values: np.ndarray | None) -> kinematics.KinematicsData:
         """The full kinematics evaluation (frames, gravity moments) at these values."""
         return self._entry(released_values)["data"]

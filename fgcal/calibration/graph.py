@@ -36,6 +36,13 @@ class StageGraph:
     measurements: list[MeasurementSet]  # the first is the formulation's main set
     robust_scale: float | None = None  # scale of the robust loss's threshold, when there is one
 
+    def forget(self) -> None:
+        """Free the evaluations cached for this graph, tens of MB at thousands of
+        configurations, while another graph is in use; a later use evaluates again."""
+        self.kinematics.forget()
+        for measurements in self.measurements:
+            measurements.forget()
+
     @property
     def dims(self) -> dict[str, tuple[int, int]]:
         """Name (P for the parameters) -> (key, tangent dimension) of every variable."""

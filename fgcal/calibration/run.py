@@ -216,6 +216,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
             state, report, first_stage, first_values = solve_stage(problem, "0 (auxiliary unknowns)", [], state, say)
             stages.append(report)
             _check_first_stage(problem, report, first_stage, first_values)
+            first_stage.forget()
         before = state
         final_ident = identifiability
         last_stage = last_values = None
@@ -224,6 +225,8 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
             if not released:
                 say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
                 continue
+            if last_stage is not None:
+                last_stage.forget()
             state, report, last_stage, last_values = solve_stage(problem, str(i), released, state, say)
             stages.append(report)
             if len(stages) == 1:
@@ -238,6 +241,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
                 break
             problem = problem.with_fit(*outcome)
             say(f"  rejected {len(problem.rejected)} measurements beyond 5 sigma in all; solving the last stage again")
+            last_stage.forget()
             state, report, last_stage, last_values = solve_stage(
                 problem, f"{len(config.stages)} (after rejection)", last_stage.released, state, say
             )
@@ -331,6 +335,7 @@ def _identifiable_at_solution(
     determined there; at the solution it is not. Released parameters found unidentifiable at
     the solution are fixed at their estimates (gauge directions: any value fits as well) and the
     last stage is solved again, so that the covariance describes only what the data determine."""
+    stage.forget()  # the analysis evaluates its own graph at the same point
     at_solution = analyse(build_graph(problem, stage.released, state), min_information)
     dropped = [name for name in stage.released if name in at_solution.unidentifiable]
     again = at_solution
@@ -342,6 +347,7 @@ def _identifiable_at_solution(
         kept = [name for name in stage.released if name not in dropped]
         state, report, stage, values = solve_stage(problem, f"{stages[-1].name} (identifiable set)", kept, state, say)
         stages.append(report)
+        stage.forget()
         again = analyse(build_graph(problem, kept, state), min_information)
     unidentifiable = dict(identifiability.unidentifiable)
     absorbed_by = dict(identifiability.absorbed_by)
