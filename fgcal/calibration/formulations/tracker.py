@@ -253,17 +253,18 @@ def initial_tracker(
     T_obs = np.stack([poses[tips[target]][config] for config, target in zip(j, t, strict=True)])
     n_targets = len(observations.names)
     R_j, p_j = T_obs[:, :3, :3], T_obs[:, :3, 3]
+    # m - R_L p_j = R_L R_j s_t + t_L is linear in the tool points and t_L. Turned by R_L^T,
+    # each observation's rows keep their norm: R_L^T m - p_j = R_j s_t + u, with u = R_L^T t_L,
+    # whose matrix does not depend on R_L: one pseudo-inverse serves every start and round.
+    A = np.zeros((len(j), 3, 3 * n_targets + 3))
+    for target in range(n_targets):
+        A[t == target, :, 3 * target : 3 * target + 3] = R_j[t == target]
+    A[:, :, -3:] = np.eye(3)
+    solve = pseudo_inverse(A.reshape(-1, A.shape[2]))
 
     def fit_points(R_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # m - R_L p_j = R_L R_j s_t + t_L: linear in the tool points and t_L.
-        A = np.zeros((len(j), 3, 3 * n_targets + 3))
-        for target in range(n_targets):
-            rows = t == target
-            A[rows, :, 3 * target : 3 * target + 3] = R_L @ R_j[rows]
-        A[:, :, -3:] = np.eye(3)
-        b = measured - p_j @ R_L.T
-        solution = np.linalg.lstsq(A.reshape(-1, A.shape[2]), b.reshape(-1), rcond=None)[0]
-        return solution[:-3].reshape(n_targets, 3), solution[-3:]
+        solution = solve @ (measured @ R_L - p_j).reshape(-1)
+        return solution[:-3].reshape(n_targets, 3), R_L @ solution[-3:]
 
     def refine(R_L: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         for _ in range(rounds):
@@ -279,6 +280,14 @@ def initial_tracker(
     T_L = np.eye(4)
     T_L[:3, :3], T_L[:3, 3] = R_L, t_L
     return T_L, points
+
+
+def pseudo_inverse(A: np.ndarray) -> np.ndarray:
+    """The minimum-norm least-squares solver of A x = b as a matrix, with np.linalg.lstsq's
+    cutoff of small singular values (machine epsilon times the larger dimension)."""
+    U, singular, Vt = np.linalg.svd(A, full_matrices=False)
+    kept = singular > np.finfo(float).eps * max(A.shape) * singular[0]
+    return Vt[kept].T @ (U[:, kept].T / singular[kept, None])
 
 
 def cube_rotations() -> list[np.ndarray]:
