@@ -77,15 +77,23 @@ class PointPairs(MeasurementSet):
         R_W_F = inputs[-1].matrix() if self.estimate_fixture else self.fixture_rotation
         T = self.kinematics.poses(params)[self.configs]
         R = T[:, :3, :3]
-        world = np.einsum("oij,oj->oi", R, self.c) + T[:, :3, 3] - self.p_F @ R_W_F.T
+        arm = np.einsum("oij,oj->oi", R, self.c)  # R_j c_o
+        world = arm + T[:, :3, 3] - self.p_F @ R_W_F.T
         residual = np.asarray(self.contrasts @ world).reshape(-1)
         if not jacobians:
             return Evaluation(residual, [])
         blocks = []
         if released:
-            # d world_o / dP = [-R [c_o]x, R] J_j
-            J = self.kinematics.jacobians(params)[self.configs]  # (O, 6, m)
-            per_obs = np.matmul(-R @ skew(self.c), J[:, :3]) + np.matmul(R, J[:, 3:])
+            # d world_o / dP = [-R [c_o]x, R] J_j = R_j v_j + (R_j w_j) x (R_j c_o), with (w_j, v_j)
+            # the rows of the body Jacobian J_j: turned per configuration, crossed per observation,
+            # without an (O, 6, m) copy of the Jacobians.
+            J = self.kinematics.jacobians(params)
+            R_all = self.kinematics.poses(params)[:, :3, :3]
+            turned = R_all @ J[:, :3]  # (N, 3, m)
+            per_obs = (R_all @ J[:, 3:])[self.configs]  # (O, 3, m)
+            for k in range(3):
+                a, b = (k + 1) % 3, (k + 2) % 3
+                per_obs[:, k] += turned[self.configs, a] * arm[:, b, None] - turned[self.configs, b] * arm[:, a, None]
             blocks.append(self._contrast(per_obs))
         if self.estimate_fixture:
             # d(-R Exp(w) p)/dw = R [p]x

@@ -94,6 +94,9 @@ def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
     kinematics = stage.kinematics
     moments = kinematics.data(kinematics.base[kinematics.index]).moments
     _mass_columns_with_compliance(stage, J_p, moments)
+    # What select needs is in hand: the evaluations cached for the graph (tens of MB at
+    # thousands of configurations) need not outlive it through select's own arrays.
+    stage.forget()
     return select(J_p, J_aux, stage.released, moments, min_information)
 
 
@@ -133,12 +136,13 @@ def select(
         J_p = J_p - Q @ (Q.T @ J_p)
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
     scaled = J_p * np.array([parameter_scale(n, moments_rms) for n in names])[None, :]
-    basis = np.zeros((scaled.shape[0], 0))
+    columns = np.zeros((scaled.shape[0], scaled.shape[1]))  # the basis, filled column by column
     selected: list[int] = []
     rejected: list[int] = []
     for group in range(len(GROUPS)):
         members = [i for i, n in enumerate(names) if group_of(n) == group]
         while members:
+            basis = columns[:, : len(selected)]
             residual = scaled[:, members] - basis @ (basis.T @ scaled[:, members])
             norms = np.linalg.norm(residual, axis=0)
             # Ties (equivalent columns, such as a link length before and after a coupled joint)
@@ -147,14 +151,16 @@ def select(
             if norms[best] < min_information:
                 rejected += members
                 break
-            basis = np.hstack([basis, (residual[:, best] / norms[best])[:, None]])
+            columns[:, len(selected)] = residual[:, best] / norms[best]
             selected.append(members.pop(best))
+    del columns
     # Each column may be determined alone and a direction of several still not: the common scale
     # of all lengths and touched points when nothing measures a length. While the weakest
     # direction of the selected set is below min_information, the parameter that weighs most in
     # it (the lowest in priority among those weighing at least half the most) is dropped.
     while selected:
-        _, singular, Vt = np.linalg.svd(scaled[:, selected], full_matrices=False)
+        # The singular values and right vectors of A are those of its R (A = QR): no rows x k U.
+        _, singular, Vt = np.linalg.svd(np.linalg.qr(scaled[:, selected], mode="r"), full_matrices=False)
         if singular[-1] >= min_information:
             break
         weights = np.abs(Vt[-1])
@@ -178,7 +184,7 @@ def select(
             f"a combination of other parameters ({described or 'several'}); information left {rest:.2g}"
         )
     if selected:
-        singular = np.linalg.svd(scaled[:, selected], compute_uv=False)
+        singular = np.linalg.svd(np.linalg.qr(scaled[:, selected], mode="r"), compute_uv=False)
         condition = float(singular[0] / singular[-1])
     else:
         singular, condition = np.zeros(0), float("inf")
