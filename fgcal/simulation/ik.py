@@ -47,9 +47,11 @@ def solve_ik(
             moving = (np.linalg.norm(err[:, :3], axis=1) >= tol) | (np.linalg.norm(err[:, 3:], axis=1) >= tol)
             if not np.any(moving):
                 break
-            if not np.all(moving):
-                active, err, data = active[moving], err[moving], data.subset(moving)
         J = kinematics.jacobian(robot, data, joints, frame=frame)
+        if freeze_converged and not np.all(moving):
+            # Rows are independent: dropping the converged ones from J costs less than
+            # copying the chain's frames of the others (KinematicsData.subset).
+            active, err, J = active[moving], err[moving], J[moving]
         JtJ = np.swapaxes(J, 1, 2) @ J + damping * np.eye(robot.n_joints)
         step = np.linalg.solve(JtJ, (np.swapaxes(J, 1, 2) @ err[..., None]))[..., 0]
         # Limit the step so that far starts do not jump across the workspace.
