@@ -95,3 +95,30 @@ def test_bad_targets_and_hints_are_clear_errors():
         robot.ik(np.zeros((2, 3)), np.zeros((3, 6)))
     with pytest.raises(fgcal.InputError, match="6 joints"):
         robot.ik(np.zeros(3), np.zeros(5))
+
+
+def test_the_simulators_ik_stops_later_starts_without_changing_the_first_converged():
+    """solve_ik's target_of: a target's starts after its first converged one stop; that first
+    one, and every start before it, end exactly as when every start runs to the end."""
+    from fgcal.simulation.ik import solve_ik
+
+    robot, values = _calibrated()
+    params = robot.parameter_vector(values)
+    starts = 6
+    T = np.repeat(robot.fk(_random_q(robot, 30), values), starts, axis=0)
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    q0 = RNG.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(T), robot.n_joints))
+    q_all, ok_all = solve_ik(robot, params, T, q0, freeze_converged=True)
+    target_of = np.arange(len(T)) // starts
+    q_first, ok_first = solve_ik(robot, params, T, q0, freeze_converged=True, target_of=target_of)
+    assert ok_all.any() and not ok_all.all()  # some targets' first start fails: later ones matter
+    for target in range(len(T) // starts):
+        rows = np.arange(target * starts, (target + 1) * starts)
+        converged = rows[ok_all[rows]]
+        if not len(converged):
+            assert not ok_first[rows].any()
+            continue
+        first = converged[0]
+        assert ok_first[first] and not ok_first[rows[rows < first]].any()
+        assert np.array_equal(q_first[rows[rows <= first]], q_all[rows[rows <= first]])
+    assert ok_first.sum() < ok_all.sum()  # later starts did stop

@@ -112,8 +112,9 @@ def solve_views(
     for first in range(0, len(q0), IK_CHUNK):
         chunk = slice(first, first + IK_CHUNK)
         q[chunk], ok[chunk] = solve_ik(
-            robot, nominal, T_rep[chunk], q0[chunk], iterations=iterations, tol=tol, freeze_converged=freeze_converged
-        )
+            robot, nominal, T_rep[chunk], q0[chunk], iterations=iterations, tol=tol, freeze_converged=freeze_converged,
+            target_of=np.arange(len(q0))[chunk] // starts if freeze_converged else None,
+        )  # fmt: skip
         if solved is not None:
             solved(min(first + IK_CHUNK, len(q0)), len(q0))
     # The first converged start of each request; one forward-kinematics pass for them all.

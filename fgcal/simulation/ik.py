@@ -27,6 +27,7 @@ def solve_ik(
     iterations: int = 80,
     tol: float = 1e-9,
     freeze_converged: bool = False,
+    target_of: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Joint angles (N, n) reaching ``T_target`` (N, 4, 4) from starts ``q0``.
 
@@ -34,17 +35,28 @@ def solve_ik(
     ``tol`` (rad, m) and all joints within limits (after wrapping by 2 pi where possible).
     ``freeze_converged``: stop iterating each problem once it is within ``tol`` (faster;
     the default iterates all to the end, so that simulated datasets stay as they were).
+    ``target_of`` (N,), with ``freeze_converged``: the rows are starts of these targets, each
+    target's in order of preference, and only the first converged start of a target is used:
+    once a start is converged within the limits, its target's later starts stop unconverged.
     """
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
     q = q0.copy()
     damping = 1e-4
     active = np.arange(len(q))
     revolute = ~robot.prismatic
+    if target_of is not None:
+        target_of = np.unique(target_of, return_inverse=True)[1]
+        first_settled = np.full(target_of.max() + 1, len(q))  # row of each target's first converged start
     for _ in range(iterations):
         data = kinematics.forward(robot, params, q[active])
         err = pose_error(kinematics.frame_pose(robot, data, frame), T_target[active])
         if freeze_converged:
             moving = (np.linalg.norm(err[:, :3], axis=1) >= tol) | (np.linalg.norm(err[:, 3:], axis=1) >= tol)
+            if target_of is not None:
+                settled = active[~moving]
+                settled = settled[_within(robot, q[settled])]
+                np.minimum.at(first_settled, target_of[settled], settled)
+                moving &= active < first_settled[target_of[active]]
             if not np.any(moving):
                 break
         J = kinematics.jacobian(robot, data, joints, frame=frame)
@@ -60,7 +72,11 @@ def solve_ik(
         q[active] = np.where(revolute, np.arctan2(np.sin(q_new), np.cos(q_new)), q_new)
     data = kinematics.forward(robot, params, q)
     err = pose_error(kinematics.frame_pose(robot, data, frame), T_target)
-    q = wrap_into_limits(robot.limits, q, robot.prismatic)
-    within = np.all((q >= robot.limits[:, 0]) & (q <= robot.limits[:, 1]), axis=1)
-    converged = (np.linalg.norm(err[:, :3], axis=1) < tol) & (np.linalg.norm(err[:, 3:], axis=1) < tol) & within
-    return q, converged
+    converged = (np.linalg.norm(err[:, :3], axis=1) < tol) & (np.linalg.norm(err[:, 3:], axis=1) < tol)
+    return wrap_into_limits(robot.limits, q, robot.prismatic), converged & _within(robot, q)
+
+
+def _within(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """(N,) whether each configuration is within the joint limits once wrapped by 2 pi."""
+    wrapped = wrap_into_limits(robot.limits, q, robot.prismatic)
+    return np.all((wrapped >= robot.limits[:, 0]) & (wrapped <= robot.limits[:, 1]), axis=1)
