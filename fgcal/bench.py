@@ -524,8 +524,8 @@ def run_bench(
     from threadpoolctl import threadpool_info
 
     say(
-        f"fgcal bench: CPU and wall seconds, best of {repeats} interleaved rounds; "
-        f"seed {seed}; BLAS threads {[i.get('num_threads') for i in threadpool_info()]}"
+        f"fgcal bench: CPU and wall seconds, best of {repeats} interleaved round{'s' if repeats > 1 else ''}; "
+        f"seed {seed}; threads of each BLAS library {[i.get('num_threads') for i in threadpool_info()]}"
     )
     result: dict = {"seed": seed, "repeats": repeats, "sizes": {}}
     for n in sizes:
@@ -596,10 +596,10 @@ def plan_bench(repeats: int, say: Callable[[str], None], n: int = 36, n_candidat
 
 def _print_batch(r: dict, say: Callable[[str], None]) -> None:
     gn = r["cpu_s"]["numpy_gauss_newton"]
-    say(f"  {'method':<20} {'CPU s':>8} {'wall s':>8} {'/ numpy GN':>10} {'held-out RMS':>14} {'chi2':>12}")
+    say(f"  {'method':<20} {'CPU s':>8} {'wall s':>8} {'CPU/numpy GN':>13} {'held-out RMS':>14} {'chi2':>12}")
     for name in METHODS:
         say(
-            f"  {name:<20} {r['cpu_s'][name]:8.3f} {r['wall_s'][name]:8.3f} {r['cpu_s'][name] / gn:10.2f} "
+            f"  {name:<20} {r['cpu_s'][name]:8.3f} {r['wall_s'][name]:8.3f} {r['cpu_s'][name] / gn:13.2f} "
             f"{r['held_out_rms_m'][name] * 1e3:11.5f} mm {r['chi2'][name]:12.6g}"
         )
     spread = max(r["held_out_rms_m"].values()) / min(r["held_out_rms_m"].values()) - 1.0

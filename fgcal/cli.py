@@ -665,7 +665,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "bench", help="time fgcal's solve against a NumPy Gauss-Newton and scipy, and online latency (docs/cli.md)"
     )
-    p.add_argument("--out", default="out/bench", help="where the simulated cases are kept between runs")
+    p.add_argument(
+        "--out", default="out/bench", help="where the simulated cases are kept between runs (default out/bench)"
+    )
     p.add_argument("--seed", type=SEED, default=1, help="simulation seed (default 1)")
     p.add_argument(
         "--sizes",

@@ -654,10 +654,12 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             lines.append(
                 f"| the calibrated model, lost motion not allowed for | {c['without_approach_rms_m'] * 1e3:.4g} |"
             )
+        residual_m = c["model_residual_max_m"]
+        reached = "within 1 nm" if residual_m < 1e-9 else f"to {residual_m * 1e6:.2g} um"
         lines += [
             "",
             f"Compensation removes {c['improvement']:.0f}x of the error; in the calibrated model every scored "
-            f"target is reached to {c['model_residual_max_m'] * 1e6:.2g} um.",
+            f"target is reached {reached}.",
         ]
     fit = doc["goodness_of_fit"]
     if fit is not None:
