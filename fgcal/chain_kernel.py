@@ -116,6 +116,27 @@ def gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weight
 
 
 @njit(**_JIT)
+def forward(
+    kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, root,
+    body_frame, coms, masses, carried, bend, g, compliant,
+    rigid, deformed, com_world, weighted, torque_world, moments,
+):  # fmt: skip
+    """:func:`frames` of the undeformed chain into ``rigid``, its :func:`gravity` moments, and,
+    if ``compliant``, the frames they deform into ``deformed``; returns the carried masses.
+    One call, where three would each pay the dispatch of a dozen arrays."""
+    unbent = np.zeros(moments.shape)  # zero moments: no deflection (none at all would be the parameters')
+    frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, unbent, root, rigid)
+    carried_mass = gravity(
+        rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments
+    )  # fmt: skip
+    if compliant:
+        frames(
+            kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, deformed
+        )
+    return carried_mass
+
+
+@njit(**_JIT)
 def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     """Spatial unit twist (omega, v0) in ``out`` (6,) of element k's column (0, or 0..2 for a
     rotation vector) on ``frames`` at configuration n."""
@@ -146,7 +167,7 @@ def spatial_columns(
     targets, elements, columns, scales, features, moment_of, moves_out,
     motion, moments,
     deflection_element, deflection_moment, deflection_compliance,
-    carried, moved, moves_bend, bend, weighted, masses, carried_mass, torque_world, g,
+    carried, moved_set, set_bodies, moves_bend, bend, weighted, masses, carried_mass, torque_world, g,
     out,
 ):  # fmt: skip
     """Add to ``out`` (N, T, 6) the spatial twists of a frame w.r.t. T names, entered through
@@ -159,6 +180,10 @@ def spatial_columns(
 
         d tau_i = ((omega x C_S + M_S v0) - [moves B_i] M_i (omega x o_i + v0)) x g
                   - [moves B_i] omega x tau_i,          d t_i = R_i^T d tau_i
+
+    S is the bodies joint i carries among those the element moves: element k moves the bodies
+    of its set ``set_bodies[moved_set[k]]`` (S, B); a chain has few such sets, so C_S and M_S
+    are summed once per joint and set, not once per entry.
     """
     n_links, n_bodies = bend.shape[0], masses.shape[0]
     n_deflections = deflection_element.shape[0]
@@ -173,7 +198,27 @@ def spatial_columns(
     twist = np.zeros(6)
     rate = np.zeros(3 * n_links)
     has_motion = motion.shape[1] > 0
+    n_sets = set_bodies.shape[0]
+    set_mass = np.zeros((n_links, n_sets))  # M_S
+    set_moment = np.zeros((n_links, n_sets, 3))  # C_S at the configuration
+    for i in range(n_links):
+        for s in range(n_sets):
+            for b in range(n_bodies):
+                if carried[i, b] and set_bodies[s, b]:
+                    set_mass[i, s] += masses[b]
     for n in range(deformed.shape[1]):
+        if coupled:
+            for i in range(n_links):
+                if not needed[i]:
+                    continue
+                for s in range(n_sets):
+                    c0 = c1 = c2 = 0.0
+                    for b in range(n_bodies):
+                        if carried[i, b] and set_bodies[s, b]:
+                            c0 += weighted[n, b, 0]
+                            c1 += weighted[n, b, 1]
+                            c2 += weighted[n, b, 2]
+                    set_moment[i, s, 0], set_moment[i, s, 1], set_moment[i, s, 2] = c0, c1, c2
         for d in range(n_deflections):
             _twist(kind, start, rvec_slot, rvec_left, deformed, n, deflection_element[d], 0, deflection_twists[d])
         for e in range(elements.shape[0]):
@@ -190,17 +235,12 @@ def spatial_columns(
                 continue
             _twist(kind, start, rvec_slot, rvec_left, rigid, n, k, columns[e], twist)
             w0, w1, w2, v0, v1, v2 = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]
+            s = moved_set[k]
             for i in range(n_links):
                 if not needed[i]:
                     continue
-                c0 = c1 = c2 = 0.0
-                mass = 0.0
-                for b in range(n_bodies):
-                    if carried[i, b] and moved[b, k]:
-                        c0 += weighted[n, b, 0]
-                        c1 += weighted[n, b, 1]
-                        c2 += weighted[n, b, 2]
-                        mass += masses[b]
+                c0, c1, c2 = set_moment[i, s, 0], set_moment[i, s, 1], set_moment[i, s, 2]
+                mass = set_mass[i, s]
                 l0 = w1 * c2 - w2 * c1 + mass * v0
                 l1 = w2 * c0 - w0 * c2 + mass * v1
                 l2 = w0 * c1 - w1 * c0 + mass * v2

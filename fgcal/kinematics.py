@@ -26,7 +26,7 @@ import numpy as np
 
 from . import chain_kernel
 from .errors import InputError
-from .ets import Chain, ancestry, element_twists, evaluate, layout, rvec_tables
+from .ets import Chain, ancestry, element_twists, layout, rvec_tables
 from .parameters import MASS_KIND, is_mass, split_name
 from .se3 import cross
 
@@ -91,6 +91,9 @@ def _body_frames(robot: Robot) -> list[int]:
     return [*list(chain.link_end), chain.flange]
 
 
+_IDENTITY = np.eye(4)  # the chain's root
+_IDENTITY.flags.writeable = False
+
 _BODY_COMS: dict[int, tuple[Robot, np.ndarray, np.ndarray]] = {}
 
 
@@ -111,12 +114,15 @@ def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class _Bodies:
     """What moves what, per chain: ``carried`` (n, B) bool, joint i carries body b (its motion,
-    the element ending at B_i, moves it); ``moved`` (B, K) the elements that move each body;
+    the element ending at B_i, moves it); ``moved`` (B, K) the elements that move each body, and
+    as sets: element k moves the bodies ``set_bodies[moved_set[k]]`` (S, B);
     ``moves_bend`` (n, K) those that move each bending frame; ``body_frame`` (B,) and ``bend``
     (n,) the frames of the bodies and of the bending frames."""
 
     carried: np.ndarray
     moved: np.ndarray
+    moved_set: np.ndarray
+    set_bodies: np.ndarray
     moves_bend: np.ndarray
     body_frame: np.ndarray
     bend: np.ndarray
@@ -137,7 +143,11 @@ def _bodies(robot: Robot) -> _Bodies:
         body_frame = np.array(_body_frames(robot), dtype=np.int64)
         moved = paths[body_frame]
         bend = np.array(chain.bend, dtype=np.int64)
-        bodies = _Bodies(np.ascontiguousarray(moved[:, bend - 1].T), moved, paths[bend], body_frame, bend)
+        set_bodies, moved_set = np.unique(moved.T, axis=0, return_inverse=True)
+        bodies = _Bodies(
+            np.ascontiguousarray(moved[:, bend - 1].T), moved, moved_set.reshape(-1).astype(np.int64),
+            np.ascontiguousarray(set_bodies), paths[bend], body_frame, bend,
+        )  # fmt: skip
         entry = _BODIES[id(chain)] = (chain, bodies)
     return entry[1]
 
@@ -195,17 +205,22 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
             raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
         q = q + motion_offsets(robot, params, motion)
     n, n_conf = robot.n_links, q.shape[0]
-    rigid = evaluate(robot.chain.elements, params, q, np.zeros((n_conf, 3 * n)))
+    chain = robot.chain.elements
+    tables = layout(chain)
+    params, q = np.ascontiguousarray(params, dtype=float), np.ascontiguousarray(q, dtype=float)
     masses, coms = _body_coms(robot)
     masses = masses * body_scales(robot, params)
     bodies = _bodies(robot)
+    rigid = np.empty((len(chain) + 1, n_conf, 4, 4))
+    frames = np.empty_like(rigid) if robot.compliant else rigid
     com_world, weighted = np.empty((n_conf, len(masses), 3)), np.empty((n_conf, len(masses), 3))
     torque_world, moments = np.empty((n_conf, n, 3)), np.empty((n_conf, 3 * n))
-    carried_mass = chain_kernel.gravity(
-        rigid, bodies.body_frame, coms, masses, bodies.carried, bodies.bend, np.asarray(robot.gravity, dtype=float),
-        com_world, weighted, torque_world, moments,
+    carried_mass = chain_kernel.forward(
+        tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
+        tables.rvec_slot, rvec_tables(chain, params)[0], params, q, _IDENTITY,
+        bodies.body_frame, coms, masses, bodies.carried, bodies.bend, np.asarray(robot.gravity, dtype=float),
+        robot.compliant, rigid, frames, com_world, weighted, torque_world, moments,
     )  # fmt: skip
-    frames = evaluate(robot.chain.elements, params, q, moments) if robot.compliant else rigid
     return KinematicsData(
         params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, torque_world, motion
     )
@@ -366,8 +381,8 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
             targets, elements, columns, scales, features, moment_of, path.moves,
             _NO_MOTION if data.motion is None else data.motion, data.moments,
             path.deflections, path.deflection_moment, data.params[path.deflection_param],
-            bodies.carried, bodies.moved, bodies.moves_bend, bodies.bend, data.weighted, data.body_masses,
-            data.carried_mass, data.torque_world, np.asarray(robot.gravity, dtype=float), out,
+            bodies.carried, bodies.moved_set, bodies.set_bodies, bodies.moves_bend, bodies.bend, data.weighted,
+            data.body_masses, data.carried_mass, data.torque_world, np.asarray(robot.gravity, dtype=float), out,
         )  # fmt: skip
     if masses:
         _add_mass_columns(robot, data, masses, path, out)
