@@ -258,13 +258,18 @@ def child_usage(command: list[str]) -> tuple[float, float, float]:
     does not: see ``_fgcal_command``)."""
     import os
     import subprocess
+    import tempfile
 
-    started = time.perf_counter()
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(child.pid, 0)
-    wall = time.perf_counter() - started
-    child.returncode = os.waitstatus_to_exitcode(status)
-    errors = child.stderr.read().decode(errors="replace") if child.stderr else ""
+    # stderr to a file, not a pipe: a child writing more than a pipe holds would block while
+    # wait4 waits for it.
+    with tempfile.TemporaryFile() as stderr:
+        started = time.perf_counter()
+        child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=stderr)
+        _, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - started
+        child.returncode = os.waitstatus_to_exitcode(status)
+        stderr.seek(0)
+        errors = stderr.read().decode(errors="replace")
     if child.returncode != 0:
         raise RuntimeError(f"{' '.join(command)} exited with {child.returncode}: {errors[-2000:]}")
     peaks = [line.split()[1] for line in errors.splitlines() if line.startswith(_PEAK_MARK)]

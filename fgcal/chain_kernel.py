@@ -17,14 +17,35 @@ vector (three parameters, its 3x3 rotation and left Jacobian given in ``rvec_rot
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numba import njit
 
-# fastmath stays off: the results must equal NumPy's to the last bits the tests look at.
-_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+# fastmath stays off: reordered arithmetic would move the results further from NumPy's than
+# the rounding of a different summation order (a few ulp), which the tests bound.
+_OPTIONS = {"nogil": True, "error_model": "numpy"}
 
 
-@njit(**_JIT)
+def _compiled(function):
+    """``function`` compiled by numba, its machine code cached on disk; where numba finds no
+    writable cache folder (a read-only install, a user without a home) it raises on caching,
+    and each process compiles instead (a few seconds at its first evaluation)."""
+    try:
+        return njit(cache=True, **_OPTIONS)(function)
+    except RuntimeError as exc:
+        if "no locator available" not in str(exc):
+            raise
+        warnings.warn(  # once: the same message from the same line
+            "fgcal: numba finds no writable folder to cache the kinematics kernel in, so each process "
+            "compiles it (a few seconds); set NUMBA_CACHE_DIR to a writable folder to keep it",
+            RuntimeWarning,
+            stacklevel=1,
+        )
+        return njit(cache=False, **_OPTIONS)(function)
+
+
+@_compiled
 def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, out):
     """Fill ``out`` (K+1, N, 4, 4) with the chain's frames at N configurations ``q`` (N, n):
     ``out[k + 1]`` the frame after element k, ``out[0]`` the root (4, 4). ``moments`` (N, 3L)
@@ -76,7 +97,7 @@ def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotat
             out[k + 1, n, 3, 3] = 1.0
 
 
-@njit(**_JIT)
+@_compiled
 def gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments):
     """The gravity moments of the undeformed chain ``rigid`` (K+1, N, 4, 4): each body's centre
     of mass ``com_world`` (N, B, 3) and ``weighted`` m_b c_b, each joint's torque
@@ -115,7 +136,7 @@ def gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weight
     return carried_mass
 
 
-@njit(**_JIT)
+@_compiled
 def forward(
     kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, root,
     body_frame, coms, masses, carried, bend, g, compliant,
@@ -136,7 +157,7 @@ def forward(
     return carried_mass
 
 
-@njit(**_JIT)
+@_compiled
 def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     """Spatial unit twist (omega, v0) in ``out`` (6,) of element k's column (0, or 0..2 for a
     rotation vector) on ``frames`` at configuration n."""
@@ -161,7 +182,7 @@ def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     out[5] = -(out[0] * o1 - out[1] * o0)
 
 
-@njit(**_JIT)
+@_compiled
 def spatial_columns(
     kind, start, rvec_slot, rvec_left, deformed, rigid,
     targets, elements, columns, scales, features, moment_of, moves_out,
@@ -266,7 +287,7 @@ def spatial_columns(
                     out[n, target, c] += weight * deflection_twists[d, c]
 
 
-@njit(**_JIT)
+@_compiled
 def body_twists(spatial, pose, out):
     """Body twist Jacobian ``out`` (N, 6, T) of a frame at ``pose`` (N, 4, 4) from its spatial
     twists (N, T, 6): omega_b = R^T omega, v_b = R^T (omega x o + v0)."""
@@ -283,7 +304,7 @@ def body_twists(spatial, pose, out):
                 out[n, 3 + c, t] = frame[0, c] * u0 + frame[1, c] * u1 + frame[2, c] * u2
 
 
-@njit(**_JIT)
+@_compiled
 def point_rates(spatial, pose, point, out):
     """Jacobian ``out`` (N, 3, T) of the world position of ``point`` (3,), fixed in the frame at
     ``pose`` (N, 4, 4), from the frame's spatial twists (N, T, 6): omega x p + v0."""
@@ -299,7 +320,7 @@ def point_rates(spatial, pose, point, out):
             out[n, 2, t] = w0 * p[1] - w1 * p[0] + spatial[n, t, 5]
 
 
-@njit(**_JIT)
+@_compiled
 def element_twists(kind, start, rvec_slot, rvec_left, frames, elements, columns, out):
     """Spatial unit twists ``out`` (N, E, 6) of E element columns on ``frames``."""
     for n in range(frames.shape[1]):

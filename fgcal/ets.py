@@ -88,6 +88,19 @@ class _Layout:
     rvec_params: tuple[int, ...]  # each rotation vector's first parameter
     rvec_indices: np.ndarray  # (3R,) the rotation vectors' parameters
     ancestry: np.ndarray  # (K+1, K) element k lies on the path from the root to frame f
+    n_params: int  # the parameters, joints and moments the indices reach
+    n_joints: int
+    n_moments: int
+
+    def check(self, params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> None:
+        """ValueError unless the arrays cover every index of the tables: the compiled kernel
+        does not check its bounds, and would read past them."""
+        if params.ndim != 1 or len(params) < self.n_params:
+            raise ValueError(f"{self.n_params} parameters needed, got shape {params.shape}")
+        if q.ndim != 2 or q.shape[1] < self.n_joints:
+            raise ValueError(f"joint values (N, {self.n_joints}) needed, got shape {q.shape}")
+        if moments.ndim != 2 or len(moments) != len(q) or 0 < moments.shape[1] < self.n_moments:
+            raise ValueError(f"moments (N, 0) or (N, {self.n_moments}) needed, got shape {moments.shape}")
 
 
 _LAYOUTS: dict[int, tuple[tuple[ET, ...], _Layout]] = {}
@@ -131,6 +144,9 @@ def _make_layout(chain: tuple[ET, ...]) -> _Layout:
         rvec_params=tuple(chain[k].param for k in rvecs),
         rvec_indices=np.array([chain[k].param + c for k in rvecs for c in range(3)], dtype=np.int64),
         ancestry=ancestry,
+        n_params=max([et.param + (3 if et.axis == "Rvec" else 1) for et in chain if et.param is not None], default=0),
+        n_joints=max([et.joint + 1 for et in chain if et.joint is not None], default=0),
+        n_moments=max([et.moment + 1 for et in chain if et.moment is not None], default=0),
     )
     for array in (layout.kind, layout.const, layout.param, layout.moment, layout.joint, layout.sign, start, slot):
         array.flags.writeable = False  # shared by every evaluation of the chain
@@ -165,12 +181,13 @@ def evaluate(
     gravity moments (N, 3L) scale the deflections (with none, (N, 0), each deflection is its
     parameter's value)."""
     tables = layout(chain)
-    params, q = _as_floats(params), _as_floats(q)
+    params, q, moments = _as_floats(params), _as_floats(q), _as_floats(moments)
+    tables.check(params, q, moments)
     frames = np.empty((len(chain) + 1, q.shape[0], 4, 4))
     rotations, _ = rvec_tables(chain, params)
     chain_kernel.frames(
         tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
-        tables.rvec_slot, rotations, params, q, _as_floats(moments), _IDENTITY if root is None else _as_floats(root),
+        tables.rvec_slot, rotations, params, q, moments, _IDENTITY if root is None else _as_floats(root),
         frames,
     )  # fmt: skip
     return frames

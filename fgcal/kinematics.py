@@ -208,13 +208,15 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     chain = robot.chain.elements
     tables = layout(chain)
     params, q = np.ascontiguousarray(params, dtype=float), np.ascontiguousarray(q, dtype=float)
+    moments = np.empty((n_conf, 3 * n))
+    tables.check(params, q, moments)
     masses, coms = _body_coms(robot)
     masses = masses * body_scales(robot, params)
     bodies = _bodies(robot)
     rigid = np.empty((len(chain) + 1, n_conf, 4, 4))
     frames = np.empty_like(rigid) if robot.compliant else rigid
     com_world, weighted = np.empty((n_conf, len(masses), 3)), np.empty((n_conf, len(masses), 3))
-    torque_world, moments = np.empty((n_conf, n, 3)), np.empty((n_conf, 3 * n))
+    torque_world = np.empty((n_conf, n, 3))
     carried_mass = chain_kernel.forward(
         tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
         tables.rvec_slot, rvec_tables(chain, params)[0], params, q, _IDENTITY,
@@ -423,11 +425,15 @@ def jacobian(
 ) -> np.ndarray:
     """Body twist Jacobian (N, 6, T) of ``frame``, or, with ``point`` (3,) fixed in that
     frame, the Jacobian (N, 3, T) of the point's world position. See Robot.jacobian."""
+    if point is not None:
+        point = np.asarray(point, dtype=float)
+        if point.shape != (3,) or not np.all(np.isfinite(point)):
+            raise InputError(None, "point", f"a finite point (3,) in the frame, m; got shape {point.shape}")
     spatial = spatial_jacobian(robot, data, wrt, frame)
     pose = frame_pose(robot, data, frame)
     if point is not None:
         out = np.empty((spatial.shape[0], 3, spatial.shape[1]))
-        chain_kernel.point_rates(spatial, pose, np.asarray(point, dtype=float), out)
+        chain_kernel.point_rates(spatial, pose, point, out)
     else:
         out = np.empty((spatial.shape[0], 6, spatial.shape[1]))
         chain_kernel.body_twists(spatial, pose, out)

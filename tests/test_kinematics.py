@@ -187,3 +187,19 @@ def test_bad_joint_angles_are_clear_errors():
         robot.fk(np.zeros(6), {"theta7": 0.1})
     with pytest.raises(fgcal.InputError, match="finite"):
         robot.fk(np.zeros(6), {"d2": float("nan")})
+
+
+def test_arrays_short_of_the_chain_are_refused_not_read_past():
+    """The compiled kernel does not check its bounds: the callers do."""
+    from fgcal import ets
+
+    robot = fgcal.load_robot("abb_irb120")
+    params = robot.parameter_vector()
+    with pytest.raises(fgcal.InputError, match="point"):
+        robot.jacobian(np.zeros(6), ["q1"], point=[0.1, 0.2])
+    with pytest.raises(ValueError, match="joint values"):
+        kinematics.forward(robot, params, np.zeros((2, 5)))
+    with pytest.raises(ValueError, match="parameters"):
+        kinematics.forward(robot, params[:-1], np.zeros((2, 6)))
+    with pytest.raises(ValueError, match="moments"):
+        ets.evaluate(robot.chain.elements, params, np.zeros((2, 6)), np.zeros((2, 2)))

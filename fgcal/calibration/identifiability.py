@@ -153,7 +153,6 @@ def select(
                 break
             columns[:, len(selected)] = residual[:, best] / norms[best]
             selected.append(members.pop(best))
-    del columns
     # Each column may be determined alone and a direction of several still not: the common scale
     # of all lengths and touched points when nothing measures a length. While the weakest
     # direction of the selected set is below min_information, the parameter that weighs most in

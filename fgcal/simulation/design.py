@@ -96,7 +96,8 @@ def solve_views(
     """IK for one random viewpoint per request (``iterations``, ``tol``: of the IK); keep
     the reachable, visible ones. Each start stops iterating once within ``tol`` (rad, m):
     ``freeze_converged=False`` iterates every start to the end, which moved the configurations
-    by at most 3e-9 rad on the demo and took 0.9 s more of its 3.4 s CPU.
+    by at most 3e-9 rad on the demo and took 0.9 s more of its 3.4 s CPU. Frozen, a request's
+    later starts also stop once one has converged (only the first converged one is used).
     ``solved(done, total)`` hears of the IK starts solved."""
     robot: Robot = cell.robot
     nominal = robot.parameter_vector()

@@ -33,18 +33,21 @@ def solve_ik(
 
     Returns (q, converged) where converged means rotation and translation errors below
     ``tol`` (rad, m) and all joints within limits (after wrapping by 2 pi where possible).
-    ``freeze_converged``: stop iterating each problem once it is within ``tol`` (faster;
-    the default iterates all to the end, so that simulated datasets stay as they were).
-    ``target_of`` (N,), with ``freeze_converged``: the rows are starts of these targets, each
-    target's in order of preference, and only the first converged start of a target is used:
-    once a start is converged within the limits, its target's later starts stop unconverged.
+    ``freeze_converged``: stop iterating each problem once it is within ``tol`` (faster; the
+    default iterates all to the end, as the simulator did before: its configurations then move
+    by up to 3e-9 rad). ``target_of`` (N,), with ``freeze_converged``: the rows are starts of
+    these targets, each target's in order of preference, and only the first converged start of
+    a target is used: once a start is converged within the limits, its target's later starts
+    stop iterating (those that converged by then still say so).
     """
+    if target_of is not None and not freeze_converged:
+        raise ValueError("target_of stops starts once converged: it needs freeze_converged")
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
     q = q0.copy()
     damping = 1e-4
     active = np.arange(len(q))
     revolute = ~robot.prismatic
-    if target_of is not None:
+    if target_of is not None and len(q):
         target_of = np.unique(target_of, return_inverse=True)[1]
         first_settled = np.full(target_of.max() + 1, len(q))  # row of each target's first converged start
     for _ in range(iterations):
@@ -52,7 +55,7 @@ def solve_ik(
         err = pose_error(kinematics.frame_pose(robot, data, frame), T_target[active])
         if freeze_converged:
             moving = (np.linalg.norm(err[:, :3], axis=1) >= tol) | (np.linalg.norm(err[:, 3:], axis=1) >= tol)
-            if target_of is not None:
+            if target_of is not None and len(q):
                 settled = active[~moving]
                 settled = settled[_within(robot, q[settled])]
                 np.minimum.at(first_settled, target_of[settled], settled)
