@@ -211,7 +211,8 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     moments = np.empty((n_conf, 3 * n))
     tables.check(params, q, moments)
     masses, coms = _body_coms(robot)
-    masses = masses * body_scales(robot, params)
+    if robot.mass_groups:  # else the scales are all 1: the cached (read-only) masses serve
+        masses = masses * body_scales(robot, params)
     bodies = _bodies(robot)
     rigid = np.empty((len(chain) + 1, n_conf, 4, 4))
     frames = np.empty_like(rigid) if robot.compliant else rigid
