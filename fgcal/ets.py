@@ -187,13 +187,14 @@ def evaluate(
     rotations, _ = rvec_tables(chain, params)
     chain_kernel.frames(
         tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
-        tables.rvec_slot, rotations, params, q, moments, _IDENTITY if root is None else _as_floats(root),
+        tables.rvec_slot, rotations, params, q, moments, ROOT if root is None else _as_floats(root),
         frames,
     )  # fmt: skip
     return frames
 
 
-_IDENTITY = np.eye(4)
+ROOT = np.eye(4)  # the root frame of a chain evaluated without one
+ROOT.flags.writeable = False
 
 
 def element_twists(

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import chain_kernel
 from .errors import InputError
-from .ets import Chain, ancestry, element_twists, layout, rvec_tables
+from .ets import ROOT, Chain, ancestry, element_twists, layout, rvec_tables
 from .parameters import MASS_KIND, is_mass, split_name
 from .se3 import cross
 
@@ -91,9 +91,6 @@ def _body_frames(robot: Robot) -> list[int]:
     return [*list(chain.link_end), chain.flange]
 
 
-_IDENTITY = np.eye(4)  # the chain's root
-_IDENTITY.flags.writeable = False
-
 _BODY_COMS: dict[int, tuple[Robot, np.ndarray, np.ndarray]] = {}
 
 
@@ -114,13 +111,12 @@ def _body_coms(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class _Bodies:
     """What moves what, per chain: ``carried`` (n, B) bool, joint i carries body b (its motion,
-    the element ending at B_i, moves it); ``moved`` (B, K) the elements that move each body, and
-    as sets: element k moves the bodies ``set_bodies[moved_set[k]]`` (S, B);
+    the element ending at B_i, moves it); element k moves the bodies ``set_bodies[moved_set[k]]``
+    (S, B: the distinct sets);
     ``moves_bend`` (n, K) those that move each bending frame; ``body_frame`` (B,) and ``bend``
     (n,) the frames of the bodies and of the bending frames."""
 
     carried: np.ndarray
-    moved: np.ndarray
     moved_set: np.ndarray
     set_bodies: np.ndarray
     moves_bend: np.ndarray
@@ -145,7 +141,7 @@ def _bodies(robot: Robot) -> _Bodies:
         bend = np.array(chain.bend, dtype=np.int64)
         set_bodies, moved_set = np.unique(moved.T, axis=0, return_inverse=True)
         bodies = _Bodies(
-            np.ascontiguousarray(moved[:, bend - 1].T), moved, moved_set.reshape(-1).astype(np.int64),
+            np.ascontiguousarray(moved[:, bend - 1].T), moved_set.reshape(-1).astype(np.int64),
             np.ascontiguousarray(set_bodies), paths[bend], body_frame, bend,
         )  # fmt: skip
         entry = _BODIES[id(chain)] = (chain, bodies)
@@ -220,7 +216,7 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     torque_world = np.empty((n_conf, n, 3))
     carried_mass = chain_kernel.forward(
         tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
-        tables.rvec_slot, rvec_tables(chain, params)[0], params, q, _IDENTITY,
+        tables.rvec_slot, rvec_tables(chain, params)[0], params, q, ROOT,
         bodies.body_frame, coms, masses, bodies.carried, bodies.bend, np.asarray(robot.gravity, dtype=float),
         robot.compliant, rigid, frames, com_world, weighted, torque_world, moments,
     )  # fmt: skip

@@ -47,7 +47,8 @@ def solve_ik(
     damping = 1e-4
     active = np.arange(len(q))
     revolute = ~robot.prismatic
-    if target_of is not None and len(q):
+    stops_later_starts = target_of is not None and len(q) > 0
+    if stops_later_starts:
         target_of = np.unique(target_of, return_inverse=True)[1]
         first_settled = np.full(target_of.max() + 1, len(q))  # row of each target's first converged start
     for _ in range(iterations):
@@ -55,7 +56,7 @@ def solve_ik(
         err = pose_error(kinematics.frame_pose(robot, data, frame), T_target[active])
         if freeze_converged:
             moving = (np.linalg.norm(err[:, :3], axis=1) >= tol) | (np.linalg.norm(err[:, 3:], axis=1) >= tol)
-            if target_of is not None and len(q):
+            if stops_later_starts:
                 settled = active[~moving]
                 settled = settled[_within(robot, q[settled])]
                 np.minimum.at(first_settled, target_of[settled], settled)
