@@ -228,10 +228,9 @@ class MeasurementSet:
     ``super().__init__``, and implement :meth:`compute`.
     """
 
-    # Levenberg-Marquardt asks at its linearisation point and one trial at a time. With 2 the
-    # bundled cells, the FARO set and the seed cell at 3000 configurations evaluate exactly as
-    # often as with 4, and the peak memory at 3000 is 30-60 MB lower (each entry holds the
-    # set's Jacobians).
+    # Residuals kept (the Jacobians are not kept, see whitened). Levenberg-Marquardt asks at its
+    # linearisation point and one trial at a time: with 2 the bundled cells, the FARO set and
+    # the seed cell at 3000 configurations evaluate as often as with 4.
     CACHED = 2
     row_unit = "m"  # of every row's residual, unless row_units says otherwise
 
@@ -266,7 +265,8 @@ class MeasurementSet:
 
     def whitened(self, inputs: list, jacobians: bool, robust: bool = True) -> Evaluation:
         """Rows divided by their sigma, then (if ``robust`` and the set has a loss) passed
-        through the robust loss; cached on the inputs' values."""
+        through the robust loss. The residuals are cached on the inputs' values; Jacobians are
+        computed on every request."""
         key = b"".join(_bytes(value) for value in inputs)
         entry = self._cache.get(key)
         if entry is None:
@@ -274,26 +274,35 @@ class MeasurementSet:
                 self._cache.popitem(last=False)
             entry = self._cache[key] = {}
         kind = "robust" if robust and self.robust is not None else "plain"
-        for have in ((kind, True), (kind, jacobians)):  # one with Jacobians serves both
-            if have in entry:
-                return entry[have]
-        raw = entry.get(("raw", True)) or entry.get(("raw", jacobians))
+        if not jacobians and kind in entry:
+            return entry[kind]
+        # Only residuals are kept. Levenberg-Marquardt linearises once where it linearises, and
+        # the Jacobians (tens of MB at thousands of configurations) would otherwise stay alive
+        # beside GTSAM's own copy while it solves the step.
+        raw = None if jacobians else entry.get("raw")
+        blocks = []
         if raw is None:
             computed = self.compute(inputs, jacobians)
             # Checked once for all the set's factors, which then only slice it.
-            residual, blocks = check_outputs(self, computed.residual, computed.blocks, self.n_rows, jacobians)
-            raw = entry[("raw", jacobians)] = Evaluation(residual, blocks)
+            raw, blocks = check_outputs(self, computed.residual, computed.blocks, self.n_rows, jacobians)
+            entry["raw"] = raw
         scale = 1.0 / self.sigma
-        residual = raw.residual * scale
-        stacked = np.hstack([b * scale[:, None] for b in raw.blocks]) if jacobians else None
+        residual = raw * scale
+        stacked = None
+        if jacobians:
+            # Whitened into one array, the variables' blocks views of it: no temporary copy.
+            edges = np.cumsum([0, *[dim for _, _, dim in self.variables]])
+            stacked = np.empty((self.n_rows, edges[-1]))
+            for block, a, b in zip(blocks, edges[:-1], edges[1:], strict=True):
+                np.multiply(block, scale[:, None], out=stacked[:, a:b])
+            del blocks, computed
         if kind == "robust":
             residual, stacked = self.robust.apply(residual, stacked, self.unit_starts)
         blocks = []
         if jacobians:
-            edges = np.cumsum([0, *[dim for _, _, dim in self.variables]])
             blocks = [stacked[:, a:b] for a, b in itertools.pairwise(edges)]
-        entry[(kind, jacobians)] = Evaluation(residual, blocks)
-        return entry[(kind, jacobians)]
+        entry[kind] = Evaluation(residual, [])
+        return Evaluation(residual, blocks)
 
     def unit_norms(self, values: gtsam.Values) -> np.ndarray:
         """Whitened norm of each robust unit (observation), without the robust loss."""

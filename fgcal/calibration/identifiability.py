@@ -74,19 +74,21 @@ def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
         if name != "P":
             aux_offsets[key] = offset
             offset += dim
-    rows_p, rows_aux = [], []
+    # Filled in place: the stacked Jacobian is the largest array of the analysis.
+    n_rows = sum(measurements.n_rows for measurements in stage.measurements)
+    J_p = np.zeros((n_rows, stage.kinematics.n_released))
+    J_aux = np.zeros((n_rows, offset))
+    first = 0
     for measurements in stage.measurements:
         evaluation = measurements.whitened(measurements.read(stage.values), True, robust=False)
-        J_p = np.zeros((measurements.n_rows, stage.kinematics.n_released))
-        J_aux = np.zeros((measurements.n_rows, offset))
+        rows = slice(first, first + measurements.n_rows)
         for block, (key, _, dim) in zip(evaluation.blocks, measurements.variables, strict=True):
             if key == stage.keys.params:
-                J_p += block
+                J_p[rows] += block
             else:
-                J_aux[:, aux_offsets[key] : aux_offsets[key] + dim] += block
-        rows_p.append(J_p)
-        rows_aux.append(J_aux)
-    return np.vstack(rows_p), np.vstack(rows_aux)
+                J_aux[rows, aux_offsets[key] : aux_offsets[key] + dim] += block
+        first = rows.stop
+    return J_p, J_aux
 
 
 def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
