@@ -264,6 +264,35 @@ def test_helmert_contrasts_are_orthonormal_and_carry_the_pair():
     np.testing.assert_allclose(factor.factor.unwhitenedError(values), seed_pair / np.sqrt(2), atol=1e-12)
 
 
+def test_contrasts_are_the_block_diagonal_helmert_contrasts():
+    """Applied in O(O c), they equal the block-diagonal product, far from the origin too."""
+    import scipy.linalg
+
+    from fgcal.factors.point_pair import Contrasts, helmert
+
+    sizes = [2, 5, 2, 40, 3, 300]
+    x = RNG.normal(0, 1.0, (sum(sizes), 4)) + 1e3
+    expected = scipy.linalg.block_diag(*[helmert(n) for n in sizes]) @ x
+    assert Contrasts(sizes).shape == expected.shape[:1] + x.shape[:1]
+    np.testing.assert_allclose(Contrasts(sizes) @ x, expected, rtol=0, atol=1e-9)
+
+
+def test_point_pair_jacobian_is_the_same_chunk_by_chunk(monkeypatch):
+    """The Jacobian is assembled a few whole groups at a time; the chunks change nothing."""
+    import fgcal.factors.point_pair as point_pair
+
+    values = gtsam.Values()
+    model = _kinematics(values, n_configs=6)
+    groups = [(RNG.integers(0, 6, n), RNG.normal(0, 0.3, (n, 3)), RNG.normal(0, 0.5, (n, 3))) for n in (3, 2, 7, 4, 2)]
+    whole = PointPairs(model, P_KEY, groups, 1e-3).compute([values.atVector(P_KEY)], True)
+    monkeypatch.setattr(point_pair, "CHUNK_OBSERVATIONS", 5)
+    chunked = PointPairs(model, P_KEY, groups, 1e-3)
+    assert len(chunked.chunks) > 2
+    evaluation = chunked.compute([values.atVector(P_KEY)], True)
+    np.testing.assert_allclose(evaluation.residual, whole.residual, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(evaluation.blocks[0], whole.blocks[0], rtol=1e-13, atol=1e-15)
+
+
 def transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return T[:3, :3] @ p + T[:3, 3]
 
