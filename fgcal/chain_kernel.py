@@ -47,15 +47,16 @@ def _compiled(function):
 
 @_compiled
 def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, out):
-    """Fill ``out`` (K+1, N, 4, 4) with the chain's frames at N configurations ``q`` (N, n):
-    ``out[k + 1]`` the frame after element k, ``out[0]`` the root (4, 4). ``moments`` (N, 3L)
-    scale the deflections' parameters; with none, (N, 0), each is its parameter's value."""
+    """Fill ``out`` (K+1, N, 3, 4) with the chain's frames at N configurations ``q`` (N, n), the
+    top three rows of each 4x4 transform: ``out[k + 1]`` the frame after element k, ``out[0]``
+    the root (4, 4). ``moments`` (N, 3L) scale the deflections' parameters; with none, (N, 0),
+    each is its parameter's value."""
     n_conf = q.shape[0]
     use_moments = moments.shape[1] > 0
     # Element by element over every configuration: each pass streams through two contiguous
     # blocks of frames.
     for n in range(n_conf):
-        out[0, n] = root
+        out[0, n] = root[:3]
     for k in range(kind.shape[0]):
         s, axis = start[k], kind[k]
         if axis == 6:
@@ -66,8 +67,6 @@ def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotat
                     for c in range(3):
                         out[k + 1, n, r, c] = b0 * rotation[0, c] + b1 * rotation[1, c] + b2 * rotation[2, c]
                     out[k + 1, n, r, 3] = out[s, n, r, 3]
-                    out[k + 1, n, 3, r] = 0.0
-                out[k + 1, n, 3, 3] = 1.0
             continue
         j, m = (axis + 1) % 3, (axis + 2) % 3
         for n in range(n_conf):
@@ -91,15 +90,11 @@ def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotat
                     out[k + 1, n, r, 1] = out[s, n, r, 1]
                     out[k + 1, n, r, 2] = out[s, n, r, 2]
                     out[k + 1, n, r, 3] = out[s, n, r, 3] + value * out[s, n, r, axis - 3]
-            out[k + 1, n, 3, 0] = 0.0
-            out[k + 1, n, 3, 1] = 0.0
-            out[k + 1, n, 3, 2] = 0.0
-            out[k + 1, n, 3, 3] = 1.0
 
 
 @_compiled
 def gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments):
-    """The gravity moments of the undeformed chain ``rigid`` (K+1, N, 4, 4): each body's centre
+    """The gravity moments of the undeformed chain ``rigid`` (K+1, N, 3, 4): each body's centre
     of mass ``com_world`` (N, B, 3) and ``weighted`` m_b c_b, each joint's torque
     ``torque_world`` (N, L, 3) = (C_i - M_i o_i) x g and moment (N, 3L) = R_i^T tau_i."""
     n_bodies, n_links = masses.shape[0], bend.shape[0]
@@ -289,16 +284,19 @@ def spatial_columns(
 
 @_compiled
 def body_twists(spatial, pose, out):
-    """Body twist Jacobian ``out`` (N, 6, T) of a frame at ``pose`` (N, 4, 4) from its spatial
-    twists (N, T, 6): omega_b = R^T omega, v_b = R^T (omega x o + v0)."""
+    """Body twist Jacobian ``out`` (N, 6, T) of a frame at ``pose`` (N, 3 or 4, 4) from its spatial
+    twists (N, T, 6): omega_b = R^T omega, v_b = R^T (omega x o + v0). ``out`` may be
+    ``spatial``'s own memory (its reshape): each configuration's twists are read first."""
+    twists = np.empty((spatial.shape[1], 6))
     for n in range(spatial.shape[0]):
+        twists[:, :] = spatial[n]
         frame = pose[n]
         o0, o1, o2 = frame[0, 3], frame[1, 3], frame[2, 3]
         for t in range(spatial.shape[1]):
-            w0, w1, w2 = spatial[n, t, 0], spatial[n, t, 1], spatial[n, t, 2]
-            u0 = w1 * o2 - w2 * o1 + spatial[n, t, 3]
-            u1 = w2 * o0 - w0 * o2 + spatial[n, t, 4]
-            u2 = w0 * o1 - w1 * o0 + spatial[n, t, 5]
+            w0, w1, w2 = twists[t, 0], twists[t, 1], twists[t, 2]
+            u0 = w1 * o2 - w2 * o1 + twists[t, 3]
+            u1 = w2 * o0 - w0 * o2 + twists[t, 4]
+            u2 = w0 * o1 - w1 * o0 + twists[t, 5]
             for c in range(3):
                 out[n, c, t] = frame[0, c] * w0 + frame[1, c] * w1 + frame[2, c] * w2
                 out[n, 3 + c, t] = frame[0, c] * u0 + frame[1, c] * u1 + frame[2, c] * u2
@@ -307,7 +305,7 @@ def body_twists(spatial, pose, out):
 @_compiled
 def point_rates(spatial, pose, point, out):
     """Jacobian ``out`` (N, 3, T) of the world position of ``point`` (3,), fixed in the frame at
-    ``pose`` (N, 4, 4), from the frame's spatial twists (N, T, 6): omega x p + v0."""
+    ``pose`` (N, 3 or 4, 4), from the frame's spatial twists (N, T, 6): omega x p + v0."""
     for n in range(spatial.shape[0]):
         frame = pose[n]
         p = np.zeros(3)

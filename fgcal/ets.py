@@ -183,14 +183,22 @@ def evaluate(
     tables = layout(chain)
     params, q, moments = _as_floats(params), _as_floats(q), _as_floats(moments)
     tables.check(params, q, moments)
-    frames = np.empty((len(chain) + 1, q.shape[0], 4, 4))
+    frames = np.empty((len(chain) + 1, q.shape[0], 3, 4))
     rotations, _ = rvec_tables(chain, params)
     chain_kernel.frames(
         tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
         tables.rvec_slot, rotations, params, q, moments, ROOT if root is None else _as_floats(root),
         frames,
     )  # fmt: skip
-    return frames
+    return homogeneous(frames)
+
+
+def homogeneous(frames: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) transforms from their top three rows (..., 3, 4)."""
+    out = np.zeros((*frames.shape[:-2], 4, 4))
+    out[..., :3, :] = frames
+    out[..., 3, 3] = 1.0
+    return out
 
 
 ROOT = np.eye(4)  # the root frame of a chain evaluated without one

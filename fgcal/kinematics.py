@@ -26,7 +26,7 @@ import numpy as np
 
 from . import chain_kernel
 from .errors import InputError
-from .ets import ROOT, Chain, ancestry, element_twists, layout, rvec_tables
+from .ets import ROOT, Chain, ancestry, element_twists, homogeneous, layout, rvec_tables
 from .parameters import MASS_KIND, is_mass, split_name
 from .se3 import cross
 
@@ -66,8 +66,10 @@ class KinematicsData:
 
     params: np.ndarray
     q: np.ndarray  # (N, n) the joint values the chain sees: commanded plus motion offsets
-    frames: np.ndarray  # (K+1, N, 4, 4) deformed chain
-    frames_rigid: np.ndarray  # (K+1, N, 4, 4) undeformed chain (g = 0)
+    # Each frame's top three rows, (K+1, N, 3, 4): the fourth is (0, 0, 0, 1), and at
+    # thousands of configurations it would be a quarter of a calibration's largest arrays.
+    frames: np.ndarray  # (K+1, N, 3, 4) deformed chain
+    frames_rigid: np.ndarray  # (K+1, N, 3, 4) undeformed chain (g = 0)
     moments: np.ndarray  # (N, 3L) gravity moments t_i of the L joints of the geometry, N m
     weighted: np.ndarray  # (N, B, 3) m_b c_b of each body (mass scales applied), kg m
     com_world: np.ndarray  # (N, B, 3) c_b, each body's centre of mass in W, m
@@ -210,7 +212,7 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     if robot.mass_groups:  # else the scales are all 1: the cached (read-only) masses serve
         masses = masses * body_scales(robot, params)
     bodies = _bodies(robot)
-    rigid = np.empty((len(chain) + 1, n_conf, 4, 4))
+    rigid = np.empty((len(chain) + 1, n_conf, 3, 4))
     frames = np.empty_like(rigid) if robot.compliant else rigid
     com_world, weighted = np.empty((n_conf, len(masses), 3)), np.empty((n_conf, len(masses), 3))
     torque_world = np.empty((n_conf, n, 3))
@@ -257,7 +259,7 @@ def frame_index(robot: Robot, frame: str | int) -> int:
 
 def frame_pose(robot: Robot, data: KinematicsData, frame: str = "flange") -> np.ndarray:
     """Pose (N, 4, 4) of ``frame`` in W."""
-    return data.frames[frame_index(robot, frame)]
+    return homogeneous(data.frames[frame_index(robot, frame)])
 
 
 _ENTRIES: dict[tuple[int, tuple[str, ...]], tuple] = {}
@@ -403,7 +405,7 @@ def _add_mass_columns(robot: Robot, data: KinematicsData, names: tuple, path: _P
     )  # (N, M, 6)
     masses, _ = _body_coms(robot)
     carried = carries(robot)
-    bends = data.frames_rigid[list(chain.bend)]  # (L, N, 4, 4)
+    bends = data.frames_rigid[list(chain.bend)]  # (L, N, 3, 4)
     origins = np.swapaxes(bends[:, :, :3, 3], 0, 1)  # (N, L, 3)
     rotations = np.swapaxes(bends[:, :, :3, :3], 0, 1)  # (N, L, 3, 3)
     groups = dict(robot.mass_groups)
@@ -427,11 +429,13 @@ def jacobian(
         if point.shape != (3,) or not np.all(np.isfinite(point)):
             raise InputError(None, "point", f"a finite point (3,) in the frame, m; got shape {point.shape}")
     spatial = spatial_jacobian(robot, data, wrt, frame)
-    pose = frame_pose(robot, data, frame)
+    pose = data.frames[frame_index(robot, frame)]  # (N, 3, 4): the kernels read no fourth row
     if point is not None:
         out = np.empty((spatial.shape[0], 3, spatial.shape[1]))
         chain_kernel.point_rates(spatial, pose, point, out)
     else:
-        out = np.empty((spatial.shape[0], 6, spatial.shape[1]))
+        # In the spatial twists' own memory: at thousands of configurations and a full model,
+        # a second array of this size would add to the peak of a calibration.
+        out = spatial.reshape(spatial.shape[0], 6, spatial.shape[1])
         chain_kernel.body_twists(spatial, pose, out)
     return out

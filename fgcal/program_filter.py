@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .compensation import SOLVED, approach_commands, default_hints
+from .ets import homogeneous
 from .fields import is_plain_number
 from .rigid_fit import region_sample
 from .robot import Robot
@@ -209,7 +210,7 @@ def kinematics_frames(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
     from . import kinematics
 
     data = kinematics.forward(robot, robot.parameter_vector(), q)
-    return [data.frames_rigid[k] for k in robot.chain.link_end]
+    return [homogeneous(data.frames_rigid[k]) for k in robot.chain.link_end]
 
 
 def filter_targets(

@@ -26,6 +26,7 @@ import numpy as np
 
 from . import kinematics
 from .errors import InputError
+from .ets import homogeneous
 from .joints import OriginJoint
 from .outputs import output_dir, output_file, write_text
 from .robot import Robot
@@ -83,7 +84,7 @@ def joint_frames(robot: Robot) -> dict:
     (n, 4, 4: the bending frames), ``flange`` and ``tool``."""
     chain = robot.chain
     data = kinematics.forward(robot, robot.parameter_vector(), np.zeros((1, robot.n_joints)))
-    frames = data.frames_rigid[:, 0]
+    frames = homogeneous(data.frames_rigid[:, 0])
     joints, origins, axes = [], [], []
     followers = {k for k, _, _ in robot.coupled}
     for i in range(robot.n_links):
