@@ -15,6 +15,7 @@ from ..calibration.goodness import Fit
 from ..calibration.identifiability import motion_warning
 from ..calibration.prediction import workspace_map
 from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
+from ..memory import release_freed_memory
 from ..outputs import output_dir, save_figure, write_text
 from ..parameters import unit_of
 from ..robot import Robot
@@ -283,6 +284,8 @@ def write_report(result: CalibrationResult, out: str | Path, plots: bool = True)
         notes=f"calibrated by fgcal ({doc['model']}, {doc['formulation']} formulation)",
     )
     write_estimates(result, out / "estimates.yaml")
+    if plots:
+        release_freed_memory()  # what the calibration freed, before the figures allocate
     figures = _plots(result, out) if plots else {}
     write_text(out / "report.md", _markdown(doc, figures))
     return doc
