@@ -254,7 +254,7 @@ sys.exit(fgcal.cli.main(sys.argv[1:]))
 
 def child_usage(command: list[str]) -> tuple[float, float, float]:
     """Run ``command``; its CPU seconds (user + system, the kernel's accounting of that one
-    child: os.wait4) and wall seconds, and its peak RSS (MB) as it reports it (NaN when it
+    child: os.wait4) and wall seconds, and its peak RSS (MiB, 2^20 bytes) as it reports it (NaN when it
     does not: see ``_fgcal_command``)."""
     import os
     import subprocess
@@ -305,7 +305,10 @@ def memory_bench(out: Path, seed: int, n: int, say: Callable[[str], None]) -> di
     data_dir = simulated_case(out, seed, n, say)
     config = write_suggested_config(load_cell(SEED_CELL), load_dataset(data_dir))  # as fgcal simulate does
     cpu, _, rss = child_usage(_fgcal_command("calibrate", str(config), "--out", str(out / f"memory_n{n}"), "-q"))
-    say(f"  fgcal calibrate, seed cell at {n} configurations: peak RSS {rss:.0f} MB, {cpu:.1f} s CPU")
+    say(
+        f"  fgcal calibrate, seed cell at {n} configurations: peak RSS {rss:.0f} MiB ({rss * 1.048576:.0f} MB), "
+        f"{cpu:.1f} s CPU"
+    )
     # None (JSON null) where the platform has no /proc to report the peak from.
     peak = None if math.isnan(rss) else rss
     return {"memory_n_configurations": n, "memory_peak_rss_mb": peak, "memory_calibrate_cpu_s": cpu}
