@@ -93,13 +93,16 @@ def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotat
 
 
 @_compiled
-def gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments):
+def gravity(
+    rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments, carried_mass
+):  # fmt: skip
     """The gravity moments of the undeformed chain ``rigid`` (K+1, N, 3, 4): each body's centre
     of mass ``com_world`` (N, B, 3) and ``weighted`` m_b c_b, each joint's torque
-    ``torque_world`` (N, L, 3) = (C_i - M_i o_i) x g and moment (N, 3L) = R_i^T tau_i."""
+    ``torque_world`` (N, L, 3) = (C_i - M_i o_i) x g, moment (N, 3L) = R_i^T tau_i, and
+    ``carried_mass`` (L,) M_i."""
     n_bodies, n_links = masses.shape[0], bend.shape[0]
-    carried_mass = np.zeros(n_links)
     for i in range(n_links):
+        carried_mass[i] = 0.0
         for b in range(n_bodies):
             if carried[i, b]:
                 carried_mass[i] += masses[b]
@@ -128,28 +131,25 @@ def gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weight
             torque_world[n, i, 2] = tau2
             for c in range(3):
                 moments[n, 3 * i + c] = frame[0, c] * tau0 + frame[1, c] * tau1 + frame[2, c] * tau2
-    return carried_mass
 
 
 @_compiled
 def forward(
     kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, root,
     body_frame, coms, masses, carried, bend, g, compliant,
-    rigid, deformed, com_world, weighted, torque_world, moments,
+    rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
 ):  # fmt: skip
-    """:func:`frames` of the undeformed chain into ``rigid``, its :func:`gravity` moments, and,
-    if ``compliant``, the frames they deform into ``deformed``; returns the carried masses.
-    One call, where three would each pay the dispatch of a dozen arrays."""
+    """:func:`frames` of the undeformed chain into ``rigid``, its :func:`gravity` moments and
+    carried masses, and, if ``compliant``, the frames they deform into ``deformed``. One call,
+    where three would each pay the dispatch of a dozen arrays (and returning an array costs
+    its boxing)."""
     unbent = np.zeros(moments.shape)  # zero moments: no deflection (none at all would be the parameters')
     frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, unbent, root, rigid)
-    carried_mass = gravity(
-        rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments
-    )  # fmt: skip
+    gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments, carried_mass)
     if compliant:
         frames(
             kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, deformed
         )
-    return carried_mass
 
 
 @_compiled

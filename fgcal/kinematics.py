@@ -76,6 +76,7 @@ class KinematicsData:
     carried_mass: np.ndarray  # (L,) M_i: the mass joint i carries, kg
     body_masses: np.ndarray  # (B,) m_b, mass scales applied, kg
     torque_world: np.ndarray  # (N, L, 3) tau_i in W, N m
+    rvec_left: np.ndarray  # (R, 3, 3) left Jacobians of the rotation-vector elements (ets.rvec_tables)
     motion: np.ndarray | None = None  # (N, 2n) motion-history features (fgcal.motion)
 
     def subset(self, rows: np.ndarray) -> KinematicsData:
@@ -83,7 +84,7 @@ class KinematicsData:
         return KinematicsData(
             self.params, self.q[rows], self.frames[:, rows], self.frames_rigid[:, rows], self.moments[rows],
             self.weighted[rows], self.com_world[rows], self.carried_mass, self.body_masses, self.torque_world[rows],
-            None if self.motion is None else self.motion[rows],
+            self.rvec_left, None if self.motion is None else self.motion[rows],
         )  # fmt: skip
 
 
@@ -215,15 +216,16 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     rigid = np.empty((len(chain) + 1, n_conf, 3, 4))
     frames = np.empty_like(rigid) if robot.compliant else rigid
     com_world, weighted = np.empty((n_conf, len(masses), 3)), np.empty((n_conf, len(masses), 3))
-    torque_world = np.empty((n_conf, n, 3))
-    carried_mass = chain_kernel.forward(
+    torque_world, carried_mass = np.empty((n_conf, n, 3)), np.empty(n)
+    rotations, left = rvec_tables(chain, params)
+    chain_kernel.forward(
         tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
-        tables.rvec_slot, rvec_tables(chain, params)[0], params, q, ROOT,
+        tables.rvec_slot, rotations, params, q, ROOT,
         bodies.body_frame, coms, masses, bodies.carried, bodies.bend, np.asarray(robot.gravity, dtype=float),
-        robot.compliant, rigid, frames, com_world, weighted, torque_world, moments,
+        robot.compliant, rigid, frames, com_world, weighted, torque_world, moments, carried_mass,
     )  # fmt: skip
     return KinematicsData(
-        params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, torque_world, motion
+        params, q, frames, rigid, moments, weighted, com_world, carried_mass, masses, torque_world, left, motion
     )
 
 
@@ -375,10 +377,9 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     out = np.zeros((data.q.shape[0], len(wrt), 6))
     if entries:
         tables = layout(chain.elements)
-        _, left = rvec_tables(chain.elements, data.params)
         bodies = _bodies(robot)
         chain_kernel.spatial_columns(
-            tables.kind, tables.start, tables.rvec_slot, left, data.frames, data.frames_rigid,
+            tables.kind, tables.start, tables.rvec_slot, data.rvec_left, data.frames, data.frames_rigid,
             targets, elements, columns, scales, features, moment_of, path.moves,
             _NO_MOTION if data.motion is None else data.motion, data.moments,
             path.deflections, path.deflection_moment, data.params[path.deflection_param],
