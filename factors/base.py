@@ -228,10 +228,16 @@ class MeasurementSet:
     ``super().__init__``, and implement :meth:`compute`.
     """
 
-    # Residuals kept (the Jacobians are not kept, see whitened). Levenberg-Marquardt asks at its
-    # linearisation point and one trial at a time: with 2 the bundled cells, the FARO set and
-    # the seed cell at 3000 configurations evaluate as often as with 4.
+    # Evaluations kept. Levenberg-Marquardt asks at its linearisation point and one trial at a
+    # time: with 2 the bundled cells, the FARO set and the seed cell at 3000 configurations
+    # evaluate as often as with 4.
     CACHED = 2
+    # Whether the kept evaluations hold their Jacobians. Levenberg-Marquardt linearises once
+    # where it linearises, and a large set's Jacobians (tens of MB at thousands of
+    # configurations) would stay alive beside GTSAM's copy while it solves the step. iSAM2
+    # linearises an image's factor again at the same point on later updates: the online
+    # calibrator keeps them.
+    keep_jacobians = False
     row_unit = "m"  # of every row's residual, unless row_units says otherwise
 
     variables: list[tuple[int, str, int]]
@@ -265,8 +271,8 @@ class MeasurementSet:
 
     def whitened(self, inputs: list, jacobians: bool, robust: bool = True) -> Evaluation:
         """Rows divided by their sigma, then (if ``robust`` and the set has a loss) passed
-        through the robust loss. The residuals are cached on the inputs' values; Jacobians are
-        computed on every request."""
+        through the robust loss; cached on the inputs' values (the Jacobians only with
+        ``keep_jacobians``)."""
         key = b"".join(_bytes(value) for value in inputs)
         entry = self._cache.get(key)
         if entry is None:
@@ -274,11 +280,9 @@ class MeasurementSet:
                 self._cache.popitem(last=False)
             entry = self._cache[key] = {}
         kind = "robust" if robust and self.robust is not None else "plain"
-        if not jacobians and kind in entry:
-            return entry[kind]
-        # Only residuals are kept. Levenberg-Marquardt linearises once where it linearises, and
-        # the Jacobians (tens of MB at thousands of configurations) would otherwise stay alive
-        # beside GTSAM's own copy while it solves the step.
+        cached = entry.get(kind)
+        if cached is not None and (cached.blocks or not jacobians):
+            return cached
         raw = None if jacobians else entry.get("raw")
         blocks = []
         if raw is None:
@@ -301,8 +305,9 @@ class MeasurementSet:
         blocks = []
         if jacobians:
             blocks = [stacked[:, a:b] for a, b in itertools.pairwise(edges)]
-        entry[kind] = Evaluation(residual, [])
-        return Evaluation(residual, blocks)
+        evaluation = Evaluation(residual, blocks)
+        entry[kind] = evaluation if self.keep_jacobians else Evaluation(residual, [])
+        return evaluation
 
     def unit_norms(self, values: gtsam.Values) -> np.ndarray:
         """Whitened norm of each robust unit (observation), without the robust loss."""

@@ -177,3 +177,25 @@ def test_an_image_that_cannot_be_folded_in_is_skipped_and_leaves_the_estimate(se
     assert calibrator.n_images == 10
     update = calibrator.add(measurements[10].q, list(measurements[10].pixels))
     assert update.n_images == 11
+
+
+def test_an_image_factor_is_linearised_once_at_each_point(seed1, monkeypatch):
+    """The gate and iSAM2's later updates share an image's Jacobians at one linearisation point
+    (a batch set keeps none: fgcal.factors.MeasurementSet.keep_jacobians)."""
+    from fgcal.factors import Projections
+    from fgcal.factors.base import _bytes
+
+    dataset, points, measurements = seed1
+    computed = []  # (set, values): holding the sets keeps their ids unique
+    compute = Projections.compute
+
+    def counted(self, inputs, jacobians):
+        if jacobians:
+            computed.append((self, b"".join(_bytes(value) for value in inputs)))
+        return compute(self, inputs, jacobians)
+
+    monkeypatch.setattr(Projections, "compute", counted)
+    calibrator = OnlineCalibrator(dataset.robot, dataset.camera, points)
+    run(calibrator, measurements[:30])
+    points_linearised = {(id(image_set), values) for image_set, values in computed}
+    assert len(computed) >= 30 and len(points_linearised) == len(computed)

@@ -362,8 +362,9 @@ class OnlineCalibrator:
         return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), point)
 
     def image_measurements(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> Projections:
-        """The image's projections on (p_c, O): one factor for all its points."""
-        return Projections(
+        """The image's projections on (p_c, O): one factor for all its points, which keeps its
+        Jacobians (the gate and iSAM2's later updates linearise it at the same point)."""
+        measurements = Projections(
             RowKinematics(self.model, row),
             P,
             OBJECT_KEY,
@@ -373,6 +374,8 @@ class OnlineCalibrator:
             self.settings.pixel_sigma_px,
             intrinsics=self.intrinsics,
         )
+        measurements.keep_jacobians = True
+        return measurements
 
     def _freeze(self, row: int) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
         """Linear factors replacing the image factors that leave the window with this image
