@@ -281,7 +281,7 @@ class MeasurementSet:
             entry = self._cache[key] = {}
         kind = "robust" if robust and self.robust is not None else "plain"
         cached = entry.get(kind)
-        if cached is not None and (cached.blocks or not jacobians):
+        if cached is not None and (cached.blocks or not jacobians or not self.variables):
             return cached
         raw = None if jacobians else entry.get("raw")
         blocks = []

@@ -68,7 +68,6 @@ class PointPairs(MeasurementSet):
             self.variables.append((fixture_key, "rot3", None))
         self.sigma = np.full(3 * sum(n - 1 for n in sizes), float(sigma_m))
         self.unit_starts = row_starts([3 * (n - 1) for n in sizes])
-        self.chunks = _chunks(sizes)
         super().__init__(robust)
 
     def compute(self, inputs: list, jacobians: bool) -> Evaluation:
@@ -87,19 +86,19 @@ class PointPairs(MeasurementSet):
             # d world_o / dP = [-R [c_o]x, R] J_j = R_j v_j + (R_j w_j) x (R_j c_o), with (w_j, v_j)
             # the rows of the body Jacobian J_j: turned per configuration, crossed per observation,
             # without an (O, 6, m) copy of the Jacobians.
-            # Chunk by chunk of whole groups, so no (O, 3, m) array is ever alive: at thousands of
+            # Block by block of whole groups, so no (O, 3, m) array is ever alive: at thousands of
             # configurations it would set the command's peak memory.
             J = self.kinematics.jacobians(params)
             R_all = self.kinematics.poses(params)[:, :3, :3]
             turned, moved = R_all @ J[:, :3], R_all @ J[:, 3:]  # (N, 3, m)
             block = np.empty((self.n_rows, J.shape[2]))
-            for observations, rows, contrasts in self.chunks:
+            for observations, rows, sums in self.contrasts.blocks:
                 configs, lever = self.configs[observations], arm[observations]
                 per_obs = moved[configs]
                 for k in range(3):
                     a, b = (k + 1) % 3, (k + 2) % 3
                     per_obs[:, k] += turned[configs, a] * lever[:, b, None] - turned[configs, b] * lever[:, a, None]
-                block[rows] = _contrast(contrasts, per_obs)
+                block[3 * rows.start : 3 * rows.stop] = _contrast(sums, per_obs)
             blocks.append(block)
         if self.estimate_fixture:
             # d(-R Exp(w) p)/dw = R [p]x
@@ -107,17 +106,50 @@ class PointPairs(MeasurementSet):
         return Evaluation(residual, blocks)
 
 
+# Observations per block of the contrasts (Contrasts.blocks): a block's Jacobian, (2048, 3, m),
+# is a few MB at a full model's m.
+BLOCK_OBSERVATIONS = 2048
+
+
 class Contrasts:
     """The block-diagonal contrasts ``diag(helmert(n_1), helmert(n_2), ...)`` of consecutive
     groups of observations, applied as ``contrasts @ X`` in O(O c): row k (1..n-1) of a group is
-    ``(sum_{i<k} x_i - k x_k) / sqrt(k (k+1))``. A sparse product costs O(n^2) per group."""
+    ``(sum_{i<k} x_i - k x_k) / sqrt(k (k+1))``. A sparse product costs O(n^2) per group.
+
+    They are applied block by block of whole groups (``blocks``: observations, contrast rows
+    and the block's running sums), about BLOCK_OBSERVATIONS at a time: a row's rounding is then
+    that of its block's sums, however many groups the set has."""
 
     def __init__(self, sizes: Sequence[int]) -> None:
-        sizes = np.asarray(sizes, dtype=int)
-        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-        self.shape = (int(np.sum(sizes - 1)), int(np.sum(sizes)))
+        sizes = [int(n) for n in sizes]
+        self.shape = (sum(sizes) - len(sizes), sum(sizes))
+        self.blocks: list[tuple[slice, slice, _RunningSums]] = []
+        first_group, first_obs, first_row = 0, 0, 0
+        while first_group < len(sizes):
+            last, count = first_group + 1, sizes[first_group]
+            while last < len(sizes) and count + sizes[last] <= BLOCK_OBSERVATIONS:
+                count += sizes[last]
+                last += 1
+            block = sizes[first_group:last]
+            observations = slice(first_obs, first_obs + count)
+            rows = slice(first_row, first_row + count - len(block))
+            self.blocks.append((observations, rows, _RunningSums(block)))
+            first_group, first_obs, first_row = last, observations.stop, rows.stop
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        out = np.empty((self.shape[0], *x.shape[1:]))
+        for observations, rows, sums in self.blocks:
+            out[rows] = sums @ x[observations]
+        return out
+
+
+class _RunningSums:
+    """The contrasts of a few consecutive groups, by running sums."""
+
+    def __init__(self, sizes: list[int]) -> None:
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
         self.first = np.repeat(starts, sizes)  # each observation's group's first observation
-        later = np.ones(self.shape[1], dtype=bool)
+        later = np.ones(sum(sizes), dtype=bool)
         later[starts] = False
         self.later = np.flatnonzero(later)  # x_k of each row, k >= 1
         k = (self.later - self.first[self.later]).astype(float)[:, None]
@@ -125,36 +157,14 @@ class Contrasts:
 
     def __matmul__(self, x: np.ndarray) -> np.ndarray:
         # Centred on each group's first observation (the rows sum to zero, so a group's constant
-        # cancels): the running sums then stay at the size of the differences, and sum_{i<k}
+        # cancels): the running sums then grow with the block's differences only, and sum_{i<k}
         # is sums[k-1] - sums[first], centred[first] being zero.
         centred = x - x[self.first]
         sums = np.cumsum(centred, axis=0)
         return (sums[self.later - 1] - sums[self.first[self.later]] - self.k * centred[self.later]) * self.scale
 
 
-def _contrast(contrasts: Contrasts, per_obs: np.ndarray) -> np.ndarray:
+def _contrast(contrasts: Contrasts | _RunningSums, per_obs: np.ndarray) -> np.ndarray:
     """(O, 3, c) per observation -> (rows, c) through the contrasts."""
     n_obs, _, cols = per_obs.shape
     return (contrasts @ per_obs.reshape(n_obs, 3 * cols)).reshape(-1, cols)
-
-
-# Observations per chunk of the Jacobian: (2048, 3, m) is a few MB at a full model's m.
-CHUNK_OBSERVATIONS = 2048
-
-
-def _chunks(sizes: list[int]) -> list[tuple[slice, slice, Contrasts]]:
-    """Whole groups of observations, about CHUNK_OBSERVATIONS at a time: (observations,
-    residual rows, their block of the contrasts)."""
-    chunks, first_group = [], 0
-    obs_starts = np.concatenate([[0], np.cumsum(sizes)])
-    row_ends = np.concatenate([[0], np.cumsum([n - 1 for n in sizes])])
-    while first_group < len(sizes):
-        last = first_group + 1
-        while last < len(sizes) and obs_starts[last + 1] - obs_starts[first_group] <= CHUNK_OBSERVATIONS:
-            last += 1
-        observations = slice(int(obs_starts[first_group]), int(obs_starts[last]))
-        contrast_rows = slice(int(row_ends[first_group]), int(row_ends[last]))
-        rows = slice(3 * contrast_rows.start, 3 * contrast_rows.stop)
-        chunks.append((observations, rows, Contrasts(sizes[first_group:last])))
-        first_group = last
-    return chunks

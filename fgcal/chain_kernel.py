@@ -49,7 +49,7 @@ def _compiled(function):
 def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, out):
     """Fill ``out`` (K+1, N, 3, 4) with the chain's frames at N configurations ``q`` (N, n), the
     top three rows of each 4x4 transform: ``out[k + 1]`` the frame after element k, ``out[0]``
-    the root (4, 4). ``moments`` (N, 3L) scale the deflections' parameters; with none, (N, 0),
+    the top three rows of ``root`` (4, 4). ``moments`` (N, 3L) scale the deflections' parameters; with none, (N, 0),
     each is its parameter's value."""
     n_conf = q.shape[0]
     use_moments = moments.shape[1] > 0

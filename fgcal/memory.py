@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import ctypes
 import sys
 
 
@@ -17,7 +16,10 @@ def release_freed_memory() -> None:
     if not sys.platform.startswith("linux"):
         return
     try:
+        import ctypes  # here: a Python built without ctypes still writes its reports
+
         trim = ctypes.CDLL(None).malloc_trim  # the process's own C library
-    except (OSError, AttributeError):  # musl and others have no malloc_trim
+    except (ImportError, OSError, AttributeError):  # musl and others have no malloc_trim
         return
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
     trim(0)
