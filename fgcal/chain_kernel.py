@@ -12,7 +12,10 @@ The functions take plain arrays (a chain's :class:`Tables`, built once per chain
 preallocated outputs; fgcal.ets and fgcal.kinematics hold the meaning and call them.
 Conventions: ``kind`` 0, 1, 2 rotations about x, y, z; 3, 4, 5 translations; 6 a rotation
 vector (three parameters, its 3x3 rotation and left Jacobian given in ``rvec_rotation`` and
-``rvec_left`` at the element's ``rvec_slot``). Index -1 means "none".
+``rvec_left`` at the element's ``rvec_slot``). Index -1 means "none". A chain's tables come as
+two arrays, for each array a kernel takes costs about 50 ns of dispatch at every call: the
+integer ``tables`` (6, K), rows kind, param, moment, joint, start, rvec_slot, and the real
+``constants`` (2, K), rows const, sign (fgcal.ets.layout).
 """
 
 from __future__ import annotations
@@ -55,11 +58,13 @@ def _compiled(function=None, *, inline: bool = False):
 
 
 @_compiled(inline=True)
-def frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, out):
+def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
     """Fill ``out`` (K+1, N, 3, 4) with the chain's frames at N configurations ``q`` (N, n), the
     top three rows of each 4x4 transform: ``out[k + 1]`` the frame after element k, ``out[0]``
-    the top three rows of ``root`` (4, 4). ``moments`` (N, 3L) scale the deflections' parameters; with none, (N, 0),
-    each is its parameter's value."""
+    the top three rows of ``root`` (4, 4). ``moments`` (N, 3L) scale the deflections'
+    parameters; with none, (N, 0), each is its parameter's value."""
+    kind, param, moment, joint, start, rvec_slot = tables[0], tables[1], tables[2], tables[3], tables[4], tables[5]
+    const, sign = constants[0], constants[1]
     n_conf = q.shape[0]
     use_moments = moments.shape[1] > 0
     # Element by element over every configuration: each pass streams through two contiguous
@@ -144,7 +149,7 @@ def gravity(
 
 @_compiled
 def forward(
-    kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, root,
+    tables, constants, rvec_rotation, params, q, root,
     body_frame, coms, masses, carried, bend, g, compliant,
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
 ):  # fmt: skip
@@ -153,12 +158,10 @@ def forward(
     where three would each pay the dispatch of a dozen arrays (and returning an array costs
     its boxing)."""
     unbent = np.zeros(moments.shape)  # zero moments: no deflection (none at all would be the parameters')
-    frames(kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, unbent, root, rigid)
+    frames(tables, constants, rvec_rotation, params, q, unbent, root, rigid)
     gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments, carried_mass)
     if compliant:
-        frames(
-            kind, const, param, moment, joint, sign, start, rvec_slot, rvec_rotation, params, q, moments, root, deformed
-        )
+        frames(tables, constants, rvec_rotation, params, q, moments, root, deformed)
 
 
 @_compiled(inline=True)
@@ -188,15 +191,17 @@ def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
 
 @_compiled
 def spatial_columns(
-    kind, start, rvec_slot, rvec_left, deformed, rigid,
-    targets, elements, columns, scales, features, moment_of, moves_out,
+    tables, rvec_left, deformed, rigid,
+    entries, scales, moves_out,
     motion, moments,
-    deflection_element, deflection_moment, deflection_compliance,
+    deflections, deflection_compliance,
     carried, moved_set, set_bodies, moves_bend, bend, weighted, masses, carried_mass, torque_world, g,
     out,
 ):  # fmt: skip
     """Add to ``out`` (N, T, 6) the spatial twists of a frame w.r.t. T names, entered through
-    the entries (target, element, column, scale, motion feature, moment or -1).
+    the entries (5, E), rows target, element, column, motion feature, moment or -1, with
+    their ``scales`` (E,). ``deflections`` (2, M): the element and the moment of each
+    deflection on the frame's path.
 
     An entry's element moves the frame directly when it lies on the frame's path
     (``moves_out``): its twist on the deformed chain times its scale, its motion feature and,
@@ -210,6 +215,9 @@ def spatial_columns(
     of its set ``set_bodies[moved_set[k]]`` (S, B); a chain has few such sets, so C_S and M_S
     are summed once per joint and set, not once per entry.
     """
+    kind, start, rvec_slot = tables[0], tables[4], tables[5]
+    targets, elements, columns, features, moment_of = entries[0], entries[1], entries[2], entries[3], entries[4]
+    deflection_element, deflection_moment = deflections[0], deflections[1]
     n_links, n_bodies = bend.shape[0], masses.shape[0]
     n_deflections = deflection_element.shape[0]
     coupled = False
@@ -328,8 +336,9 @@ def point_rates(spatial, pose, point, out):
 
 
 @_compiled
-def element_twists(kind, start, rvec_slot, rvec_left, frames, elements, columns, out):
+def element_twists(tables, rvec_left, frames, elements, columns, out):
     """Spatial unit twists ``out`` (N, E, 6) of E element columns on ``frames``."""
+    kind, start, rvec_slot = tables[0], tables[4], tables[5]
     for n in range(frames.shape[1]):
         for e in range(elements.shape[0]):
             _twist(kind, start, rvec_slot, rvec_left, frames, n, elements[e], columns[e], out[n, e])

@@ -74,23 +74,50 @@ class ET:
 
 @dataclass(frozen=True)
 class _Layout:
-    """A chain as the compiled kernel's tables (fgcal.chain_kernel): one entry per element,
-    -1 for "none"."""
+    """A chain as the compiled kernel's tables (fgcal.chain_kernel): one column per element,
+    -1 for "none". ``tables`` (6, K) holds the integer rows, ``constants`` (2, K) the real ones,
+    each row also named below."""
 
-    kind: np.ndarray  # (K,) 0..2 Rx..Rz, 3..5 Tx..Tz, 6 Rvec
-    const: np.ndarray  # (K,)
-    param: np.ndarray  # (K,) parameter index (an Rvec's first of three)
-    moment: np.ndarray  # (K,) the gravity moment that scales the parameter
-    joint: np.ndarray  # (K,)
-    sign: np.ndarray  # (K,) the joint's sign
-    start: np.ndarray  # (K,) the frame each element starts from (k for a serial chain)
-    rvec_slot: np.ndarray  # (K,) the element's row in the rotation-vector tables
+    tables: np.ndarray  # (6, K) kind, param, moment, joint, start, rvec_slot
+    constants: np.ndarray  # (2, K) const, sign
     rvec_params: tuple[int, ...]  # each rotation vector's first parameter
     rvec_indices: np.ndarray  # (3R,) the rotation vectors' parameters
     ancestry: np.ndarray  # (K+1, K) element k lies on the path from the root to frame f
     n_params: int  # the parameters, joints and moments the indices reach
     n_joints: int
     n_moments: int
+
+    @property
+    def kind(self) -> np.ndarray:
+        return self.tables[0]  # 0..2 Rx..Rz, 3..5 Tx..Tz, 6 Rvec
+
+    @property
+    def param(self) -> np.ndarray:
+        return self.tables[1]  # parameter index (an Rvec's first of three)
+
+    @property
+    def moment(self) -> np.ndarray:
+        return self.tables[2]  # the gravity moment that scales the parameter
+
+    @property
+    def joint(self) -> np.ndarray:
+        return self.tables[3]
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.tables[4]  # the frame each element starts from (k for a serial chain)
+
+    @property
+    def rvec_slot(self) -> np.ndarray:
+        return self.tables[5]  # the element's row in the rotation-vector tables
+
+    @property
+    def const(self) -> np.ndarray:
+        return self.constants[0]
+
+    @property
+    def sign(self) -> np.ndarray:
+        return self.constants[1]  # the joint's sign
 
     def check(self, params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> None:
         """ValueError unless the arrays cover every index of the tables: the compiled kernel
@@ -132,15 +159,12 @@ def _make_layout(chain: tuple[ET, ...]) -> _Layout:
     def indices(field: str) -> np.ndarray:
         return np.array([-1 if getattr(et, field) is None else getattr(et, field) for et in chain], dtype=np.int64)
 
+    kind = np.array([AXES.index(et.axis) for et in chain], dtype=np.int64)
     layout = _Layout(
-        kind=np.array([AXES.index(et.axis) for et in chain], dtype=np.int64),
-        const=np.array([et.const for et in chain], dtype=float),
-        param=indices("param"),
-        moment=indices("moment"),
-        joint=indices("joint"),
-        sign=np.array([et.sign if et.joint is not None else 0.0 for et in chain], dtype=float),
-        start=start,
-        rvec_slot=slot,
+        tables=np.array([kind, indices("param"), indices("moment"), indices("joint"), start, slot], dtype=np.int64),
+        constants=np.array(
+            [[et.const for et in chain], [et.sign if et.joint is not None else 0.0 for et in chain]], dtype=float
+        ),
         rvec_params=tuple(chain[k].param for k in rvecs),
         rvec_indices=np.array([chain[k].param + c for k in rvecs for c in range(3)], dtype=np.int64),
         ancestry=ancestry,
@@ -148,7 +172,7 @@ def _make_layout(chain: tuple[ET, ...]) -> _Layout:
         n_joints=max([et.joint + 1 for et in chain if et.joint is not None], default=0),
         n_moments=max([et.moment + 1 for et in chain if et.moment is not None], default=0),
     )
-    for array in (layout.kind, layout.const, layout.param, layout.moment, layout.joint, layout.sign, start, slot):
+    for array in (layout.tables, layout.constants):
         array.flags.writeable = False  # shared by every evaluation of the chain
     return layout
 
@@ -164,10 +188,10 @@ _NO_RVECS = np.zeros((1, 3, 3))
 
 def rvec_tables(chain: tuple[ET, ...], params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rotations and left Jacobians (R, 3, 3) of the chain's rotation-vector elements."""
-    tables = layout(chain)
-    if not tables.rvec_params:
+    chain_layout = layout(chain)
+    if not chain_layout.rvec_params:
         return _NO_RVECS, _NO_RVECS
-    return _rvec_tables_of(np.ascontiguousarray(params[tables.rvec_indices], dtype=float).tobytes())
+    return _rvec_tables_of(np.ascontiguousarray(params[chain_layout.rvec_indices], dtype=float).tobytes())
 
 
 def _as_floats(array: np.ndarray) -> np.ndarray:
@@ -180,16 +204,13 @@ def evaluate(
     """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints); the
     gravity moments (N, 3L) scale the deflections (with none, (N, 0), each deflection is its
     parameter's value)."""
-    tables = layout(chain)
+    chain_layout = layout(chain)
     params, q, moments = _as_floats(params), _as_floats(q), _as_floats(moments)
-    tables.check(params, q, moments)
+    chain_layout.check(params, q, moments)
     frames = np.empty((len(chain) + 1, q.shape[0], 3, 4))
     rotations, _ = rvec_tables(chain, params)
-    chain_kernel.frames(
-        tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
-        tables.rvec_slot, rotations, params, q, moments, ROOT if root is None else _as_floats(root),
-        frames,
-    )  # fmt: skip
+    root = ROOT if root is None else _as_floats(root)
+    chain_kernel.frames(chain_layout.tables, chain_layout.constants, rotations, params, q, moments, root, frames)
     return homogeneous(frames)
 
 
@@ -211,11 +232,11 @@ def element_twists(
     """Spatial unit twists (N, E, 6) in the root frame of the elements' columns (0, or 0..2 of a
     rotation vector): rows ``[omega, v0]`` such that a point p downstream of the element moves
     by ``dp = omega x p + v0`` per unit change of the element's value."""
-    tables = layout(chain)
+    chain_layout = layout(chain)
     _, left = rvec_tables(chain, params)
     out = np.empty((frames.shape[1], len(elements), 6))
     chain_kernel.element_twists(
-        tables.kind, tables.start, tables.rvec_slot, left, _as_floats(frames),
+        chain_layout.tables, left, _as_floats(frames),
         np.asarray(elements, dtype=np.int64), np.asarray(columns, dtype=np.int64), out,
     )  # fmt: skip
     return out

@@ -205,10 +205,10 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
         q = q + motion_offsets(robot, params, motion)
     n, n_conf = robot.n_links, q.shape[0]
     chain = robot.chain.elements
-    tables = layout(chain)
+    chain_layout = layout(chain)
     params, q = np.ascontiguousarray(params, dtype=float), np.ascontiguousarray(q, dtype=float)
     moments = np.empty((n_conf, 3 * n))
-    tables.check(params, q, moments)
+    chain_layout.check(params, q, moments)
     masses, coms = _body_coms(robot)
     if robot.mass_groups:  # else the scales are all 1: the cached (read-only) masses serve
         masses = masses * body_scales(robot, params)
@@ -219,8 +219,7 @@ def forward(robot: Robot, params: np.ndarray, q: np.ndarray, motion: np.ndarray 
     torque_world, carried_mass = np.empty((n_conf, n, 3)), np.empty(n)
     rotations, left = rvec_tables(chain, params)
     chain_kernel.forward(
-        tables.kind, tables.const, tables.param, tables.moment, tables.joint, tables.sign, tables.start,
-        tables.rvec_slot, rotations, params, q, ROOT,
+        chain_layout.tables, chain_layout.constants, rotations, params, q, ROOT,
         bodies.body_frame, coms, masses, bodies.carried, bodies.bend, np.asarray(robot.gravity, dtype=float),
         robot.compliant, rigid, frames, com_world, weighted, torque_world, moments, carried_mass,
     )  # fmt: skip
@@ -267,25 +266,27 @@ def frame_pose(robot: Robot, data: KinematicsData, frame: str = "flange") -> np.
 _ENTRIES: dict[tuple[int, tuple[str, ...]], tuple] = {}
 
 
-def _entry_arrays(robot: Robot, wrt: Sequence[str]) -> tuple[list, tuple[np.ndarray, ...], tuple]:
-    """_direct_columns' entries and, as arrays, their targets, elements, columns, scales,
-    features and the moment of each element (-1: none), and the mass scales among the names
-    (position, name): cached per chain and names, since an
-    IK or an online update asks for the same columns at every evaluation."""
+def _entry_arrays(robot: Robot, wrt: Sequence[str]) -> tuple[list, np.ndarray, np.ndarray, tuple]:
+    """_direct_columns' entries; as the kernel takes them, their (5, E) targets, elements,
+    columns, features and the moment of each element (-1: none), and their scales (E,); and the
+    mass scales among the names (position, name). Cached per chain and names, since an IK or an
+    online update asks for the same columns at every evaluation."""
     chain, key = robot.chain, tuple(wrt)
     entry = _ENTRIES.get((id(chain), key))
     if entry is None or entry[0] is not chain:
         if len(_ENTRIES) > 256:
             _ENTRIES.clear()
         entries = _direct_columns(robot, wrt)
-        arrays = tuple(np.array(v) for v in zip(*entries, strict=True)) if entries else (np.zeros(0, int),) * 5
-        moments = np.array([-1 if chain.elements[k].moment is None else chain.elements[k].moment for k in arrays[1]])
-        arrays = (*arrays, moments.astype(int))
-        for array in arrays:
-            array.flags.writeable = False  # shared by every later evaluation
+        targets, elements, columns, scales, features = (
+            np.array(v) for v in (zip(*entries, strict=True) if entries else [()] * 5)
+        )
+        moments = [-1 if chain.elements[k].moment is None else chain.elements[k].moment for k in elements]
+        packed = np.array([targets, elements, columns, features, moments], dtype=np.int64).reshape(5, -1)
+        scales = np.asarray(scales, dtype=float)
+        packed.flags.writeable = scales.flags.writeable = False  # shared by every later evaluation
         masses = tuple((t, name) for t, name in enumerate(wrt) if is_mass(name))
-        entry = _ENTRIES[(id(chain), key)] = (chain, entries, arrays, masses)
-    return entry[1], entry[2], entry[3]
+        entry = _ENTRIES[(id(chain), key)] = (chain, entries, packed, scales, masses)
+    return entry[1:]
 
 
 def _direct_columns(robot: Robot, wrt: Sequence[str]) -> list[tuple[int, int, int, float, int]]:
@@ -332,6 +333,7 @@ class _Path:
     deflections: np.ndarray
     deflection_param: np.ndarray
     deflection_moment: np.ndarray
+    packed: np.ndarray  # (2, M) each deflection's element and moment, as the kernel takes them
 
 
 _PATHS: dict[tuple[int, int], tuple[Chain, _Path]] = {}
@@ -349,9 +351,10 @@ def _path(robot: Robot, out_index: int) -> _Path:
         def array(values: list) -> np.ndarray:
             return np.array(values, dtype=np.int64).reshape(-1)
 
+        moments = array([chain.elements[k].moment for k in deflections])
         path = _Path(
-            moves, array(deflections), array([chain.elements[k].param for k in deflections]),
-            array([chain.elements[k].moment for k in deflections]),
+            moves, array(deflections), array([chain.elements[k].param for k in deflections]), moments,
+            np.array([array(deflections), moments], dtype=np.int64).reshape(2, -1),
         )  # fmt: skip
         entry = _PATHS[(id(chain), out_index)] = (chain, path)
     return entry[1]
@@ -373,16 +376,15 @@ def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], fra
     """
     chain = robot.chain
     path = _path(robot, frame_index(robot, frame))
-    entries, (targets, elements, columns, scales, features, moment_of), masses = _entry_arrays(robot, wrt)
+    entries, packed, scales, masses = _entry_arrays(robot, wrt)
     out = np.zeros((data.q.shape[0], len(wrt), 6))
     if entries:
-        tables = layout(chain.elements)
+        chain_layout = layout(chain.elements)
         bodies = _bodies(robot)
         chain_kernel.spatial_columns(
-            tables.kind, tables.start, tables.rvec_slot, data.rvec_left, data.frames, data.frames_rigid,
-            targets, elements, columns, scales, features, moment_of, path.moves,
+            chain_layout.tables, data.rvec_left, data.frames, data.frames_rigid, packed, scales, path.moves,
             _NO_MOTION if data.motion is None else data.motion, data.moments,
-            path.deflections, path.deflection_moment, data.params[path.deflection_param],
+            path.packed, data.params[path.deflection_param],
             bodies.carried, bodies.moved_set, bodies.set_bodies, bodies.moves_bend, bodies.bend, data.weighted,
             data.body_masses, data.carried_mass, data.torque_world, np.asarray(robot.gravity, dtype=float), out,
         )  # fmt: skip
