@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..compiled import compiled
 from ..se3 import skew
 from .base import Evaluation, MeasurementSet, RobustLoss, row_starts
 from .kinematics import Kinematics, params_variable
@@ -92,13 +93,13 @@ class PointPairs(MeasurementSet):
             R_all = self.kinematics.poses(params)[:, :3, :3]
             turned, moved = R_all @ J[:, :3], R_all @ J[:, 3:]  # (N, 3, m)
             block = np.empty((self.n_rows, J.shape[2]))
-            for observations, rows, sums in self.contrasts.blocks:
+            for observations, rows, contrasts in self.contrasts.blocks:
                 configs, lever = self.configs[observations], arm[observations]
                 per_obs = moved[configs]
                 for k in range(3):
                     a, b = (k + 1) % 3, (k + 2) % 3
                     per_obs[:, k] += turned[configs, a] * lever[:, b, None] - turned[configs, b] * lever[:, a, None]
-                block[3 * rows.start : 3 * rows.stop] = _contrast(sums, per_obs)
+                block[3 * rows.start : 3 * rows.stop] = _contrast(contrasts, per_obs)
             blocks.append(block)
         if self.estimate_fixture:
             # d(-R Exp(w) p)/dw = R [p]x
@@ -113,58 +114,62 @@ BLOCK_OBSERVATIONS = 2048
 
 class Contrasts:
     """The block-diagonal contrasts ``diag(helmert(n_1), helmert(n_2), ...)`` of consecutive
-    groups of observations, applied as ``contrasts @ X`` in O(O c): row k (1..n-1) of a group is
-    ``(sum_{i<k} x_i - k x_k) / sqrt(k (k+1))``. A sparse product costs O(n^2) per group.
+    groups of observations, applied as ``contrasts @ X`` in one pass, O(O c): row k (1..n-1)
+    of a group is ``(sum_{i<k} x_i - k x_k) / sqrt(k (k+1))``, its sums running over the
+    group's differences from its first observation (:func:`_helmert_rows`). A sparse product
+    costs O(n^2) per group.
 
-    They are applied block by block of whole groups (``blocks``: observations, contrast rows
-    and the block's running sums), about BLOCK_OBSERVATIONS at a time: a row's rounding is then
-    that of its block's sums, however many groups the set has."""
+    ``blocks`` splits the groups into runs of about BLOCK_OBSERVATIONS observations (their
+    observations, their contrast rows and their contrasts), for a caller that builds its
+    input block by block."""
 
     def __init__(self, sizes: Sequence[int]) -> None:
-        sizes = [int(n) for n in sizes]
-        self.shape = (sum(sizes) - len(sizes), sum(sizes))
-        self.blocks: list[tuple[slice, slice, _RunningSums]] = []
+        self.sizes = np.asarray(sizes, dtype=np.int64)
+        self.shape = (int(self.sizes.sum()) - len(self.sizes), int(self.sizes.sum()))
+        self.blocks: list[tuple[slice, slice, Contrasts]] = []
+        if len(self.sizes) <= 1 or self.shape[1] <= BLOCK_OBSERVATIONS:
+            self.blocks.append((slice(0, self.shape[1]), slice(0, self.shape[0]), self))
+            return
         first_group, first_obs, first_row = 0, 0, 0
-        while first_group < len(sizes):
-            last, count = first_group + 1, sizes[first_group]
-            while last < len(sizes) and count + sizes[last] <= BLOCK_OBSERVATIONS:
-                count += sizes[last]
+        while first_group < len(self.sizes):
+            last, count = first_group + 1, int(self.sizes[first_group])
+            while last < len(self.sizes) and count + self.sizes[last] <= BLOCK_OBSERVATIONS:
+                count += int(self.sizes[last])
                 last += 1
-            block = sizes[first_group:last]
+            block = self.sizes[first_group:last]
             observations = slice(first_obs, first_obs + count)
             rows = slice(first_row, first_row + count - len(block))
-            self.blocks.append((observations, rows, _RunningSums(block)))
+            self.blocks.append((observations, rows, Contrasts(block)))
             first_group, first_obs, first_row = last, observations.stop, rows.stop
 
     def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(x, dtype=float)
         out = np.empty((self.shape[0], *x.shape[1:]))
-        for observations, rows, sums in self.blocks:
-            out[rows] = sums @ x[observations]
+        _helmert_rows(x.reshape(len(x), -1), self.sizes, out.reshape(len(out), -1))
         return out
 
 
-class _RunningSums:
-    """The contrasts of a few consecutive groups, by running sums."""
+@compiled
+def _helmert_rows(x, sizes, out):
+    """``out`` (O - G, c) = diag(helmert(n_g)) ``x`` (O, c), group by group. The running sum is
+    of each observation's difference from its group's first (the rows sum to zero, so the
+    group's constant cancels): its rounding is that of the group's differences, not of
+    positions metres from the origin, nor of other groups."""
+    running = np.zeros(x.shape[1])
+    first, row = 0, 0
+    for n in sizes:
+        running[:] = 0.0
+        for k in range(1, n):
+            scale = 1.0 / np.sqrt(k * (k + 1.0))
+            for c in range(x.shape[1]):
+                origin = x[first, c]
+                running[c] += x[first + k - 1, c] - origin
+                out[row, c] = (running[c] - k * (x[first + k, c] - origin)) * scale
+            row += 1
+        first += n
 
-    def __init__(self, sizes: list[int]) -> None:
-        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
-        self.first = np.repeat(starts, sizes)  # each observation's group's first observation
-        later = np.ones(sum(sizes), dtype=bool)
-        later[starts] = False
-        self.later = np.flatnonzero(later)  # x_k of each row, k >= 1
-        k = (self.later - self.first[self.later]).astype(float)[:, None]
-        self.k, self.scale = k, 1.0 / np.sqrt(k * (k + 1.0))
 
-    def __matmul__(self, x: np.ndarray) -> np.ndarray:
-        # Centred on each group's first observation (the rows sum to zero, so a group's constant
-        # cancels): the running sums then grow with the block's differences only, and sum_{i<k}
-        # is sums[k-1] - sums[first], centred[first] being zero.
-        centred = x - x[self.first]
-        sums = np.cumsum(centred, axis=0)
-        return (sums[self.later - 1] - sums[self.first[self.later]] - self.k * centred[self.later]) * self.scale
-
-
-def _contrast(contrasts: Contrasts | _RunningSums, per_obs: np.ndarray) -> np.ndarray:
+def _contrast(contrasts: Contrasts, per_obs: np.ndarray) -> np.ndarray:
     """(O, 3, c) per observation -> (rows, c) through the contrasts."""
     n_obs, _, cols = per_obs.shape
     return (contrasts @ per_obs.reshape(n_obs, 3 * cols)).reshape(-1, cols)

@@ -20,44 +20,12 @@ integer ``tables`` (6, K), rows kind, param, moment, joint, start, rvec_slot, an
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
-from numba import njit
 
-# fastmath stays off: reordered arithmetic would move the results further from NumPy's than
-# the rounding of a different summation order (a few ulp), which the tests bound.
-_OPTIONS = {"nogil": True, "error_model": "numpy"}
+from .compiled import compiled
 
 
-def _compiled(function=None, *, inline: bool = False):
-    """``function`` compiled by numba, its machine code cached on disk; where numba finds no
-    writable cache folder (a read-only install, a user without a home) it raises on caching,
-    and each process compiles instead (a few seconds at its first evaluation).
-
-    ``inline``: a function the other kernels call, compiled into each of them. A call between
-    compiled functions otherwise costs about as much as a few of its loops (10-15 % of the
-    Jacobian of every parameter, 0.6 us of a single configuration's FK)."""
-    options = {**_OPTIONS, "inline": "always"} if inline else _OPTIONS
-
-    def compile(function):
-        try:
-            return njit(cache=True, **options)(function)
-        except RuntimeError as exc:
-            if "no locator available" not in str(exc):
-                raise
-            warnings.warn(  # once: the same message from the same line
-                "fgcal: numba finds no writable folder to cache the kinematics kernel in, so each process "
-                "compiles it (a few seconds); set NUMBA_CACHE_DIR to a writable folder to keep it",
-                RuntimeWarning,
-                stacklevel=1,
-            )
-            return njit(cache=False, **options)(function)
-
-    return compile if function is None else compile(function)
-
-
-@_compiled(inline=True)
+@compiled(inline=True)
 def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
     """Fill ``out`` (K+1, N, 3, 4) with the chain's frames at N configurations ``q`` (N, n), the
     top three rows of each 4x4 transform: ``out[k + 1]`` the frame after element k, ``out[0]``
@@ -106,7 +74,7 @@ def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
                     out[k + 1, n, r, 3] = out[s, n, r, 3] + value * out[s, n, r, axis - 3]
 
 
-@_compiled(inline=True)
+@compiled(inline=True)
 def gravity(
     rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments, carried_mass
 ):  # fmt: skip
@@ -147,7 +115,7 @@ def gravity(
                 moments[n, 3 * i + c] = frame[0, c] * tau0 + frame[1, c] * tau1 + frame[2, c] * tau2
 
 
-@_compiled
+@compiled
 def forward(
     tables, constants, rvec_rotation, params, q, root,
     body_frame, coms, masses, carried, bend, g, compliant,
@@ -164,7 +132,7 @@ def forward(
         frames(tables, constants, rvec_rotation, params, q, moments, root, deformed)
 
 
-@_compiled(inline=True)
+@compiled(inline=True)
 def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     """Spatial unit twist (omega, v0) in ``out`` (6,) of element k's column (0, or 0..2 for a
     rotation vector) on ``frames`` at configuration n."""
@@ -189,7 +157,7 @@ def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     out[5] = -(out[0] * o1 - out[1] * o0)
 
 
-@_compiled
+@compiled
 def spatial_columns(
     tables, rvec_left, deformed, rigid,
     entries, scales, moves_out,
@@ -299,7 +267,7 @@ def spatial_columns(
                     out[n, target, c] += weight * deflection_twists[d, c]
 
 
-@_compiled
+@compiled
 def body_twists(spatial, pose, out):
     """Body twist Jacobian ``out`` (N, 6, T) of a frame at ``pose`` (N, 3 or 4, 4) from its spatial
     twists (N, T, 6): omega_b = R^T omega, v_b = R^T (omega x o + v0). ``out`` may be
@@ -319,7 +287,7 @@ def body_twists(spatial, pose, out):
                 out[n, 3 + c, t] = frame[0, c] * u0 + frame[1, c] * u1 + frame[2, c] * u2
 
 
-@_compiled
+@compiled
 def point_rates(spatial, pose, point, out):
     """Jacobian ``out`` (N, 3, T) of the world position of ``point`` (3,), fixed in the frame at
     ``pose`` (N, 3 or 4, 4), from the frame's spatial twists (N, T, 6): omega x p + v0."""
@@ -335,7 +303,7 @@ def point_rates(spatial, pose, point, out):
             out[n, 2, t] = w0 * p[1] - w1 * p[0] + spatial[n, t, 5]
 
 
-@_compiled
+@compiled
 def element_twists(tables, rvec_left, frames, elements, columns, out):
     """Spatial unit twists ``out`` (N, E, 6) of E element columns on ``frames``."""
     kind, start, rvec_slot = tables[0], tables[4], tables[5]

@@ -276,8 +276,8 @@ def test_contrasts_are_the_block_diagonal_helmert_contrasts():
     assert Contrasts(sizes).shape == expected.shape[:1] + x.shape[:1]
     np.testing.assert_allclose(Contrasts(sizes) @ x, expected, rtol=0, atol=1e-9)
     # A group of micrometre differences after 200000 groups of centimetre ones: its rows keep
-    # their precision (running sums over the whole set would carry the others' rounding: 1e-10
-    # to 5e-10 relative, where the blocks give 1e-17 to 1e-16).
+    # their precision (running sums over the whole set would carry the others' rounding, 1e-10
+    # to 5e-10 relative; group by group they are exact to 1e-16).
     x = np.vstack([1.0 + RNG.normal(0.01, 0.01, (600000, 3)), 1.0 + RNG.normal(0, 1e-6, (3, 3))])
     last = helmert(3) @ (x[-3:] - x[-3])
     relative = np.abs((Contrasts([3] * 200001) @ x)[-2:] - last).max() / np.abs(last).max()

@@ -87,7 +87,7 @@ def test_no_import_circles():
 # belong to one (a new module states its layer here).
 LAYERS = (
     ("core", ("fgcal.errors", "fgcal.fields", "fgcal.units", "fgcal.strict_json", "fgcal.parameters", "fgcal.se3",
-              "fgcal.noise", "fgcal.outputs", "fgcal.console", "fgcal.memory")),
+              "fgcal.noise", "fgcal.outputs", "fgcal.console", "fgcal.memory", "fgcal.compiled")),
     (
         "model",
         ("fgcal.chain_kernel", "fgcal.ets", "fgcal.joints", "fgcal.motion", "fgcal.kinematics", "fgcal.robot",
