@@ -8,12 +8,12 @@ few microseconds of dispatch for each of hundreds of small array operations. The
 the same arithmetic as scalars. ``cache=True`` keeps the machine code on disk, so that only
 the first process after an install compiles.
 
-The functions take plain arrays (a chain's :class:`Tables`, built once per chain) and fill
+The functions take plain arrays (a chain's tables, built once per chain by fgcal.ets.layout) and fill
 preallocated outputs; fgcal.ets and fgcal.kinematics hold the meaning and call them.
 Conventions: ``kind`` 0, 1, 2 rotations about x, y, z; 3, 4, 5 translations; 6 a rotation
 vector (three parameters, its 3x3 rotation and left Jacobian given in ``rvec_rotation`` and
 ``rvec_left`` at the element's ``rvec_slot``). Index -1 means "none". A chain's tables come as
-two arrays, for each array a kernel takes costs about 50 ns of dispatch at every call: the
+two arrays, since each array a kernel takes costs about 50 ns of dispatch at every call: the
 integer ``tables`` (6, K), rows kind, param, moment, joint, start, rvec_slot, and the real
 ``constants`` (2, K), rows const, sign (fgcal.ets.layout).
 """

@@ -29,7 +29,7 @@ def compiled(function=None, *, inline: bool = False):
                 raise
             warnings.warn(  # once: the same message from the same line
                 "fgcal: numba finds no writable folder to cache the compiled kernels in, so each process "
-                "compiles it (a few seconds); set NUMBA_CACHE_DIR to a writable folder to keep it",
+                "compiles them (a few seconds); set NUMBA_CACHE_DIR to a writable folder to keep them",
                 RuntimeWarning,
                 stacklevel=1,
             )
