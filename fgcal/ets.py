@@ -184,6 +184,7 @@ def ancestry(chain: tuple[ET, ...]) -> np.ndarray:
 
 
 _NO_RVECS = np.zeros((1, 3, 3))
+_NO_RVECS.flags.writeable = False
 
 
 def rvec_tables(chain: tuple[ET, ...], params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

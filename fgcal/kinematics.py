@@ -333,7 +333,7 @@ class _Path:
     deflections: np.ndarray
     deflection_param: np.ndarray
     deflection_moment: np.ndarray
-    packed: np.ndarray  # (2, M) each deflection's element and moment, as the kernel takes them
+    packed: np.ndarray  # (2, M) deflections and deflection_moment as one array (their memory), for the kernel
 
 
 _PATHS: dict[tuple[int, int], tuple[Chain, _Path]] = {}
@@ -351,11 +351,8 @@ def _path(robot: Robot, out_index: int) -> _Path:
         def array(values: list) -> np.ndarray:
             return np.array(values, dtype=np.int64).reshape(-1)
 
-        moments = array([chain.elements[k].moment for k in deflections])
-        path = _Path(
-            moves, array(deflections), array([chain.elements[k].param for k in deflections]), moments,
-            np.array([array(deflections), moments], dtype=np.int64).reshape(2, -1),
-        )  # fmt: skip
+        packed = np.array([deflections, [chain.elements[k].moment for k in deflections]], dtype=np.int64).reshape(2, -1)
+        path = _Path(moves, packed[0], array([chain.elements[k].param for k in deflections]), packed[1], packed)
         entry = _PATHS[(id(chain), out_index)] = (chain, path)
     return entry[1]
 
