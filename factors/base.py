@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ..se3 import skew
+from ..core.se3 import skew
 
 # Variable kinds: how to read them from gtsam.Values and their tangent dimension.
 _GETTERS = {

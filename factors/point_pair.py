@@ -6,8 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..compiled import compiled
-from ..se3 import skew
+from ..core.compiled import compiled
+from ..core.se3 import skew
 from .base import Evaluation, MeasurementSet, RobustLoss, row_starts
 from .kinematics import Kinematics, params_variable
 

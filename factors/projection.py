@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..se3 import skew
+from ..core.se3 import skew
 from .base import Evaluation, MeasurementSet, OutsideModelError, RobustLoss, point_jacobian, row_starts
 from .kinematics import Kinematics, params_variable
 

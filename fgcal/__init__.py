@@ -19,12 +19,12 @@ __path__ = pkgutil.extend_path(__path__, __name__)
 # a value the user has set is kept.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from .errors import FgcalError, InputError
-from .robot import Robot
-from .robot_io import load_robot, save_robot
+from .core.errors import FgcalError, InputError
+from .model.robot import Robot
+from .model.robot_io import load_robot, save_robot
 
 __all__ = ["FgcalError", "InputError", "Robot", "calibrate", "compensate", "load_robot", "save_robot"]
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def calibrate(dataset, **settings):

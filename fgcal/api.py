@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from .calibration.results import CalibrationResult
-from .compensation import Compensation, nominal_of
-from .errors import InputError
-from .robot import Robot
+from .core.errors import InputError
+from .data.compensation import Compensation, nominal_of
+from .model.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ def compensate(
     calibrated model, the commands, residuals and a status per target (docs/using.md). ``tip``:
     a tree's tip the targets (and ``tcp``) are for (Robot.tip_names; default the tool on the
     flange)."""
-    from .compensation import compensate as run
+    from .data.compensation import compensate as run
 
     if not isinstance(nominal, Robot):
         nominal = nominal_of(robot, nominal)

@@ -45,7 +45,7 @@ def bundled_sim(tmp_path_factory):
     fgcal simulate writes beside it: ``bundled_sim("irb120_ballbar", 2)`` is the dataset's
     directory. Tests must not change it (copy it first)."""
     from fgcal.calibration.suggest import write_suggested_config
-    from fgcal.dataset import load_dataset
+    from fgcal.data.dataset import load_dataset
     from fgcal.simulation.cell import load_cell
     from fgcal.simulation.simulate import simulate
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 SECONDS = 60  # far above any case here; a hang fails instead of blocking the suite
 
@@ -229,7 +229,7 @@ def test_an_unreachable_cell_fails_fast_naming_the_cell(tmp_path, capsys, alarm)
     ids=["format", "short_xyz", "no_mounting", "unknown_key", "malformed"],
 )
 def test_a_damaged_estimates_file_names_the_field(tmp_path, text, field):
-    from fgcal.errors import InputError
+    from fgcal.core.errors import InputError
     from fgcal.reports.estimates import load_estimates
 
     path = tmp_path / "estimates.yaml"

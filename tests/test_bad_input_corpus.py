@@ -18,7 +18,7 @@ import yaml
 from conftest import REPO, SEED_CELL
 from test_bad_input import alarm, set_cell, set_header  # noqa: F401 (alarm is a fixture)
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 ROBOT = REPO / "datasets" / "robots" / "abb_irb120.yaml"
 

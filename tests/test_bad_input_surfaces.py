@@ -20,7 +20,7 @@ import yaml
 from conftest import REPO, SEED_CELL
 from test_bad_input import alarm  # noqa: F401 (a fixture)
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 CELLS = REPO / "datasets" / "cells"
 IRB120 = REPO / "datasets" / "robots" / "abb_irb120.yaml"
@@ -40,7 +40,7 @@ def source(tmp_path_factory) -> Path:
     """What the cases damage: the seed cell simulated (camera points, pixels, tracker), a
     robot file, the small URDF, compensation targets and an importer's exports with their
     mapping."""
-    from fgcal.robot_io import load_robot
+    from fgcal.model.robot_io import load_robot
     from fgcal.simulation.simulate import simulate
 
     root = tmp_path_factory.mktemp("surfaces")

@@ -11,7 +11,7 @@ from conftest import SEED_CELL, SHARED, calibrate, calibrate_dataset
 
 import fgcal
 from fgcal.calibration.config import CalibrationConfig, parse_config
-from fgcal.dataset import load_dataset
+from fgcal.data.dataset import load_dataset
 from fgcal.reports.calibration import write_report
 from fgcal.simulation.simulate import simulate
 
@@ -97,7 +97,7 @@ def test_projection_with_unknown_fixture_and_mounting(small_cell):
 
 def test_hand_eye_recovers_a_bad_mounting_guess(small_cell):
     """A mounting drawing off by 5 cm and 5 degrees: calibrateHandEye starts it, the graph finishes."""
-    from fgcal.se3 import pose_from_xyz_rpy, so3_log
+    from fgcal.core.se3 import pose_from_xyz_rpy, so3_log
 
     dataset = load_dataset(small_cell)
     offset = pose_from_xyz_rpy(np.array([0.03, -0.03, 0.03]), np.deg2rad([3.0, -3.0, 2.5]))
@@ -203,7 +203,7 @@ def test_one_shot_schedule(small_cell):
 
 @pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
 def test_real_tracker_data(tmp_path):
-    from fgcal.faro import convert_faro
+    from fgcal.data.faro import convert_faro
 
     convert_faro(FARO, tmp_path / "faro")
     config = CalibrationConfig.defaults(
@@ -279,7 +279,7 @@ def test_a_misfit_model_is_scored_against_the_full_true_robot(small_cell):
     result = calibrate(CalibrationConfig.defaults(small_cell, model="DH,s"))
     truth = yaml.safe_load((small_cell / "truth" / "ground_truth.yaml").read_text())
     mounting = truth["camera_mounting_nominal"]
-    from fgcal.se3 import pose_from_xyz_rpy, transform_points
+    from fgcal.core.se3 import pose_from_xyz_rpy, transform_points
 
     true_robot = result.problem.dataset.robot.with_model("DH,s,e").with_tool(
         pose_from_xyz_rpy(np.array(mounting["xyz"]), np.array(mounting["rpy"]))
@@ -409,8 +409,8 @@ def test_projection_position_intervals_cover_the_truth(small_cell):
 def test_every_estimate_is_saved_and_reads_back(small_cell, tmp_path):
     """Issue 10, item 6: the tracker pose, tool points, fixture pose, intrinsics and camera
     mounting a calibration estimates are written to estimates.yaml, with sigmas, and read back."""
+    from fgcal.core.se3 import inverse
     from fgcal.reports.estimates import load_estimates
-    from fgcal.se3 import inverse
 
     tracker = calibrate(CalibrationConfig.defaults(small_cell, formulation="tracker"))
     doc = write_report(tracker, tmp_path / "tracker", plots=False)

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 
 def test_simulate_missing_cell(tmp_path, capsys):
@@ -35,19 +35,20 @@ def test_robots_lists_library(capsys):
 
 @pytest.mark.parametrize("argv", [["--help"], ["simulate", "--help"]])
 def test_console_entry_point(argv):
-    result = subprocess.run([sys.executable, "-m", "fgcal.cli", *argv], capture_output=True, text=True, check=False)
+    command = [sys.executable, "-m", "fgcal", *argv]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
     assert result.returncode == 0 and "usage" in result.stdout
 
 
 def test_an_internal_error_is_a_traceback_and_exit_1_not_a_user_error(monkeypatch, capsys):
     """Issue 21: a bug (here a RuntimeError, as GTSAM raises, in a command) is never dressed as
     the user's: 'internal error', the traceback, exit status 1."""
-    import fgcal.cli
+    import fgcal.commands.listing
 
     def broken(_args):
         raise RuntimeError("Indeterminate linear system detected while working near variable p0")
 
-    monkeypatch.setattr(fgcal.cli, "cmd_robots", broken)
+    monkeypatch.setattr(fgcal.commands.listing, "cmd_robots", broken)
     assert main(["robots"]) == 1
     err = capsys.readouterr().err
     assert "internal error" in err and "Traceback" in err and "Indeterminate" in err

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 NUMBER = {"type": "number"}
 STATS = {"type": "object", "required": ["rms", "p95", "max"], "properties": {k: NUMBER for k in ("rms", "p95", "max")}}
@@ -134,7 +134,7 @@ def test_progress_bar_only_on_a_terminal(monkeypatch, capsys):
     """The bar draws on a terminal and not elsewhere; the lines go to the log either way."""
     import io
 
-    from fgcal import console
+    from fgcal.core import console
 
     console.setup()
     reporter = console.Reporter()

@@ -8,8 +8,8 @@ from conftest import SEED_CELL, SHARED, calibrate
 
 import fgcal
 from fgcal.calibration.config import CalibrationConfig
-from fgcal.cli import main
-from fgcal.compensation import compensate, nominal_of
+from fgcal.commands.cli import main
+from fgcal.data.compensation import compensate, nominal_of
 
 
 @pytest.fixture(scope="module")
@@ -44,8 +44,8 @@ def test_unreachable_targets_are_flagged_not_fatal(calibrated):
 
 
 def test_compensate_command_with_orientations_and_hints(calibrated, tmp_path, capsys):
-    from fgcal.robot_io import save_robot
-    from fgcal.se3 import so3_log
+    from fgcal.core.se3 import so3_log
+    from fgcal.model.robot_io import save_robot
 
     robot_file = tmp_path / "calibrated_robot.yaml"
     robot = calibrated.problem.robot
@@ -75,8 +75,8 @@ def test_compensate_command_with_orientations_and_hints(calibrated, tmp_path, ca
 def test_targets_in_the_users_units_and_convention(calibrated, tmp_path, capsys, length, angle, orientation):
     """The same pose targets in mm, deg and a vendor's convention give the SI run's commands,
     written back in that convention, each column named with its unit."""
-    from fgcal.compensation import ORIENTATIONS, TargetUnits
-    from fgcal.robot_io import save_robot
+    from fgcal.data.compensation import ORIENTATIONS, TargetUnits
+    from fgcal.model.robot_io import save_robot
 
     robot_file = tmp_path / "calibrated_robot.yaml"
     robot = calibrated.problem.robot
@@ -137,7 +137,7 @@ def test_demo_calibrated_robot_exports_to_urdf(calibrated, tmp_path):
     tool0 equals fgcal's tool pose with the compliances at zero, to 1e-9 m and rad."""
     import yourdfpy
 
-    from fgcal.robot_io import save_robot
+    from fgcal.model.robot_io import save_robot
 
     robot = calibrated.problem.robot
     save_robot(tmp_path / "calibrated_robot.yaml", robot, robot.parameter_dict(calibrated.state.params))
@@ -169,8 +169,8 @@ def test_random_reachable_targets_come_back_ok_on_every_bundled_robot():
     """Issue 22, item 4: positions the robot reaches within its limits (random joints), given
     without hints, are all found within the limits; the two-axis positioner with a TCP off its
     axes (on them, a TCP cannot move: near singularity, truly)."""
-    from fgcal.robot_io import bundled_robots, load_robot
-    from fgcal.se3 import transform_points
+    from fgcal.core.se3 import transform_points
+    from fgcal.model.robot_io import bundled_robots, load_robot
 
     rng = np.random.default_rng(5)
     for name in bundled_robots():
@@ -187,8 +187,8 @@ def test_random_reachable_targets_come_back_ok_on_every_bundled_robot():
 def test_faro_flange_positions_without_hints_come_back_ok(tmp_path, capsys):
     """Issue 22 acceptance: 20 flange positions of the FARO session, calibrated, given to fgcal
     compensate without hints: all 20 ok."""
-    from fgcal.dataset import load_dataset
-    from fgcal.faro import convert_faro
+    from fgcal.data.dataset import load_dataset
+    from fgcal.data.faro import convert_faro
 
     convert_faro(SHARED / "data" / "irb120_faro", tmp_path / "faro")
     config = {"dataset": "faro", "formulation": "tracker", "units": {"length": "mm"}, "noise": {"tracker_sigma": 0.05}}
@@ -214,7 +214,7 @@ def test_targets_solved_in_chunks_are_solved_as_one(monkeypatch):
     """Issue 23: 20000 targets did not finish in 120 s; they are now solved a few thousand at a
     time (arrays that stay in the cache). The chunks change nothing but the rounding: every
     joint value is the one of a single batch."""
-    import fgcal.compensation as module
+    import fgcal.data.compensation as module
 
     robot = fgcal.load_robot("abb_irb120")
     rng = np.random.default_rng(11)

@@ -11,8 +11,8 @@ import yaml
 from conftest import SHARED
 
 import fgcal
-from fgcal.dataset import load_dataset
-from fgcal.faro import convert_faro
+from fgcal.data.dataset import load_dataset
+from fgcal.data.faro import convert_faro
 
 FARO = SHARED / "data" / "irb120_faro"
 

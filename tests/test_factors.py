@@ -27,7 +27,7 @@ from fgcal.factors import (
     TrackerPoints,
     gaussian,
 )
-from fgcal.motion import MotionHistory, features
+from fgcal.model.motion import MotionHistory, features
 
 RNG = np.random.default_rng(7)
 P_KEY = 100

@@ -19,10 +19,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fgcal.calibration.config import parse_config
-from fgcal.dataset import load_dataset
-from fgcal.errors import InputError
+from fgcal.core.errors import InputError
+from fgcal.data.dataset import load_dataset
+from fgcal.model.robot_io import parse_robot
 from fgcal.online.measurement import parse_measurement, read_measurement
-from fgcal.robot_io import parse_robot
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -171,7 +171,7 @@ def test_measurement_file_bytes_fuzz(tmp_path_factory, content):
 @FUZZ
 @given(text=st.text(max_size=200))
 def test_yaml_text_fuzz(tmp_path_factory, text):
-    from fgcal.fields import read_yaml
+    from fgcal.core.fields import read_yaml
 
     path = tmp_path_factory.mktemp("fuzz_yaml") / "doc.yaml"
     path.write_text(text, encoding="utf-8")
@@ -224,7 +224,7 @@ urdf_values = st.one_of(
 def test_urdf_fuzz(tmp_path_factory, changes, dropped, tip):
     from xml.sax.saxutils import escape
 
-    from fgcal.robot_io import load_robot
+    from fgcal.model.robot_io import load_robot
 
     edits = {span: escape(value, {"'": "&apos;"}) for span, value in changes} | {span: "" for span in dropped}
     text = URDF_TEMPLATE
@@ -267,7 +267,7 @@ def exports(tmp_path_factory) -> Path:
 @FUZZ
 @given(doc=st.one_of(documents, mutated(MAPPING)))
 def test_import_mapping_fuzz(exports, tmp_path_factory, doc):
-    from fgcal.csv_import import import_mapping
+    from fgcal.data.csv_import import import_mapping
 
     out = tmp_path_factory.mktemp("fuzz_imported")
     with contextlib.suppress(InputError):

@@ -6,7 +6,7 @@ import numpy as np
 from conftest import random_parameters
 
 import fgcal
-from fgcal.se3 import so3_log
+from fgcal.core.se3 import so3_log
 
 RNG = np.random.default_rng(10)
 

@@ -12,9 +12,9 @@ import yaml
 from conftest import SEED_CELL, calibrate, calibrate_dataset
 
 from fgcal.calibration.config import CalibrationConfig
-from fgcal.dataset import load_dataset
-from fgcal.markers import Detector, detect_images
-from fgcal.se3 import inverse, transform_points
+from fgcal.core.se3 import inverse, transform_points
+from fgcal.data.dataset import load_dataset
+from fgcal.data.images import Detector, detect_images
 from fgcal.simulation.simulate import simulate
 
 

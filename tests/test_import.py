@@ -16,9 +16,9 @@ import yaml
 from conftest import REPO
 from scipy.spatial.transform import Rotation
 
-from fgcal.csv_import import import_tables
-from fgcal.dataset import load_dataset
-from fgcal.errors import InputError
+from fgcal.core.errors import InputError
+from fgcal.data.csv_import import import_tables
+from fgcal.data.dataset import load_dataset
 from fgcal.simulation.simulate import simulate
 
 CELLS = REPO / "datasets" / "cells"
@@ -230,7 +230,7 @@ def test_rows_joined_by_order_must_match_in_number(probe_session, tmp_path):
 def test_the_command_reports_bad_input_without_a_traceback(probe_session, tmp_path):
     mapping = _exports(probe_session, tmp_path)
     ok = subprocess.run(
-        [sys.executable, "-m", "fgcal.cli", "import-csv", "mapping.yaml", "--out", "dataset"],
+        [sys.executable, "-m", "fgcal", "import-csv", "mapping.yaml", "--out", "dataset"],
         cwd=tmp_path,
         capture_output=True,
         text=True,
@@ -243,7 +243,7 @@ def test_the_command_reports_bad_input_without_a_traceback(probe_session, tmp_pa
     (tmp_path / "broken.yaml").write_text("format: [unclosed\n")
     for name, expected in (("mapping.yaml", "unsupported format"), ("broken.yaml", "malformed YAML")):
         bad = subprocess.run(
-            [sys.executable, "-m", "fgcal.cli", "import-csv", name, "--out", "x"],
+            [sys.executable, "-m", "fgcal", "import-csv", name, "--out", "x"],
             cwd=tmp_path,
             capture_output=True,
             text=True,

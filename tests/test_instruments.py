@@ -18,8 +18,8 @@ from conftest import REPO, calibrate
 
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate as calibrate_untouched
-from fgcal.dataset import load_dataset
-from fgcal.errors import InputError
+from fgcal.core.errors import InputError
+from fgcal.data.dataset import load_dataset
 from fgcal.simulation.simulate import simulate
 
 CELLS = REPO / "datasets" / "cells"
@@ -115,7 +115,7 @@ def test_positioner_with_a_static_camera_calibrates_with_defaults(tmp_path):
     simulate(CELLS / "positioner_static_camera.yaml", tmp_path / "data", seed=2)
     (tmp_path / "calib.yaml").write_text("dataset: data\nformulation: static_camera\n")
     run = subprocess.run(
-        [sys.executable, "-m", "fgcal.cli", "calibrate", "calib.yaml", "--out", "out", "--no-plots"],
+        [sys.executable, "-m", "fgcal", "calibrate", "calib.yaml", "--out", "out", "--no-plots"],
         capture_output=True,
         text=True,
         cwd=tmp_path,
@@ -185,8 +185,8 @@ def test_a_pivot_with_few_readings_is_refused(sims, tmp_path):
 def test_inverted_poses_are_refused_with_the_likely_cause(sims, tmp_path):
     """Poses exported the other way round (the tracker in the probe's frame): the chain
     L X E cannot explain them, and fgcal says so instead of writing a robot."""
-    from fgcal.dataset import write_csv
-    from fgcal.se3 import inverse, pose, quaternion_rotation, rotation_quaternion
+    from fgcal.core.se3 import inverse, pose, quaternion_rotation, rotation_quaternion
+    from fgcal.data.dataset import write_csv
 
     data = _copy(sims, ("poses", 2), tmp_path)
     table = load_dataset(data).tables["tracker_poses"]

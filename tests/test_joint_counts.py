@@ -9,7 +9,7 @@ import yaml
 
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate
-from fgcal.robot_io import load_robot
+from fgcal.model.robot_io import load_robot
 
 POSITIONER = {
     "name": "Two-axis positioner",

@@ -8,9 +8,9 @@ import pytest
 from conftest import random_parameters, random_urdf
 
 import fgcal
-from fgcal import kinematics
-from fgcal.motion import MotionHistory, features
-from fgcal.se3 import so3_log
+from fgcal.core.se3 import so3_log
+from fgcal.model import kinematics
+from fgcal.model.motion import MotionHistory, features
 
 # Flange axes at q = 0, worked by hand from the DH tables: both robots end with the flange
 # z axis pointing forward (+x0) and its x axis pointing down.
@@ -146,7 +146,7 @@ def test_jacobian_matches_central_differences(robot_name, frame, model, tmp_path
     )
     params = random_parameters(robot, rng)
     q = rng.uniform(-2.0, 2.0, (3, robot.n_joints))
-    # The features of configurations reached by random moves (fgcal.motion).
+    # The features of configurations reached by random moves (fgcal.model.motion).
     motion = features(q, MotionHistory(q - rng.uniform(-0.5, 0.5, q.shape), rng.uniform(0.2, 1.0, 3)))
     point = np.array([0.1, -0.2, 0.3])
     wrt = robot.parameter_names + [f"q{i}" for i in range(1, robot.n_joints + 1)]
@@ -191,7 +191,7 @@ def test_bad_joint_angles_are_clear_errors():
 
 def test_arrays_short_of_the_chain_are_refused_not_read_past():
     """The compiled kernel does not check its bounds: the callers do."""
-    from fgcal import ets
+    from fgcal.model import ets
 
     robot = fgcal.load_robot("abb_irb120")
     params = robot.parameter_vector()

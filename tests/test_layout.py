@@ -83,32 +83,26 @@ def test_no_import_circles():
     assert _cycles(graph) == []
 
 
-# Lowest first. A module belongs to the first layer with a matching prefix; every module must
-# belong to one (a new module states its layer here).
+# Lowest first: each layer is one package (or two side by side), and a module belongs to the
+# layer of the package it lives in. Only the package's entry points stay at the top.
 LAYERS = (
-    ("core", ("fgcal.errors", "fgcal.fields", "fgcal.units", "fgcal.strict_json", "fgcal.parameters", "fgcal.se3",
-              "fgcal.noise", "fgcal.outputs", "fgcal.console", "fgcal.memory", "fgcal.compiled")),
-    (
-        "model",
-        ("fgcal.chain_kernel", "fgcal.ets", "fgcal.joints", "fgcal.motion", "fgcal.kinematics", "fgcal.robot",
-         "fgcal.robot_io", "fgcal.urdf_io", "fgcal.urdf_export", "fgcal.rigid_fit", "fgcal.ik", "fgcal.camera",
-         "fgcal.boards"),
-    ),
-    ("data", ("fgcal.dataset", "fgcal.truth", "fgcal.faro", "fgcal.csv_import", "fgcal.compensation", "fgcal.programs",
-              "fgcal.program_filter", "fgcal.ur_kinematics")),
-    ("factors and simulation", ("fgcal.factors", "fgcal.simulation", "fgcal.markers")),
+    ("core", ("fgcal.core",)),
+    ("model", ("fgcal.model",)),
+    ("data", ("fgcal.data",)),
+    ("factors and simulation", ("fgcal.factors", "fgcal.simulation")),
     ("calibration", ("fgcal.calibration",)),
     ("online and planning", ("fgcal.online", "fgcal.planning")),
-    ("reports and commands", ("fgcal.reports", "fgcal.bench", "fgcal.bench_kernel", "fgcal.cli", "fgcal.__main__",
-                              "fgcal.api")),
-)  # fmt: skip
+    ("reports", ("fgcal.reports",)),
+    ("commands", ("fgcal.commands", "fgcal.bench", "fgcal.__main__", "fgcal.api")),
+)
+TOP_LEVEL = {"fgcal", "fgcal.__main__", "fgcal.api"}
 
 
 def _layer(module: str) -> int:
     for rank, (_, prefixes) in enumerate(LAYERS):
         if any(module == p or module.startswith(p + ".") for p in prefixes):
             return rank
-    raise AssertionError(f"{module} belongs to no layer: add it to LAYERS in tests/test_layout.py")
+    raise AssertionError(f"{module} is in no layer's package: move it into one (docs/architecture.md)")
 
 
 def test_layers_import_only_downward():
@@ -127,3 +121,30 @@ def test_the_layer_test_sees_typed_imports(tmp_path):
     path.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fgcal.reports import calibration\n")
     modules = {**_modules(), "fgcal.calibration.m": path}
     assert "fgcal.reports.calibration" in _imports("fgcal.calibration.m", path, modules)
+
+
+def test_every_module_lives_in_its_layers_package():
+    """At most three modules at the top (``__init__``, ``__main__``, ``api``); every other module
+    is inside the package of its layer, so the folder tree shows the architecture."""
+    modules = _modules()
+    top = {name for name, path in modules.items() if path.parent in (REPO / "fgcal",) and path.suffix == ".py"}
+    assert top <= TOP_LEVEL, f"modules directly in fgcal/ besides the entry points: {sorted(top - TOP_LEVEL)}"
+    outside = []
+    for name in modules:
+        if name in TOP_LEVEL:
+            continue
+        try:
+            _layer(name)
+        except AssertionError as exc:
+            outside.append(str(exc))
+    assert outside == []
+
+
+def test_the_layout_test_fails_on_a_module_outside_the_packages(tmp_path):
+    """A module dropped beside the entry points belongs to no layer: the check that fails on it, works."""
+    try:
+        _layer("fgcal.stray")
+    except AssertionError as exc:
+        assert "fgcal.stray" in str(exc)
+    else:
+        raise AssertionError("a module outside every layer's package was accepted")

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from conftest import SHARED
 
-from fgcal import kinematics
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate
-from fgcal.se3 import so3_exp
+from fgcal.core.se3 import so3_exp
+from fgcal.model import kinematics
 
 FARO = SHARED / "data" / "irb120_faro"
 pytestmark = [pytest.mark.study, pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is absent")]
@@ -47,7 +47,7 @@ def _forms(move: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def test_the_share_of_the_move_explains_most_on_both_halves(tmp_path):
-    from fgcal.faro import convert_faro
+    from fgcal.data.faro import convert_faro
 
     convert_faro(FARO, tmp_path / "faro")
     config = CalibrationConfig.defaults(

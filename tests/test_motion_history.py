@@ -1,4 +1,4 @@
-"""Issue 25: the robot's motion history in the model (fgcal.motion): lost motion and a speed
+"""Issue 25: the robot's motion history in the model (fgcal.model.motion): lost motion and a speed
 term per joint, in the datasets, the simulator, the calibration and the compensation."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from conftest import SHARED
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate
 from fgcal.calibration.scoring import compensation_study, score_with_truth
-from fgcal.dataset import load_dataset
-from fgcal.errors import InputError
-from fgcal.motion import LOST_MOTION_WIDTH_RAD, MotionHistory, features
+from fgcal.core.errors import InputError
+from fgcal.data.dataset import load_dataset
+from fgcal.data.truth import load_truth
+from fgcal.model.motion import LOST_MOTION_WIDTH_RAD, MotionHistory, features
 from fgcal.reports.calibration import write_report
 from fgcal.simulation.simulate import simulate
-from fgcal.truth import load_truth
 
 DATASETS = Path(__file__).resolve().parent.parent / "datasets"
 LOST_MOTION_CELL = DATASETS / "cells" / "irb120_tracker_lost_motion.yaml"
@@ -186,7 +186,7 @@ def test_real_faro_set_with_the_motion_terms_on_both_halves(complement, limit, w
     halves): held out at most 0.30 / 0.36 mm (DH,s,e: 0.447 / 0.532), measured over predicted
     in [0.67, 1.5]; with the residual model at most 0.24 / 0.29 mm, predicted as well. The
     swapped half (18 s) runs with the studies (pytest -m study): the suite keeps under 6 minutes."""
-    from fgcal.faro import convert_faro
+    from fgcal.data.faro import convert_faro
 
     convert_faro(FARO, tmp_path / "faro")
     config = CalibrationConfig.defaults(
@@ -207,8 +207,8 @@ def test_real_faro_set_with_the_motion_terms_on_both_halves(complement, limit, w
 
 
 def test_compensate_command_allows_for_the_approach(calibrated, tmp_path, capsys):
-    from fgcal.cli import main
-    from fgcal.robot_io import load_robot
+    from fgcal.commands.cli import main
+    from fgcal.model.robot_io import load_robot
 
     write_report(calibrated, tmp_path / "report", plots=False)
     robot_file = tmp_path / "report" / "calibrated_robot.yaml"
@@ -258,10 +258,10 @@ def test_a_rapid_program_is_corrected_along_its_moves(calibrated, tmp_path, caps
     reached from an Offs point, which is no target: it gets no allowance."""
     from test_program_filter import RAPID, _quaternion
 
-    from fgcal.cli import main
-    from fgcal.compensation import nominal_of
-    from fgcal.program_filter import configurations
-    from fgcal.se3 import pose_from_xyz_rpy
+    from fgcal.commands.cli import main
+    from fgcal.core.se3 import pose_from_xyz_rpy
+    from fgcal.data.compensation import nominal_of
+    from fgcal.data.program_filter import configurations
 
     write_report(calibrated, tmp_path / "report", plots=False)
     robot_file = tmp_path / "report" / "calibrated_robot.yaml"

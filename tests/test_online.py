@@ -9,7 +9,7 @@ import yaml
 from conftest import SEED_CELL
 
 import fgcal
-from fgcal.dataset import load_dataset
+from fgcal.data.dataset import load_dataset
 from fgcal.online import OnlineCalibrator
 from fgcal.online.calibrator import params_key
 from fgcal.online.feed import dataset_measurements

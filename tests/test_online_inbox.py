@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 from fgcal.online.feed import feed_dataset
 from fgcal.online.state import LOG, StateDir
 
@@ -106,7 +106,7 @@ def test_two_services_share_one_inbox(case, tmp_path):
     listed: FileNotFoundError): each takes its own files, every file is taken once."""
     inbox = tmp_path / "inbox"
     names = _fed(case, inbox, 30)
-    command = [sys.executable, "-m", "fgcal.cli", "online", "--inbox", str(inbox), "--setup",
+    command = [sys.executable, "-m", "fgcal", "online", "--inbox", str(inbox), "--setup",
                str(case / "setup.yaml"), "--once"]  # fmt: skip
     runs = [
         subprocess.Popen([*command, "--state", str(tmp_path / f"state{k}")], cwd=tmp_path, stderr=subprocess.PIPE)

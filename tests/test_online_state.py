@@ -79,7 +79,7 @@ def test_sigkill_at_random_points_loses_nothing(small_case, tmp_path):
     inbox, state = tmp_path / "inbox", tmp_path / "state"
     feed_dataset(small_case / "data", inbox, cycle_size=10)
     names = sorted(p.name for p in inbox.glob("*.json"))
-    command = [sys.executable, "-m", "fgcal.cli", "online", "--state", str(state), "--inbox", str(inbox)]
+    command = [sys.executable, "-m", "fgcal", "online", "--state", str(state), "--inbox", str(inbox)]
     command += ["--setup", str(small_case / "setup.yaml"), "--once"]
     rng = np.random.default_rng(0)
     log = state / LOG
@@ -308,7 +308,7 @@ def test_twenty_five_sigkills_on_a_shared_inbox_with_links_and_fifos(small_case,
     outside.mkdir()
     shutil.copy(inbox / names[0], outside / "stranger.json")
     os.mkfifo(outside / "pipe.json")
-    command = [sys.executable, "-m", "fgcal.cli", "online", "--state", str(state), "--inbox", str(inbox)]
+    command = [sys.executable, "-m", "fgcal", "online", "--state", str(state), "--inbox", str(inbox)]
     command += ["--setup", str(small_case / "setup.yaml"), "--once"]
     rng = np.random.default_rng(13)
     log = state / LOG

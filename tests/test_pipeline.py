@@ -118,12 +118,12 @@ def test_each_formulation_through_the_whole_pipeline(fast_cells, name, tmp_path)
 
 def test_the_default_solve_equals_an_independent_gauss_newton(fast_cells):
     """The seed design (36 images, pairs): GTSAM's Levenberg-Marquardt on the factor graph and
-    a bare NumPy Gauss-Newton on the same residuals, written apart (fgcal.bench.PairResiduals:
+    a bare NumPy Gauss-Newton on the same residuals, written apart (fgcal.bench.suite.PairResiduals:
     the point-pair contrasts and length bounds from the kinematics alone), stage by stage from
     the same start, reach the same parameters to a thousandth of their sigma."""
-    from fgcal.bench import fgcal_solve, numpy_gauss_newton
+    from fgcal.bench.suite import fgcal_solve, numpy_gauss_newton
     from fgcal.calibration.run import build_problem
-    from fgcal.dataset import load_dataset
+    from fgcal.data.dataset import load_dataset
 
     config = CalibrationConfig.defaults(fast_cells["pairs"])
     result = calibrate(config)

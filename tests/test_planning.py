@@ -9,7 +9,7 @@ import pytest
 import yaml
 from conftest import SEED_CELL
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 from fgcal.planning.exchange import DesignState, _d_gains, _position_gains, information_of, plan_design
 from fgcal.planning.indices import observability
 from fgcal.planning.information import Information
@@ -200,7 +200,7 @@ def test_tracker_cell_simulates_plans_and_calibrates(tmp_path):
     from conftest import calibrate
 
     from fgcal.calibration.config import CalibrationConfig
-    from fgcal.dataset import load_dataset
+    from fgcal.data.dataset import load_dataset
 
     assert main(["plan", str(TRACKER_CELL), "--n", "30", "--candidates", "800", "--formulation", "tracker",
                  "--out", str(tmp_path / "plan"), "--no-plots"]) == 0  # fmt: skip

@@ -14,15 +14,15 @@ from conftest import REPO
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate
 from fgcal.calibration.scoring import score_with_truth
-from fgcal.cli import main
-from fgcal.compensation import nominal_of
-from fgcal.program_filter import configurations, controller_frame, frame_from_numbers
-from fgcal.programs import read_program
+from fgcal.commands.cli import main
+from fgcal.core.se3 import inverse, kabsch, pose, pose_from_xyz_rpy
+from fgcal.data.compensation import nominal_of
+from fgcal.data.program_filter import configurations, controller_frame, frame_from_numbers
+from fgcal.data.programs import read_program
+from fgcal.data.truth import load_truth, named_points
+from fgcal.model.robot_io import save_robot
 from fgcal.reports.calibration import calibrated_robot
-from fgcal.robot_io import save_robot
-from fgcal.se3 import inverse, kabsch, pose, pose_from_xyz_rpy
 from fgcal.simulation.simulate import simulate
-from fgcal.truth import load_truth, named_points
 
 N_TARGETS = 20
 
@@ -160,7 +160,7 @@ def test_a_krl_dat_lands_within_the_calibration(kr125, tmp_path, capsys):
     configs = configurations(nominal, "krl", kr125.q)
     lines = ["&ACCESS RVP", "DEFDAT  PALLET PUBLIC", ";FOLD EXTERNAL DECLARATIONS;%{PE}%MKUKATPBASIS,%CEXT", ";ENDFOLD"]
     for k, (T, c) in enumerate(zip(taught, configs, strict=True)):
-        from fgcal.programs import krl_abc_deg
+        from fgcal.data.programs import krl_abc_deg
 
         a, b, cc = krl_abc_deg(T[:3, :3])
         lines.append(
@@ -223,7 +223,7 @@ def test_the_base_frame_does_not_move_with_the_tools_load(irb120):
     """The controller's base frame is placed at the calibration's payload: a heavier tool's sag is
     corrected, not absorbed into the frame."""
     import fgcal
-    from fgcal.program_filter import Frames, filter_targets
+    from fgcal.data.program_filter import Frames, filter_targets
 
     robot = fgcal.load_robot(irb120.robot_file)
     poses = irb120.nominal.fk(irb120.q[:3])

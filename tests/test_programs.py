@@ -1,4 +1,4 @@
-"""Robot programs (fgcal.programs): RAPID modules and KRL .dat files read, and written back with
+"""Robot programs (fgcal.data.programs): RAPID modules and KRL .dat files read, and written back with
 corrected targets, every character outside the targets' values kept."""
 
 from __future__ import annotations
@@ -8,16 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from fgcal.errors import InputError
-from fgcal.programs import (
-    Program,
-    format_krl_pose,
-    format_rapid_pose,
-    krl_abc_deg,
-    read_program,
-    write_program,
-)
-from fgcal.se3 import pose, pose_from_xyz_rpy, quaternion_rotation, rot_axis, so3_exp, so3_log
+from fgcal.core.errors import InputError
+from fgcal.core.se3 import pose, pose_from_xyz_rpy, quaternion_rotation, rot_axis, so3_exp, so3_log
+from fgcal.data.programs import Program, format_krl_pose, format_rapid_pose, krl_abc_deg, read_program, write_program
 
 EXTAX = "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]"
 RAPID_HEAD = f"""MODULE CellA

@@ -10,7 +10,7 @@ import yaml
 from conftest import random_parameters
 
 import fgcal
-from fgcal.robot_io import bundled_robots, robots_dir
+from fgcal.model.robot_io import bundled_robots, robots_dir
 
 
 def test_bundled_library():

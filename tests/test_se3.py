@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgcal.se3 import pose_from_xyz_rpy, rot_axis, rpy_from_rotation, so3_exp, so3_log
+from fgcal.core.se3 import pose_from_xyz_rpy, rot_axis, rpy_from_rotation, so3_exp, so3_log
 
 
 def test_rpy_round_trip_random():

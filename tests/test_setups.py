@@ -15,8 +15,8 @@ from conftest import REPO, calibrate
 
 from fgcal.calibration.config import CalibrationConfig
 from fgcal.calibration.run import calibrate as calibrate_untouched
-from fgcal.dataset import load_dataset
-from fgcal.errors import InputError
+from fgcal.core.errors import InputError
+from fgcal.data.dataset import load_dataset
 from fgcal.simulation.simulate import simulate
 
 TOUCH_CELL = REPO / "datasets" / "cells" / "seven_axis_touch.yaml"
@@ -232,7 +232,7 @@ def test_data_that_do_not_fit_are_refused_without_writing_a_robot(tmp_path):
     (tmp_path / "calib.yaml").write_text("dataset: data\nformulation: tracker\nnoise: {tracker_sigma: 2.0e-5}\n")
     out = tmp_path / "out"
     run = subprocess.run(
-        [sys.executable, "-m", "fgcal.cli", "calibrate", str(tmp_path / "calib.yaml"), "--out", str(out)],
+        [sys.executable, "-m", "fgcal", "calibrate", str(tmp_path / "calib.yaml"), "--out", str(out)],
         capture_output=True,
         text=True,
         cwd=tmp_path,  # not the checkout: its fgcal/ is not the installed package (factors/ is mapped in)
@@ -247,7 +247,7 @@ def test_tracker_references_report_drift_and_misreads(tmp_path):
     over the session, one has two misreads of 30 mm; the check recovers the drift, names the
     misreads, and flags nothing in the clean reflector."""
     from fgcal.calibration.references import reference_check
-    from fgcal.dataset import write_csv
+    from fgcal.data.dataset import write_csv
 
     simulate(_positioner_cell(tmp_path, 250.0), tmp_path / "data", seed=1)
     dataset = load_dataset(tmp_path / "data")
@@ -281,7 +281,7 @@ def test_real_tracker_references(tmp_path):
     the check names them and nothing in ref1 and ref2, and the references drift together by a
     few hundredths of a mm over the session."""
     from fgcal.calibration.references import reference_check
-    from fgcal.faro import convert_faro
+    from fgcal.data.faro import convert_faro
 
     convert_faro(REPO.parent / "shared" / "data" / "irb120_faro", tmp_path / "faro")
     check = reference_check(load_dataset(tmp_path / "faro"), 5e-5)
@@ -299,8 +299,8 @@ def validation_sets(tmp_path_factory) -> Path:
     """A tracker session (cell irb120_tracker, seed 1) and a separate validation session of the
     same robot: 40 other configurations measuring one test point elsewhere on the tool
     (``test1``), which the fit never sees."""
-    from fgcal.dataset import write_csv
-    from fgcal.robot_io import load_robot
+    from fgcal.data.dataset import write_csv
+    from fgcal.model.robot_io import load_robot
 
     root = tmp_path_factory.mktemp("validation_sets")
     cell = yaml.safe_load(TRACKER_CELL.read_text())
@@ -351,7 +351,7 @@ def test_several_validation_sets_are_scored_each(validation_sets, tmp_path):
     """Issue 22, item 10: validation.dataset takes a list; the report says which sets it scored
     (with the fitting dataset's own held-out configurations), each one's figures, and how its
     test points were scored."""
-    from fgcal.dataset import write_csv
+    from fgcal.data.dataset import write_csv
     from fgcal.reports.calibration import write_report
 
     q = np.random.default_rng(7).uniform(-1.0, 1.0, (20, 6))

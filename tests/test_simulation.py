@@ -11,8 +11,8 @@ import yaml
 from conftest import SEED_CELL
 
 import fgcal
-from fgcal.dataset import load_dataset
-from fgcal.se3 import inverse, transform_points
+from fgcal.core.se3 import inverse, transform_points
+from fgcal.data.dataset import load_dataset
 from fgcal.simulation.cell import load_cell
 from fgcal.simulation.simulate import simulate
 

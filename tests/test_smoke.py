@@ -16,7 +16,7 @@ import pytest
 import yaml
 from conftest import REPO, SHARED
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 FARO = SHARED / "data" / "irb120_faro"
 CELLS = sorted(p.stem for p in (REPO / "datasets" / "cells").glob("*.yaml"))
@@ -164,8 +164,8 @@ def test_use_the_result_as_documented(ws, capsys):
     (ws / "targets.csv").write_text(
         "target,x,y,z\n" + "".join(f"p{i},{x:.17g},{y:.17g},{z:.17g}\n" for i, (x, y, z) in enumerate(positions))
     )
-    from fgcal.program_filter import configurations, frame_from_numbers
-    from fgcal.programs import krl_abc_deg
+    from fgcal.data.program_filter import configurations, frame_from_numbers
+    from fgcal.data.programs import krl_abc_deg
 
     taught = (
         np.linalg.inv(frame_from_numbers([1000, 0, 0, 0, 0, 0]))

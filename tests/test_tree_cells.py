@@ -12,7 +12,7 @@ import pytest
 import yaml
 from conftest import REPO
 
-from fgcal.cli import main
+from fgcal.commands.cli import main
 
 TORSO = ("a1", "alpha1", "theta2", "a2", "alpha2", "theta3", "a3", "alpha3", "theta4", "kx2", "ky2", "kz2",
          "kx3", "ky3", "kz3", "mass.arms")  # fmt: skip

@@ -13,9 +13,9 @@ import yourdfpy
 from yaml import safe_load as yaml_load
 
 import fgcal
-from fgcal import kinematics
-from fgcal.ets import ET, Chain, ancestry, evaluate
-from fgcal.se3 import so3_log
+from fgcal.core.se3 import so3_log
+from fgcal.model import kinematics
+from fgcal.model.ets import ET, Chain, ancestry, evaluate
 
 
 @dataclass
@@ -196,7 +196,7 @@ def _craig_link(alpha: float, a: float, theta: float, d: float) -> np.ndarray:
 
 def test_modified_dh_equals_craigs_convention(tmp_path):
     import fgcal
-    from fgcal.robot_io import load_robot, save_robot
+    from fgcal.model.robot_io import load_robot, save_robot
 
     path = tmp_path / "puma_craig.yaml"
     path.write_text(PUMA_CRAIG)
@@ -279,7 +279,7 @@ def test_a_urdf_with_several_leaves_is_a_tree_with_named_tips(tmp_path):
     import yourdfpy
 
     import fgcal
-    from fgcal.robot_io import save_robot
+    from fgcal.model.robot_io import save_robot
 
     path = tmp_path / "tree.urdf"
     path.write_text(TREE_URDF)
@@ -306,7 +306,7 @@ def test_a_urdf_with_several_leaves_is_a_tree_with_named_tips(tmp_path):
 
 def test_two_leaves_one_on_the_root(tmp_path, capsys):
     """A leaf fixed to the root is a tip that no joint moves; fgcal fk prints every tip."""
-    from fgcal.cli import main
+    from fgcal.commands.cli import main
 
     path = tmp_path / "two.urdf"
     path.write_text(
@@ -330,7 +330,7 @@ def test_a_tree_calibrates_on_its_flange_and_exports_in_fgcals_layout(tmp_path, 
     layout (each tip a link by its name), and refuses to write it into a template."""
     import yaml
 
-    from fgcal.cli import main
+    from fgcal.commands.cli import main
 
     (tmp_path / "tree.urdf").write_text(TREE_URDF)
     cell = yaml.safe_load((Path(__file__).parent.parent / "datasets" / "cells" / "irb120_tracker.yaml").read_text())
@@ -361,7 +361,7 @@ def test_the_dual_arm_tree_exports_with_its_coupled_joint(tmp_path, capsys):
     """The bundled dual-arm torso as a URDF: every link, the coupled joint said in a comment
     (URDF's mimic follows one joint), both hands; FK equals fgcal's rigid model to 1e-9 with the
     coupled joint set to its value."""
-    from fgcal.cli import main
+    from fgcal.commands.cli import main
 
     assert main(["export", "dual_arm_torso", "--urdf", str(tmp_path / "d.urdf")]) == 0
     capsys.readouterr()
@@ -406,7 +406,7 @@ def test_dual_arm_jacobians_with_coupling_and_mass_scale_match_central_differenc
     from test_kinematics import _fd_columns
 
     import fgcal
-    from fgcal.motion import MotionHistory, features
+    from fgcal.model.motion import MotionHistory, features
 
     robot = fgcal.load_robot("dual_arm_torso").with_model("DH,s,e,h")
     rng = np.random.default_rng(5)
@@ -440,7 +440,7 @@ def test_dual_arm_jacobians_with_coupling_and_mass_scale_match_central_differenc
 def test_a_joint_coupled_to_one_other_exports_as_a_mimic(tmp_path, capsys):
     """q4 = -q2 + 10 deg: URDF's mimic (multiplier, offset), which yourdfpy follows; FK of both
     hands equals fgcal's rigid model to 1e-9."""
-    from fgcal.cli import main
+    from fgcal.commands.cli import main
 
     doc = yaml_load((Path(__file__).parent.parent / "datasets" / "robots" / "dual_arm_torso.yaml").read_text())
     doc["joints"][3]["coupling"] = {"joints": [2], "coefficients": [-1], "offset": 10}

@@ -9,10 +9,11 @@ import yourdfpy
 from conftest import REPO, random_parameters, random_urdf
 
 import fgcal
-from fgcal import kinematics
-from fgcal.cli import main
-from fgcal.robot_io import bundled_robots, save_robot
-from fgcal.urdf_export import export_urdf
+from fgcal.commands.cli import main
+from fgcal.core.se3 import pose_from_xyz_rpy
+from fgcal.model import kinematics
+from fgcal.model.robot_io import bundled_robots, save_robot
+from fgcal.model.urdf_export import export_urdf
 
 
 def _yourdfpy(path):
@@ -92,7 +93,7 @@ def test_exported_calibrated_robot_round_trip(tmp_path, source):
         nominal = fgcal.load_robot(random_urdf(tmp_path / "arm.urdf", rng, 7))
     else:
         nominal = fgcal.load_robot(source)
-    nominal = nominal.with_tool(fgcal.se3.pose_from_xyz_rpy([0.01, 0.02, 0.15], [0.1, -0.2, 0.3]), 12.0, [0, 0, 0.1])
+    nominal = nominal.with_tool(pose_from_xyz_rpy([0.01, 0.02, 0.15], [0.1, -0.2, 0.3]), 12.0, [0, 0, 0.1])
     params = random_parameters(nominal, rng)
     save_robot(tmp_path / "calibrated_robot.yaml", nominal, params)
     calibrated = fgcal.load_robot(tmp_path / "calibrated_robot.yaml")
@@ -102,8 +103,8 @@ def test_exported_calibrated_robot_round_trip(tmp_path, source):
     reloaded = fgcal.load_robot(tmp_path / "out.urdf")
     assert "out.compliance.yaml" in (tmp_path / "out.urdf").read_text()
     sidecar = yaml.safe_load((tmp_path / "out.compliance.yaml").read_text())
-    placement = fgcal.se3.pose_from_xyz_rpy(sidecar["base_in_world"]["xyz_m"], sidecar["base_in_world"]["rpy_rad"])
-    tool = fgcal.se3.pose_from_xyz_rpy(sidecar["tool_in_flange"]["xyz_m"], sidecar["tool_in_flange"]["rpy_rad"])
+    placement = pose_from_xyz_rpy(sidecar["base_in_world"]["xyz_m"], sidecar["base_in_world"]["rpy_rad"])
+    tool = pose_from_xyz_rpy(sidecar["tool_in_flange"]["xyz_m"], sidecar["tool_in_flange"]["rpy_rad"])
     for q in rng.uniform(calibrated.limits[:, 0], calibrated.limits[:, 1], (10, calibrated.n_joints)):
         reference.update_cfg(q)
         expected = calibrated.fk_tool(q, rigid)
@@ -208,7 +209,7 @@ def test_a_cell_and_its_dataset_name_the_urdfs_tip_link(tmp_path, capsys):
     several leaf links in a cell, and the simulated dataset's header carries it, so the dataset
     loads the same chain. (Issue 28: without a tip, such a URDF is a tree with its leaves as
     named tips.)"""
-    from fgcal.dataset import load_dataset
+    from fgcal.data.dataset import load_dataset
     from fgcal.simulation.cell import load_cell
 
     text = random_urdf(tmp_path / "src.urdf", np.random.default_rng(3), 6).read_text()

@@ -13,9 +13,9 @@ from conftest import REPO, random_parameters
 from lxml import etree
 
 import fgcal
-from fgcal.cli import main
-from fgcal.robot_io import save_robot
-from fgcal.se3 import inverse, pose_from_xyz_rpy
+from fgcal.commands.cli import main
+from fgcal.core.se3 import inverse, pose_from_xyz_rpy
+from fgcal.model.robot_io import save_robot
 
 SEVEN_AXIS = REPO / "datasets" / "robots" / "seven_axis.urdf"
 
@@ -132,7 +132,7 @@ def test_a_urdf_robot_exports_into_its_own_document(tmp_path):
 
 
 def _base_frame(robot) -> np.ndarray:
-    from fgcal.urdf_export import joint_frames
+    from fgcal.model.urdf_export import joint_frames
 
     return joint_frames(robot)["base"]
 
@@ -187,7 +187,7 @@ def test_faro_rigid_fit_keeps_the_accuracy_of_a_plain_dh_calibration(tmp_path, c
 
     from fgcal.calibration.config import load_config
     from fgcal.calibration.run import calibrate
-    from fgcal.faro import convert_faro
+    from fgcal.data.faro import convert_faro
 
     convert_faro(FARO, tmp_path / "faro")
     configs = {}
@@ -254,8 +254,8 @@ def test_ur_kinematics_yaml_reproduces_the_calibrated_arm(tmp_path, capsys, squa
     flange is square to axis 6; otherwise off by what the command reports."""
     import yaml
 
-    from fgcal.program_filter import controller_frame
-    from fgcal.ur_kinematics import WRIST_TO_TOOL0
+    from fgcal.data.program_filter import controller_frame
+    from fgcal.data.ur_kinematics import WRIST_TO_TOOL0
 
     rng = np.random.default_rng(2)
     robot = fgcal.load_robot("ur10e")
@@ -281,8 +281,8 @@ def test_ur_kinematics_yaml_reproduces_the_calibrated_arm(tmp_path, capsys, squa
         assert worst < 1e-9 and "cannot hold of the flange: none" in printed
         return
     # Not square: tool0 is off by exactly the tilt and the offset the command reports.
-    from fgcal.se3 import so3_log
-    from fgcal.ur_kinematics import residual_text, ur_kinematics
+    from fgcal.core.se3 import so3_log
+    from fgcal.data.ur_kinematics import residual_text, ur_kinematics
 
     result = ur_kinematics(fgcal.load_robot(tmp_path / "ur.yaml"), fgcal.load_robot("ur10e"))
     assert result.tool0_tilt_rad > 1e-5 and residual_text(result) in printed and "warning" in printed

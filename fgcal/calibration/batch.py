@@ -6,8 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .. import kinematics
-from ..robot import Robot
+from ..model import kinematics
+from ..model.robot import Robot
 
 # Evaluations kept. Each holds every frame of the chain at every configuration (tens of MB at
 # thousands), and GTSAM's Levenberg-Marquardt never returns to a point it left: its measurement

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics import path_parameters
-from ..parameters import is_mass
+from ..model.kinematics import path_parameters
+from ..model.parameters import is_mass
 from .identifiability import select
 from .problem import Observations, main_set
 from .results import CalibrationResult

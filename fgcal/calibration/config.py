@@ -6,11 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..fields import Fields, read_yaml
-from ..noise import parse_noise
-from ..parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
-from ..robot import MODELS
-from ..units import parse_units
+from ..core.fields import Fields, read_yaml
+from ..core.noise import parse_noise
+from ..core.units import parse_units
+from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
+from ..model.robot import MODELS
 from .formulations import NAMES
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from .. import kinematics
-from ..robot import Robot
+from ..model import kinematics
+from ..model.robot import Robot
 from .graph import StageGraph
 from .problem import JointCovariance
 

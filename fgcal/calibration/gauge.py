@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..se3 import kabsch, skew
+from ..core.se3 import kabsch, skew
 
 GAUGES = ("none", "translation", "rigid")
 

@@ -18,7 +18,7 @@ import gtsam
 import numpy as np
 
 from ..factors import MeasurementSet, ParameterBoundFactor, RobustLoss, gaussian
-from ..parameters import is_joint_length, is_motion
+from ..model.parameters import is_joint_length, is_motion
 from .batch import BatchKinematics
 from .goodness import chi_median
 from .problem import Keys, Problem, keys_of, values_of

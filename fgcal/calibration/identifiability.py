@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from ..parameters import COMPLIANCE_KINDS, MASS_KIND, MOTION_KINDS, is_mass, is_motion, kind_label, split_name
+from ..model.parameters import COMPLIANCE_KINDS, MASS_KIND, MOTION_KINDS, is_mass, is_motion, kind_label, split_name
 from .graph import StageGraph
 
 GROUPS = (
@@ -195,7 +195,7 @@ def select(
 
 def motion_warning(identifiability: Identifiability) -> str | None:
     """What a design that cannot separate the motion history's terms from the joint offsets
-    must be told (fgcal.motion): every configuration was reached the same way."""
+    must be told (fgcal.model.motion): every configuration was reached the same way."""
     hidden = [n for n in identifiability.unidentifiable if is_motion(n)]
     if not hidden:
         return None

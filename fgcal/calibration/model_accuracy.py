@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from ..robot import SAME_ROBOT_M, Robot
+from ..core.errors import InputError
+from ..model.robot import SAME_ROBOT_M, Robot
 from .results import CalibrationResult, ErrorStats, stats
 from .solve import solve_stage
 

@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 
-from ..robot import MODELS
+from ..model.robot import MODELS
 from .config import CalibrationConfig
 from .results import CalibrationResult, ModelRow, primary_score
 

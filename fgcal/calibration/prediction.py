@@ -3,7 +3,7 @@ problem.Scored, ``p = L X(q) s_t``), how well the estimate knows them (the joint
 the parameters and auxiliary unknowns carried through the tracker-point model, the score's
 gauge removed), and the workspace map of the report. The model is the tracker's measurement
 model (fgcal.factors.TrackerPoints) with L and S variables or constants: written once.
-Configurations come with their motion features (fgcal.motion; None: no history), which the
+Configurations come with their motion features (fgcal.model.motion; None: no history), which the
 model needs as much as the joint values."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import gtsam
 import numpy as np
 
 from ..factors import TrackerPoints
-from ..robot import Robot
+from ..model.robot import Robot
 from .batch import BatchKinematics
 from .gauge import without_gauge
 from .problem import JointCovariance, Prediction, Problem, Scored

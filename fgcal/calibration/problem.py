@@ -29,12 +29,12 @@ from typing import ClassVar
 import gtsam
 import numpy as np
 
-from ..dataset import Dataset, Table
-from ..errors import InputError
+from ..core.errors import InputError
+from ..data.dataset import Dataset, Table
+from ..data.truth import Truth
 from ..factors import MeasurementSet, RobustLoss
-from ..parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
-from ..robot import Robot
-from ..truth import Truth
+from ..model.parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
+from ..model.robot import Robot
 from .batch import BatchKinematics
 from .settings import MeasurementSettings
 from .state import State

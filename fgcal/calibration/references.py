@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..data.dataset import Dataset
 from .goodness import chi_median
 
 WINDOW = 11  # readings in the running median that the misreads are measured from

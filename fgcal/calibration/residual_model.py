@@ -3,7 +3,7 @@ as a function of the configuration and how it was reached, and kept only where i
 
 After the calibration, each fitting configuration's mean residual (over its measured points,
 3-vector in the score's frame, m) is regressed on its joint values and motion-history features
-(fgcal.motion) by a Gaussian process (scikit-learn: an amplitude times an RBF kernel with one
+(fgcal.model.motion) by a Gaussian process (scikit-learn: an amplitude times an RBF kernel with one
 length scale per input, plus white noise; hyperparameters by maximum likelihood). Whether it
 wins is decided on the fitting data alone, by K-fold cross-validation, the hyperparameters fitted
 again in each fold from the same start (never from the whole fit's, which saw the fold): it
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from .problem import Observations, Problem
 from .state import State
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..truth import Truth
+from ..data.truth import Truth
 from .config import CalibrationConfig
 from .goodness import Fit, goodness_of_fit
 from .identifiability import Identifiability

@@ -11,10 +11,10 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from ..dataset import Dataset, load_dataset
-from ..errors import InputError
+from ..core.errors import InputError
+from ..data.dataset import Dataset, load_dataset
 from ..factors import OutsideModelError
-from ..robot import MODELS
+from ..model.robot import MODELS
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
@@ -51,7 +51,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
     detection = None
     if config.pixels_from == "images":
-        from ..markers import detect_images
+        from ..data.images import detect_images
 
         detections = detect_images(dataset, progress=say)
         dataset = dataclasses.replace(dataset, tables={**dataset.tables, "pixels": detections.pixels})

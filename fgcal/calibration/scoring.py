@@ -1,7 +1,7 @@
 """Scoring against a simulation's ground truth.
 
 Called after the calibration (``score_with_truth(result)`` returns a new result); nothing here
-feeds back into the estimation. The truth (fgcal.truth) is evaluated with the simulator's own
+feeds back into the estimation. The truth (fgcal.data.truth) is evaluated with the simulator's own
 full model, not the model that was fitted: a DH fit of a compliant robot is scored against the
 compliant robot. The formulation says what its score measures (its scored points, with the
 estimate's values and with the truth's) and which gauge the score removes first.
@@ -13,9 +13,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..compensation import compensate, nominal_of
-from ..motion import MotionHistory, features
-from ..truth import Truth, load_truth
+from ..data.compensation import compensate, nominal_of
+from ..data.truth import Truth, load_truth
+from ..model.motion import MotionHistory, features
 from .gauge import remove_gauge
 from .prediction import predicted_against_truth, scored_covariances, scored_positions
 from .problem import HeldOut, Problem
@@ -116,7 +116,7 @@ def position_coverage(result: CalibrationResult) -> float:
 
 
 def compensation_study(result: CalibrationResult, n_targets: int = 200, seed: int = 0) -> CompensationStudy:
-    """Compensation scored on the simulated true robot (fgcal.compensation): ``n_targets``
+    """Compensation scored on the simulated true robot (fgcal.data.compensation): ``n_targets``
     random targets for the first scored point (its position at the dataset's configurations
     moved by up to 0.1 rad per joint, seeded), each from a hint 0.05 rad off. Compensated: the
     joints at which the calibrated model reaches the target; uncompensated: the joints the

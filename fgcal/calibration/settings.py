@@ -8,8 +8,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..fields import Fields
-from ..noise import NOISE
+from ..core.fields import Fields
+from ..core.noise import NOISE
 
 PARTNERS = ("other_object", "same_object", "same_side", "any")
 
@@ -17,7 +17,7 @@ PARTNERS = ("other_object", "same_object", "same_side", "any")
 @dataclass(frozen=True)
 class Noise:
     """Declared standard deviations of the measurements (SI), per coordinate
-    (fgcal.noise.NOISE says what each is); by default fgcal's, else what the dataset's
+    (fgcal.core.noise.NOISE says what each is); by default fgcal's, else what the dataset's
     instrument states, else what the config states."""
 
     camera_point_m: float = NOISE["camera_point_m"][2]

@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 import gtsam
 import numpy as np
 
-from ..parameters import kind_label
+from ..model.parameters import kind_label
 from .graph import StageGraph, build_graph, robust_scale
 from .problem import Problem, read_state
 from .results import StageReport

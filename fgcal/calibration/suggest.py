@@ -10,10 +10,10 @@ from pathlib import Path
 
 import yaml
 
-from ..dataset import Dataset
-from ..errors import InputError
-from ..noise import noise_document
-from ..outputs import write_text
+from ..core.errors import InputError
+from ..core.noise import noise_document
+from ..core.outputs import write_text
+from ..data.dataset import Dataset
 from ..simulation.cell import Cell
 from .formulations import REGISTRY
 

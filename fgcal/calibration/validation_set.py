@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import Dataset, Table, load_dataset
-from ..errors import InputError
-from ..motion import MotionHistory
+from ..core.errors import InputError
+from ..data.dataset import Dataset, Table, load_dataset
+from ..model.motion import MotionHistory
 from .config import CalibrationConfig
 
 PREFIX = "validation/"

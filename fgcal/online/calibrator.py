@@ -27,12 +27,12 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from ..camera import Camera, solve_pnp
-from ..console import warn
-from ..errors import InputError
+from ..core.console import warn
+from ..core.errors import InputError
 from ..factors import BehindCameraError, FactorError, Projections, RandomWalkFactor, gaussian
-from ..parameters import default_compliant_joints, unit_of
-from ..robot import Robot
+from ..model.camera import Camera, solve_pnp
+from ..model.parameters import default_compliant_joints, unit_of
+from ..model.robot import Robot
 from .drift import Alarm, DriftTest
 from .growing import GrowingKinematics, RowKinematics
 from .released import candidates, structural_identifiability

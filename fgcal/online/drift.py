@@ -23,7 +23,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 
 
 @dataclass

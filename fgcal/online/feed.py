@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..dataset import load_dataset
-from ..errors import InputError
+from ..core.errors import InputError
+from ..data.dataset import load_dataset
 from .measurement import Measurement, write_measurement
 
 

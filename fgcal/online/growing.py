@@ -6,8 +6,8 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .. import kinematics
-from ..robot import Robot
+from ..model import kinematics
+from ..model.robot import Robot
 
 
 class _Row:

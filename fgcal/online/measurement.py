@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..fields import Fields
-from ..outputs import output_dir, write_text
-from ..units import parse_units
+from ..core.errors import InputError
+from ..core.fields import Fields
+from ..core.outputs import output_dir, write_text
+from ..core.units import parse_units
 from .inbox import read_regular
 
 FORMAT = "fgcal-measurement/1"

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import kinematics
 from ..calibration.identifiability import Identifiability, select
-from ..parameters import MASS_KIND, MOTION_KINDS, split_name
-from ..robot import Robot
-from ..se3 import inverse, skew
+from ..core.se3 import inverse, skew
+from ..model import kinematics
+from ..model.parameters import MASS_KIND, MOTION_KINDS, split_name
+from ..model.robot import Robot
 
 # Pose sigma of one image of a few points at working distance (rad, m): the scale at which
 # min_information is judged, as the batch calibration judges it at its measurement sigmas.

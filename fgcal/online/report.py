@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..outputs import save_figure, write_text
+from ..core.outputs import save_figure, write_text
 
 
 def read_history(state: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:

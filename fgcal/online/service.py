@@ -22,15 +22,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .. import strict_json
 from ..calibration.covariance import position_covariance
-from ..dataset import load_dataset
-from ..errors import InputError
-from ..fields import Fields, read_yaml
-from ..outputs import subfolder, write_bytes, write_text
-from ..parameters import unit_of
-from ..robot import SAME_ROBOT_M
-from ..robot_io import load_referenced, robot_reference, save_robot
+from ..core import strict_json
+from ..core.errors import InputError
+from ..core.fields import Fields, read_yaml
+from ..core.outputs import subfolder, write_bytes, write_text
+from ..data.dataset import load_dataset
+from ..model.parameters import unit_of
+from ..model.robot import SAME_ROBOT_M
+from ..model.robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement

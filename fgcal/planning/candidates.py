@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import InputError
+from ..core.errors import InputError
 from ..simulation.cell import Cell
 from ..simulation.design import random_block_requests, solve_views, uniform_configurations
 

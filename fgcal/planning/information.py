@@ -24,14 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import kinematics
 from ..calibration.config import CalibrationConfig
 from ..calibration.formulations import formulation as registered
 from ..calibration.gauge import without_gauge
 from ..calibration.identifiability import parameter_scale, select
 from ..calibration.problem import candidate_parameters
-from ..robot import Robot
-from ..se3 import inverse, skew, transform_points
+from ..core.se3 import inverse, skew, transform_points
+from ..model import kinematics
+from ..model.robot import Robot
 from ..simulation.cell import Cell
 from .candidates import Candidates
 

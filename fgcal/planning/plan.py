@@ -17,14 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import kinematics, strict_json
 from ..calibration.config import CalibrationConfig
 from ..calibration.formulations import REGISTRY
-from ..dataset import write_csv
-from ..errors import InputError
-from ..motion import MotionHistory, features
-from ..outputs import output_dir, save_figure, write_text
-from ..robot import MODELS
+from ..core import strict_json
+from ..core.errors import InputError
+from ..core.outputs import output_dir, save_figure, write_text
+from ..data.dataset import write_csv
+from ..model import kinematics
+from ..model.motion import MotionHistory, features
+from ..model.robot import MODELS
 from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
 from . import MAX_CANDIDATES

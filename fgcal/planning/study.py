@@ -17,9 +17,9 @@ import numpy as np
 from ..calibration.config import CalibrationConfig
 from ..calibration.run import calibrate
 from ..calibration.scoring import truth_errors
+from ..data.truth import load_truth
 from ..simulation.design import max_min_selection
 from ..simulation.simulate import simulate
-from ..truth import load_truth
 from .candidates import camera_candidates, joint_space_candidates
 from .plan import PLANNED, SCORED_POINT_C, plan, prepare, write_plan
 

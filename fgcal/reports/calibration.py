@@ -8,18 +8,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import kinematics, strict_json
 from ..calibration.chains import chain_sigmas
 from ..calibration.covariance import correlation
 from ..calibration.goodness import Fit
 from ..calibration.identifiability import motion_warning
 from ..calibration.prediction import workspace_map
 from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
-from ..memory import release_freed_memory
-from ..outputs import output_dir, save_figure, write_text
-from ..parameters import unit_of
-from ..robot import Robot
-from ..robot_io import save_robot
+from ..core import strict_json
+from ..core.memory import release_freed_memory
+from ..core.outputs import output_dir, save_figure, write_text
+from ..model import kinematics
+from ..model.parameters import unit_of
+from ..model.robot import Robot
+from ..model.robot_io import save_robot
 from .diagnostics import motion_terms, plot_residual_diagnostics
 from .estimates import write_estimates
 from .headline import figure, headline, iso9283, worst_configurations

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration.results import CalibrationResult, primary_score
-from ..outputs import save_figure
+from ..core.outputs import save_figure
 
 
 def held_out_by_configuration(result: CalibrationResult) -> tuple[np.ndarray, np.ndarray] | None:

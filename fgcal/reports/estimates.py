@@ -28,9 +28,9 @@ import yaml
 
 from ..calibration.results import CalibrationResult
 from ..calibration.state import Auxiliary
-from ..fields import Fields, read_yaml
-from ..outputs import write_text
-from ..se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation
+from ..core.fields import Fields, read_yaml
+from ..core.outputs import write_text
+from ..core.se3 import inverse, pose_from_xyz_rpy, rpy_from_rotation
 
 FORMAT = "fgcal-estimates/1"
 # Section -> kind of what it holds; the sections a calibration writes are its unknowns' names.

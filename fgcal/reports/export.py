@@ -4,7 +4,7 @@ A URDF cannot bend: the gravity compliances go to the sidecar, and a consumer th
 URDF alone gets the rigid model. This command says what that costs. With the calibration's
 config, on its data (fitting and held out, each model with the instrument registered to it);
 without, as the difference from the full model over the joint ranges. ``--rigid-fit`` refits
-the rigid parameters to the full model over the calibrated region (fgcal.rigid_fit).
+the rigid parameters to the full model over the calibrated region (fgcal.model.rigid_fit).
 """
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..console import warn
-from ..errors import InputError
-from ..outputs import distinct, output_file, write_text
-from ..rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
-from ..robot_io import load_robot
-from ..urdf_export import check_outputs, export_urdf, is_tree, template_of
+from ..core.console import warn
+from ..core.errors import InputError
+from ..core.outputs import distinct, output_file, write_text
+from ..model.rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
+from ..model.robot_io import load_robot
+from ..model.urdf_export import check_outputs, export_urdf, is_tree, template_of
 
 LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held-out accuracy is warned of
 
@@ -128,8 +128,8 @@ def export_command(
 def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[str], None]) -> None:
     import yaml
 
-    from ..compensation import nominal_of
-    from ..ur_kinematics import residual_text, ur_kinematics
+    from ..data.compensation import nominal_of
+    from ..data.ur_kinematics import residual_text, ur_kinematics
 
     result = ur_kinematics(robot, nominal_of(robot, nominal))
     write_text(path, yaml.safe_dump(result.document, sort_keys=False))

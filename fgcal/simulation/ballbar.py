@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import write_csv
+from ..data.dataset import write_csv
 from .cell import Cell
 from .touch import reach_all
 

@@ -9,15 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, parse_camera
-from ..errors import InputError
-from ..fields import Fields, read_yaml
-from ..motion import MotionHistory
-from ..parameters import default_compliant_joints
-from ..robot import Robot
-from ..robot_io import load_referenced, robot_reference
-from ..se3 import pose_from_xyz_rpy, transform_points
-from ..units import parse_units
+from ..core.errors import InputError
+from ..core.fields import Fields, read_yaml
+from ..core.se3 import pose_from_xyz_rpy, transform_points
+from ..core.units import parse_units
+from ..model.camera import Camera, parse_camera
+from ..model.motion import MotionHistory
+from ..model.parameters import default_compliant_joints
+from ..model.robot import Robot
+from ..model.robot_io import load_referenced, robot_reference
 from . import MAX_CONFIGURATIONS
 
 SIDES = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -104,7 +104,7 @@ class Perturbation:
 
 @dataclass(frozen=True)
 class MotionTruth:
-    """The true robot's motion-history terms (fgcal.motion), rad per joint, and how the design
+    """The true robot's motion-history terms (fgcal.model.motion), rad per joint, and how the design
     reaches each configuration: from the one before (``previous``) or from ``offset_rad`` below
     on every joint (``from_below``: a unidirectional approach)."""
 

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..console import step
-from ..errors import InputError
-from ..robot import Robot
-from ..se3 import inverse, pose, transform_points
+from ..core.console import step
+from ..core.errors import InputError
+from ..core.se3 import inverse, pose, transform_points
+from ..model.robot import Robot
 from .cell import Cell, GridPoint, Side
 from .ik import solve_ik
 
@@ -313,7 +313,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     label of the block the camera looks at, as fgcal plan writes it; no ``block`` in a
     tracker cell; ``before_q1..before_qn``: each one's approach point). Configurations whose
     block the simulated true camera does not see are left out; their ids are returned."""
-    from ..dataset import approach_columns, parse_numbers, read_csv
+    from ..data.dataset import approach_columns, parse_numbers, read_csv
 
     robot = cell.robot
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]

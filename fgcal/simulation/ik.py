@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import kinematics
-from ..ik import wrap_into_limits
-from ..robot import Robot
-from ..se3 import so3_log
+from ..core.se3 import so3_log
+from ..model import kinematics
+from ..model.ik import wrap_into_limits
+from ..model.robot import Robot
 
 
 def pose_error(T: np.ndarray, T_target: np.ndarray) -> np.ndarray:

@@ -10,15 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..console import step
-from ..dataset import FORMAT, write_csv, write_header
-from ..errors import InputError
-from ..motion import MotionHistory, features
-from ..noise import noise_document
-from ..outputs import output_dir, subfolder, write_bytes
-from ..robot_io import embed_robot
-from ..se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
-from ..truth import Truth
+from ..core.console import step
+from ..core.errors import InputError
+from ..core.noise import noise_document
+from ..core.outputs import output_dir, subfolder, write_bytes
+from ..core.se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
+from ..data.dataset import FORMAT, write_csv, write_header
+from ..data.truth import Truth
+from ..model.motion import MotionHistory, features
+from ..model.robot_io import embed_robot
 from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
@@ -376,7 +376,7 @@ def _render_images(
     """Synthetic images: each view's side board through the true camera (docs/simulation.md)."""
     import cv2
 
-    from ..markers import Renderer, board_pose_in_camera, side_boards
+    from .markers import Renderer, board_pose_in_camera, side_boards
 
     boards = side_boards(cell.sides)
     by_side = {b.name: b for b in boards}
@@ -394,7 +394,7 @@ def _render_images(
 
 
 def stated_noise(cell: Cell, measured: list[str]) -> dict[str, float]:
-    """The sigmas the simulated instruments state for the tables measured (SI, fgcal.noise's
+    """The sigmas the simulated instruments state for the tables measured (SI, fgcal.core.noise's
     fields): what a real instrument's specification would declare; here, exactly the noise
     drawn."""
     sources = {

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import write_csv
-from ..errors import InputError
-from ..se3 import inverse, transform_points
+from ..core.errors import InputError
+from ..core.se3 import inverse, transform_points
+from ..data.dataset import write_csv
 from .cell import Cell
 from .design import View, max_min_selection, uniform_configurations
 

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..console import step
-from ..dataset import write_csv
-from ..errors import InputError
-from ..se3 import pose, so3_exp
+from ..core.console import step
+from ..core.errors import InputError
+from ..core.se3 import pose, so3_exp
+from ..data.dataset import write_csv
 from .cell import Cell
 from .ik import solve_ik
 

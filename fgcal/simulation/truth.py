@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..parameters import MASS_KIND, MOTION_KINDS, split_name
-from ..robot import Robot
+from ..model.parameters import MASS_KIND, MOTION_KINDS, split_name
+from ..model.robot import Robot
 from .cell import Perturbation
 
 

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...camera import solve_pnp
-from ...dataset import Dataset
-from ...errors import InputError
+from ...core.errors import InputError
+from ...data.dataset import Dataset
 from ...factors import MeasurementSet
+from ...model.camera import solve_pnp
 from ..problem import HeldOut, Observations, Problem, rows_of, subset_of, take
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State

@@ -10,12 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...dataset import Dataset
-from ...errors import InputError
+from ...core.errors import InputError
+from ...core.se3 import pose
+from ...data.dataset import Dataset
+from ...data.truth import Truth, named_points
 from ...factors import Distances, MeasurementSet, RobustLoss
-from ...robot import Robot
-from ...se3 import pose
-from ...truth import Truth, named_points
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, rows_of, subset_of, take
 from ..settings import MeasurementSettings

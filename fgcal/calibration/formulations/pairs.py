@@ -25,12 +25,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...camera import solve_pnp
-from ...dataset import Dataset, Table
-from ...errors import InputError
+from ...core.errors import InputError
+from ...data.dataset import Dataset, Table
+from ...data.truth import Truth
 from ...factors import MeasurementSet, PointPairs, RobustLoss
-from ...robot import Robot
-from ...truth import Truth
+from ...model.camera import solve_pnp
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..goodness import chi_median
 from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, measured_table, rows_of, subset_of

@@ -9,12 +9,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...dataset import Dataset
-from ...errors import InputError
+from ...core.errors import InputError
+from ...core.se3 import inverse, pose, quaternion_rotation
+from ...data.dataset import Dataset
+from ...data.truth import Truth
 from ...factors import MeasurementSet, Poses, RobustLoss
-from ...robot import Robot
-from ...se3 import inverse, pose, quaternion_rotation
-from ...truth import Truth
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..problem import (
     Formulation,

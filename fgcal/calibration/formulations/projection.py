@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...dataset import Dataset
+from ...core.se3 import so3_log
+from ...data.dataset import Dataset
+from ...data.truth import Truth
 from ...factors import MeasurementSet, Projections, RobustLoss
-from ...robot import Robot
-from ...se3 import so3_log
-from ...truth import Truth
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..problem import Formulation, HeldOut, Keys, Observations, Problem, Rejection, Scored
 from ..settings import MeasurementSettings

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...dataset import Dataset
-from ...errors import InputError
+from ...core.errors import InputError
+from ...core.se3 import inverse
+from ...data.dataset import Dataset
+from ...data.truth import Truth
 from ...factors import MeasurementSet, RobustLoss, StaticProjections
-from ...robot import Robot
-from ...se3 import inverse
-from ...truth import Truth
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..problem import Formulation, HeldOut, Keys, Observations, Problem, Rejection, Scored
 from ..settings import MeasurementSettings

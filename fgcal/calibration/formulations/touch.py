@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...dataset import Dataset
-from ...errors import InputError
+from ...core.errors import InputError
+from ...core.se3 import pose, transform_points
+from ...data.dataset import Dataset
+from ...data.truth import Truth, named_points
 from ...factors import MeasurementSet, RobustLoss, SocketSpacings, TouchPoints
-from ...robot import Robot
-from ...se3 import pose, transform_points
-from ...truth import Truth, named_points
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..prediction import scored_jacobian
 from ..problem import (

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...dataset import Dataset
-from ...errors import InputError
+from ...core.errors import InputError
+from ...core.se3 import inverse, kabsch, transform_points
+from ...data.dataset import Dataset
+from ...data.truth import Truth, named_points
 from ...factors import MeasurementSet, RobustLoss, TrackerPoints, point_jacobian
-from ...robot import Robot
-from ...se3 import inverse, kabsch, transform_points
-from ...truth import Truth, named_points
+from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..problem import (
     Formulation,

@@ -1,0 +1,3 @@
+"""fgcal bench: the solve against its yardsticks (suite) and the kinematics kernel against
+Pinocchio (kernel).
+"""

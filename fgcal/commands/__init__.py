@@ -1,0 +1,3 @@
+"""The fgcal command: the dispatcher (cli), the options the commands share, and one module per
+command (its parser and its handler).
+"""

@@ -1,0 +1,87 @@
+"""What the commands share: argument types with their ranges and units, the bundled cells,
+``--json`` output, and counted nouns."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..simulation import MAX_CONFIGURATIONS
+
+JSON_HELP = "print one JSON object (SI units) on stdout; the lines go to stderr"
+
+
+def bundled_cells() -> list[str]:
+    from ..model.robot_io import robots_dir
+
+    return sorted(p.stem for p in (robots_dir().parent / "cells").glob("*.yaml"))
+
+
+def bundled_cell(path: str) -> Path:
+    """A cell file as given (a path ending in .yaml), or a bundled cell's name such as
+    ``kr125_seed``: a name without the suffix is a bundled cell, whatever local folder is
+    called the same."""
+    from ..core.errors import InputError
+    from ..model.robot_io import robots_dir
+
+    candidate = Path(path)
+    if candidate.suffix in (".yaml", ".yml"):
+        return candidate
+    bundled = robots_dir().parent / "cells" / f"{path}.yaml"
+    if bundled.exists():
+        return bundled
+    if candidate.is_file():
+        return candidate
+    raise InputError(path, None, f"no such cell file or bundled cell (bundled: {', '.join(bundled_cells())})")
+
+
+def emit(args: argparse.Namespace, document: dict) -> None:
+    """With --json: the command's one strict JSON object (SI units) on stdout."""
+    if getattr(args, "json", False):
+        from ..core import strict_json
+
+        print(strict_json.dumps({"command": args.command, **document}))
+
+
+def integer(low: int, high: int, what: str) -> Callable[[str], int]:
+    """An argparse type: a whole number of ``what`` from ``low`` to ``high``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{low} to {high} {what}, got {value}")
+        return value
+
+    return parse
+
+
+def real(low: float, high: float, unit: str, *, above_low: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number in [low, high] (``above_low``: in (low, high])."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number ({unit}), got {text!r}") from None
+        inside = (value > low if above_low else value >= low) and value <= high
+        if not (np.isfinite(value) and inside):
+            bracket = "(" if above_low else "["
+            raise argparse.ArgumentTypeError(f"a number in {bracket}{low:g}, {high:g}] {unit}, got {text}")
+        return value
+
+    return parse
+
+
+SEED = integer(0, 2**32 - 1, "(the random seed)")
+LENGTH_M = real(-10.0, 10.0, "m")
+CONFIGURATIONS = integer(1, MAX_CONFIGURATIONS, "configurations")
+
+
+def count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"

@@ -1,0 +1,101 @@
+"""``fgcal plan CELL``: the measurement configurations of a cell, chosen before measuring."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from ..core.console import Reporter, say
+from ..planning import MAX_CANDIDATES
+from .options import JSON_HELP, SEED, bundled_cell, emit, integer, real
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from ..planning.plan import plan, write_plan
+
+    result = plan(
+        bundled_cell(args.cell),
+        args.n,
+        criterion=args.criterion,
+        n_candidates=args.candidates,
+        formulation=args.formulation,
+        model=args.model,
+        seed=args.seed,
+        progress=Reporter(),
+        approach=args.approach,
+        approach_offset_rad=float(np.radians(args.approach_offset)),
+    )
+    written = write_plan(result, args.out, plot=not args.no_plots)
+    say(
+        f"  predicted position accuracy {result.predicted_sigma_m * 1e3:.4f} mm RMS over the region "
+        f"(space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
+        f"condition number {result.indices['condition_number']:.3g}"
+    )
+    t = result.timing_s
+    say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
+    if result.lost_motion is not None:
+        lost = result.lost_motion
+        advice = (
+            "this plan: calibrate it with DH,s,e" if result.approach == "unidirectional"
+            else "--approach unidirectional; visited in order, calibrate with DH,s,e,h"
+        )  # fmt: skip
+        say(
+            f"  the cell's lost motion, beyond what constant joint offsets absorb: {lost['in_order_rms_m'] * 1e3:.4g} "
+            f"mm RMS with the plan visited in order, {lost['unidirectional_rms_m'] * 1e3:.4g} mm with each "
+            f"configuration approached from below ({advice})"
+        )
+    say(f"wrote {args.out}: {', '.join(written)}")
+    emit(args, {
+        "out": str(args.out), "files": {name: str(Path(args.out) / name) for name in written},
+        "n_configurations": args.n, "criterion": args.criterion,
+        "predicted_sigma_m": result.predicted_sigma_m, "space_filling_sigma_m": result.space_filling_sigma_m,
+        "condition_number": result.indices["condition_number"], "cpu_s": dict(result.timing_s),
+        "approach": result.approach, "lost_motion": result.lost_motion,
+    })  # fmt: skip
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plan", help="choose the measurement configurations of a cell (docs/planning.md)")
+    p.add_argument("cell", help="cell YAML file, or a bundled cell name (kr125_seed)")
+    p.add_argument(
+        "--n",
+        type=integer(1, MAX_CANDIDATES, "configurations"),
+        required=True,
+        help="number of configurations to plan (at most --candidates)",
+    )
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument(
+        "--criterion",
+        default="d-optimal",
+        choices=("d-optimal", "position", "o1", "o2", "o3", "o4", "o5"),
+        help="design criterion (default d-optimal)",
+    )
+    p.add_argument(
+        "--candidates",
+        type=integer(1, MAX_CANDIDATES, "candidates"),
+        default=5000,
+        help=f"candidate configurations (default 5000, at most {MAX_CANDIDATES})",
+    )
+    p.add_argument(
+        "--formulation", help="what to plan for (pairs, projection, tracker; default: what the cell measures with)"
+    )
+    p.add_argument(
+        "--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e", metavar="MODEL",
+        help="kinematic model whose parameters the plan determines: DH, DH,s or DH,s,e (default DH,s,e)",
+    )  # fmt: skip
+    p.add_argument("--seed", type=SEED, default=1, help="seed of the candidates (default 1)")
+    p.add_argument(
+        "--approach", choices=("previous", "unidirectional"), default="previous",
+        help="each configuration reached from the one before (previous, the default), or from --approach-offset "
+        "below on every joint (unidirectional: approach points in configurations.csv, lost motion absorbed)",
+    )  # fmt: skip
+    p.add_argument(
+        "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=2.0,
+        help="how far below each configuration its approach point is, deg (default 2)",
+    )  # fmt: skip
+    p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
+    p.add_argument("--json", action="store_true", help=JSON_HELP)
+    p.set_defaults(func=cmd_plan)

@@ -1,0 +1,550 @@
+"""Measurement datasets: a directory with ``dataset.yaml`` (header) and CSV tables.
+
+Header fields (documented in docs/formats.md)::
+
+    format: fgcal-dataset/1
+    robot: kuka_kr125_2            # bundled name, or a robot file relative to this directory
+    units: {length: m, angle: rad} # of every table in this dataset
+    measured: [camera_points, pixels, tracker_points]
+    files: {configurations: configurations.csv, points: points.csv, ...}
+    camera: {image_size, intrinsics, distortion, mounting: {xyz, rpy}}   # when a camera was used
+    payload: {mass, com}           # kg; com in the flange frame (gravity moments need it)
+    fixture: {xyz, rpy}            # nominal T_W_F of the calibration objects (drawing)
+    tracker: {targets: [names]}    # when a tracker was used; on a tree, tips: {target: tip name}
+    tip: name                      # a tree: the tip carrying what is measured (default the flange)
+    noise: {tracker_sigma: 1.5e-5, ...}  # the instrument's stated noise (a calibration config's noise keys)
+    order: measured                # the configurations' rows are in measurement order (default), or unknown
+    source: free text (simulation seed, converter, instrument)
+
+Tables (first row is the header; ``config`` refers to ``configurations.csv``):
+
+- configurations: ``config, q1..qn`` (joint angles), in the order they were measured; optionally
+  ``before_q1..before_qn`` (the joint values the robot came from, when it was not the previous
+  row: an approach point; empty cells: the previous row) and ``speed`` (the move's speed factor,
+  1 by default): the motion history (fgcal.model.motion)
+- points: ``point, object, side, x, y, z`` (calibration points in the fixture frame F)
+- camera_points: ``config, point, x, y, z`` (point measured in the camera frame)
+- pixels: ``config, point, u, v`` (px)
+- tracker_points: ``config, target, x, y, z`` (tool target in the tracker frame)
+- tracker_references: ``config, target, x, y, z`` (fixed targets in the cell, stability check)
+- touch_points: ``config, point`` (the tool's probe sits at the fixed point ``point``: a socket)
+- point_distances: ``point_a, point_b, distance`` (known distances between touch points)
+- tracker_poses: ``config, x, y, z, qw, qx, qy, qz`` (a 6D probe's pose in the tracker frame,
+  or a board's pose in a camera: position and unit quaternion)
+- distances: ``config, pivot, distance`` (a ballbar from the tool ball to the fixed pivot)
+- tool_distances: ``config_a, config_b, distance`` (between the tool ball at two configurations)
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..core.errors import InputError
+from ..core.fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
+from ..core.noise import parse_noise
+from ..core.outputs import write_text
+from ..core.se3 import pose_from_xyz_rpy
+from ..core.units import Units, parse_units
+from ..model.boards import DICTIONARY, SideBoard
+from ..model.camera import Camera, parse_camera
+from ..model.motion import MotionHistory, features
+from ..model.robot import Robot
+from ..model.robot_io import referenced_robot
+
+FORMAT = "fgcal-dataset/1"
+HEADER_KEYS = (
+    "format",
+    "robot",
+    "units",
+    "measured",
+    "files",
+    "camera",
+    "payload",
+    "fixture",
+    "images",
+    "markers",
+    "tracker",
+    "tip",
+    "noise",
+    "order",
+    "source",
+    "notes",
+)
+ORDERS = ("measured", "unknown")
+MAX_SPEED_FACTOR = 100.0
+# table name -> (id columns, numeric columns, kind of numeric columns)
+TABLES = {
+    "points": (("point", "object", "side"), ("x", "y", "z"), "length"),
+    "camera_points": (("config", "point"), ("x", "y", "z"), "length"),
+    "pixels": (("config", "point"), ("u", "v"), "pixel"),
+    "tracker_points": (("config", "target"), ("x", "y", "z"), "length"),
+    "tracker_references": (("config", "target"), ("x", "y", "z"), "length"),
+    "touch_points": (("config", "point"), (), "length"),
+    "point_distances": (("point_a", "point_b"), ("distance",), "length"),
+    "tracker_poses": (("config",), ("x", "y", "z", "qw", "qx", "qy", "qz"), ("length",) * 3 + ("unitless",) * 4),
+    "distances": (("config", "pivot"), ("distance",), "length"),
+    "tool_distances": (("config_a", "config_b"), ("distance",), "length"),
+}
+MEASUREMENTS = (
+    "camera_points",
+    "pixels",
+    "tracker_points",
+    "tracker_references",
+    "touch_points",
+    "point_distances",
+    "tracker_poses",
+    "distances",
+    "tool_distances",
+)
+# Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
+# what overflows the algebra (a 1e300 reading once hung the tracker initialisation).
+LIMITS = {"length": 1e4, "pixel": 1e6, "angle": 1e3, "unitless": 1e3}
+# A quaternion whose norm is this far from 1 is no rotation (rounding in an export is 1e-6).
+QUATERNION_TOLERANCE = 1e-3
+
+
+@dataclass
+class Table:
+    """Rows of one CSV table: id columns as string arrays, values (M, k) in SI."""
+
+    ids: dict[str, np.ndarray]
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+
+@dataclass
+class Dataset:
+    path: Path
+    robot: Robot
+    configs: np.ndarray  # (N,) configuration ids (str)
+    q: np.ndarray  # (N, n) joint angles, rad
+    tables: dict[str, Table] = field(default_factory=dict)
+    camera: Camera | None = None
+    camera_mounting: np.ndarray | None = None  # nominal T_n_C of a camera on the flange, as given
+    fixture_pose: np.ndarray | None = None  # nominal T_W_F
+    images_dir: Path | None = None  # camera images, one per configuration: <config>.png
+    boards: list = field(default_factory=list)  # fgcal.model.boards.SideBoard of each marked side
+    header: dict = field(default_factory=dict)
+    noise: dict[str, float] = field(default_factory=dict)  # the instrument's stated sigmas (fgcal.core.noise), SI
+    history: MotionHistory | None = None  # how each configuration was reached (None: in row order)
+    # The tip of a tree each tracker target is on (dataset.yaml tracker.tips); absent: the flange.
+    target_tips: dict[str, str] = field(default_factory=dict)
+    # The tip of a tree that carries what is measured (a probe, a ball, a board, reflectors not
+    # listed in tracker.tips): dataset.yaml tip; None: the flange.
+    tip: str | None = None
+
+    @property
+    def motion_history(self) -> MotionHistory:
+        return self.history if self.history is not None else MotionHistory.in_order(self.q)
+
+    @property
+    def motion(self) -> np.ndarray:
+        """(N, 2n) motion-history features of the configurations (fgcal.model.motion); computed on
+        each call (microseconds), so that a copy with other configurations is never stale."""
+        return features(self.q, self.motion_history)
+
+    def motion_of(self, config_ids: np.ndarray) -> np.ndarray:
+        """The motion features of these configurations (by id)."""
+        return self.motion[self.config_index(config_ids)]
+
+    def points_F(self) -> dict[str, np.ndarray]:
+        """Calibration points by name, in the fixture frame (m)."""
+        points = self.tables["points"]
+        return dict(zip(points.ids["point"], points.values, strict=True))
+
+    def config_index(self, config_ids: np.ndarray) -> np.ndarray:
+        lookup = {c: i for i, c in enumerate(self.configs)}
+        return np.array([lookup[c] for c in config_ids], dtype=int)
+
+
+def format_float(value: float) -> str:
+    """Shortest round-trip text of a float: deterministic files, no precision lost."""
+    return repr(float(value))
+
+
+def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]]) -> None:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([format_float(v) if isinstance(v, (float, np.floating)) else v for v in row])
+    write_text(path, buffer.getvalue())
+
+
+def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    if not Path(path).exists():
+        raise InputError(path, None, "file not found (listed in dataset.yaml files)")
+    # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
+    text = read_file_text(path, "utf-8-sig")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        rows = list(reader)
+    except csv.Error as exc:
+        raise InputError(path, f"line {reader.line_num}", f"not CSV: {exc}") from None
+    if not rows:
+        raise InputError(path, None, "empty file: a header row is required")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InputError(path, missing[0], f"missing column (header is {', '.join(header)})")
+    body = [r for r in rows[1:] if any(cell.strip() for cell in r)]
+    for line, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise InputError(path, f"line {line}", f"expected {len(header)} columns, got {len(row)}")
+    return header, body
+
+
+def parse_numbers(
+    path: Path, header: list[str], body: list[list[str]], columns: Sequence[str], kind: str, to_si: float
+) -> np.ndarray:
+    """The columns as floats in SI: plain decimal numbers only (``float`` would also take
+    ``1_000``, full-width digits and ``nan``), finite and within LIMITS[kind]."""
+    out = np.empty((len(body), len(columns)))
+    for j, col in enumerate(columns):
+        c = header.index(col)
+        for i, row in enumerate(body):
+            text = row[c].strip()
+            if not is_plain_number(text):
+                problem = (
+                    "must be finite" if text.lower().lstrip("+-") in ("nan", "inf", "infinity") else "not a number"
+                )
+                raise InputError(path, f"line {i + 2}, column {col}", f"{problem}: {row[c]!r}")
+            value = float(text) * to_si
+            if not abs(value) <= LIMITS[kind]:
+                raise InputError(
+                    path, f"line {i + 2}, column {col}", f"implausible value {row[c]!r} (beyond {LIMITS[kind]:g} SI)"
+                )
+            out[i, j] = value
+    return out
+
+
+def approach_columns(
+    path: Path,
+    header: list[str],
+    body: list[list[str]],
+    n: int,
+    to_si: float,
+    prismatic: np.ndarray | None = None,
+    to_m: float = 1.0,
+) -> np.ndarray:
+    """The optional ``before_q1..before_qn`` columns (N, n) in SI (``to_si`` for the joints'
+    unit; ``to_m`` for the ``prismatic`` joints when they are in a length unit of their own):
+    the joint values each row was approached from; NaN rows where the cells are empty (or the
+    columns absent)."""
+    before = np.full((len(body), n), np.nan)
+    before_cols = [f"before_q{i}" for i in range(1, n + 1)]
+    present = [c for c in header if c.startswith("before_q")]
+    if not present:
+        return before
+    if present != before_cols:
+        raise InputError(path, "header", f"the approach columns are {', '.join(before_cols)}: got {', '.join(present)}")
+    given = np.array([[row[header.index(c)].strip() != "" for c in before_cols] for row in body])
+    partial = np.flatnonzero(given.any(axis=1) & ~given.all(axis=1))
+    if len(partial):
+        where = f"line {partial[0] + 2}"
+        raise InputError(path, where, f"give all of before_q1..before_q{n} or none (the previous row)")
+    rows = given.all(axis=1)
+    if rows.any():
+        # Rows without an approach parse as zeros, so that errors name the file's own lines.
+        columns = [header.index(c) for c in before_cols]
+        filled = [row if full else [("0" if c in columns else v) for c, v in enumerate(row)]
+                  for row, full in zip(body, rows, strict=True)]  # fmt: skip
+        linear = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
+        for j, column in enumerate(before_cols):
+            kind, scale = ("length", to_m) if linear[j] else ("angle", to_si)
+            before[rows, j] = parse_numbers(path, header, filled, [column], kind, scale)[rows, 0]
+    return before
+
+
+def speed_column(path: Path, header: list[str], body: list[list[str]]) -> np.ndarray:
+    """The optional ``speed`` column (N,): each move's speed factor (1 without the column, or in
+    an empty cell)."""
+    speed = np.ones(len(body))
+    named = [c for c in header if c.strip().lower() == "speed"]
+    if len(named) > 1 or (named and named[0] != "speed"):
+        raise InputError(path, "header", f"one column 'speed' (lower case) holds the speed factors, got {named}")
+    if "speed" in header:
+        column = header.index("speed")
+        filled = [row if row[column].strip() else [*row[:column], "1", *row[column + 1 :]] for row in body]
+        speed = parse_numbers(path, header, filled, ["speed"], "unitless", 1.0)[:, 0]
+        bad = np.flatnonzero(~((speed > 0) & (speed <= MAX_SPEED_FACTOR)))
+        if len(bad):
+            raise InputError(
+                path, f"line {bad[0] + 2}, column speed",
+                f"a speed factor is in (0, {MAX_SPEED_FACTOR:g}] (1: the program's speed), got {speed[bad[0]]:g}",
+            )  # fmt: skip
+    return speed
+
+
+def _history(
+    path: Path, header: list[str], body: list[list[str]], q: np.ndarray, units: Units, order: str
+) -> MotionHistory:
+    """The configurations' motion history: ``before_q*`` where given, else the previous row
+    (nothing with ``order: unknown``); ``speed`` factors (default 1)."""
+    history = MotionHistory.in_order(q) if order == "measured" else MotionHistory.unknown(*q.shape)
+    given = approach_columns(path, header, body, q.shape[1], units.to_rad)
+    rows = np.all(np.isfinite(given), axis=1)
+    before = history.before.copy()
+    before[rows] = given[rows]
+    return MotionHistory(before, speed_column(path, header, body))
+
+
+def _table(path: Path, name: str, units: Units) -> Table:
+    id_cols, value_cols, kinds = TABLES[name]
+    header, body = read_csv(path, [*id_cols, *value_cols])
+    kinds = (kinds,) * len(value_cols) if isinstance(kinds, str) else kinds
+    values = np.empty((len(body), len(value_cols)))
+    for j, (column, kind) in enumerate(zip(value_cols, kinds, strict=True)):
+        to_si = units.to_m if kind == "length" else 1.0
+        values[:, j] = parse_numbers(path, header, body, [column], kind, to_si)[:, 0]
+    ids = {
+        c: np.array(
+            [check_name(row[header.index(c)].strip(), path, f"line {line}, column {c}")
+             for line, row in enumerate(body, start=2)],
+            dtype=object,
+        )
+        for c in id_cols
+    }  # fmt: skip
+    _refuse_duplicates(path, name, ids)
+    return Table(ids, values)
+
+
+# The id columns that name one measurement (a point of the drawing is named by its point alone);
+# a distance between a and b is the distance between b and a.
+KEY_COLUMNS = {"points": ("point",)}
+UNORDERED = ("point_distances", "tool_distances")
+
+
+def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
+    """A measurement given twice would count twice: refused, naming both lines."""
+    columns = KEY_COLUMNS.get(name, tuple(ids))
+    keys = zip(*(ids[c] for c in columns), strict=True)
+    repeat = first_repeat(
+        (line, tuple(sorted(key)) if name in UNORDERED else key) for line, key in enumerate(keys, start=2)
+    )
+    if repeat is not None:
+        first, line, key = repeat
+        raise InputError(
+            path, f"lines {first} and {line}", f"{', '.join(columns)} {' '.join(map(repr, key))} given twice: "
+            "each measurement once (repeated readings at one pose: give each its own configuration)",
+        )  # fmt: skip
+
+
+def _inside(root: Path, files: Fields, name: str) -> Path:
+    """A table's path, which must stay inside the dataset directory."""
+    relative = files.string(name)
+    if "\x00" in relative:  # no file has it in its name, and pathlib refuses it with a ValueError
+        raise files.error(name, f"a file name with a NUL character: {relative!r}")
+    path = (root / relative).resolve()
+    if not path.is_relative_to(root.resolve()):
+        raise files.error(name, f"{relative!r} is outside the dataset directory {root}")
+    return path
+
+
+def load_dataset(path: str | Path) -> Dataset:
+    """Load and validate a dataset directory (or its dataset.yaml); converts to SI."""
+    path = Path(path)
+    header_path = path / "dataset.yaml" if path.is_dir() else path
+    root = header_path.parent
+    doc = Fields(read_yaml(header_path), header_path)
+    doc.check_keys(HEADER_KEYS)
+    doc.check_format(FORMAT)
+    units = parse_units(doc.raw("units", None), header_path)
+    _, robot = referenced_robot(doc, root, inside=root)
+    files = doc.sub("files")
+    files.check_keys(("configurations", *TABLES))
+    measured = doc.items("measured")
+    for i, kind in enumerate(measured):
+        if kind not in MEASUREMENTS:
+            raise InputError(
+                header_path, f"measured[{i}]", f"unknown measurement kind {kind!r} (known: {MEASUREMENTS})"
+            )
+        if not files.has(kind):
+            raise files.error(kind, f"'{kind}' is listed in measured but has no file")
+
+    config_path = _inside(root, files, "configurations")
+    joint_cols = [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    cfg_header, cfg_body = read_csv(config_path, ["config"])
+    present = [c for c in cfg_header if c.startswith("q") and c[1:].isdigit()]
+    if present != joint_cols:
+        raise InputError(
+            config_path,
+            "header",
+            f"{robot.name} has {robot.n_joints} joints: expected columns "
+            f"{', '.join(joint_cols)}, got {', '.join(present) or 'none'}",
+        )
+    if not cfg_body:
+        raise InputError(config_path, None, "no configurations")
+    q = parse_numbers(config_path, cfg_header, cfg_body, joint_cols, "angle", units.to_rad)
+    configs = np.array([row[cfg_header.index("config")].strip() for row in cfg_body], dtype=object)
+    if len(set(configs)) != len(configs):
+        raise InputError(config_path, "config", "duplicate configuration ids")
+    history = _history(config_path, cfg_header, cfg_body, q, units, doc.string("order", "measured", ORDERS))
+
+    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=parse_noise(doc, units), history=history)
+    known = set(configs)
+    for name in TABLES:
+        if not files.has(name):
+            continue
+        table_path = _inside(root, files, name)
+        table = _table(table_path, name, units)
+        for column in ("config", "config_a", "config_b"):
+            unknown = [c for c in table.ids.get(column, []) if c not in known]
+            if unknown:
+                raise InputError(table_path, column, f"unknown configuration id {unknown[0]!r}")
+        dataset.tables[name] = table
+    if "camera_points" in dataset.tables or "pixels" in dataset.tables:
+        if "points" not in dataset.tables:
+            raise files.error("points", "camera measurements need the points table (object drawings)")
+        point_names = set(dataset.tables["points"].ids["point"])
+        for name in ("camera_points", "pixels"):
+            if name in dataset.tables:
+                bad = [p for p in dataset.tables[name].ids["point"] if p not in point_names]
+                if bad:
+                    raise InputError(_inside(root, files, name), "point", f"unknown point {bad[0]!r}")
+    if "point_distances" in dataset.tables:
+        _check_distances(dataset, _inside(root, files, "point_distances"))
+    if "tracker_poses" in dataset.tables:
+        _check_poses(dataset, _inside(root, files, "tracker_poses"))
+    for name in ("distances", "tool_distances"):
+        if name in dataset.tables:
+            bad = np.flatnonzero(~(dataset.tables[name].values[:, 0] > 0))
+            if len(bad):
+                raise InputError(
+                    _inside(root, files, name), f"line {bad[0] + 2}, column distance", "a distance must be > 0"
+                )
+    if "tool_distances" in dataset.tables:
+        table = dataset.tables["tool_distances"]
+        same = np.flatnonzero(table.ids["config_a"] == table.ids["config_b"])
+        if len(same):
+            raise InputError(
+                _inside(root, files, "tool_distances"), f"line {same[0] + 2}", "config_a and config_b are the same"
+            )
+    if doc.has("tracker") and "tracker_points" in dataset.tables:
+        tracker = doc.sub("tracker")
+        tracker.check_keys(("targets", "tips"))
+        declared = {str(t) for t in tracker.items("targets")}
+        dataset.target_tips = target_tips(tracker.sub("tips"), declared, dataset.robot) if tracker.has("tips") else {}
+        bad = [t for t in dataset.tables["tracker_points"].ids["target"] if t not in declared]
+        if bad:
+            raise InputError(
+                _inside(root, files, "tracker_points"),
+                "target",
+                f"target {bad[0]!r} is not in dataset.yaml tracker.targets ({', '.join(sorted(declared))})",
+            )
+    if doc.has("camera"):
+        cam = doc.sub("camera")
+        cam.check_keys(("image_size", "intrinsics", "distortion", "mounting"))
+        dataset.camera = parse_camera(cam)
+        # The camera is the robot's tool: its mounting is the nominal T_n_C. Without one, the
+        # camera may be fixed in the cell (static_camera) and the tool stays at the flange.
+        dataset.camera_mounting = _pose(cam.sub("mounting"), units) if cam.has("mounting") else None
+        dataset.robot = dataset.robot.with_tool(_pose(cam.sub("mounting", {}), units))
+    if doc.has("tip"):
+        tip = doc.string("tip")
+        if dataset.robot.tip_error(tip):
+            raise doc.error("tip", dataset.robot.tip_error(tip))
+        dataset.tip = dataset.robot.flange_name if tip == "flange" else tip
+    if doc.has("payload"):
+        payload = doc.sub("payload")
+        payload.check_keys(("mass", "com"))
+        dataset.robot = dataset.robot.with_tool(
+            dataset.robot.tool_pose,
+            payload.number("mass", nonnegative=True),
+            payload.vector("com", 3, [0, 0, 0], units.to_m),
+        )
+    if doc.has("fixture"):
+        dataset.fixture_pose = _pose(doc.sub("fixture"), units)
+    if doc.has("images"):
+        dataset.images_dir = _inside(root, doc, "images")
+        if not dataset.images_dir.is_dir():
+            raise doc.error("images", f"no such directory: {dataset.images_dir}")
+        dataset.boards = _boards(doc.sub("markers"), units)
+    return dataset
+
+
+def _check_distances(dataset: Dataset, path: Path) -> None:
+    """Known distances join two different touched points, once each, and are positive."""
+    if "touch_points" not in dataset.tables:
+        raise InputError(path, None, "distances between touch points need the touch_points table")
+    touched = set(dataset.tables["touch_points"].ids["point"])
+    table = dataset.tables["point_distances"]
+    for line, (a, b, d) in enumerate(
+        zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True), start=2
+    ):
+        for column, name in (("point_a", a), ("point_b", b)):
+            if name not in touched:
+                raise InputError(path, f"line {line}, column {column}", f"point {name!r} is never touched")
+        if a == b:
+            raise InputError(path, f"line {line}", f"a distance joins two different points, got {a!r} twice")
+        if not d > 0:
+            raise InputError(path, f"line {line}, column distance", f"must be > 0, got {d}")
+
+
+def target_tips(tips: Fields, declared: set[str], robot: Robot) -> dict[str, str]:
+    """``{target: tip}`` (a dataset's tracker.tips, an import mapping's target_tips): the
+    named frame of a tree (Robot.tip_names) each target is fixed to, checked against the
+    targets measured and the robot's tips; targets not listed are on the dataset's tip."""
+    out = {}
+    for target in tips.data:
+        if str(target) not in declared:
+            raise tips.error(str(target), f"not one of the tracker's targets ({', '.join(sorted(declared))})")
+        tip = tips.string(target)
+        if robot.tip_error(tip):
+            raise tips.error(str(target), robot.tip_error(tip))
+        out[str(target)] = robot.flange_name if tip == "flange" else tip
+    return out
+
+
+def _check_poses(dataset: Dataset, path: Path) -> None:
+    """Unit quaternions (normalised here)."""
+    table = dataset.tables["tracker_poses"]
+    norms = np.linalg.norm(table.values[:, 3:], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
+    if len(bad):
+        raise InputError(path, f"line {bad[0] + 2}, columns qw-qz", f"not a unit quaternion (norm {norms[bad[0]]:.6g})")
+    table.values[:, 3:] /= norms[:, None]  # one pose per configuration: _refuse_duplicates
+
+
+def _boards(markers: Fields, units: Units) -> list:
+    markers.check_keys(("dictionary", "marker_ratio", "boards"))
+    if markers.string("dictionary", DICTIONARY) != DICTIONARY:
+        raise markers.error("dictionary", f"only {DICTIONARY} is supported")
+    boards = []
+    for board in markers.sub_list("boards"):
+        board.check_keys(("name", "squares", "square", "first_id", "pose", "corners"))
+        squares = board.vector("squares", 2)
+        corners = [str(c) for c in board.items("corners")]
+        if len(corners) != int(squares[0] - 1) * int(squares[1] - 1):
+            raise board.error("corners", f"expected {(squares[0] - 1) * (squares[1] - 1):.0f} corner names")
+        boards.append(
+            SideBoard(
+                board.string("name"),
+                (int(squares[0]), int(squares[1])),
+                board.number("square", scale=units.to_m, positive=True),
+                board.integer("first_id", minimum=0),
+                _pose(board.sub("pose"), units),
+                tuple(corners),
+            )
+        )
+    return boards
+
+
+def _pose(fields: Fields, units: Units) -> np.ndarray:
+    fields.check_keys(("xyz", "rpy"))
+    return pose_from_xyz_rpy(
+        fields.vector("xyz", 3, [0, 0, 0], units.to_m), fields.vector("rpy", 3, [0, 0, 0], units.to_rad)
+    )
+
+
+def write_header(path: Path, header: dict) -> None:
+    write_text(Path(path) / "dataset.yaml", yaml.safe_dump(header, sort_keys=False))

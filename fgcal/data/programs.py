@@ -1,0 +1,770 @@
+"""Robot programs' targets: read ABB RAPID modules and KUKA KRL ``.dat`` files, write them back corrected.
+
+Inside, everything is SI: metres, radians, 4x4 homogeneous poses. In the files, positions are in mm,
+RAPID orientations are quaternions ``q1..q4 = w x y z`` and KRL orientations are ``A B C`` in degrees
+with ``R = Rz(A) Ry(B) Rx(C)``.
+
+:func:`write_program` returns the program's text with only the numbers of the corrected targets
+replaced (each number's own characters); comments, spacing, instructions, the external axes and the
+line endings stay byte for byte.
+
+RAPID (``.mod``, ``.modx``, ``.prg``, ``.sys``): ``robtarget``, ``tooldata`` and ``wobjdata``
+declarations (``CONST``/``PERS``/``VAR``, optionally ``LOCAL``/``TASK``) with literal aggregate
+values; comments (``!``) and strings are skipped. Refused (:class:`InputError`): arrays of
+robtargets (``robtarget pts{3} := ...``: not supported), a robtarget whose value is not a literal
+aggregate, a malformed or unterminated value, a quaternion of norm outside 0.9..1.1, a name declared
+twice. Not targets: declarations without a value (``VAR robtarget p;``), routine parameters,
+jointtargets, inline targets. Arrays of tooldata or wobjdata are skipped. Each target records the
+tool and ``\\WObj`` of the first MoveL/MoveJ/MoveC (or their DO/Sync variants) using it, directly
+or through ``Offs(...)``/``RelTool(...)``.
+
+KRL (``.dat``): ``[GLOBAL] [DECL] E6POS|POS NAME={...}`` on one line, components in any order,
+``S``/``T`` as decimal integers or ``'B...'``/``'H...'`` literals (written back in the same style).
+Refused: a target missing one of X Y Z A B C, arrays of positions, a malformed component.
+Everything else (FDAT, PDAT, LDAT, E6AXIS, AXIS, FRAME, comments after ``;``) is left alone.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import re
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field, replace
+from functools import partial
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from fgcal.core import se3
+from fgcal.core.errors import InputError
+from fgcal.core.fields import read_file_text
+
+RAPID_SUFFIXES = (".mod", ".modx", ".prg", ".sys")
+KRL_SUFFIXES = (".dat",)
+MM = 1e-3  # metres per millimetre
+QUATERNION_NORM_RANGE = (0.9, 1.1)
+GIMBAL_LOCK_RAD = 1e-9  # |cos B| below this: B is +-90 deg and C is written as 0
+
+_RAPID_POSE_KEYS = ("x", "y", "z", "q1", "q2", "q3", "q4")
+_RAPID_CONF_KEYS = ("cf1", "cf4", "cf6", "cfx")
+_KRL_POSE_KEYS = ("X", "Y", "Z", "A", "B", "C")
+_KRL_CONF_KEYS = ("S", "T")
+
+
+@dataclass(frozen=True)
+class ProgramTarget:
+    """A target declared in a program; ``pose`` is the TCP in the program's frame (m, rad)."""
+
+    name: str
+    line: int  # 1-based line of the declaration
+    pose: np.ndarray  # (4, 4), metres
+    config: dict[str, int]  # RAPID: cf1, cf4, cf6, cfx; KRL: S and T when given
+    tool: str | None = None  # RAPID: the tool of the first motion instruction using the target
+    work_object: str | None = None  # RAPID: the \WObj of that instruction
+    spans: Mapping[str, tuple[int, int]] = field(default_factory=dict, repr=False)
+    """Character offsets ``[start, end)`` into ``Program.text`` of each value (RAPID: x y z q1..q4
+    cf1 cf4 cf6 cfx; KRL: X Y Z A B C and S T when given)."""
+    first_move: int | None = None  # RAPID: ordinal of the first motion to the target itself (text order)
+    moves: int = 0  # RAPID: how many motion instructions use it (Offs/RelTool of it too)
+    approached_from: str | None = None  # RAPID: the target the robot comes from there (None: unknown)
+
+
+@dataclass(frozen=True)
+class ToolData:
+    """A RAPID tooldata: TCP frame and load in the flange frame (m, kg)."""
+
+    tcp: np.ndarray  # (4, 4), metres
+    mass_kg: float
+    cog_m: np.ndarray  # (3,), metres
+    robhold: bool
+
+
+@dataclass(frozen=True)
+class Program:
+    """A robot program as read: its exact text and the targets, tools and work objects declared in it."""
+
+    path: Path
+    kind: str  # "rapid" or "krl"
+    text: str  # exactly as in the file (line endings kept)
+    targets: tuple[ProgramTarget, ...]
+    tools: dict[str, ToolData]  # RAPID tooldata (empty for KRL)
+    work_objects: dict[str, np.ndarray]  # RAPID wobjdata: uframe @ oframe, (4, 4) m (empty for KRL)
+    encoding: str = "utf-8"  # "latin-1" when the file is not UTF-8: write the new text back with it
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+
+
+def read_program(path: str | Path) -> Program:
+    """Read a RAPID module or a KRL ``.dat`` file, chosen by the suffix; bad input is an InputError."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in RAPID_SUFFIXES + KRL_SUFFIXES:
+        accepted = ", ".join(RAPID_SUFFIXES + KRL_SUFFIXES)
+        raise InputError(path, None, f"unknown program suffix {path.suffix or '(none)'!r}: expected one of {accepted}")
+    if path.is_file() and path.stat().st_size > MAX_PROGRAM_BYTES:
+        raise InputError(
+            path, None, f"{path.stat().st_size / 1e6:.0f} MB: a program is at most {MAX_PROGRAM_BYTES // 10**6} MB"
+        )
+    text, encoding = _read_text(path)
+    if "\r" in text and "\n" not in text:
+        raise InputError(path, None, "its lines end in CR alone (classic Mac OS): convert them to LF or CR LF")
+    try:
+        if suffix in KRL_SUFFIXES:
+            return Program(path, "krl", text, _krl_targets(text, path), {}, {}, encoding)
+        targets, tools, work_objects = _read_rapid(text, path)
+    except RecursionError:
+        raise InputError(path, None, "brackets nested too deeply for a robot program") from None
+    return Program(path, "rapid", text, targets, tools, work_objects, encoding)
+
+
+MAX_PROGRAM_BYTES = 32 * 10**6  # a 32 MB module holds some 200 000 targets
+MAX_VALUE = 1e10  # beyond this a number is a typo (9E+09 is RAPID's unused external axis)
+
+
+def _read_text(path: Path) -> tuple[str, str]:
+    """The file's exact text (no newline translation) and its encoding: UTF-8, else Latin-1."""
+    read_file_text(path, encoding="latin-1")  # the checks: exists, a regular file, not huge
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read file: {exc.strerror}") from None
+    try:
+        return data.decode("utf-8"), "utf-8"
+    except UnicodeDecodeError:
+        return data.decode("latin-1"), "latin-1"
+
+
+def _line_starts(text: str) -> list[int]:
+    return [0, *(m.end() for m in re.finditer("\n", text))]
+
+
+# ---------------------------------------------------------------------------------------------
+# RAPID tokens and values
+
+_RAPID_TOKEN = re.compile(
+    r"""(?P<space>\s+)
+    |(?P<comment>![^\r\n]*)
+    |(?P<string>"(?:[^"\r\n]|"")*")
+    |(?P<number>(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)
+    |(?P<name>[A-Za-z_][A-Za-z0-9_]*)
+    |(?P<assign>:=)
+    |(?P<other>.)""",
+    re.VERBOSE | re.DOTALL,
+)
+
+
+class _Token(NamedTuple):
+    kind: str  # "string", "number", "name", "assign" or "other"
+    text: str
+    start: int
+    end: int
+    line: int
+
+
+class _Leaf(NamedTuple):
+    """A scalar in an aggregate value: a (signed) number, a name or a string."""
+
+    kind: str
+    text: str
+    start: int
+    end: int
+    line: int
+
+
+_Node = _Leaf | list
+
+
+def _rapid_tokens(text: str) -> list[_Token]:
+    """Tokens of a RAPID module, comments and blanks dropped."""
+    starts = _line_starts(text)
+    return [
+        _Token(m.lastgroup or "other", m.group(), m.start(), m.end(), bisect.bisect_right(starts, m.start()))
+        for m in _RAPID_TOKEN.finditer(text)
+        if m.lastgroup not in ("space", "comment")
+    ]
+
+
+@dataclass
+class _Context:
+    """Where a declaration is being parsed, for error messages."""
+
+    text: str
+    tokens: list[_Token]
+    path: Path
+    name: str
+    line: int
+
+    def fail(self, line: int, message: str) -> InputError:
+        return InputError(self.path, f"line {line}, {self.name}", message)
+
+    def at(self, i: int) -> _Token:
+        if i >= len(self.tokens):
+            raise self.fail(self.line, "unterminated declaration: the file ends before its ';'")
+        return self.tokens[i]
+
+
+def _parse_value(i: int, ctx: _Context) -> tuple[_Node, int]:
+    """The aggregate or scalar starting at token ``i`` and the index after it."""
+    tok = ctx.at(i)
+    if tok.text == "[":
+        items: list[_Node] = []
+        i += 1
+        while True:
+            item, i = _parse_value(i, ctx)
+            items.append(item)
+            tok = ctx.at(i)
+            if tok.text == "]":
+                return items, i + 1
+            if tok.text != ",":
+                raise ctx.fail(tok.line, f"expected ',' or ']' but found {tok.text!r}")
+            i += 1
+    if tok.text in ("+", "-"):
+        number = ctx.at(i + 1)
+        if number.kind != "number":
+            raise ctx.fail(number.line, f"expected a number after {tok.text!r} but found {number.text!r}")
+        return _Leaf("number", ctx.text[tok.start : number.end], tok.start, number.end, tok.line), i + 2
+    if tok.kind in ("number", "name", "string"):
+        return _Leaf(tok.kind, tok.text, tok.start, tok.end, tok.line), i + 1
+    raise ctx.fail(tok.line, f"expected a value but found {tok.text!r}")
+
+
+def _first_line(node: _Node, ctx: _Context) -> int:
+    while isinstance(node, list):
+        if not node:
+            return ctx.line
+        node = node[0]
+    return node.line
+
+
+def _aggregate(node: _Node, count: int, what: str, ctx: _Context) -> list[_Node]:
+    """``node`` as an aggregate of ``count`` items."""
+    if not isinstance(node, list) or len(node) != count:
+        found = f"{len(node)} items" if isinstance(node, list) else repr(node.text)
+        raise ctx.fail(_first_line(node, ctx), f"{what}: expected [...] of {count} items, found {found}")
+    return node
+
+
+def _number(node: _Node, what: str, ctx: _Context) -> float:
+    if not isinstance(node, _Leaf) or node.kind != "number":
+        text = node.text if isinstance(node, _Leaf) else "[...]"
+        raise ctx.fail(_first_line(node, ctx), f"{what}: {text!r} is not a number")
+    try:
+        value = float(re.sub(r"\s+", "", node.text))
+    except ValueError:  # a comment between a sign and its digits
+        raise ctx.fail(node.line, f"{what}: {node.text!r} is not a plain number") from None
+    if not math.isfinite(value) or abs(value) > MAX_VALUE:
+        raise ctx.fail(node.line, f"{what}: {node.text!r} is out of range (beyond {MAX_VALUE:g})")
+    return value
+
+
+def _numbers(node: _Node, count: int, what: str, ctx: _Context) -> tuple[list[float], list[_Leaf]]:
+    """``[n1, ..., n_count]``: the values and their leaves."""
+    items = _aggregate(node, count, what, ctx)
+    values = [_number(item, what, ctx) for item in items]
+    return values, [item for item in items if isinstance(item, _Leaf)]
+
+
+def _boolean(node: _Node, what: str, ctx: _Context) -> bool:
+    if isinstance(node, _Leaf) and node.kind == "name" and node.text.upper() in ("TRUE", "FALSE"):
+        return node.text.upper() == "TRUE"
+    raise ctx.fail(_first_line(node, ctx), f"{what}: expected TRUE or FALSE")
+
+
+def _unit_quaternion(values: list[float], line: int, what: str, ctx: _Context) -> np.ndarray:
+    """The quaternion ``[w, x, y, z]`` normalised; a norm outside 0.9..1.1 is refused."""
+    norm = math.hypot(*values)
+    low, high = QUATERNION_NORM_RANGE
+    if not low <= norm <= high:
+        raise ctx.fail(line, f"{what}: quaternion {values} has norm {norm:.6g}, not 1 (allowed {low}..{high})")
+    return np.array(values) / norm
+
+
+def _frame(node: _Node, what: str, ctx: _Context) -> np.ndarray:
+    """``[[x, y, z], [q1, q2, q3, q4]]`` (mm, w x y z) as a 4x4 pose in metres."""
+    trans_node, rot_node = _aggregate(node, 2, what, ctx)
+    trans, _ = _numbers(trans_node, 3, f"{what} position", ctx)
+    quat, leaves = _numbers(rot_node, 4, f"{what} orientation", ctx)
+    q = _unit_quaternion(quat, leaves[0].line, f"{what} orientation", ctx)
+    return se3.pose(se3.quaternion_rotation(q), np.array(trans) * MM)
+
+
+def _integers(values: list[float], leaves: list[_Leaf], what: str, ctx: _Context) -> list[int]:
+    for value, leaf in zip(values, leaves, strict=True):
+        if value != int(value):
+            raise ctx.fail(leaf.line, f"{what}: {leaf.text!r} is not an integer")
+    return [int(v) for v in values]
+
+
+# ---------------------------------------------------------------------------------------------
+# RAPID declarations
+
+
+_STORAGE = ("const", "pers", "var")
+_DATA_TYPES = ("robtarget", "tooldata", "wobjdata")
+
+
+class _Declaration(NamedTuple):
+    data_type: str  # "robtarget", "tooldata" or "wobjdata"
+    ctx: _Context
+    value: _Node
+
+
+def _rapid_declarations(text: str, tokens: list[_Token], path: Path) -> Iterator[_Declaration]:
+    """The declarations of robtarget, tooldata and wobjdata with a value, in order."""
+    i = 0
+    while i < len(tokens) - 2:
+        tok, kind, name = tokens[i], tokens[i + 1], tokens[i + 2]
+        is_declaration = tok.kind == "name" and tok.text.lower() in _STORAGE and name.kind == "name"
+        if is_declaration and kind.kind == "name" and kind.text.lower() in _DATA_TYPES:
+            ctx = _Context(text, tokens, path, name.text, tok.line)
+            declaration, i = _parse_declaration(kind.text.lower(), i + 3, ctx)
+            if declaration is not None:
+                yield declaration
+        else:
+            i += 1
+
+
+def _parse_declaration(data_type: str, i: int, ctx: _Context) -> tuple[_Declaration | None, int]:
+    """The declaration whose name ends before token ``i``: None if it has no value or is a parameter."""
+    is_array = ctx.at(i).text == "{"
+    if is_array:
+        while ctx.at(i).text != "}":
+            i += 1
+        i += 1
+    if i >= len(ctx.tokens) or ctx.tokens[i].kind != "assign":
+        return None, i  # no value (VAR robtarget p;), or a routine's parameter
+    if is_array:
+        if data_type == "robtarget":
+            raise ctx.fail(ctx.line, "arrays of robtargets are not supported: declare each target on its own")
+        return None, i
+    value, i = _parse_value(i + 1, ctx)
+    end = ctx.at(i)
+    if end.text != ";":
+        raise ctx.fail(end.line, f"expected ';' after the value but found {end.text!r}")
+    return _Declaration(data_type, ctx, value), i + 1
+
+
+def _robtarget(value: _Node, ctx: _Context) -> ProgramTarget:
+    """``[[x,y,z],[q1..q4],[cf1,cf4,cf6,cfx],[eax_a..eax_f]]`` as a target (mm -> m)."""
+    what = "robtarget [[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[eax_a,...,eax_f]]"
+    trans_node, rot_node, conf_node, extax_node = _aggregate(value, 4, what, ctx)
+    trans, trans_leaves = _numbers(trans_node, 3, "position [x,y,z]", ctx)
+    quat, quat_leaves = _numbers(rot_node, 4, "orientation [q1,q2,q3,q4]", ctx)
+    conf, conf_leaves = _numbers(conf_node, 4, "robconf [cf1,cf4,cf6,cfx]", ctx)
+    _numbers(extax_node, 6, "external axes", ctx)
+    q = _unit_quaternion(quat, quat_leaves[0].line, "orientation", ctx)
+    config = dict(zip(_RAPID_CONF_KEYS, _integers(conf, conf_leaves, "robconf", ctx), strict=True))
+    leaves = trans_leaves + quat_leaves + conf_leaves
+    spans = {key: (leaf.start, leaf.end) for key, leaf in zip(_RAPID_POSE_KEYS + _RAPID_CONF_KEYS, leaves, strict=True)}
+    pose = se3.pose(se3.quaternion_rotation(q), np.array(trans) * MM)
+    return ProgramTarget(ctx.name, ctx.line, pose, config, spans=spans)
+
+
+def _tooldata(value: _Node, ctx: _Context) -> ToolData:
+    """``[robhold, [[x,y,z],[q]], [mass, [cx,cy,cz], [aq1..aq4], ix, iy, iz]]`` (mm, kg)."""
+    what = "tooldata [robhold, tframe, tload]"
+    robhold, tframe, tload = _aggregate(value, 3, what, ctx)
+    mass_node, cog_node, aom_node, *inertia = _aggregate(tload, 6, "tload [mass, cog, aom, ix, iy, iz]", ctx)
+    cog, _ = _numbers(cog_node, 3, "tload cog", ctx)
+    _numbers(aom_node, 4, "tload aom", ctx)
+    for node in inertia:
+        _number(node, "tload inertia", ctx)
+    tcp = _frame(tframe, "tframe", ctx)
+    mass = _number(mass_node, "tload mass", ctx)
+    if not 0.0 <= mass <= MAX_LOAD_KG or np.abs(cog).max() > MAX_COG_MM:
+        raise ctx.fail(
+            _first_line(tload, ctx), f"tload: a mass of 0 to {MAX_LOAD_KG:g} kg and a cog within {MAX_COG_MM:g} mm, "
+            f"got {mass:g} kg at {[float(v) for v in cog]}",
+        )  # fmt: skip
+    return ToolData(tcp, mass, np.array(cog) * MM, _boolean(robhold, "robhold", ctx))
+
+
+MAX_LOAD_KG, MAX_COG_MM = 10000.0, 10000.0
+
+
+def _wobjdata(value: _Node, ctx: _Context) -> np.ndarray:
+    """``[robhold, ufprog, "ufmec", uframe, oframe]`` as uframe @ oframe (m)."""
+    robhold, ufprog, ufmec, uframe, oframe = _aggregate(value, 5, "wobjdata", ctx)
+    if not (isinstance(ufmec, _Leaf) and ufmec.kind == "string"):
+        raise ctx.fail(_first_line(ufmec, ctx), 'ufmec: expected a string ("")')
+    if _boolean(robhold, "robhold", ctx) or not _boolean(ufprog, "ufprog", ctx):
+        raise ctx.fail(
+            _first_line(value, ctx), "a work object held by the robot (robhold TRUE) or moved by a mechanical unit "
+            "(ufprog FALSE) is not supported: its targets move with it",
+        )  # fmt: skip
+    return _frame(uframe, "uframe", ctx) @ _frame(oframe, "oframe", ctx)
+
+
+def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[str, ToolData], dict[str, np.ndarray]]:
+    """A RAPID module's targets, tools and work objects."""
+    tokens = _rapid_tokens(text)
+    targets: list[ProgramTarget] = []
+    tools: dict[str, ToolData] = {}
+    work_objects: dict[str, np.ndarray] = {}
+    seen: dict[str, int] = {}
+    for declaration in _rapid_declarations(text, tokens, path):
+        ctx = declaration.ctx
+        if ctx.name.lower() in seen:
+            raise ctx.fail(ctx.line, f"declared twice (first on line {seen[ctx.name.lower()]})")
+        seen[ctx.name.lower()] = ctx.line
+        if declaration.data_type == "robtarget":
+            targets.append(_robtarget(declaration.value, ctx))
+        elif declaration.data_type == "tooldata":
+            tools[ctx.name] = _tooldata(declaration.value, ctx)
+        else:
+            work_objects[ctx.name] = _wobjdata(declaration.value, ctx)
+    uses = _motion_uses(tokens)
+    targets = [_with_use(target, uses.get(target.name.lower())) for target in targets]
+    return tuple(targets), tools, work_objects
+
+
+def _with_use(target: ProgramTarget, use: _Use | None) -> ProgramTarget:
+    if use is None:
+        return target
+    return replace(
+        target, tool=use.tool, work_object=use.work_object, first_move=use.first_plain, moves=use.count,
+        approached_from=use.approached_from,
+    )  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# RAPID motion instructions
+
+# Instruction -> (number of target arguments, index of the tool among the positional arguments).
+_MOTIONS = {
+    "movel": (1, 3),
+    "movej": (1, 3),
+    "movec": (2, 4),
+    "moveldo": (1, 3),
+    "movejdo": (1, 3),
+    "movecdo": (2, 4),
+    "movelsync": (1, 3),
+    "movejsync": (1, 3),
+    "movecsync": (2, 4),
+}
+_TARGET_FUNCTIONS = ("offs", "reltool")
+_OPENING, _CLOSING = frozenset("([{"), frozenset(")]}")
+
+
+@dataclass
+class _Use:
+    """How a target is used: the tool and work object of the first motion instruction using it,
+    the number of motion instructions using it, the ordinal (text order) of the first that goes
+    to the target itself (not to an ``Offs``/``RelTool`` of it), and the target the robot comes
+    from there (lower case; None: unknown, an ``Offs``/``RelTool`` point or nothing before)."""
+
+    tool: str | None
+    work_object: str | None
+    count: int = 1
+    first_plain: int | None = None
+    approached_from: str | None = None
+
+
+def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
+    """Lower-case target name -> its use by the module's motion instructions."""
+    uses: dict[str, _Use] = {}
+    ordinal = 0
+    previous: str | None = None  # the point the robot is at: a plain target, or None (unknown)
+    for i, tok in enumerate(tokens):
+        spec = _MOTIONS.get(tok.text.lower()) if tok.kind == "name" else None
+        if spec is None or (i > 0 and tokens[i - 1].text.lower() == "proc"):
+            continue
+        arguments, wobj = _instruction_arguments(tokens, i + 1)
+        n_targets, tool_index = spec
+        tool = _single_name(arguments[tool_index]) if len(arguments) > tool_index else None
+        for argument in arguments[:n_targets]:
+            name = _target_name(argument)
+            plain = _single_name(argument)
+            if name is not None:
+                use = uses.setdefault(name.lower(), _Use(tool, wobj, count=0))
+                use.count += 1
+                if plain is not None and use.first_plain is None:
+                    use.first_plain, use.approached_from = ordinal, previous
+            previous = plain.lower() if plain is not None else None
+            ordinal += 1
+    return uses
+
+
+def _instruction_arguments(tokens: list[_Token], i: int) -> tuple[list[list[_Token]], str | None]:
+    """The positional arguments (optional ``\\Arg`` parts dropped) up to ``;``, and the ``\\WObj``."""
+    arguments: list[list[_Token]] = []
+    current: list[_Token] = []
+    depth, optional, wobj = 0, False, None
+    while i < len(tokens) and not (depth == 0 and tokens[i].text == ";"):
+        tok = tokens[i]
+        depth += (tok.text in _OPENING) - (tok.text in _CLOSING)
+        wobj = _wobj_at(tokens, i) or wobj
+        if depth == 0 and tok.text == ",":
+            if current:
+                arguments.append(current)
+            current, optional = [], False
+        elif depth == 0 and tok.text == "\\":
+            optional = True
+        elif not optional:
+            current.append(tok)
+        i += 1
+    if current:
+        arguments.append(current)
+    return arguments, wobj
+
+
+def _wobj_at(tokens: list[_Token], i: int) -> str | None:
+    """The work object's name if tokens ``i..i+3`` are ``\\WObj := name``."""
+    window = tokens[i : i + 4]
+    if len(window) == 4 and window[0].text == "\\" and window[1].text.lower() == "wobj" and window[2].kind == "assign":
+        return window[3].text if window[3].kind == "name" else None
+    return None
+
+
+def _single_name(argument: list[_Token]) -> str | None:
+    return argument[0].text if len(argument) == 1 and argument[0].kind == "name" else None
+
+
+def _target_name(argument: list[_Token]) -> str | None:
+    """``p10``, ``Offs(p10, ...)`` or ``RelTool(p10, ...)`` -> ``p10``; anything else None."""
+    if len(argument) >= 3 and argument[0].text.lower() in _TARGET_FUNCTIONS and argument[1].text == "(":
+        return argument[2].text if argument[2].kind == "name" else None
+    return _single_name(argument)
+
+
+# ---------------------------------------------------------------------------------------------
+# KRL
+
+_KRL_CODE = re.compile(r'(?:"[^"\r\n]*"|[^";\r\n])*')  # a line's code, before any ';' comment
+_KRL_DECL = re.compile(r"\s*(?:GLOBAL\s+)?(?:DECL\s+)?(?:GLOBAL\s+)?(E6POS|POS)\s+([A-Za-z_$][\w$]*)", re.IGNORECASE)
+_KRL_TYPE_PREFIX = re.compile(r"\s*[A-Za-z_]\w*\s*:(?!=)")
+_KRL_COMPONENT = re.compile(r"\s*([A-Za-z_]\w*)\s+(\S(?:.*\S)?)\s*", re.DOTALL)
+_KRL_REAL = re.compile(r"[+-]?\s*(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_KRL_INT = re.compile(r"[+-]?[0-9]+")
+_KRL_BITS = re.compile(r"'([Bb])([01]+)'|'([Hh])([0-9A-Fa-f]+)'")
+_Fail = Callable[[str], InputError]  # builds the error naming the file, line and target
+
+
+def _krl_targets(text: str, path: Path) -> tuple[ProgramTarget, ...]:
+    """The E6POS and POS targets of a KRL ``.dat`` file."""
+    targets: list[ProgramTarget] = []
+    seen: dict[str, int] = {}
+    for number, start in enumerate(_line_starts(text), 1):
+        code = _KRL_CODE.match(text, start).group()
+        match = _KRL_DECL.match(code)
+        if match is None:
+            continue
+        name = match.group(2)
+        field_name = f"line {number}, {name}"
+        target = _krl_target(code, match.end(), start, name, number, partial(InputError, path, field_name))
+        if target is None:
+            continue
+        if name.lower() in seen:
+            raise InputError(path, field_name, f"declared twice (first on line {seen[name.lower()]})")
+        seen[name.lower()] = number
+        targets.append(target)
+    return tuple(targets)
+
+
+def _krl_target(code: str, at: int, offset: int, name: str, line: int, fail: _Fail) -> ProgramTarget | None:
+    """The target declared in ``code`` whose name ends at ``at``; None without a value."""
+    rest = code[at:]
+    if not rest.strip():
+        return None
+    if rest.lstrip().startswith("["):
+        raise fail("arrays of positions are not supported: declare each target on its own")
+    brace = re.match(r"\s*=\s*\{", rest)
+    if brace is None:
+        raise fail("expected '={X ..,Y ..,Z ..,A ..,B ..,C ..}' after the name")
+    open_at = at + brace.end()
+    close_at = code.find("}", open_at)
+    if close_at < 0:
+        raise fail("unterminated value: no '}' on the line")
+    if code[close_at + 1 :].strip():
+        raise fail(f"unexpected text after '}}': {code[close_at + 1 :].strip()!r}")
+    prefix = _KRL_TYPE_PREFIX.match(code, open_at, close_at)
+    components = _krl_components(code, prefix.end() if prefix else open_at, close_at, offset, fail)
+    return _krl_from_components(components, name, line, fail)
+
+
+def _krl_components(code: str, start: int, end: int, offset: int, fail: _Fail) -> dict[str, tuple[str, int, int]]:
+    """Upper-case component name -> (value text, start, end), offsets into the file's text."""
+    components: dict[str, tuple[str, int, int]] = {}
+    at = start
+    for piece in code[start:end].split(","):
+        match = _KRL_COMPONENT.fullmatch(code, at, at + len(piece))
+        at += len(piece) + 1
+        if match is None:
+            raise fail(f"malformed component {piece.strip()!r}: expected NAME VALUE")
+        key = match.group(1).upper()
+        if key in components:
+            raise fail(f"component {key} given twice")
+        components[key] = (match.group(2), offset + match.start(2), offset + match.end(2))
+    return components
+
+
+def _krl_from_components(
+    components: dict[str, tuple[str, int, int]], name: str, line: int, fail: _Fail
+) -> ProgramTarget:
+    missing = [key for key in _KRL_POSE_KEYS if key not in components]
+    if missing:
+        raise fail(f"missing {', '.join(missing)}: a target needs X, Y, Z, A, B and C")
+    values = {key: _krl_real(key, components[key][0], fail) for key in _KRL_POSE_KEYS}
+    config = {key: _krl_integer(key, components[key][0], fail) for key in _KRL_CONF_KEYS if key in components}
+    spans = {key: components[key][1:] for key in _KRL_POSE_KEYS + _KRL_CONF_KEYS if key in components}
+    xyz_m = np.array([values["X"], values["Y"], values["Z"]]) * MM
+    rpy_rad = np.radians([values["C"], values["B"], values["A"]])
+    return ProgramTarget(name, line, se3.pose_from_xyz_rpy(xyz_m, rpy_rad), config, spans=spans)
+
+
+def _krl_real(key: str, text: str, fail: _Fail) -> float:
+    if _KRL_REAL.fullmatch(text) is None:
+        raise fail(f"{key}: {text!r} is not a number")
+    value = float(re.sub(r"\s+", "", text))
+    if not math.isfinite(value):
+        raise fail(f"{key}: {text!r} is out of range")
+    return value
+
+
+def _krl_integer(key: str, text: str, fail: _Fail) -> int:
+    """A decimal integer, or a ``'B0110'`` / ``'H1F'`` literal."""
+    if _KRL_INT.fullmatch(text):
+        return int(text)
+    bits = _KRL_BITS.fullmatch(text)
+    if bits is None:
+        raise fail(f"{key}: {text!r} is not an integer (decimal, 'B...' or 'H...')")
+    return int(bits.group(2), 2) if bits.group(1) else int(bits.group(4), 16)
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing
+
+
+def write_program(
+    program: Program, corrected: Mapping[str, tuple[np.ndarray, dict[str, int]]], path: str | Path | None = None
+) -> str:
+    """The program's text with each named target's pose (4x4, m) and config replaced in place.
+
+    Only the numbers' own characters change (RAPID: position and quaternion, and confdata entries
+    whose value changed; KRL: X Y Z A B C, and S or T when changed); everything else is kept byte
+    for byte. Nothing is written: ``path`` (default the program's) only names the output in
+    messages. A name that is not a target, a pose that is not rigid, a config key the target does
+    not have or a non-integer config value is a ValueError (a programming error).
+    """
+    where = Path(path) if path is not None else program.path
+    by_name = {target.name: target for target in program.targets}
+    unknown = sorted(set(corrected) - set(by_name))
+    if unknown:
+        raise ValueError(f"{where}: not targets of the program: {', '.join(unknown)}")
+    edits: list[tuple[int, int, str]] = []
+    for name, (pose, config) in corrected.items():
+        target = by_name[name]
+        checked = _checked_pose(pose, f"{where}: {name}")
+        if program.kind == "rapid":
+            edits += _rapid_edits(program.text, target, checked)
+        else:
+            edits += _krl_edits(target, checked)
+        edits += _config_edits(program.text, target, config, f"{where}: {name}")
+    return _apply(program.text, edits)
+
+
+def _checked_pose(pose: np.ndarray, where: str) -> np.ndarray:
+    pose = np.asarray(pose, dtype=float)
+    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+        raise ValueError(f"{where}: a pose is a finite (4, 4) array, got shape {pose.shape}")
+    rot = pose[:3, :3]
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise ValueError(f"{where}: the pose's rotation is not a rotation matrix")
+    return pose
+
+
+def _apply(text: str, edits: list[tuple[int, int, str]]) -> str:
+    """``text`` with each ``[start, end)`` replaced (edits do not overlap)."""
+    pieces, at = [], 0
+    for start, end, new in sorted(edits):
+        pieces += [text[at:start], new]
+        at = end
+    pieces.append(text[at:])
+    return "".join(pieces)
+
+
+def _fixed(value: float, decimals: int) -> str:
+    """``value`` with ``decimals`` decimals, never ``-0.000``."""
+    text = f"{value:.{decimals}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text
+
+
+def rapid_pose_values(pose: np.ndarray, near: np.ndarray | None = None) -> tuple[list[str], list[str]]:
+    """Texts of x y z (mm, 3 decimals) and q1..q4 (w x y z, 9 decimals, unit), the quaternion's sign
+    chosen so its dot product with ``near`` (the original quaternion) is positive."""
+    q = se3.rotation_quaternion(pose[:3, :3])
+    q = q / np.linalg.norm(q)
+    if near is not None and float(np.dot(q, near)) < 0:
+        q = -q
+    return [_fixed(v / MM, 3) for v in pose[:3, 3]], [_fixed(v, 9) for v in q]
+
+
+def format_rapid_pose(pose: np.ndarray, near: np.ndarray | None = None) -> tuple[str, str]:
+    """``("[x,y,z]", "[q1,q2,q3,q4]")`` of a pose (m) in RAPID's units (mm, quaternion w x y z)."""
+    trans, quat = rapid_pose_values(pose, near)
+    return f"[{','.join(trans)}]", f"[{','.join(quat)}]"
+
+
+def krl_abc_deg(rot: np.ndarray) -> tuple[float, float, float]:
+    """KUKA's A B C (deg) of a rotation, ``R = Rz(A) Ry(B) Rx(C)``; at B = +-90 deg, C = 0."""
+    if math.hypot(rot[0, 0], rot[1, 0]) < GIMBAL_LOCK_RAD:
+        b = math.pi / 2 if rot[2, 0] < 0 else -math.pi / 2
+        return math.degrees(math.atan2(-rot[0, 1], rot[1, 1])), math.degrees(b), 0.0
+    roll, pitch, yaw = se3.rpy_from_rotation(rot)
+    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
+
+
+def krl_pose_values(pose: np.ndarray) -> dict[str, str]:
+    """Texts of X Y Z (mm, 3 decimals) and A B C (deg, 5 decimals) of a pose (m)."""
+    values = dict(zip(("X", "Y", "Z"), (_fixed(v / MM, 3) for v in pose[:3, 3]), strict=True))
+    values |= dict(zip(("A", "B", "C"), (_fixed(v, 5) for v in krl_abc_deg(pose[:3, :3])), strict=True))
+    return values
+
+
+def format_krl_pose(pose: np.ndarray) -> str:
+    """``X ..,Y ..,Z ..,A ..,B ..,C ..`` of a pose (m), in KRL's units (mm, deg)."""
+    return ",".join(f"{key} {value}" for key, value in krl_pose_values(pose).items())
+
+
+def _rapid_edits(text: str, target: ProgramTarget, pose: np.ndarray) -> list[tuple[int, int, str]]:
+    near = np.array([float(re.sub(r"\s+", "", text[slice(*target.spans[k])])) for k in ("q1", "q2", "q3", "q4")])
+    trans, quat = rapid_pose_values(pose, near)
+    return [(*target.spans[key], value) for key, value in zip(_RAPID_POSE_KEYS, trans + quat, strict=True)]
+
+
+def _krl_edits(target: ProgramTarget, pose: np.ndarray) -> list[tuple[int, int, str]]:
+    return [(*target.spans[key], value) for key, value in krl_pose_values(pose).items()]
+
+
+def _config_edits(
+    text: str, target: ProgramTarget, config: Mapping[str, int], where: str
+) -> list[tuple[int, int, str]]:
+    """Edits of the config values that changed, each written in the style it was read in."""
+    unknown = sorted(set(config) - set(target.config))
+    if unknown:
+        raise ValueError(
+            f"{where}: the target has no {', '.join(unknown)} in the file (it has {sorted(target.config)})"
+        )
+    edits = []
+    for key, value in config.items():
+        if isinstance(value, bool) or not float(value).is_integer():
+            raise ValueError(f"{where}: config {key} = {value!r} is not an integer")
+        if int(value) != target.config[key]:
+            span = target.spans[key]
+            edits.append((*span, _integer_text(text[slice(*span)], int(value), f"{where}: {key}")))
+    return edits
+
+
+def _integer_text(original: str, value: int, where: str) -> str:
+    """``value`` as a decimal, or as a ``'B...'``/``'H...'`` literal of at least the original's width."""
+    if not original.startswith("'"):
+        return str(value)
+    if value < 0:
+        raise ValueError(f"{where}: {value} cannot be written as {original}")
+    letter, width = original[1], len(original) - 3
+    digits = format(value, "b" if letter in "Bb" else "X")
+    return f"'{letter}{digits.rjust(width, '0')}'"
