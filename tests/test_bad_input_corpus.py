@@ -281,6 +281,10 @@ CASES = [
     ("config_missing_dataset_dir", _config(_set("dataset", "gone")), CALIBRATE, "gone", ""),
     ("config_formulation", _config(_set("formulation", "sonar")), CALIBRATE, "calibration.yaml", "formulation"),
     ("config_model", _config(_set("model", "DH,q")), CALIBRATE, "calibration.yaml", "model"),
+    # null is a value: refused where a field does not document it, never read as the default
+    ("config_model_null", _config(_set("model", None)), CALIBRATE, "calibration.yaml", "model"),
+    ("config_holdout_null", _config(_set("validation.holdout", None)), CALIBRATE, "calibration.yaml",
+     "validation.holdout"),
     (
         "config_compliant_joint_9",
         _config(_set("compliant_joints", [9])),

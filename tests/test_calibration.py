@@ -433,3 +433,83 @@ def test_every_estimate_is_saved_and_reads_back(small_cell, tmp_path):
     q = np.zeros((1, robot.n_joints))
     expected = inverse(robot.fk(q, params)[0]) @ robot.fk_tool(q, params)[0]
     np.testing.assert_allclose(back["camera_mounting"], expected, atol=1e-12)
+
+
+@pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
+def test_a_null_robust_loss_is_off_as_documented(tmp_path):
+    """Issue 38, item 3: docs/calibration.md documents ``robust: {tracker_points: null}`` as
+    "off"; it was read as "not set" and kept the default Huber loss, which rejected the model's
+    own error as outliers. On the real FARO set (DH, half held out, seed 0) null and none give
+    the same fit."""
+    from fgcal.data.faro import convert_faro
+
+    convert_faro(FARO, tmp_path / "faro")
+    held_out = {}
+    for loss in (None, "none", ["huber", 3.0]):
+        config = CalibrationConfig.defaults(
+            tmp_path / "faro", formulation="tracker", model="DH", units={"length": "mm"},
+            noise={"tracker_sigma": 0.05}, robust={"tracker_points": loss}, validation={"holdout": 0.5, "seed": 0},
+        )  # fmt: skip
+        result = calibrate(config)
+        held_out[str(loss)] = (result.validation["after"]["tool_point"].rms, len(result.problem.rejected))
+    assert held_out["None"] == held_out["none"], held_out
+    assert held_out["none"][1] == 0 and held_out["['huber', 3.0]"] != held_out["none"], held_out
+
+
+def test_null_is_a_value_not_the_default(tmp_path):
+    """A null where the field does not document one is refused, naming the field, rather than
+    silently taken for the default (issue 38, item 3)."""
+    with pytest.raises(fgcal.InputError, match=r"validation\.holdout.*is null"):
+        parse_config({"dataset": "d", "validation": {"holdout": None}}, tmp_path / "c.yaml")
+    with pytest.raises(fgcal.InputError, match=r"model.*is null"):
+        parse_config({"dataset": "d", "model": None}, tmp_path / "c.yaml")
+    config = parse_config({"dataset": "d", "robust": {"tracker_points": None}}, tmp_path / "c.yaml")
+    assert config.measurement.robust["tracker_points"] is None
+
+
+@pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
+def test_config_lengths_follow_the_datasets_units_and_a_noise_mismatch_is_headlined(tmp_path):
+    """Issue 38, item 4: the FARO dataset is in mm; a config without units: read
+    ``tracker_sigma: 0.05`` as 50 mm, identified 6 of 57 parameters and exited 0. The config's
+    lengths now follow the dataset's units; where they are really misdeclared (units: m), the
+    headline warns, naming the noise and the units of both."""
+    from fgcal.calibration.config import load_config
+    from fgcal.data.faro import convert_faro
+    from fgcal.reports.headline import warnings
+
+    convert_faro(FARO, tmp_path / "faro")
+    results = {}
+    for name, units in (("dataset", None), ("mm", "{length: mm}"), ("m", "{length: m}")):
+        text = "dataset: faro\nformulation: tracker\nnoise: {tracker_sigma: 0.05}\n"
+        (tmp_path / f"{name}.yaml").write_text(text + (f"units: {units}\n" if units else ""))
+        config = load_config(tmp_path / f"{name}.yaml")
+        results[name] = (config, calibrate(config))
+    config, result = results["dataset"]
+    assert config.units.length == "mm" and "dataset" in config.units_source
+    assert config.measurement.noise_stated["tracker_m"] == pytest.approx(5e-5)
+    same = results["mm"][1]
+    assert result.validation["after"]["tool_point"].rms == same.validation["after"]["tool_point"].rms
+    assert len(result.released) == len(same.released) > 20
+    assert warnings(result) == warnings(same) == []
+    wrong = warnings(results["m"][1])
+    assert len(wrong) == 1 and "50.00 mm per row" in wrong[0] and "lengths are read in m " in wrong[0], wrong
+
+
+@pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
+def test_convert_faro_writes_a_config_and_a_config_without_formulation_reads_the_dataset(tmp_path, capsys):
+    """Issue 38, item 4: convert-faro writes a calibration config as simulate does (in the
+    dataset's units), and ``dataset: faro`` alone calibrates with the formulation that reads
+    what the dataset measured, saying so, instead of failing on the pairs' camera_points."""
+    from fgcal.calibration.config import load_config
+    from fgcal.commands.cli import main
+
+    assert main(["convert-faro", str(FARO), "--out", str(tmp_path / "faro")]) == 0
+    written = load_config(tmp_path / "faro" / "calibration.yaml")
+    assert (written.formulation, written.units.length, written.units.angle) == ("tracker", "mm", "deg")
+    (tmp_path / "bare.yaml").write_text("dataset: faro\nmodel: DH\n")
+    assert load_config(tmp_path / "bare.yaml").formulation == "tracker"
+    capsys.readouterr()
+    assert main(["calibrate", str(tmp_path / "bare.yaml"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    assert "formulation tracker: not given: the dataset's measured tables (tracker_points" in capsys.readouterr().out
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["formulation"] == "tracker" and report["formulation_source"].startswith("not given")

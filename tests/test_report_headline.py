@@ -34,3 +34,28 @@ def test_a_6d_calibration_headline_states_the_orientation(tmp_path):
     )
     assert doc["iso9283"]["poses"] == len(calibration.result.problem.test)
     assert doc["iso9283"]["ap_max_m"] <= errors[0] + 1e-15
+
+
+def test_the_headline_says_how_it_was_scored(tmp_path):
+    """Issue 38, item 5: report.md and report.json say how the held-out set was chosen: a random
+    split with its fraction and seed, the run's last part, the complement, or a separate set."""
+    cell = REPO / "datasets" / "cells" / "irb120_tracker.yaml"
+    simulate(cell, tmp_path / "data", seed=2, n_configurations=60)
+    simulate(cell, tmp_path / "other", seed=3, n_configurations=20)
+    cases = {
+        "random": ({"holdout": 0.25, "seed": 7}, "15 drawn at random, 25% with seed 7", 7),
+        "ordered": ({"holdout": 0.25, "split": "ordered"}, "15: the run's last 25%, split: ordered", None),
+        "random complement": (
+            {"holdout": 0.5, "seed": 1, "complement": True}, "30: the complement of a split, fitted on 50% drawn "
+            "at random with seed 1", 1,
+        ),
+        "separate set": ({"dataset": str(tmp_path / "other")}, "20 from separate validation sets (other)", None),
+    }  # fmt: skip
+    for kind, (validation, text, seed) in cases.items():
+        calibration = fgcal.calibrate(tmp_path / "data", formulation="tracker", model="DH", validation=validation)
+        doc = calibration.write_report(tmp_path / kind, plots=False)
+        protocol = doc["validation_protocol"]
+        assert protocol["kind"] == kind and protocol["text"] == text and protocol["seed"] == seed, protocol
+        assert protocol["n_held_out"] == len(calibration.result.problem.test) == doc["headline"]["n_configurations"]
+        assert f"({text})" in doc["headline"]["text"]
+        assert doc["headline"]["text"] in (tmp_path / kind / "report.md").read_text()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -378,3 +379,28 @@ def test_import_csv_puts_reflectors_on_their_tips(dual_arm, tmp_path, capsys):
     assert main(["import-csv", str(tmp_path / "mapping.yaml"), "--out", str(tmp_path / "again")]) == 2
     error = capsys.readouterr().err
     assert "mapping.yaml" in error and "target_tips.t2" in error and "left_foot" in error, error
+
+
+def test_identifiability_judges_only_what_the_stages_release(dual_arm, tmp_path, capsys):
+    """Issue 38, item 1: with stages that release theta and kz only (and d, a, alpha), no
+    released parameter is fixed as "a combination of" kinds no stage releases (kx, ky, sx, sy);
+    those are reported as not released, not as fixed by the data."""
+    config = {
+        "dataset": str(dual_arm / "data"), "formulation": "tracker", "model": "DH,s,e",
+        "noise": {"tracker_sigma": 1.5e-5}, "compliant_joints": list(range(1, 19)),
+        "stages": [["theta"], ["kz"], ["theta", "d", "a", "alpha", "kz"]],
+    }  # fmt: skip
+    (tmp_path / "kz.yaml").write_text(yaml.safe_dump(config))
+    assert main(["calibrate", str(tmp_path / "kz.yaml"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    capsys.readouterr()
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    released_kinds = {"theta", "d", "a", "alpha", "kz"}
+    for name, reason in report["unidentifiable_reasons"].items():
+        assert re.sub(r"\d+$", "", name) in released_kinds, (name, reason)
+        partners = re.findall(r"[+-][\d.]+ (\w+)", reason)
+        unreleased = [p for p in partners if re.sub(r"\d+$", "", p) not in released_kinds]
+        assert not unreleased, (name, reason)
+    statuses = {name: p["status"] for name, p in report["parameters"].items()}
+    assert statuses["kx10"] == statuses["sx2"] == "not released"
+    # kz10 and kz17 were fixed as combinations of kx/ky before; the data determine them.
+    assert statuses["kz10"] == statuses["kz17"] == "estimated"

@@ -8,10 +8,11 @@ from pathlib import Path
 
 from ..core.fields import Fields, read_yaml
 from ..core.noise import parse_noise
-from ..core.units import parse_units
+from ..core.units import Units, parse_units
+from ..data.dataset import MEASUREMENTS
 from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
 from ..model.robot import MODELS
-from .formulations import NAMES
+from .formulations import NAMES, from_measured
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
 KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
@@ -79,6 +80,12 @@ class CalibrationConfig:
     notes: dict = field(default_factory=dict)
     # "gp": a Gaussian process on what the kinematic model leaves (fgcal.calibration.residual_model)
     residual_model: str = "none"
+    # The units the config's lengths and angles are read in, and where they came from: the
+    # config's own ``units:``, else the dataset's (a config typed beside a dataset in mm is in mm),
+    # else SI.
+    units: Units = field(default_factory=Units)
+    units_source: str = "SI: neither the config nor the dataset states units"
+    formulation_source: str = "the config"
 
     @property
     def noise(self):
@@ -131,11 +138,50 @@ def _validation_datasets(validation: Fields, base: Path) -> tuple[Path, ...]:
     return paths
 
 
+def _dataset_header(dataset: Path) -> tuple[Path, dict]:
+    """A dataset's header (empty when it cannot be read here: loading the dataset reports what
+    is wrong with it)."""
+    header = dataset / "dataset.yaml"
+    doc = read_yaml(header) if header.is_file() else None
+    return header, doc if isinstance(doc, dict) else {}
+
+
+def _formulation(doc: Fields, header: Path, dataset: dict) -> tuple[str, str]:
+    """The config's formulation, else the one that reads what the dataset measured; and where
+    it came from, for the report."""
+    if doc.has("formulation"):
+        return doc.string("formulation", choices=NAMES), "the config"
+    if not dataset:  # no header to ask (loading the dataset will say why): the seed's formulation
+        return NAMES[0], "not given: the seed's default"
+    measured = dataset.get("measured")
+    camera = dataset.get("camera")
+    on_flange = isinstance(camera, dict) and camera.get("mounting") is not None
+    listed = measured if isinstance(measured, list) else []
+    if not listed or any(kind not in MEASUREMENTS for kind in listed):  # loading names the bad field
+        return NAMES[0], "not given: the seed's default"
+    readers = from_measured(listed, on_flange)
+    if not readers:
+        raise doc.error(
+            "formulation", f"not given, and {header} lists no measured table a formulation reads (measured: "
+            f"{measured!r}); give one of {', '.join(NAMES)}",
+        )  # fmt: skip
+    others = f"; {', '.join(readers[1:])} would read it too" if len(readers) > 1 else ""
+    return readers[0], f"not given: the dataset's measured tables ({', '.join(map(str, measured))}){others}"
+
+
 def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> CalibrationConfig:
     doc = Fields(raw, source)
     doc.check_keys(CONFIG_KEYS)
-    units = parse_units(doc.raw("units", None), source)
     base = base_dir if base_dir is not None else source.parent
+    if doc.has("units"):
+        units, units_source = parse_units(doc.raw("units"), source), "as the config's units: states"
+    header, dataset_doc = _dataset_header(base / doc.string("dataset"))
+    if not doc.has("units"):
+        stated = parse_units(dataset_doc["units"], header) if dataset_doc.get("units") is not None else None
+        units, units_source = (stated, "the dataset's units: the config states none") if stated else (
+            Units(), "SI: neither the config nor the dataset states units"
+        )  # fmt: skip
+    formulation, formulation_source = _formulation(doc, header, dataset_doc)
     schedule, stages = _stages(doc)
     # None: the seed's joints 1-3 that the robot has (resolved when the robot is known).
     joints = tuple(doc.items("compliant_joints")) if doc.has("compliant_joints") else None
@@ -172,7 +218,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     return CalibrationConfig(
         path=source,
         dataset=(base / doc.string("dataset")),
-        formulation=doc.string("formulation", "pairs", NAMES),
+        formulation=formulation,
+        formulation_source=formulation_source,
         model=doc.string("model", "DH,s,e", (*MODELS, "auto")),
         compare_models=_boolean(doc, "compare_models", False),
         compliant_joints=joints,
@@ -189,6 +236,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         pixels_from=doc.string("pixels_from", "table", ("table", "images")),
         validation_datasets=validation_datasets,
         residual_model=doc.string("residual_model", "none", ("none", "gp")),
+        units=units,
+        units_source=units_source,
     )
 
 

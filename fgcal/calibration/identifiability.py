@@ -207,3 +207,53 @@ def motion_warning(identifiability: Identifiability) -> str | None:
         "and the calibration holds only for moves made the same way; to identify them, reach configurations "
         "from both sides and at different speeds (docs/calibration.md, Motion history)"
     )
+
+
+# A parameter fixed as unidentifiable that a fit releasing it would move by more than this many
+# sigmas is fixed against the data's evidence: the headline says so.
+EVIDENCE_SIGMAS = 10.0
+
+
+def evidence_against_fixing(stage: StageGraph, fixed: list[str], variance_factor: float) -> dict[str, float]:
+    """For each parameter of ``fixed`` (released in ``stage`` beside the estimated ones, at the
+    solution), how many sigmas a fit that also released it would move it: one Gauss-Newton step
+    of the whitened (robust) residuals b on its column a, the auxiliary unknowns and the other
+    released parameters projected out (P): z = |r.b| / |r| / sqrt(variance_factor), r = (I - P) a.
+    A column the others (nearly) reproduce has |r| ~ 0 and no evidence either way (omitted)."""
+    n_rows = sum(m.n_rows for m in stage.measurements)
+    aux_offsets, offset = {}, 0
+    for name, (key, dim) in stage.dims.items():
+        if name != "P":
+            aux_offsets[key] = offset
+            offset += dim
+    J_p = np.zeros((n_rows, stage.kinematics.n_released))
+    J_aux = np.zeros((n_rows, offset))
+    b = np.zeros(n_rows)
+    first = 0
+    for measurements in stage.measurements:
+        evaluation = measurements.whitened(measurements.read(stage.values), True)
+        rows = slice(first, first + measurements.n_rows)
+        b[rows] = evaluation.residual
+        for block, (key, _, dim) in zip(evaluation.blocks, measurements.variables, strict=True):
+            if key == stage.keys.params:
+                J_p[rows] += block
+            else:
+                J_aux[rows, aux_offsets[key] : aux_offsets[key] + dim] += block
+        first = rows.stop
+    stage.forget()
+    index = {name: i for i, name in enumerate(stage.released)}
+    others = np.hstack([J_aux, J_p[:, [index[n] for n in stage.released if n not in fixed]]])
+    Q = np.zeros((n_rows, 0))
+    if others.shape[1]:  # an orthonormal basis of what the others span (dependent columns dropped)
+        Q, R = np.linalg.qr(others)
+        diagonal = np.abs(np.diag(R))
+        Q = Q[:, diagonal > 1e-9 * max(1.0, diagonal.max())]
+    out = {}
+    for name in fixed:
+        column = J_p[:, index[name]]
+        r = column - Q @ (Q.T @ column)
+        size = float(np.linalg.norm(r))
+        if size <= 1e-6 * max(float(np.linalg.norm(column)), 1e-300):
+            continue
+        out[name] = abs(float(r @ b)) / size / np.sqrt(max(variance_factor, 1.0))
+    return out

@@ -26,7 +26,7 @@ from .references import reference_check
 from .residual_model import check_residual_model, fit_residual_model
 from .results import SCORES, CalibrationResult, StageReport, primary_score, stats
 from .settings import Noise
-from .solve import solve_stage, stage_parameters
+from .solve import releasable, solve_stage, stage_parameters
 from .state import State
 from .validation_set import with_validation_sets
 
@@ -91,11 +91,11 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     )
 
 
-def _check_enough(problem: Problem, state: State) -> None:
-    """At least two residuals per unknown: the candidate parameters (before any is found
-    unidentifiable, so thin data are refused rather than quietly reduced) and the auxiliary
-    unknowns."""
-    unknowns = len(problem.candidates) + state.n_auxiliary
+def _check_enough(problem: Problem, state: State, candidates: list[str]) -> None:
+    """At least two residuals per unknown: the candidate parameters that the stages release
+    (before any is found unidentifiable, so thin data are refused rather than quietly reduced)
+    and the auxiliary unknowns."""
+    unknowns = len(candidates) + state.n_auxiliary
     if problem.n_residuals < 2 * unknowns:
         raise InputError(
             problem.dataset.path,
@@ -181,6 +181,8 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         f"{len(problem.fit)} configurations for fitting, {len(problem.test)} held out, "
         f"{problem.n_residuals} residuals"
     )
+    if config.formulation_source != "the config":
+        say(f"  formulation {formulation.name}: {config.formulation_source}")
     if problem.detection is not None:
         d = problem.detection
         say(
@@ -191,11 +193,13 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
             say(f"    skipped {cid}: {reason}")
     with _breakdowns_named(dataset, lambda: problem.observations, "at the starting values or during the fit"):
         state = formulation.initial_state(problem)
-        _check_enough(problem, state)
+        released_by_stages = releasable(problem.candidates, config.stages)
+        _check_enough(problem, state, released_by_stages)
         t = time.perf_counter()
-        identifiability = analyse(build_graph(problem, problem.candidates, state), config.min_information)
+        identifiability = analyse(build_graph(problem, released_by_stages, state), config.min_information)
         say(
-            f"  identifiability: {len(identifiability.identifiable)} of {len(problem.candidates)} candidates "
+            f"  identifiability: {len(identifiability.identifiable)} of {len(released_by_stages)} released "
+            f"candidates "
             f"identifiable, condition number {identifiability.condition_number:.3g} ({time.perf_counter() - t:.2f} s)"
         )
         hidden_motion = motion_warning(identifiability)

@@ -82,7 +82,7 @@ def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
     section.check_keys(list(ROBUST_DEFAULTS))
     out = {}
     for key, default in ROBUST_DEFAULTS.items():
-        raw = section.raw(key, list(default) if default is not None else None)
+        raw = section.raw(key, list(default) if default is not None else None, nullable=True)  # null: off
         if raw is None or raw == "none":
             out[key] = None
             continue

@@ -24,6 +24,14 @@ def stage_parameters(kinds: Sequence[str], identifiable: Sequence[str]) -> list[
     return [name for name in identifiable if kind_label(name) in kinds]
 
 
+def releasable(candidates: Sequence[str], stages: Sequence[Sequence[str]]) -> list[str]:
+    """The candidates that some stage releases. Only these are judged for identifiability: a
+    parameter no stage releases stays at its nominal value whatever the analysis says, so it
+    must not win a pivoted selection and fix a released parameter as "a combination of" it."""
+    kinds = {kind for stage in stages for kind in stage}
+    return [name for name in candidates if kind_label(name) in kinds]
+
+
 def optimise(stage: StageGraph, max_iterations: int) -> tuple[gtsam.Values, int]:
     """Minimise the stage graph's error with GTSAM's Levenberg-Marquardt; returns the values and
     the iterations taken.

@@ -13,9 +13,10 @@ import yaml
 from ..core.errors import InputError
 from ..core.noise import noise_document
 from ..core.outputs import write_text
+from ..core.units import Units, parse_units
 from ..data.dataset import Dataset
 from ..simulation.cell import Cell
-from .formulations import REGISTRY
+from .formulations import REGISTRY, from_measured
 
 
 def suggested_formulation(cell: Cell) -> str:
@@ -27,15 +28,50 @@ def suggested_formulation(cell: Cell) -> str:
     raise InputError(cell.source, None, "the cell has no instrument a formulation reads")
 
 
+def _units(dataset: Dataset) -> Units:
+    return parse_units(dataset.header.get("units"), Path(dataset.path) / "dataset.yaml")
+
+
 def suggested_config(cell: Cell, dataset: Dataset) -> dict:
     joints = [j for j in cell.perturbation.compliant_joints if j <= dataset.robot.n_links]
+    units = _units(dataset)
     return {
         "dataset": ".",
         "formulation": suggested_formulation(cell),
         "model": "DH,s,e,h" if cell.motion is not None else "DH,s,e",
         "compliant_joints": joints,
-        "noise": noise_document(dataset.noise),
+        "units": {"length": units.length, "angle": units.angle},
+        "noise": noise_document(dataset.noise, units),
     }
+
+
+def dataset_config(dataset: Dataset) -> dict:
+    """The config of a dataset converted from an instrument's files (no cell behind it): the
+    formulation that reads what it measured, the extended model, its units, and the noise the
+    instrument states (fgcal's defaults where it states none)."""
+    units = _units(dataset)
+    readers = from_measured(list(dataset.tables), dataset.camera_mounting is not None)
+    if not readers:
+        raise InputError(dataset.path, "measured", "no measured table a formulation reads")
+    config = {"dataset": ".", "formulation": readers[0], "model": "DH,s,e",
+              "units": {"length": units.length, "angle": units.angle}}  # fmt: skip
+    if dataset.noise:
+        config["noise"] = noise_document(dataset.noise, units)
+    return config
+
+
+def write_dataset_config(dataset: Dataset, command: str) -> Path:
+    """``calibration.yaml`` beside a converted dataset (its path), as fgcal simulate writes one."""
+    path = Path(dataset.path) / "calibration.yaml"
+    config = dataset_config(dataset)
+    note = (
+        f"# Written by {command}: the formulation that reads what the dataset measured, the extended\n"
+        "# model (model: auto fits DH to DH,s,e,h and keeps what the data support), lengths and angles in\n"
+        "# the dataset's units. State your instrument's noise (noise: in these units; docs/calibration.md):\n"
+        "# the report warns when it and the residuals differ by more than 10x.\n"
+    )
+    write_text(path, note + yaml.safe_dump(config, sort_keys=False))
+    return path
 
 
 def write_suggested_config(cell: Cell, dataset: Dataset) -> Path:

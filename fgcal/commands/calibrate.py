@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.console import Reporter, detail, say
+from ..core.console import Reporter, detail, say, warn
 from .options import JSON_HELP, emit
 
 
@@ -43,12 +43,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 f"  {name:10s} {entry['difference_from_nominal'] * scale:+#.4g} {unit} from nominal, "
                 f"sigma {entry['sigma'] * scale:#.3g} {unit}"
             )
+    for warning in doc["warnings"]:  # the report's headline warnings, on the console too
+        warn(warning)
     out = Path(args.out)
     files = ["report.md", "report.json", "calibrated_robot.yaml", "estimates.yaml"]
     emit(args, {
         "out": str(out), "files": {name: str(out / name) for name in files},
         "model": doc["model"], "formulation": doc["formulation"], "headline": doc["headline"],
-        "goodness_of_fit": doc["goodness_of_fit"], "seed": doc["seed"],
+        "goodness_of_fit": doc["goodness_of_fit"], "seed": doc["seed"], "warnings": doc["warnings"],
+        "validation_protocol": doc["validation_protocol"],
     })  # fmt: skip
     return 0
 

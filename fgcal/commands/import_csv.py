@@ -8,10 +8,14 @@ from ..core.console import say
 
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
+    from ..calibration.suggest import write_dataset_config
     from ..data.csv_import import import_tables
+    from ..data.dataset import load_dataset
 
     counts = import_tables(args.mapping, args.out)
     say(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    config = write_dataset_config(load_dataset(args.out), "fgcal import-csv")
+    say(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
     return 0
 
 

@@ -75,7 +75,10 @@ class Fields:
         return InputError(self.source, self.path(key), message)
 
     def has(self, key: str) -> bool:
-        return key in self.data and self.data[key] is not None
+        """Whether the document gives ``key``. A key given as null is given: null is a value,
+        read as "none" where a field documents it (``nullable``) and refused elsewhere, never
+        silently taken for the default."""
+        return key in self.data
 
     def check_keys(self, allowed: Sequence[str]) -> None:
         """Reject unknown keys: a typo in a field name must not be silently ignored."""
@@ -89,15 +92,22 @@ class Fields:
         if fmt != expected:
             raise self.error("format", f"unsupported format {fmt!r} (this fgcal reads {expected})")
 
-    def raw(self, key: str, default: Any = _MISSING) -> Any:
+    def raw(self, key: str, default: Any = _MISSING, *, nullable: bool = False) -> Any:
+        """The value of ``key``; ``default`` when it is absent. A null value is returned as None
+        where the field is ``nullable`` (it documents null, e.g. "no robust loss") and refused
+        elsewhere: a null that would silently mean the default is the bug this prevents."""
         if not self.has(key):
             if default is _MISSING:
                 raise self.error(key, "required field is missing")
             return default
-        return self.data[key]
+        value = self.data[key]
+        if value is None and not nullable:
+            hint = "give a value" if default is _MISSING else "give a value, or leave the field out for its default"
+            raise self.error(key, f"is null: {hint}")
+        return value
 
     def sub(self, key: str, default: Any = _MISSING) -> Fields:
-        value = self.raw(key, default)
+        value = self.raw(key, default, nullable=True)  # an empty section (``noise:``) is no section
         return Fields(value if value is not None else {}, self.source, self.path(key))
 
     def items(self, key: str, default: Any = _MISSING) -> list[Fields | Any]:

@@ -44,9 +44,11 @@ def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, floa
     return stated
 
 
-def noise_document(stated: dict[str, float]) -> dict[str, float]:
-    """Stated sigmas (SI, by field) as a ``noise`` section in SI units (m, rad, px)."""
-    return {NOISE[field][0]: float(value) for field, value in stated.items()}
+def noise_document(stated: dict[str, float], units: Units | None = None) -> dict[str, float]:
+    """Stated sigmas (SI, by field) as a ``noise`` section in ``units`` (default SI: m, rad, px)."""
+    units = units or Units()
+    scales = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}
+    return {NOISE[field][0]: float(value) / scales[NOISE[field][1]] for field, value in stated.items()}
 
 
 def defaults() -> dict[str, float]:

@@ -75,7 +75,8 @@ def parse_measurement(
     pixels = tuple((str(point), raw_pixels.vector(str(point), 2)) for point in raw_pixels.data)
     if not pixels:
         raise fields.error("pixels", "an image needs at least one observed point")
-    cycle = fields.integer("cycle", None, minimum=0) if fields.has("cycle") else None
+    # null: no cycle (what a measurement taken outside the cycles, and the feed, writes)
+    cycle = fields.integer("cycle", minimum=0) if fields.raw("cycle", None, nullable=True) is not None else None
     return Measurement(name, q, pixels, cycle)
 
 

@@ -14,6 +14,7 @@ from ..calibration.goodness import Fit
 from ..calibration.identifiability import motion_warning
 from ..calibration.prediction import workspace_map
 from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
+from ..calibration.solve import releasable
 from ..core import strict_json
 from ..core.memory import release_freed_memory
 from ..core.outputs import output_dir, save_figure, write_text
@@ -23,7 +24,7 @@ from ..model.robot import Robot
 from ..model.robot_io import save_robot
 from .diagnostics import motion_terms, plot_residual_diagnostics
 from .estimates import write_estimates
-from .headline import figure, headline, iso9283, worst_configurations
+from .headline import figure, headline, iso9283, validation_protocol, warnings, worst_configurations
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -43,6 +44,7 @@ def report_dict(result: CalibrationResult) -> dict:
             absorbs.setdefault(partner, []).append(fixed)
     deflections = compliance_deflections(result)
     parameters = {}
+    released_by_stages = set(releasable(problem.candidates, config.stages))
     for name in problem.candidates:
         entry = {
             "unit": unit_of(name),
@@ -51,7 +53,7 @@ def report_dict(result: CalibrationResult) -> dict:
             "difference_from_nominal": estimate[name] - nominal[name],
             "sigma": sigmas.get(name),
             "sigma_declared_noise": declared.get(name),
-            "status": "estimated" if name in sigmas else "fixed",
+            "status": "estimated" if name in sigmas else "fixed" if name in released_by_stages else "not released",
         }
         if name in absorbs:
             entry["effective_value_absorbs"] = sorted(absorbs[name])
@@ -72,8 +74,12 @@ def report_dict(result: CalibrationResult) -> dict:
     detection = problem.detection
     return {
         "headline": headline(result),
+        "warnings": warnings(result),
+        "validation_protocol": validation_protocol(result),
         "model": config.model,
         "formulation": formulation.name,
+        "formulation_source": config.formulation_source,
+        "units": {"length": config.units.length, "angle": config.units.angle, "source": config.units_source},
         "robot": robot.name,
         "dataset": str(config.dataset),
         "n_configurations": len(problem.dataset.configs),
@@ -556,8 +562,14 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
     lines = [f"# Calibration report: {doc['robot']}", ""]
     if doc["headline"] is not None:
         lines += [f"**{doc['headline']['text']}**", ""]
+    lines += [f"**Warning:** {warning}.\n" for warning in doc["warnings"]]
+    if doc["headline"] is None:
+        lines += [f"Held out: {doc['validation_protocol']['text']}.", ""]
     lines += [
-        f"Model **{doc['model']}**, **{doc['formulation']}** formulation, schedule {doc['schedule']}. "
+        f"Model **{doc['model']}**, **{doc['formulation']}** formulation"
+        + ("" if doc["formulation_source"] == "the config" else f" ({doc['formulation_source']})")
+        + f", schedule {doc['schedule']}. The config's lengths in {doc['units']['length']}, angles in "
+        f"{doc['units']['angle']} ({doc['units']['source']}). "
         f"{doc['n_fit_configurations']} configurations for fitting, {doc['n_validation_configurations']} held "
         f"out, {doc['n_residuals']} residuals. Total time {doc['timing']['total_s']:.2f} s."
         + (f" Simulation seed {doc['seed']}." if doc["seed"] is not None else ""),

@@ -7,6 +7,8 @@ else against the held-out measurements), in SI in report.json; report.md shows m
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..calibration.results import SCORES, CalibrationResult, ErrorStats, primary_score
@@ -23,6 +25,71 @@ def _triple(stat: ErrorStats) -> dict[str, float]:
     return {"rms": stat.rms, "p95": float(np.percentile(stat.errors, 95)), "max": stat.max}
 
 
+# The declared noise and the residuals may differ by this factor before the headline says so:
+# beyond it the noise, or the units it was read in, is wrong (a 0.05 mm sigma read as 50 mm).
+NOISE_MISMATCH = 10.0
+
+
+def validation_protocol(result: CalibrationResult) -> dict:
+    """How the held-out configurations were chosen: a random split (its fraction and seed), the
+    run's last part (``split: ordered``), the complement of a split, separate validation sets, or
+    none; with the number of held-out configurations and a phrase for the headline."""
+    config, problem = result.config, result.problem
+    n_sets = sum(len(indices) for _, indices in problem.validation_sets)
+    own = len(problem.test) - n_sets
+    parts, kinds = [], []
+    if own:
+        if config.complement:  # the split's two parts swapped: fitted on the part it holds out
+            kind = f"{config.split} complement"
+            part = (
+                f"the run's last {config.holdout:.0%}" if config.split == "ordered"
+                else f"{config.holdout:.0%} drawn at random with seed {config.split_seed}"
+            )  # fmt: skip
+            words = f"{own}: the complement of a split, fitted on {part}"
+        elif config.split == "ordered":
+            kind, words = "ordered", f"{own}: the run's last {config.holdout:.0%}, split: ordered"
+        else:
+            kind, words = "random", f"{own} drawn at random, {config.holdout:.0%} with seed {config.split_seed}"
+        kinds.append(kind)
+        parts.append(words)
+    if n_sets:
+        kinds.append("separate set")
+        names = ", ".join(Path(path).name for path, _ in problem.validation_sets)
+        parts.append(f"{n_sets} from separate validation sets ({names})")
+    return {
+        "kind": " + ".join(kinds) or "none",
+        "holdout_fraction": config.holdout,
+        "seed": config.split_seed if own and config.split != "ordered" else None,
+        "validation_datasets": [str(path) for path, _ in problem.validation_sets],
+        "n_held_out": len(problem.test),
+        "text": "; ".join(parts) or "nothing held out",
+    }
+
+
+def warnings(result: CalibrationResult) -> list[str]:
+    """What the headline must say before any figure is trusted: declared noise and residuals
+    that differ by more than NOISE_MISMATCH, with the units of both and where the config's
+    units came from."""
+    out = []
+    fit, problem, config = result.fit, result.problem, result.config
+    if fit is not None and fit.dof > 0 and result.stages:
+        ratio = float(np.sqrt(fit.chi2_per_dof))
+        if not 1 / NOISE_MISMATCH <= ratio <= NOISE_MISMATCH:
+            unit = problem.formulation.unit
+            scale, shown = (1e3, "mm") if unit == "m" else (1.0, unit)
+            sigma = problem.formulation.sigma(problem.settings) * scale
+            rms = result.stages[-1].residual_rms.get(unit, float("nan")) * scale
+            side = "larger" if ratio > 1 else "smaller"
+            out.append(
+                f"the residuals ({figure(rms)} {shown} RMS) are {max(ratio, 1 / ratio):.3g} times {side} than the "
+                "declared noise "
+                f"({figure(sigma)} {shown} per row); the config's lengths are read in {config.units.length} and its "
+                f"angles in {config.units.angle} ({config.units_source}): check noise: and units:; every "
+                "sigma and prediction of this report depends on them"
+            )
+    return out
+
+
 def headline(result: CalibrationResult) -> dict | None:
     """The held-out accuracy after and before (RMS, P95 and max, m; orientation in rad where it
     is measured), the number of held-out configurations, and the sentence report.md opens with."""
@@ -34,6 +101,8 @@ def headline(result: CalibrationResult) -> dict | None:
         "score": SCORES[key],
         "reference": "ground truth" if result.truth is not None else "held-out measurements",
         "n_configurations": len(result.problem.test),
+        "validation_protocol": validation_protocol(result),
+        "warnings": warnings(result),
         "after_m": _triple(stat),
         "before_m": _triple(before[1]) if before is not None and before[0] == key else None,
         "orientation_after_rad": None,
@@ -74,9 +143,11 @@ def sentence(h: dict) -> str:
             text += f" (before {figure(h['orientation_before_rad']['rms'] * scale)} mdeg)"
         if h.get("orientation_reference") != h["reference"]:
             text += f" against the {h['orientation_reference']}"
+    protocol = h.get("validation_protocol")
+    how = f" ({protocol['text']})" if protocol else ""
     return (
-        f"{text}. {h['score'].capitalize()} on {h['n_configurations']} held-out configurations, "
-        f"against the {h['reference']}."
+        f"{text}. {h['score'].capitalize()} on {h['n_configurations']} held-out configurations{how}, against the "
+        f"{h['reference']}."
     )
 
 

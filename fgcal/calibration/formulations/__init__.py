@@ -22,3 +22,17 @@ NAMES = tuple(REGISTRY)
 def formulation(name: str) -> Formulation:
     """The formulation registered under ``name`` (KeyError otherwise: configs check names)."""
     return REGISTRY[name]()
+
+
+def from_measured(measured: list[str], camera_on_flange: bool) -> list[str]:
+    """The formulations that read a dataset's measured tables, in the registry's order (the
+    first is the default of a config that names none). A camera's pixels are read by the
+    formulation of where the camera is: on the flange (a mounting given) or fixed in the cell."""
+    out = []
+    for name, cls in REGISTRY.items():
+        if cls.kind not in measured:
+            continue
+        if cls.instrument in ("camera", "static_camera") and (cls.instrument == "camera") != camera_on_flange:
+            continue
+        out.append(name)
+    return out
