@@ -285,6 +285,9 @@ CASES = [
     ("config_model_null", _config(_set("model", None)), CALIBRATE, "calibration.yaml", "model"),
     ("config_holdout_null", _config(_set("validation.holdout", None)), CALIBRATE, "calibration.yaml",
      "validation.holdout"),
+    ("config_bounds_unknown", _config(_set("bounds.warp", 1.0)), CALIBRATE, "calibration.yaml", "bounds.warp"),
+    ("config_bounds_parameter", _config(_set("bounds.alpha9", 1.0)), CALIBRATE, "calibration.yaml", "bounds.alpha9"),
+    ("config_bounds_negative", _config(_set("bounds.kz", -1.0)), CALIBRATE, "calibration.yaml", "bounds.kz"),
     (
         "config_compliant_joint_9",
         _config(_set("compliant_joints", [9])),

@@ -47,7 +47,6 @@ from ..data.dataset import load_dataset
 from ..data.truth import load_truth
 from ..factors.point_pair import helmert
 from ..model import kinematics
-from ..model.parameters import is_joint_length
 from ..model.robot_io import robots_dir
 from ..simulation.simulate import simulate
 from .kernel import kernel_bench
@@ -69,9 +68,10 @@ class PairResiduals:
         self.H = scipy.sparse.block_diag([helmert(len(g.c)) for g in groups], format="csr")
         self.sigma = problem.settings.noise.camera_point_m
         nominal = problem.robot.nominal_parameters()
-        self.bounded = np.array([i for i, n in enumerate(released) if is_joint_length(n)], dtype=int)
+        prior = [problem.priors.sigma(n) for n in released]
+        self.bounded = np.array([i for i, sigma in enumerate(prior) if sigma is not None], dtype=int)
         self.bound_nominal = np.array([nominal[released[i]] for i in self.bounded])
-        self.bound_sigma = problem.length_bound_m
+        self.bound_sigma = np.array([prior[i] for i in self.bounded])
 
     def _poses(self, x: np.ndarray) -> tuple[kinematics.KinematicsData, np.ndarray]:
         params = self.base.copy()

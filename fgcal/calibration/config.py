@@ -13,6 +13,7 @@ from ..data.dataset import MEASUREMENTS
 from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
 from ..model.robot import MODELS
 from .formulations import NAMES, from_measured
+from .priors import Priors, parse_priors
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
 KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
@@ -59,7 +60,7 @@ class CalibrationConfig:
     compliant_joints: tuple[int, ...] | None  # None: default_compliant_joints of the robot
     schedule: str
     stages: tuple[tuple[str, ...], ...]
-    length_bound_m: float
+    priors: Priors
     measurement: MeasurementSettings
     holdout: float
     split_seed: int
@@ -188,8 +189,6 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     for j in joints or ():
         if isinstance(j, bool) or not isinstance(j, int) or j < 1:
             raise doc.error("compliant_joints", f"joint numbers are integers >= 1, got {j!r}")
-    bounds = doc.sub("bounds", {})
-    bounds.check_keys(("length",))
     validation = doc.sub("validation", {})
     validation.check_keys(("holdout", "seed", "complement", "split", "dataset", "tool_points"))
     validation_datasets = _validation_datasets(validation, base)
@@ -225,7 +224,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         compliant_joints=joints,
         schedule=schedule,
         stages=stages,
-        length_bound_m=bounds.number("length", 0.01 / units.to_m, units.to_m, positive=True),
+        priors=parse_priors(doc, units),
         measurement=measurement,
         holdout=holdout,
         split_seed=validation.integer("seed", 0, minimum=0, maximum=2**32 - 1),

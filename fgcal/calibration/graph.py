@@ -18,7 +18,6 @@ import gtsam
 import numpy as np
 
 from ..factors import MeasurementSet, ParameterBoundFactor, RobustLoss, gaussian
-from ..model.parameters import is_joint_length, is_motion
 from .batch import BatchKinematics
 from .goodness import chi_median
 from .problem import Keys, Problem, keys_of, values_of
@@ -52,22 +51,17 @@ class StageGraph:
         return out
 
 
-MOTION_BOUND_RAD = float(np.radians(0.5))
-
-
 def build_graph(problem: Problem, released: Sequence[str], state: State) -> StageGraph:
     kinematics = problem.kinematics(state, released, problem.observations)
     keys = keys_of(state, bool(released))
     values = values_of(state, keys, kinematics.base[kinematics.index])
     graph = gtsam.NonlinearFactorGraph()
     nominal = problem.robot.nominal_parameters()
-    # Soft bounds: the joint lengths around nominal (the config's bounds.length) and the motion
-    # history's terms around zero (MOTION_BOUND_RAD: far beyond any real lost motion).
-    bounded = [i for i, name in enumerate(released) if is_joint_length(name)]
-    sigmas = [problem.length_bound_m] * len(bounded)
-    motion = [i for i, name in enumerate(released) if is_motion(name)]
-    bounded += motion
-    sigmas += [MOTION_BOUND_RAD] * len(motion)
+    # Priors around nominal: those the config states (bounds:) and fgcal's soft bounds (the
+    # arm's lengths, the motion history's terms; calibration.priors).
+    prior_sigmas = {i: problem.priors.sigma(name) for i, name in enumerate(released)}
+    bounded = [i for i, sigma in prior_sigmas.items() if sigma is not None]
+    sigmas = [prior_sigmas[i] for i in bounded]
     if bounded:
         graph.add(
             ParameterBoundFactor(

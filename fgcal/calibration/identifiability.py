@@ -18,6 +18,7 @@ import numpy as np
 
 from ..model.parameters import COMPLIANCE_KINDS, MASS_KIND, MOTION_KINDS, is_mass, is_motion, kind_label, split_name
 from .graph import StageGraph
+from .priors import Priors
 
 GROUPS = (
     ("theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"),
@@ -91,7 +92,10 @@ def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
     return J_p, J_aux
 
 
-def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
+def analyse(stage: StageGraph, min_information: float = 1.0, priors: Priors | None = None) -> Identifiability:
+    """The selection on the stage's released parameters. The priors a config states are
+    information as the measurements are (a whitened row 1/sigma on its parameter's column), so a
+    direction the data leave weak can be determined by a stated prior, as a ridge term does."""
     J_p, J_aux = reduced_jacobian(stage)
     kinematics = stage.kinematics
     moments = kinematics.data(kinematics.base[kinematics.index]).moments
@@ -99,6 +103,13 @@ def analyse(stage: StageGraph, min_information: float = 1.0) -> Identifiability:
     # What select needs is in hand: the evaluations cached for the graph (tens of MB at
     # thousands of configurations) need not outlive it through select's own arrays.
     stage.forget()
+    stated = {} if priors is None else {i: priors.stated(n) for i, n in enumerate(stage.released)}
+    stated = {i: sigma for i, sigma in stated.items() if sigma is not None}
+    if stated:
+        rows = np.zeros((len(stated), J_p.shape[1]))
+        rows[np.arange(len(stated)), list(stated)] = 1.0 / np.array(list(stated.values()))
+        J_p = np.vstack([J_p, rows])
+        J_aux = np.vstack([J_aux, np.zeros((len(stated), J_aux.shape[1]))])
     return select(J_p, J_aux, stage.released, moments, min_information)
 
 
@@ -156,17 +167,39 @@ def select(
             columns[:, len(selected)] = residual[:, best] / norms[best]
             selected.append(members.pop(best))
     # Each column may be determined alone and a direction of several still not: the common scale
-    # of all lengths and touched points when nothing measures a length. While the weakest
-    # direction of the selected set is below min_information, the parameter that weighs most in
-    # it (the lowest in priority among those weighing at least half the most) is dropped.
-    while selected:
+    # of all lengths and touched points when nothing measures a length. A direction is weak, not
+    # a parameter: while the weakest direction of the selected set is below min_information, the
+    # parameter among those spanning it (weighing at least half the most) that the other selected
+    # columns explain best (least information of its own left) is fixed; ties go to the lowest in
+    # priority. After each such change the parameters rejected so far are reconsidered, in
+    # priority order: one that no longer makes any direction weak is selected again.
+    def weakest(indices: list[int]) -> tuple[float, np.ndarray]:
         # The singular values and right vectors of A are those of its R (A = QR): no rows x k U.
-        _, singular, Vt = np.linalg.svd(np.linalg.qr(scaled[:, selected], mode="r"), full_matrices=False)
-        if singular[-1] >= min_information:
+        _, singular, Vt = np.linalg.svd(np.linalg.qr(scaled[:, indices], mode="r"), full_matrices=False)
+        return float(singular[-1]), np.abs(Vt[-1])
+
+    while selected:
+        smallest, weights = weakest(selected)
+        if smallest >= min_information:
             break
-        weights = np.abs(Vt[-1])
-        heavy = [k for k in range(len(selected)) if weights[k] >= 0.5 * weights.max()]
-        rejected.append(selected.pop(heavy[-1]))
+        spanning = [k for k in range(len(selected)) if weights[k] >= 0.5 * weights.max()]
+        left = []
+        for k in spanning:
+            others = scaled[:, [s for j, s in enumerate(selected) if j != k]]
+            column = scaled[:, selected[k]]
+            if others.shape[1]:
+                coefficients = np.linalg.lstsq(others, column, rcond=None)[0]
+                column = column - others @ coefficients
+            left.append(float(np.linalg.norm(column)))
+        best = min(left)
+        drop = [k for k, value in zip(spanning, left, strict=True) if value <= best * (1.0 + 1e-9)][-1]
+        rejected.append(selected.pop(drop))
+        for i in sorted(rejected, key=lambda i: (group_of(names[i]), i)):
+            if i == rejected[-1] or np.linalg.norm(scaled[:, i]) < min_information:
+                continue
+            if weakest([*selected, i])[0] >= min_information:
+                selected.append(i)
+                rejected.remove(i)
     unidentifiable: dict[str, str] = {}
     absorbed_by: dict[str, list[str]] = {}
     kept = scaled[:, selected]
@@ -219,6 +252,8 @@ def evidence_against_fixing(stage: StageGraph, fixed: list[str], variance_factor
     solution), how many sigmas a fit that also released it would move it: one Gauss-Newton step
     of the whitened (robust) residuals b on its column a, the auxiliary unknowns and the other
     released parameters projected out (P): z = |r.b| / |r| / sqrt(variance_factor), r = (I - P) a.
+    The variance factor is the fit's (chi2/dof where the declared noise does not fit the
+    residuals, either way), as the report's sigmas are: an over-declared noise hides no evidence.
     A column the others (nearly) reproduce has |r| ~ 0 and no evidence either way (omitted)."""
     n_rows = sum(m.n_rows for m in stage.measurements)
     aux_offsets, offset = {}, 0
@@ -255,5 +290,5 @@ def evidence_against_fixing(stage: StageGraph, fixed: list[str], variance_factor
         size = float(np.linalg.norm(r))
         if size <= 1e-6 * max(float(np.linalg.norm(column)), 1e-300):
             continue
-        out[name] = abs(float(r @ b)) / size / np.sqrt(max(variance_factor, 1.0))
+        out[name] = abs(float(r @ b)) / size / np.sqrt(variance_factor)
     return out

@@ -36,6 +36,7 @@ from ..factors import MeasurementSet, RobustLoss
 from ..model.parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
 from ..model.robot import Robot
 from .batch import BatchKinematics
+from .priors import Priors
 from .settings import MeasurementSettings
 from .state import State
 
@@ -125,7 +126,7 @@ class Problem:
     test: np.ndarray
     candidates: tuple[str, ...]
     observations: Observations  # of the fitting configurations
-    length_bound_m: float  # sigma of the soft bounds of the joint lengths around nominal
+    priors: Priors  # prior sigmas around nominal: stated ones and fgcal's soft bounds
     max_iterations: int  # of the optimiser, per stage
     rejected: tuple[Rejection, ...] = ()
     detection: Detection | None = None

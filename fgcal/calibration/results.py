@@ -188,6 +188,9 @@ class CalibrationResult:
     model_comparison: tuple[ModelRow, ...] | None = None
     references: dict | None = None  # the tracker's stability (calibration.references)
     residual_model: ResidualModelResult | None = None  # residual_model: gp
+    # Parameters the stages release but identifiability fixed -> how many sigmas a fit releasing
+    # each would move it (calibration.identifiability.evidence_against_fixing)
+    fixed_evidence_sigmas: Mapping[str, float] = field(default_factory=dict)
     timing: Mapping[str, float] = field(default_factory=dict)
 
     @property

@@ -19,7 +19,7 @@ from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
 from .graph import StageGraph, build_graph, robust_scale
-from .identifiability import Identifiability, analyse, motion_warning
+from .identifiability import Identifiability, analyse, evidence_against_fixing, motion_warning
 from .models import compare_models
 from .problem import Detection, Observations, Problem, candidate_parameters, compliant_joints, split
 from .references import reference_check
@@ -74,6 +74,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
             raise InputError(config.path, "validation.complement", "needs a holdout > 0: nothing is held out to fit on")
         fit, test = test, fit
     dataset, validation_sets = with_validation_sets(dataset, config)
+    config.priors.check_names(robot.parameter_names, robot.name)
     test = np.concatenate([test, *(indices for _, indices in validation_sets)]).astype(int)
     return Problem(
         formulation=formulation,
@@ -84,7 +85,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         test=test,
         candidates=tuple(candidate_parameters(robot, config.model, config.compliant_joints)),
         observations=formulation.fit_observations(dataset, settings, fit),
-        length_bound_m=config.length_bound_m,
+        priors=config.priors,
         max_iterations=config.max_iterations,
         detection=detection,
         validation_sets=tuple(validation_sets),
@@ -196,7 +197,9 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         released_by_stages = releasable(problem.candidates, config.stages)
         _check_enough(problem, state, released_by_stages)
         t = time.perf_counter()
-        identifiability = analyse(build_graph(problem, released_by_stages, state), config.min_information)
+        identifiability = analyse(
+            build_graph(problem, released_by_stages, state), config.min_information, problem.priors
+        )
         say(
             f"  identifiability: {len(identifiability.identifiable)} of {len(released_by_stages)} released "
             f"candidates "
@@ -262,6 +265,10 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     if fit is not None and not fit.consistent:
         say(f"  {fit.sentence()}")
     covariance = declared.scaled(factor) if declared is not None else None
+    evidence: dict[str, float] = {}
+    fixed = [name for name in released_by_stages if name in final_ident.unidentifiable]
+    if last_stage is not None and fixed:
+        evidence = evidence_against_fixing(build_graph(problem, [*released, *fixed], state), fixed, factor)
     test_observations, flagged = formulation.test_observations(problem, state)
     measured = {}
     for label, st in (("before", before), ("after", state)):
@@ -313,6 +320,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         measured_prediction=prediction,
         references=references,
         residual_model=residual,
+        fixed_evidence_sigmas=evidence,
         timing={
             "solve_s": solve_time,
             "total_s": time.perf_counter() - started,
@@ -340,7 +348,7 @@ def _identifiable_at_solution(
     the solution are fixed at their estimates (gauge directions: any value fits as well) and the
     last stage is solved again, so that the covariance describes only what the data determine."""
     stage.forget()  # the analysis evaluates its own graph at the same point
-    at_solution = analyse(build_graph(problem, stage.released, state), min_information)
+    at_solution = analyse(build_graph(problem, stage.released, state), min_information, problem.priors)
     dropped = [name for name in stage.released if name in at_solution.unidentifiable]
     again = at_solution
     if dropped:
@@ -352,7 +360,7 @@ def _identifiable_at_solution(
         state, report, stage, values = solve_stage(problem, f"{stages[-1].name} (identifiable set)", kept, state, say)
         stages.append(report)
         stage.forget()
-        again = analyse(build_graph(problem, kept, state), min_information)
+        again = analyse(build_graph(problem, kept, state), min_information, problem.priors)
     unidentifiable = dict(identifiability.unidentifiable)
     absorbed_by = dict(identifiability.absorbed_by)
     for name in dropped:

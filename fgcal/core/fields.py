@@ -190,7 +190,7 @@ def to_float(value: Any, source: str | Path, field: str) -> float:
 
     YAML 1.1 (PyYAML) reads ``1e-4`` (no dot) as text: such a plain number is accepted."""
     if isinstance(value, str) and is_plain_number(value.strip()):
-        value = float(value)
+        value = float(value.strip())  # str.strip takes more than float does (U+001C..U+001F)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(source, field, f"expected a number, got {value!r}")
     number = float(value)

@@ -57,6 +57,12 @@ def report_dict(result: CalibrationResult) -> dict:
         }
         if name in absorbs:
             entry["effective_value_absorbs"] = sorted(absorbs[name])
+        if name in result.fixed_evidence_sigmas:  # fixed: what releasing it would show
+            entry["moved_if_released_sigmas"] = result.fixed_evidence_sigmas[name]
+        prior = problem.priors.sigma(name)
+        if prior is not None:  # a stated prior, or fgcal's soft bound
+            entry["prior_sigma"] = prior
+            entry["prior"] = "stated" if problem.priors.stated(name) is not None else "soft bound"
         if name in deflections:
             entry["deflection_at_tool_max_m"] = deflections[name]
             sigma = sigmas.get(name, 0.0)
@@ -740,6 +746,10 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             status += f"; moves the tool up to {p['deflection_at_tool_max_m'] * 1e3:.3g} mm"
         if "flag" in p:
             status += f"; **{p['flag']}**"
+        if p.get("prior") == "stated":
+            status += f"; prior sigma {small(p['prior_sigma'])}"
+        if p.get("moved_if_released_sigmas", 0.0) > 10:
+            status += f"; **a fit releasing it moves it by {p['moved_if_released_sigmas']:.3g} sigma**"
         lines.append(
             f"| {name} | {big(p['nominal'])} | {big(p['estimate'])} | {small(p['difference_from_nominal'])} | "
             f"{small(p['sigma'])} | " + (f"{small(p['truth'] - p['estimate'])} | " if has_truth else "") + f"{status} |"

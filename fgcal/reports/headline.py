@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration.identifiability import EVIDENCE_SIGMAS
 from ..calibration.results import SCORES, CalibrationResult, ErrorStats, primary_score
 
 WORST = 10  # held-out configurations the report lists
@@ -87,6 +88,19 @@ def warnings(result: CalibrationResult) -> list[str]:
                 f"angles in {config.units.angle} ({config.units_source}): check noise: and units:; every "
                 "sigma and prediction of this report depends on them"
             )
+    against = sorted(
+        ((name, sigmas) for name, sigmas in result.fixed_evidence_sigmas.items() if sigmas > EVIDENCE_SIGMAS),
+        key=lambda item: -item[1],
+    )
+    if against:
+        listed = ", ".join(f"{name} ({sigmas:.3g} sigma)" for name, sigmas in against[:6])
+        more = f" and {len(against) - 6} more" if len(against) > 6 else ""
+        out.append(
+            f"{len(against)} parameters are fixed as not identifiable, but a fit releasing each would move it by "
+            f"more than {EVIDENCE_SIGMAS:g} sigma: {listed}{more}; the data determine them and the calibration is "
+            "worse than they support (a declared noise too large, or a stage that does not release them; "
+            "report.json parameters.*.moved_if_released_sigmas)"
+        )
     return out
 
 
