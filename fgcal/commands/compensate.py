@@ -41,7 +41,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         return 2
     if Path(args.out).suffix.lower() != ".csv":
         raise InputError(args.out, "--out", "the commands of a targets CSV are a .csv file")
-    distinct({"--out": args.out}, {"TARGETS": args.targets, "ROBOT": args.robot if Path(args.robot).suffix else None})
+    distinct({"--out": args.out}, _inputs(args, "TARGETS"))
     units = TargetUnits(args.length_unit, args.angle_unit, args.orientation)
     targets = read_targets(args.targets, robot.n_joints, units, robot.prismatic)
     tcp = None if args.tcp is None else np.array(args.tcp)
@@ -70,6 +70,16 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         )
         say(f"  {count(int((~reached).sum()), 'target')} unreachable: the calibrated model stays {span} away")
     return 0
+
+
+def _inputs(args: argparse.Namespace, targets: str) -> dict[str, str | None]:
+    """Every file the command reads, by the name the command line gives it (a bundled robot's
+    name is none)."""
+    return {
+        targets: args.targets,
+        "ROBOT": args.robot if Path(args.robot).suffix else None,
+        "--nominal": args.nominal if args.nominal is not None and Path(args.nominal).suffix else None,
+    }
 
 
 def _approach(args: argparse.Namespace, robot, given: np.ndarray | None, n_targets: int) -> np.ndarray | None:
@@ -138,7 +148,7 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
 
     source, out = Path(args.targets), Path(args.out)
     distinct({"--out": out, "the corrections table": out.with_name(f"{out.stem}.corrections.csv")},
-             {"PROGRAM": source, "ROBOT": args.robot if Path(args.robot).suffix else None})  # fmt: skip
+             _inputs(args, "PROGRAM"))  # fmt: skip
     if (source.suffix.lower() in KRL_SUFFIXES) != (out.suffix.lower() in KRL_SUFFIXES) or out.suffix.lower() not in (
         RAPID_SUFFIXES + KRL_SUFFIXES
     ):

@@ -378,15 +378,16 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
     }
 
 
-def check_outputs(path: str | Path) -> tuple[Path, Path]:
-    """The URDF's path and its sidecar's, both checked writable (before any work)."""
+def check_outputs(path: str | Path, field: str | None = None) -> tuple[Path, Path]:
+    """The URDF's path and its sidecar's, both checked writable (before any work); ``field``: the
+    option that named it."""
     path = Path(path)
     if path.suffix.lower() != ".urdf":
-        raise InputError(path, None, "the URDF file name must end in .urdf")
+        raise InputError(path, field, "the URDF file name must end in .urdf")
     if path.is_dir():
-        raise InputError(path, None, "is a folder: give the URDF file's name")
-    output_dir(path.parent, None)
-    output_file(path)
+        raise InputError(path, field, "is a folder: give the URDF file's name")
+    output_dir(path.parent, field)
+    output_file(path, field)
     sidecar = path.with_name(f"{path.stem}.compliance.yaml")
     output_file(sidecar)
     return path, sidecar

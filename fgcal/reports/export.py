@@ -37,16 +37,20 @@ def export_command(
     nominal: str | None = None,
     say: Callable[[str], None] = print,
 ) -> int:
-    path = None if urdf is None else check_outputs(urdf)[0]  # before the work, not after it
+    path = None if urdf is None else check_outputs(urdf, "--urdf")[0]  # before the work, not after it
     sidecar = None if path is None else path.with_name(f"{path.stem}.compliance.yaml")
-    robot_input = robot_file if Path(robot_file).suffix else None  # a file, not a bundled name
-    distinct({"--urdf": path, "the sidecar": sidecar, "--ur-kinematics": ur_kinematics},
-             {"ROBOT": robot_input, "--template": template, "--calibration": calibration})  # fmt: skip
+    outputs = {"--urdf": path, "the sidecar": sidecar, "--ur-kinematics": ur_kinematics}
+    inputs = {"ROBOT": robot_file, "--template": template, "--calibration": calibration, "--nominal": nominal}
+    distinct(outputs, {k: v for k, v in inputs.items() if v is not None and Path(v).suffix})  # bundled names: none
     if ur_kinematics is not None:
         if Path(ur_kinematics).suffix.lower() not in (".yaml", ".yml"):
             raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
         output_file(ur_kinematics, "--ur-kinematics")
     robot = load_robot(robot_file, tip)
+    # What the robot file names and the calibration reads are inputs too: the URDF the robot came
+    # from (written into, never over), the calibration's datasets.
+    recorded = None if robot.urdf is None else robot.urdf[0]
+    distinct(outputs, {**inputs, f"urdf.file of {robot_file}": recorded, **_calibration_inputs(calibration)})
     if path is not None and template is not None and is_tree(robot):  # before any work
         raise InputError(template, "--template", f"{robot.name} is a tree: it is written in fgcal's own layout")
     if is_tree(robot) and (rigid_fit or calibration is not None):
@@ -123,6 +127,23 @@ def export_command(
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0
+
+
+def _calibration_inputs(calibration: str | None) -> dict[str, Path]:
+    """The files --calibration reads: its datasets' files (dataset.yaml, the tables, the robot)."""
+    if calibration is None:
+        return {}
+    from ..calibration.config import load_config
+
+    config = load_config(calibration)
+    folders = [config.dataset, *config.validation_datasets]
+    return {
+        f"--calibration's dataset file {file.name}": file
+        for folder in folders
+        if folder.is_dir()
+        for file in sorted(folder.iterdir())
+        if file.is_file()
+    }
 
 
 def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[str], None]) -> None:
