@@ -124,6 +124,10 @@ CASES = [
     ("robot_unknown_units", _robot(_set("units.length", "furlong")), FK, "robot.yaml", "units"),
     ("robot_gravity_short", _robot(_set("gravity", [0, -9.81])), FK, "robot.yaml", "gravity"),
     ("robot_huge_length", _joint(0, "d", 1e300), FK, "robot.yaml", "joints[0].d"),
+    # names fgcal export writes into a URDF (issue 43, item 6)
+    ("robot_flange_name_empty", _robot(_set("flange_name", "")), FK, "robot.yaml", "flange_name"),
+    ("robot_tip_name_not_xml", _robot(_set("tips", [{"name": "a\ufffe", "joint": 2}])), FK, "robot.yaml", "tips"),
+    ("robot_name_not_xml", _robot(_set("name", "arm\uffff")), FK, "robot.yaml", "name"),
     # cell YAML (fgcal simulate)
     ("cell_malformed", _text("cell.yaml", "objects: {a: [1, 2\n"), SIMULATE, "cell.yaml", "malformed YAML"),
     ("cell_unknown_robot", _cell_file(_set("robot", "no_such_robot")), SIMULATE, "cell.yaml", "robot"),
