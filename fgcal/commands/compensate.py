@@ -16,7 +16,7 @@ from .options import JSON_HELP, LENGTH_M, count, emit, real
 def cmd_compensate(args: argparse.Namespace) -> int:
     from ..core.errors import InputError
     from ..core.outputs import distinct, output_file
-    from ..data.compensation import TargetUnits, compensate, nominal_of, read_targets, write_compensation
+    from ..data.compensation import SOLVED, TargetUnits, compensate, nominal_of, read_targets, write_compensation
     from ..model.robot_io import load_robot
 
     output_file(args.out, "--out")  # before the work, not after it
@@ -56,19 +56,23 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         _unsolved_motion([n for n, ok in zip(targets.names, result.motion_solved, strict=True) if not ok])
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     say(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    solved, unreachable = np.isin(result.status, SOLVED), result.status == "unreachable"
     emit(args, {
         "out": str(args.out), "n_targets": len(targets.names), "status": counts,
-        "residual_max_m": float(result.residual_m.max()),
+        # of the compensated targets only: an unreachable one's residual is how far it stays
+        "residual_max_m": float(result.residual_m[solved].max()) if solved.any() else None,
+        "unreachable_gap_max_m": float(result.residual_m[unreachable].max()) if unreachable.any() else None,
     })  # fmt: skip
-    reached = result.status != "unreachable"
-    if reached.any():
-        say(f"  reached in the calibrated model to {result.residual_m[reached].max() * 1e6:.3g} um at worst")
-    if (~reached).any():
-        gaps = result.residual_m[~reached] * 1e3
+    if solved.any():
+        say(f"  reached in the calibrated model to {result.residual_m[solved].max() * 1e6:.3g} um at worst")
+    if unreachable.any():
+        gaps = result.residual_m[unreachable] * 1e3
         span = (
             f"{gaps.min():.4g} mm" if np.isclose(gaps.min(), gaps.max()) else f"{gaps.min():.4g} to {gaps.max():.4g} mm"
         )
-        say(f"  {count(int((~reached).sum()), 'target')} unreachable: the calibrated model stays {span} away")
+        say(f"  {count(int(unreachable.sum()), 'target')} unreachable: the calibrated model stays {span} away")
+    if (~solved).any():
+        say(f"  {count(int((~solved).sum()), 'target')} not compensated: no joints and no command in their rows")
     return 0
 
 
@@ -129,14 +133,13 @@ def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np
     return targets
 
 
-UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
-
-
 def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
     from ..core.errors import InputError
     from ..core.outputs import distinct, output_file, write_bytes
     from ..data.dataset import write_csv
     from ..data.program_filter import (
+        UNCHANGED_M,
+        UNCHANGED_RAD,
         WRITTEN,
         check_program,
         correction_rows,
@@ -221,6 +224,13 @@ def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
         )
     if (result.status == "configuration changed").any():
         warn("some corrected targets need another configuration (new confdata or S/T): check their path")
+    rewritten = np.isin(result.status, ("turn changed", "configuration data changed"))
+    if rewritten.any():
+        data = "T (turn)" if program.kind == "krl" else "confdata"
+        warn(
+            f"{count(int(rewritten.sum()), 'target')} got new {data} on the same path (a joint within 0.1 deg of a "
+            f"quadrant's edge or of 0 crossed it): see their status in {table.name}"
+        )
     return 0
 
 

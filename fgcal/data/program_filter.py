@@ -153,6 +153,10 @@ def controller_ik(
             break
         start = q[todo] if k == 0 else _starts(rng, low, high, kind, [configs[t] for t in todo])
         solved = nominal.ik(flange[todo], start, frame="flange", clamp=True)
+        singular = np.flatnonzero(solved.status == "near singularity")
+        if len(singular):  # free joints (a wrist's 4 and 6 at joint 5 = 0): into the configuration's quadrants
+            boxes = _boxes(low, high, kind, [configs[todo[row]] for row in singular])
+            solved.q[singular] = _into_box(nominal, flange[todo[singular]], solved.q[singular], *boxes)
         below = configurations(nominal, kind, solved.q - BOUNDARY_RAD)
         above = configurations(nominal, kind, solved.q + BOUNDARY_RAD)
         exact = configurations(nominal, kind, solved.q)
@@ -184,8 +188,36 @@ def _consistent(wanted: dict[str, int], exact: dict, below: dict, above: dict) -
     return True
 
 
-def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]) -> np.ndarray:
-    """Random joints within the ranges, in the quadrants and signs the configurations name."""
+def _into_box(
+    nominal: Robot, flange: np.ndarray, q: np.ndarray, lower: np.ndarray, upper: np.ndarray, rounds: int = 3
+) -> np.ndarray:
+    """Joints (N, n) at a singularity moved along the Jacobian's null space (the motions that
+    leave the flange where it is) toward the middle of the box [lower, upper] their
+    configuration names, then put back on the flange pose. At ABB's calibration home (joint 5 at
+    0) joints 4 and 6 turn together: the IK from a random start ends anywhere along that line,
+    mostly outside the quadrants cf4 and cf6 name, and the target was "configuration not found"."""
+    names = [f"q{i + 1}" for i in range(nominal.n_joints)]
+    middle = 0.5 * (lower + upper)
+    for _ in range(rounds):
+        J = nominal.jacobian(q, names, frame="flange")  # (N, 6, n)
+        _, sv, Vt = np.linalg.svd(J)
+        rank = (np.pad(sv, ((0, 0), (0, max(0, nominal.n_joints - sv.shape[1])))) > NULL_SV).sum(axis=1)
+        for row in range(len(q)):
+            null = Vt[row, rank[row] :]  # (k, n): the directions of no flange motion
+            q[row] += null.T @ (null @ (middle[row] - q[row]))
+        refined = nominal.ik(flange, q, frame="flange")
+        q = np.where(np.isin(refined.status, SOLVED)[:, None], refined.q, q)
+    return q
+
+
+NULL_SV = 1e-6  # a singular value of the flange Jacobian below this (m or rad per rad): a free motion
+
+
+def _boxes(
+    low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, n) lower and upper joint values within the ranges, in the quadrants and signs the
+    configurations name."""
     lower = np.tile(low, (len(configs), 1))
     upper = np.tile(high, (len(configs), 1))
     for row, config in enumerate(configs):
@@ -202,7 +234,12 @@ def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dic
         for joint, (a, b) in bounds.items():
             lower[row, joint] = max(lower[row, joint], a)
             upper[row, joint] = max(lower[row, joint], min(upper[row, joint], b))
-    return rng.uniform(lower, upper)
+    return lower, upper
+
+
+def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]) -> np.ndarray:
+    """Random joints within the ranges, in the quadrants and signs the configurations name."""
+    return rng.uniform(*_boxes(low, high, kind, configs))
 
 
 def kinematics_frames(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
@@ -260,11 +297,20 @@ def filter_targets(
         motion_unsolved = np.zeros(len(poses), dtype=bool)
         motion_unsolved[order[keep & ~allowed]] = True
     corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
-    moved = inverse(poses) @ corrected
+    correction_m = np.linalg.norm(corrected[:, :3, 3] - poses[:, :3, 3], axis=1)
+    correction_rad = np.linalg.norm(so3_log((inverse(poses) @ corrected)[:, :3, :3]), axis=-1)
+    moved = (correction_m > UNCHANGED_M) | (correction_rad > UNCHANGED_RAD)  # else the target keeps its text
     after = configurations(nominal, kind, solved.q)
     reached = np.isin(solved.status, SOLVED)
     status = solved.status.astype(object)
     status[reached & found & significant_change(nominal, q_nominal, solved.q)] = "configuration changed"
+    # The same path, other configuration data (a joint that was within BOUNDARY_RAD of a quadrant's
+    # edge or of 0 crossed it): written, and said, never a plain "ok".
+    plain = reached & found & moved & np.isin(status, ("ok", "near singularity"))
+    for k in np.flatnonzero(plain):
+        changed = {key for key, value in configs[k].items() if after[k].get(key, value) != value}
+        if changed:
+            status[k] = "turn changed" if "T" in changed else "configuration data changed"
     status[within & ~found] = "configuration not found"  # the controller itself has no such branch
     in_region = None
     if robot.region is not None:  # each joint within the range the calibration saw (and a degree)
@@ -275,8 +321,8 @@ def filter_targets(
         q=solved.q,
         q_nominal=q_nominal,
         configs=after,
-        correction_m=np.linalg.norm(corrected[:, :3, 3] - poses[:, :3, 3], axis=1),
-        correction_rad=np.linalg.norm(so3_log(moved[:, :3, :3]), axis=-1),
+        correction_m=correction_m,
+        correction_rad=correction_rad,
         residual_m=solved.residual_m,
         status=status.astype(str),
         controller_in_W=T_W_ctrl,
@@ -320,6 +366,7 @@ def _names(names: list[str]) -> str:
 
 
 REGION_MARGIN_RAD = np.radians(1.0)
+UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
 BOUNDARY_RAD = np.radians(0.1)  # a joint this close to a quadrant's edge may cross it for any correction
 
 
@@ -339,7 +386,9 @@ def significant_change(nominal: Robot, before: np.ndarray, after: np.ndarray) ->
 
 # -- a program file in, a corrected program and a table out --------------------------------------
 
-WRITTEN = ("ok", "near singularity", "configuration changed")  # statuses whose targets are corrected
+# The statuses whose targets are corrected: on the same branch (the last two with configuration
+# data rewritten near a quadrant's edge: KUKA's T, else confdata or S), or on another.
+WRITTEN = ("ok", "near singularity", "turn changed", "configuration data changed", "configuration changed")
 
 
 def frame_from_numbers(values: list[float]) -> np.ndarray:
