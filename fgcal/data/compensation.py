@@ -391,9 +391,10 @@ def write_compensation(
     with_rotation: bool,
     units: TargetUnits | None = None,
     prismatic: np.ndarray | None = None,
+    comments: list[str] | None = None,
 ) -> None:
     """The output CSV in the targets' units and orientation convention (columns named with
-    their units where not SI)."""
+    their units where not SI), after ``comments`` (# lines: what it assumed)."""
     units = units or TargetUnits()
     n = result.q.shape[1]
     prismatic = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
@@ -430,4 +431,4 @@ def write_compensation(
             row += [float(v) for v in result.motion_offset[i] * motion_scale] if solved else [""] * n
         row.append(str(result.status[i]))
         rows.append(row)
-    write_csv(Path(path), header, rows)
+    write_csv(Path(path), header, rows, comments or [])
