@@ -136,14 +136,31 @@ CASES = [
     ("robot_tip_name_not_xml", _robot(_set("tips", [{"name": "a\ufffe", "joint": 2}])), FK, "robot.yaml", "tips"),
     ("robot_name_not_xml", _robot(_set("name", "arm\uffff")), FK, "robot.yaml", "name"),
     # fgcal compensate (issue 43): --tcp in --length-unit, a program corrected already, loads of several tools
-    ("tcp_beyond_10_m_in_mm", _text("t.csv", "target,x,y,z\nt,400,0,500\n"),
-     ["compensate", "robot.yaml", "t.csv", "--out", "o.csv", "--length-unit", "mm", "--tcp", "0", "0", "10001"],
-     "", "--tcp"),
-    ("program_corrected_already", _text("p.mod", "MODULE M\n! corrected by fgcal compensate for a controller\n"
-     "CONST robtarget p1:=[[400,0,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\nENDMODULE\n"),
-     ["compensate", "robot.yaml", "p.mod", "--out", "o.mod"], "p.mod", "line 2"),
-    ("program_tools_of_two_loads_one_payload_option", _text("p.mod", TWO_LOADS),
-     ["compensate", "robot.yaml", "p.mod", "--out", "o.mod", "--payload-mass", "2"], "p.mod", "tooldata"),
+    (
+        "tcp_beyond_10_m_in_mm",
+        _text("t.csv", "target,x,y,z\nt,400,0,500\n"),
+        ["compensate", "robot.yaml", "t.csv", "--out", "o.csv", "--length-unit", "mm", "--tcp", "0", "0", "10001"],
+        "",
+        "--tcp",
+    ),
+    (
+        "program_corrected_already",
+        _text(
+            "p.mod",
+            "MODULE M\n! corrected by fgcal compensate for a controller\n"
+            "CONST robtarget p1:=[[400,0,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\nENDMODULE\n",
+        ),
+        ["compensate", "robot.yaml", "p.mod", "--out", "o.mod"],
+        "p.mod",
+        "line 2",
+    ),
+    (
+        "program_tools_of_two_loads_one_payload_option",
+        _text("p.mod", TWO_LOADS),
+        ["compensate", "robot.yaml", "p.mod", "--out", "o.mod", "--payload-mass", "2"],
+        "p.mod",
+        "tooldata",
+    ),
     # cell YAML (fgcal simulate)
     ("cell_malformed", _text("cell.yaml", "objects: {a: [1, 2\n"), SIMULATE, "cell.yaml", "malformed YAML"),
     ("cell_unknown_robot", _cell_file(_set("robot", "no_such_robot")), SIMULATE, "cell.yaml", "robot"),
