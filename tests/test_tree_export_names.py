@@ -49,6 +49,8 @@ def test_every_exported_tree_reads_back_with_unique_links(tmp_path, capsys, flan
     robot = fgcal.load_robot(robot_file)
     assert set(sidecar["tip_links"]) == set(robot.tip_names)
     assert len(set(sidecar["tip_links"].values())) == len(robot.tip_names)
+    said = capsys.readouterr().out.splitlines()[-1]  # the links, as the command lists them
+    assert all(f" {link}," in said or said.endswith(f" {link}") for link in sidecar["tip_links"].values()), said
     fgcal.load_robot(tmp_path / "tree.urdf")  # fgcal reads it back (the chain to tool0)
     urdf = yourdfpy.URDF.load(str(tmp_path / "tree.urdf"), load_meshes=False, build_collision_scene_graph=False)
     rigid = robot.with_model("DH,s")

@@ -19,7 +19,7 @@ from ..core.errors import InputError
 from ..core.outputs import distinct, output_file, write_text
 from ..model.rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
 from ..model.robot_io import load_robot
-from ..model.urdf_export import check_outputs, export_urdf, is_tree, template_of
+from ..model.urdf_export import check_outputs, export_urdf, is_tree, template_of, tip_link_names
 
 LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held-out accuracy is warned of
 
@@ -122,8 +122,11 @@ def export_command(
     held = "joint compliances and lost motion" if robot.history else "joint compliances"
     say(f"wrote {written} ({robot.name}, {robot.n_links} joints) and {sidecar} ({held}, which URDF cannot")
     if template_file is None:
-        tips = "".join(f", {name}" for name in robot.tip_names[1:])
-        say(f"  express); links: world, base_link, link_1..link_{robot.n_links}, flange, tool0{tips}")
+        # A tree's flange is a link by its name, as each tip (renamed where the layout has the name).
+        links = tip_link_names(robot) if is_tree(robot) else {robot.flange_name: "flange"}
+        flange, *tips = [links[name] for name in robot.tip_names]
+        others = "".join(f", {link}" for link in tips)
+        say(f"  express); links: world, base_link, link_1..link_{robot.n_links}, {flange}, tool0{others}")
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0
