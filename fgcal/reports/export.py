@@ -47,10 +47,6 @@ def export_command(
             raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
         output_file(ur_kinematics, "--ur-kinematics")
     robot = load_robot(robot_file, tip)
-    # What the robot file names and the calibration reads are inputs too: the URDF the robot came
-    # from (written into, never over), the calibration's datasets.
-    recorded = None if robot.urdf is None else robot.urdf[0]
-    distinct(outputs, {**inputs, f"urdf.file of {robot_file}": recorded, **_calibration_inputs(calibration)})
     if path is not None and template is not None and is_tree(robot):  # before any work
         raise InputError(template, "--template", f"{robot.name} is a tree: it is written in fgcal's own layout")
     if is_tree(robot) and (rigid_fit or calibration is not None):
@@ -58,6 +54,10 @@ def export_command(
         option = "--rigid-fit" if rigid_fit else "--calibration"
         raise InputError(robot_file, option, f"{robot.name} is a tree: {option} fits and scores the flange's tool "
                          "only, not every tip; export it without (the sidecar keeps the compliances)")  # fmt: skip
+    # What the robot file names and the calibration reads are inputs too: the URDF the robot came
+    # from (written into, never over), the calibration's datasets.
+    recorded = None if robot.urdf is None else robot.urdf[0]
+    distinct(outputs, {**inputs, f"urdf.file of {robot_file}": recorded, **_calibration_inputs(calibration)})
     if payload_mass is not None or payload_com is not None:
         mass = robot.payload_mass if payload_mass is None else payload_mass
         com = robot.payload_com if payload_com is None else np.array(payload_com, dtype=float)
