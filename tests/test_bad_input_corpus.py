@@ -105,6 +105,13 @@ def _cell_file(change: Callable[[dict], None]):
     return lambda root: _edit_yaml(root / "cell.yaml", change)
 
 
+TWO_LOADS = (
+    "MODULE M\nPERS tooldata a:=[TRUE,[[0,0,100],[1,0,0,0]],[1,[0,0,30],[1,0,0,0],0,0,0]];\n"
+    "PERS tooldata b:=[TRUE,[[0,0,100],[1,0,0,0]],[2,[0,0,30],[1,0,0,0],0,0,0]];\n"
+    "CONST robtarget p1:=[[400,0,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+    "CONST robtarget p2:=[[400,50,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+    "PROC main()\n  MoveL p1, v100, fine, a;\n  MoveL p2, v100, fine, b;\nENDPROC\nENDMODULE\n"
+)
 CALIBRATE = ["calibrate", "calibration.yaml", "--out", "out", "--no-plots"]
 FK = ["fk", "robot.yaml", "0", "0", "0", "0", "0", "0"]
 SIMULATE = ["simulate", "cell.yaml", "--out", "sim", "--seed", "1"]
@@ -124,6 +131,36 @@ CASES = [
     ("robot_unknown_units", _robot(_set("units.length", "furlong")), FK, "robot.yaml", "units"),
     ("robot_gravity_short", _robot(_set("gravity", [0, -9.81])), FK, "robot.yaml", "gravity"),
     ("robot_huge_length", _joint(0, "d", 1e300), FK, "robot.yaml", "joints[0].d"),
+    # names fgcal export writes into a URDF (issue 43, item 6)
+    ("robot_flange_name_empty", _robot(_set("flange_name", "")), FK, "robot.yaml", "flange_name"),
+    ("robot_tip_name_not_xml", _robot(_set("tips", [{"name": "a\ufffe", "joint": 2}])), FK, "robot.yaml", "tips"),
+    ("robot_name_not_xml", _robot(_set("name", "arm\uffff")), FK, "robot.yaml", "name"),
+    # fgcal compensate (issue 43): --tcp in --length-unit, a program corrected already, loads of several tools
+    (
+        "tcp_beyond_10_m_in_mm",
+        _text("t.csv", "target,x,y,z\nt,400,0,500\n"),
+        ["compensate", "robot.yaml", "t.csv", "--out", "o.csv", "--length-unit", "mm", "--tcp", "0", "0", "10001"],
+        "",
+        "--tcp",
+    ),
+    (
+        "program_corrected_already",
+        _text(
+            "p.mod",
+            "MODULE M\n! corrected by fgcal compensate for a controller\n"
+            "CONST robtarget p1:=[[400,0,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\nENDMODULE\n",
+        ),
+        ["compensate", "robot.yaml", "p.mod", "--out", "o.mod"],
+        "p.mod",
+        "line 2",
+    ),
+    (
+        "program_tools_of_two_loads_one_payload_option",
+        _text("p.mod", TWO_LOADS),
+        ["compensate", "robot.yaml", "p.mod", "--out", "o.mod", "--payload-mass", "2"],
+        "p.mod",
+        "tooldata",
+    ),
     # cell YAML (fgcal simulate)
     ("cell_malformed", _text("cell.yaml", "objects: {a: [1, 2\n"), SIMULATE, "cell.yaml", "malformed YAML"),
     ("cell_unknown_robot", _cell_file(_set("robot", "no_such_robot")), SIMULATE, "cell.yaml", "robot"),

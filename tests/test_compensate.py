@@ -12,6 +12,11 @@ from fgcal.commands.cli import main
 from fgcal.data.compensation import compensate, nominal_of
 
 
+def _lines(path) -> list[str]:
+    """An output CSV's header and rows, without the comment lines that state its assumptions."""
+    return [line for line in path.read_text().splitlines() if not line.startswith("#")]
+
+
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     from fgcal.simulation.simulate import simulate
@@ -58,9 +63,10 @@ def test_compensate_command_with_orientations_and_hints(calibrated, tmp_path, ca
         values = [*T[i, :3, 3], *rot, *(q[i] + 0.01)]
         rows.append(",".join([f"p{i}", *(repr(float(v)) for v in values)]))
     (tmp_path / "targets.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
-    status = main(["compensate", str(robot_file), str(tmp_path / "targets.csv"), "--out", str(tmp_path / "o.csv")])
+    status = main(["compensate", str(robot_file), str(tmp_path / "targets.csv"), "--out", str(tmp_path / "o.csv"),
+                   "--targets-frame", "W"])  # fmt: skip
     assert status == 0, capsys.readouterr().err
-    lines = (tmp_path / "o.csv").read_text().splitlines()
+    lines = _lines(tmp_path / "o.csv")
     assert lines[0].split(",")[-4:] == ["rz_cmd", "residual_m", "residual_rad", "status"]
     table = np.array([[float(v) for v in line.split(",")[1:-1]] for line in lines[1:]])
     np.testing.assert_allclose(table[:, :6], q, atol=1e-6)  # the calibrated joints of these poses
@@ -94,12 +100,12 @@ def test_targets_in_the_users_units_and_convention(calibrated, tmp_path, capsys,
     argv = ["compensate", str(robot_file), str(tmp_path / "user.csv"), "--out", str(tmp_path / "user_out.csv"),
             "--length-unit", length, "--angle-unit", angle, "--orientation", orientation]  # fmt: skip
     assert main(argv) == 0, capsys.readouterr().err
-    header, *lines = (tmp_path / "user_out.csv").read_text().splitlines()
+    header, *lines = _lines(tmp_path / "user_out.csv")
     columns = header.split(",")
     assert columns[7] == units.column("x_cmd", "length") and columns[1] == units.column("q1", "angle")
     assert columns[10] == units.column(f"{ORIENTATIONS[orientation][0]}_cmd", "none" if orientation == "quaternion"
                                        else "angle")  # fmt: skip
-    si_table = [line.split(",") for line in (tmp_path / "si_out.csv").read_text().splitlines()[1:]]
+    si_table = [line.split(",") for line in _lines(tmp_path / "si_out.csv")[1:]]
     for mine, theirs in zip(lines, si_table, strict=True):
         mine = mine.split(",")
         q = np.array([float(v) for v in mine[1:7]]) * units.to_rad
@@ -204,9 +210,10 @@ def test_faro_flange_positions_without_hints_come_back_ok(tmp_path, capsys):
     flange_tcp = np.linalg.inv(robot.tool_pose)[:3, 3]  # the flange origin, in the tool frame
     capsys.readouterr()
     status = main(["compensate", str(tmp_path / "out" / "calibrated_robot.yaml"), str(tmp_path / "targets.csv"),
-                   "--out", str(tmp_path / "commands.csv"), "--tcp", *(f"{v:.17g}" for v in flange_tcp)])  # fmt: skip
+                   "--out", str(tmp_path / "commands.csv"), "--tcp", *(f"{v:.17g}" for v in flange_tcp),
+                   "--targets-frame", "W"])  # fmt: skip
     assert status == 0, capsys.readouterr().err
-    lines = (tmp_path / "commands.csv").read_text().splitlines()[1:]
+    lines = _lines(tmp_path / "commands.csv")[1:]
     assert len(lines) == 20 and all(line.endswith(",ok") for line in lines), lines
 
 

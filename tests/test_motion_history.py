@@ -225,8 +225,10 @@ def test_compensate_command_allows_for_the_approach(calibrated, tmp_path, capsys
     assert "approached from the previous one" in capsys.readouterr().out
     assert main(["compensate", str(robot_file), str(targets), "--out", str(tmp_path / "without.csv"),
                  "--approach", "none"]) == 0  # fmt: skip
-    with_lines = (tmp_path / "with.csv").read_text().splitlines()
-    without_lines = (tmp_path / "without.csv").read_text().splitlines()
+    # (the lines after the # lines that state the commands' assumptions)
+    with_lines = [line for line in (tmp_path / "with.csv").read_text().splitlines() if line[0] != "#"]
+    without_lines = [line for line in (tmp_path / "without.csv").read_text().splitlines() if line[0] != "#"]
+    assert "# approach: lost motion allowed for" in (tmp_path / "with.csv").read_text()
     assert "lost_motion_q1" in with_lines[0] and "lost_motion" not in without_lines[0]
     allowed = np.array([[float(v) for v in line.split(",")[1:7]] for line in with_lines[1:]])
     plain = np.array([[float(v) for v in line.split(",")[1:7]] for line in without_lines[1:]])
@@ -290,7 +292,7 @@ def test_a_rapid_program_is_corrected_along_its_moves(calibrated, tmp_path, caps
     said = capsys.readouterr().out
     assert "the module's motion instruction before its first use" in said
     assert "2 (p2, p7) come from an Offs/RelTool point or nothing: no allowance" in said, said
-    table = (tmp_path / "cell_cal.corrections.csv").read_text().splitlines()
+    table = [line for line in (tmp_path / "cell_cal.corrections.csv").read_text().splitlines() if line[0] != "#"]
     header = table[0].split(",")
     rows = [line.split(",") for line in table[1:]]
     assert all(row[header.index("status")] == "ok" for row in rows)

@@ -17,6 +17,7 @@ from fgcal.calibration.scoring import score_with_truth
 from fgcal.commands.cli import main
 from fgcal.core.se3 import inverse, kabsch, pose, pose_from_xyz_rpy
 from fgcal.data.compensation import nominal_of
+from fgcal.data.dataset import read_csv
 from fgcal.data.program_filter import configurations, controller_frame, frame_from_numbers
 from fgcal.data.programs import read_program
 from fgcal.data.truth import load_truth, named_points
@@ -90,6 +91,22 @@ def kr125(tmp_path_factory):
     return _Calibrated("kr125_seed", tmp_path_factory.mktemp("kr125"))
 
 
+def _header(lines: list[str], mark: str) -> tuple[list[str], list[str]]:
+    """A corrected program's comment header (after its MODULE or DEFDAT line), and the other lines."""
+    opening = next(k for k, line in enumerate(lines) if line.split()[:1] in (["MODULE"], ["DEFDAT"]))
+    end = opening + 1
+    while lines[end].startswith(mark + " "):  # not the program's own ;FOLD
+        end += 1
+    return lines[opening + 1 : end], lines[: opening + 1] + lines[end:]
+
+
+def _states_its_assumptions(header: list[str], tool: str, work_object: str, payload: str) -> None:
+    text = " ".join(line[1:].strip() for line in header)
+    assert header[0][1:].strip().startswith("corrected by fgcal compensate"), header
+    for word in ("frame:", "tool:", "payload:", "units:", "approach:", tool, work_object, payload):
+        assert word in text, (word, header)
+
+
 def _rms(errors: np.ndarray) -> float:
     return float(np.sqrt(np.mean(errors**2)))
 
@@ -139,15 +156,21 @@ def test_a_rapid_module_lands_within_the_calibration(irb120, tmp_path, capsys):
     assert main(argv) == 0, capsys.readouterr().err
     corrected = read_program(tmp_path / "weld_cal.mod")
     assert [t.name for t in corrected.targets] == [f"p{k}" for k in range(N_TARGETS)]
-    after = (tmp_path / "weld_cal.mod").read_text()
-    # Only the targets' values changed: every other line is the original's.
-    changed = [(a, b) for a, b in zip(text.splitlines(), after.splitlines(), strict=True) if a != b]
+    header, after = _header((tmp_path / "weld_cal.mod").read_text().splitlines(), "!")
+    # Only the targets' values changed: every other line is the original's, the header after MODULE.
+    changed = [(a, b) for a, b in zip(text.splitlines(), after, strict=True) if a != b]
     assert len(changed) == N_TARGETS and all("robtarget" in a for a, _ in changed)
+    _states_its_assumptions(header, "torch", "table", "tooldata torch's tload")
     assert [t.config for t in corrected.targets] == configs
     irb120.assert_lands("irb120", table, tcp, taught, np.array([t.pose for t in corrected.targets]))
-    rows = (tmp_path / "weld_cal.corrections.csv").read_text().splitlines()
-    assert rows[0].startswith("target,line,status,corrected,in_calibrated_region,dx_mm") and len(rows) == N_TARGETS + 1
-    assert all(row.split(",")[3] == "yes" and row.split(",")[4] in ("yes", "no") for row in rows[1:]), rows
+    columns, rows = read_csv(tmp_path / "weld_cal.corrections.csv", [])
+    assert columns[:8] == ["target", "line", "tool", "work_object", "status", "corrected", "in_calibrated_region",
+                           "dx_mm"] and len(rows) == N_TARGETS  # fmt: skip
+    assert all(row[5] == "yes" and row[6] in ("yes", "no") and row[2:4] == ["torch", "table"] for row in rows), rows
+    lines = (tmp_path / "weld_cal.mod").read_text().splitlines()
+    assert all(lines[int(row[1]) - 1].lstrip().startswith(f"CONST robtarget {row[0]}:=") for row in rows)
+    table_header = [line for line in (tmp_path / "weld_cal.corrections.csv").read_text().splitlines() if line[0] == "#"]
+    assert [line[1:] for line in table_header] == [line[1:] for line in header]
 
 
 def test_a_krl_dat_lands_within_the_calibration(kr125, tmp_path, capsys):
@@ -175,9 +198,11 @@ def test_a_krl_dat_lands_within_the_calibration(kr125, tmp_path, capsys):
             "--tool", *map(str, tool_numbers), "--base", *map(str, base_numbers)]  # fmt: skip
     assert main(argv) == 0, capsys.readouterr().err
     corrected = read_program(tmp_path / "out.dat")
-    after = (tmp_path / "out.dat").read_bytes().decode()
-    changed = [(a, b) for a, b in zip(text.split("\r\n"), after.split("\r\n"), strict=True) if a != b]
+    header, after = _header((tmp_path / "out.dat").read_bytes().decode().split("\r\n"), ";")
+    changed = [(a, b) for a, b in zip(text.split("\r\n"), after, strict=True) if a != b]
     assert len(changed) == N_TARGETS and all(a.startswith("DECL E6POS") for a, _ in changed)
+    _states_its_assumptions(header, "$TOOL: --tool 20 0 60 0 30 0", "--base 1500 -200 300 90 0 0", "robot file's")
+    assert "tooldata" not in " ".join(header)  # KRL has none
     assert [t.config for t in corrected.targets] == configs
     kr125.assert_lands("kr125", base, tcp, taught, np.array([t.pose for t in corrected.targets]))
 

@@ -16,17 +16,16 @@ from .options import JSON_HELP, LENGTH_M, count, emit, real
 def cmd_compensate(args: argparse.Namespace) -> int:
     from ..core.errors import InputError
     from ..core.outputs import distinct, output_file
-    from ..data.compensation import TargetUnits, compensate, nominal_of, read_targets, write_compensation
+    from ..data.assumptions import Assumptions, frame_text, payload_text
+    from ..data.compensation import SOLVED, TargetUnits, compensate, nominal_of, read_targets, write_compensation
+    from ..data.program_filter import controller_frame
     from ..model.robot_io import load_robot
 
     output_file(args.out, "--out")  # before the work, not after it
 
+    # At the calibration's payload: the controller's base frame is placed there, whatever the tool
+    # carries; the deflection of each target is that of its tool's load (docs/using.md).
     robot = load_robot(args.robot)
-    calibrated = robot  # at the calibration's payload: where the controller's base frame is placed
-    if args.payload_mass is not None or args.payload_com is not None:
-        mass = robot.payload_mass if args.payload_mass is None else args.payload_mass
-        com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
-        robot = robot.with_tool(robot.tool_pose, float(mass), com)
     nominal = nominal_of(robot, args.nominal)
     from ..data.programs import KRL_SUFFIXES, RAPID_SUFFIXES
 
@@ -35,60 +34,131 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     if Path(args.targets).suffix.lower() in RAPID_SUFFIXES + KRL_SUFFIXES:
         if args.tip is not None:
             raise InputError(args.targets, "--tip", "a robot program drives its robot's flange: --tip is for a CSV")
-        return _compensate_program(args, robot, nominal)
+        from .filter_program import compensate_program
+
+        return compensate_program(args, robot, nominal, _inputs(args, "PROGRAM"), _unsolved_motion)
     if args.tool is not None or args.base is not None:
         print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
         return 2
     if Path(args.out).suffix.lower() != ".csv":
         raise InputError(args.out, "--out", "the commands of a targets CSV are a .csv file")
-    distinct({"--out": args.out}, {"TARGETS": args.targets, "ROBOT": args.robot if Path(args.robot).suffix else None})
+    distinct({"--out": args.out}, _inputs(args, "TARGETS"))
     units = TargetUnits(args.length_unit, args.angle_unit, args.orientation)
     targets = read_targets(args.targets, robot.n_joints, units, robot.prismatic)
-    tcp = None if args.tcp is None else np.array(args.tcp)
-    wanted = _in_calibration_frame(targets.as_ik_targets(), calibrated, nominal, args.targets_frame)
-    approach = _approach(args, robot, targets.approach, len(targets.names))
+    tcp = _tcp(args.tcp, units.to_m)
+    frame = args.targets_frame or "controller"
+    T_W_ctrl = controller_frame(robot, nominal)
+    wanted = _in_calibration_frame(targets.as_ik_targets(), T_W_ctrl, frame)
+    loaded, source = robot, "the robot file's: the calibration's payload"
+    if args.payload_mass is not None or args.payload_com is not None:
+        mass = robot.payload_mass if args.payload_mass is None else args.payload_mass
+        com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
+        loaded = robot.with_tool(robot.tool_pose, float(mass), com)
+        source = " and ".join(o for o, v in (("--payload-mass", args.payload_mass), ("--payload-com", args.payload_com))
+                              if v is not None) + ("" if args.payload_mass is not None and args.payload_com is not None
+                                                   else "; the rest the robot file's")  # fmt: skip
+    payload = payload_text(loaded.payload_mass, loaded.payload_com, source, robot.payload_mass)
+    say(f"  payload: {payload}")
+    approach, approach_words = _approach(args, robot, targets.approach, len(targets.names))
     result = compensate(
-        robot, nominal, wanted, targets.hints, tcp, "tool" if args.tip is None else args.tip,
+        loaded, nominal, wanted, targets.hints, tcp, "tool" if args.tip is None else args.tip,
         tol_m=1e-6 * args.tolerance_um, tol_rad=1e-6, progress=Reporter(), approach=approach, speed=targets.speed,
     )  # fmt: skip
-    write_compensation(args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic)
+    on = "the robot's tool frame" if args.tip is None else f"tip {args.tip}'s frame"
+    orientation = f", orientation {units.orientation} ({ORIENTATION_WORDS[units.orientation]})"
+    assumptions = Assumptions(
+        what=f"commands from fgcal compensate: {robot.name} as {Path(args.robot).name} calibrated it, for a controller "
+        f"running the nominal model of {nominal.name}",
+        frame=frame_text(frame, T_W_ctrl),
+        tool=f"TCP at ({', '.join(f'{v * 1e3:.12g}' for v in tcp)}) mm in {on}",
+        payload=payload,
+        units=f"lengths {units.length}, angles {units.angle}"
+        + (orientation if targets.rotations is not None else "; positions only"),
+        approach=approach_words,
+        notes=("a row without joints and command was not compensated: its status says why",),
+    )  # fmt: skip
+    write_compensation(
+        args.out, targets.names, result, targets.rotations is not None, units, robot.prismatic,
+        assumptions.commented("#"),
+    )  # fmt: skip
     if result.motion_solved is not None:
         _unsolved_motion([n for n, ok in zip(targets.names, result.motion_solved, strict=True) if not ok])
     counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
     say(f"wrote {args.out}: {len(targets.names)} targets (" + ", ".join(f"{k} {v}" for k, v in counts.items()) + ")")
+    solved, unreachable = np.isin(result.status, SOLVED), result.status == "unreachable"
     emit(args, {
         "out": str(args.out), "n_targets": len(targets.names), "status": counts,
-        "residual_max_m": float(result.residual_m.max()),
+        # of the compensated targets only: an unreachable one's residual is how far it stays
+        "residual_max_m": float(result.residual_m[solved].max()) if solved.any() else None,
+        "unreachable_gap_max_m": float(result.residual_m[unreachable].max()) if unreachable.any() else None,
+        "targets_frame": frame, "controller_in_W": T_W_ctrl.tolist(), "tcp_m": tcp.tolist(),
+        "payload_mass_kg": float(loaded.payload_mass), "payload_com_m": [float(v) for v in loaded.payload_com],
     })  # fmt: skip
-    reached = result.status != "unreachable"
-    if reached.any():
-        say(f"  reached in the calibrated model to {result.residual_m[reached].max() * 1e6:.3g} um at worst")
-    if (~reached).any():
-        gaps = result.residual_m[~reached] * 1e3
+    if solved.any():
+        say(f"  reached in the calibrated model to {result.residual_m[solved].max() * 1e6:.3g} um at worst")
+    if unreachable.any():
+        gaps = result.residual_m[unreachable] * 1e3
         span = (
             f"{gaps.min():.4g} mm" if np.isclose(gaps.min(), gaps.max()) else f"{gaps.min():.4g} to {gaps.max():.4g} mm"
         )
-        say(f"  {count(int((~reached).sum()), 'target')} unreachable: the calibrated model stays {span} away")
+        say(f"  {count(int(unreachable.sum()), 'target')} unreachable: the calibrated model stays {span} away")
+    if (~solved).any():
+        say(f"  {count(int((~solved).sum()), 'target')} not compensated: no joints and no command in their rows")
     return 0
 
 
-def _approach(args: argparse.Namespace, robot, given: np.ndarray | None, n_targets: int) -> np.ndarray | None:
+ORIENTATION_WORDS = {
+    "rotvec": "rx ry rz, a rotation vector",
+    "rpy": "roll pitch yaw, R = Rz(yaw) Ry(pitch) Rx(roll)",
+    "abc": "a b c, R = Rz(A) Ry(B) Rx(C)",
+    "quaternion": "qw qx qy qz",
+}
+
+
+def _tcp(given: list[float] | None, to_m: float) -> np.ndarray:
+    """--tcp in metres: given in --length-unit, within 10 m."""
+    from ..core.errors import InputError
+
+    tcp = np.zeros(3) if given is None else np.array(given, dtype=float) * to_m
+    if np.abs(tcp).max() > MAX_TCP_M:
+        raise InputError(None, "--tcp", f"{' '.join(map(str, given))}: a TCP within {MAX_TCP_M:g} m of the tool frame")
+    return tcp
+
+
+MAX_TCP_M = 10.0
+
+
+def _inputs(args: argparse.Namespace, targets: str) -> dict[str, str | None]:
+    """Every file the command reads, by the name the command line gives it (a bundled robot's
+    name is none)."""
+    return {
+        targets: args.targets,
+        "ROBOT": args.robot if Path(args.robot).suffix else None,
+        "--nominal": args.nominal if args.nominal is not None and Path(args.nominal).suffix else None,
+    }
+
+
+def _approach(
+    args: argparse.Namespace, robot, given: np.ndarray | None, n_targets: int
+) -> tuple[np.ndarray | None, str]:
     """The approach of each target for compensate (None: not allowed for), and what it
-    assumes, said."""
+    assumes, said and returned in words."""
     if not robot.history:
         if given is not None and np.isfinite(given).any():
             say(f"  the before_q columns are not used: {robot.name}'s model ({robot.model}) has no lost motion")
-        return None
+        return None, f"not modelled: {robot.name}'s model ({robot.model}) has no lost motion"
     if args.approach == "none":
-        say("  lost motion not allowed for (--approach none): the commands are the joints the calibrated model needs")
-        return None
+        words = "lost motion not allowed for (--approach none): the commands are the joints the calibrated model needs"
+        say(f"  {words}")
+        return None, words
     n_given = 0 if given is None else int(np.all(np.isfinite(given), axis=1).sum())
-    say(
-        "  allowing for lost motion: each target approached from the previous one in the file's order"
+    words = (
+        "lost motion allowed for: each target approached from the previous one in the file's order"
         + (f" ({n_given} from the joints their before_q columns give)" if n_given else "")
-        + "; the first gets no allowance (--approach none: none at all)"
+        + "; the first gets no allowance"
     )
-    return given if given is not None else np.full((n_targets, robot.n_joints), np.nan)
+    say(f"  allowing for {words.removeprefix('lost motion allowed for: ')} (--approach none: none at all)")
+    return (given if given is not None else np.full((n_targets, robot.n_joints), np.nan)), words
 
 
 def _unsolved_motion(names: list[str]) -> None:
@@ -100,118 +170,20 @@ def _unsolved_motion(names: list[str]) -> None:
         )
 
 
-def _in_calibration_frame(targets: np.ndarray, robot, nominal, frame: str) -> np.ndarray:
-    """Targets (N, 3) or (N, 4, 4) in the calibration's W: as given (``W``), or from the
-    controller's base frame (``controller``), placed as program filtering places it. With
-    ``W``, says how far the controller's frame is, when that is more than 1 mm or 1 mrad."""
+def _in_calibration_frame(targets: np.ndarray, T_W_ctrl: np.ndarray, frame: str) -> np.ndarray:
+    """Targets (N, 3) or (N, 4, 4) in the calibration's W: from the controller's base frame
+    (``controller``, the default, placed as program filtering places it), or as given (``W``).
+    Says which, and how far the two frames are."""
     from ..core.se3 import so3_log
-    from ..data.program_filter import controller_frame
 
-    T_W_ctrl = controller_frame(robot, nominal)
-    if frame == "controller":
-        return T_W_ctrl @ targets if targets.ndim == 3 else targets @ T_W_ctrl[:3, :3].T + T_W_ctrl[:3, 3]
     offset_m, turn_rad = np.linalg.norm(T_W_ctrl[:3, 3]), np.linalg.norm(so3_log(T_W_ctrl[:3, :3]))
-    if offset_m > 1e-3 or turn_rad > 1e-3:
-        say(
-            f"  the targets are in the calibration's frame W; the controller's base frame lies {offset_m * 1e3:.3g} mm "
-            f"and {np.degrees(turn_rad) * 1e3:.3g} mdeg from it (--targets-frame controller reads them there)"
-        )
+    apart = f"{offset_m * 1e3:.3g} mm and {np.degrees(turn_rad) * 1e3:.3g} mdeg"
+    if frame == "controller":
+        say(f"  targets in the controller's base frame, which lies {apart} from the calibration's frame W "
+            "(--targets-frame W reads them in W)")  # fmt: skip
+        return T_W_ctrl @ targets if targets.ndim == 3 else targets @ T_W_ctrl[:3, :3].T + T_W_ctrl[:3, 3]
+    say(f"  targets in the calibration's frame W (--targets-frame W); the controller's base frame lies {apart} from it")
     return targets
-
-
-UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
-
-
-def _compensate_program(args: argparse.Namespace, robot, nominal) -> int:
-    from ..core.errors import InputError
-    from ..core.outputs import distinct, output_file, write_bytes
-    from ..data.dataset import write_csv
-    from ..data.program_filter import (
-        WRITTEN,
-        check_program,
-        correction_rows,
-        filter_targets,
-        program_frames,
-        program_path,
-    )
-    from ..data.programs import KRL_SUFFIXES, RAPID_SUFFIXES, read_program, write_program
-
-    source, out = Path(args.targets), Path(args.out)
-    distinct({"--out": out, "the corrections table": out.with_name(f"{out.stem}.corrections.csv")},
-             {"PROGRAM": source, "ROBOT": args.robot if Path(args.robot).suffix else None})  # fmt: skip
-    if (source.suffix.lower() in KRL_SUFFIXES) != (out.suffix.lower() in KRL_SUFFIXES) or out.suffix.lower() not in (
-        RAPID_SUFFIXES + KRL_SUFFIXES
-    ):
-        raise InputError(out, "--out", f"the corrected program is a {source.suffix} file like {source.name}")
-    if args.tcp is not None:
-        raise InputError(source, "--tcp", "a program's TCP is its tool: give --tool (a tooldata name, or X Y Z A B C)")
-    for option, value, default in (("--length-unit", args.length_unit, "m"), ("--angle-unit", args.angle_unit, "rad"),
-                                   ("--orientation", args.orientation, "rotvec"),
-                                   ("--targets-frame", args.targets_frame, "W")):  # fmt: skip
-        if value != default:
-            raise InputError(source, option, "applies to a targets CSV: a program's units and frames are its own")
-    table = out.with_name(f"{out.stem}.corrections.csv")
-    output_file(table)
-    program = read_program(source)
-    if not program.targets:
-        raise InputError(source, None, "no targets (robtarget, E6POS or POS declarations) to correct")
-    for note in check_program(program, args.tool is not None, args.base is not None):
-        warn(note)
-    frames = program_frames(program, args.tool, args.base, robot)
-    poses = np.array([target.pose for target in program.targets])
-    say(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})")
-    path = None
-    if robot.history:
-        if args.approach == "none":
-            say("  lost motion not allowed for (--approach none)")
-        else:
-            path, assumption = program_path(program)
-            say(f"  allowing for lost motion along the path: {assumption} (--approach none: not allowed for)")
-    configs = [t.config for t in program.targets]
-    result = filter_targets(robot, nominal, poses, configs, program.kind, frames, path)
-    if result.motion_unsolved is not None:
-        _unsolved_motion([t.name for t, bad in zip(program.targets, result.motion_unsolved, strict=True) if bad])
-    # A target the calibration leaves where it was (below what the file's digits hold) keeps its text.
-    moved = (result.correction_m > UNCHANGED_M) | (result.correction_rad > UNCHANGED_RAD)
-    written = np.isin(result.status, WRITTEN) & moved
-    corrected = {
-        target.name: (result.poses[k], {key: v for key, v in result.configs[k].items() if key in target.config})
-        for k, target in enumerate(program.targets)
-        if written[k]
-    }
-    text = write_program(program, corrected, out)
-    write_bytes(out, text.encode(program.encoding))
-    write_csv(table, *correction_rows(program, result, written))
-    counts = {s: int(np.sum(result.status == s)) for s in sorted(set(result.status.tolist()))}
-    say(f"wrote {out} and {table}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-    emit(args, {
-        "out": str(out), "table": str(table), "n_targets": len(poses), "n_corrected": int(written.sum()),
-        "status": counts,
-        "correction_max_m": float(result.correction_m[written].max()) if written.any() else 0.0,
-        "rotation_max_rad": float(result.correction_rad[written].max()) if written.any() else 0.0,
-    })  # fmt: skip
-    if written.any():
-        say(
-            f"  corrections {result.correction_m[written].mean() * 1e3:.3f} mm mean, "
-            f"{result.correction_m[written].max() * 1e3:.3f} mm max, "
-            f"{np.degrees(result.correction_rad[written]).max() * 1e3:.1f} mdeg max"
-        )
-    solved = np.isin(result.status, WRITTEN)
-    whose = "the tool's load" if frames.payload_mass_kg is not None else "the robot file's; a tooldata's tload sets it"
-    say(f"  deflection computed for a payload of {result.payload_mass_kg:g} kg ({whose})")
-    if (solved & ~moved).any():
-        say(f"  {count(int((solved & ~moved).sum()), 'target')} need no correction (below 0.5 um and 0.01 urad): kept")
-    if (~solved).any():
-        say(f"  {count(int((~solved).sum()), 'target')} left as they were: see their status in {table.name}")
-    if result.in_region is not None and (solved & ~result.in_region).any():
-        warn(
-            f"{count(int((solved & ~result.in_region).sum()), 'target')} need joints outside the range the "
-            "calibration measured: their correction is the model's extrapolation "
-            f"(in_calibrated_region in {table.name})"
-        )
-    if (result.status == "configuration changed").any():
-        warn("some corrected targets need another configuration (new confdata or S/T): check their path")
-    return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -219,16 +191,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("robot", help="the calibrated robot (calibrated_robot.yaml) or a bundled name")
     p.add_argument(
         "targets",
-        help="a robot program (ABB RAPID .mod/.modx/.prg/.sys, KUKA KRL .dat) or a CSV: target, x, y, z (m, W) "
+        help="a robot program (ABB RAPID .mod/.modx/.prg/.sys, KUKA KRL .dat) or a CSV: target, x, y, z (m, the "
+        "controller's base frame) "
         "[, rx, ry, rz (rad)] [, q1..qn hints (rad)]",
     )
     p.add_argument(
         "--out", required=True, help="the corrected program (and OUT.corrections.csv beside it), or the output CSV"
     )
     p.add_argument(
-        "--targets-frame", choices=("W", "controller"), default="W",
-        help="a targets CSV's frame: the calibration's W (default), or the controller's base frame, placed as "
-        "program filtering places it",
+        "--targets-frame", choices=("W", "controller"),
+        help="a targets CSV's frame: the controller's base frame, placed as program filtering places it (default, "
+        "as a program's), or the calibration's W",
     )  # fmt: skip
     p.add_argument(
         "--length-unit", choices=("m", "mm"), default="m", help="of a targets CSV and its output (default m)"
@@ -252,7 +225,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a program's work object: a wobjdata the module declares, or X Y Z A B C (mm, deg; KUKA $BASE) in the "
         "robot's base frame; default each target's \\WObj, else the base frame",
     )  # fmt: skip
-    p.add_argument("--tcp", type=LENGTH_M, nargs=3, help="TCP in the robot's tool frame (m; default its origin)")
+    p.add_argument(
+        "--tcp", type=real(-1e4, 1e4, "m, or mm with --length-unit mm"), nargs=3,
+        help="TCP in the robot's tool frame, in --length-unit (default m; within 10 m; default the tool's origin)",
+    )  # fmt: skip
     p.add_argument(
         "--tip", metavar="NAME",
         help="a tree's tip the targets are for (the robot's tip names, fgcal fk lists them; --tcp is then in that "

@@ -57,17 +57,37 @@ def output_file(path: str | Path, field: str | None = None) -> Path:
     return path
 
 
+def _identity(path: str | Path) -> tuple:
+    """What makes two names one file: an existing file's device and inode (so that a hard link
+    or a symbolic link to a file is that file), else its absolute path with links resolved (an
+    output not yet written is no input, but two outputs may still be one name)."""
+    try:
+        status = os.stat(path)
+    except (OSError, ValueError):
+        try:
+            return ("path", Path(path).resolve())
+        except (OSError, RuntimeError):  # a loop of links: compared as named
+            return ("path", Path(path).absolute())
+    return ("file", status.st_dev, status.st_ino)
+
+
 def distinct(outputs: dict[str, str | Path | None], inputs: dict[str, str | Path | None]) -> None:
-    """Refuse an output that is one of the command's inputs or another output (by the file it
-    names): writing it would destroy what the command reads, or write one file twice."""
-    seen: dict[Path, str] = {}
-    for role, path in [*((f"input {k}", v) for k, v in inputs.items()), *outputs.items()]:
+    """Refuse an output that is one of the command's inputs or another output: the same file
+    (device and inode, through symbolic and hard links), not merely the same name. Writing it
+    would destroy what the command reads, or write one file twice."""
+    seen: dict[tuple, tuple[str, str | Path]] = {}
+    for role, path in inputs.items():  # inputs may be one file (a robot its own nominal model)
+        if path is not None:
+            seen.setdefault(_identity(path), (f"input {role}", path))
+    for role, path in outputs.items():
         if path is None:
             continue
-        resolved = Path(path).resolve()
-        if resolved in seen:
-            raise InputError(path, role, f"is the same file as {seen[resolved]}: name another output")
-        seen[resolved] = role
+        key = _identity(path)
+        if key in seen:
+            other, named = seen[key]
+            link = "" if Path(named).absolute() == Path(path).absolute() else f" ({named}, through a link)"
+            raise InputError(path, role, f"is the same file as {other}{link}: name another output")
+        seen.setdefault(key, (role, path))
 
 
 def write_bytes(path: str | Path, data: bytes, field: str | None = None, sync: bool = False) -> Path:

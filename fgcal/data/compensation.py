@@ -391,9 +391,10 @@ def write_compensation(
     with_rotation: bool,
     units: TargetUnits | None = None,
     prismatic: np.ndarray | None = None,
+    comments: list[str] | None = None,
 ) -> None:
     """The output CSV in the targets' units and orientation convention (columns named with
-    their units where not SI)."""
+    their units where not SI), after ``comments`` (# lines: what it assumed)."""
     units = units or TargetUnits()
     n = result.q.shape[1]
     prismatic = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
@@ -415,15 +416,19 @@ def write_compensation(
     header.append("status")
     rows = []
     for i, name in enumerate(names):
-        row = [name, *(float(v) for v in result.q[i] / joint_scale)]
-        row += [float(v) / units.to_m for v in result.commands[i, :3, 3]]
+        # A target that was not compensated (unreachable, outside the joint limits) has no joints
+        # and no command to send: its cells are empty, its residual says how far it stays.
+        solved = result.status[i] in SOLVED
+        row = [name, *((float(v) for v in result.q[i] / joint_scale) if solved else [""] * n)]
+        row += [float(v) / units.to_m for v in result.commands[i, :3, 3]] if solved else ["", "", ""]
         if with_rotation:
-            row += units.orientation_values(result.commands[i, :3, :3])
+            width = len(ORIENTATIONS[units.orientation])
+            row += units.orientation_values(result.commands[i, :3, :3]) if solved else [""] * width
         row.append(float(result.residual_m[i]) * (1.0 if units.si else 1e6))
         if with_rotation:
             row.append(float(result.residual_rad[i]) * (1.0 if units.si else 1e3 / units.to_rad))
         if result.motion_offset is not None:
-            row += [float(v) for v in result.motion_offset[i] * motion_scale]
+            row += [float(v) for v in result.motion_offset[i] * motion_scale] if solved else [""] * n
         row.append(str(result.status[i]))
         rows.append(row)
-    write_csv(Path(path), header, rows)
+    write_csv(Path(path), header, rows, comments or [])

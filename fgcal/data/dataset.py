@@ -171,8 +171,15 @@ def format_float(value: float) -> str:
     return repr(float(value))
 
 
-def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]]) -> None:
+def write_csv(
+    path: Path, header: Sequence[str], rows: Sequence[Sequence[object]], comments: Sequence[str] = ()
+) -> None:
+    """A CSV table; ``comments`` (each a line starting with ``#``) before its header, which
+    read_csv skips: what the file assumed, stated where the user keeps it."""
+    if any(not line.startswith("#") or "\n" in line or "\r" in line for line in comments):
+        raise ValueError(f"comment lines start with # and are one line each: {list(comments)}")
     buffer = io.StringIO()
+    buffer.writelines(line + "\n" for line in comments)
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
     for row in rows:
@@ -185,6 +192,9 @@ def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[
         raise InputError(path, None, "file not found (listed in dataset.yaml files)")
     # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
     text = read_file_text(path, "utf-8-sig")
+    # Lines starting with # before the header are comments (fgcal states its outputs' assumptions there).
+    while text.startswith("#"):
+        text = text.partition("\n")[2]
     reader = csv.reader(io.StringIO(text, newline=""))
     try:
         rows = list(reader)

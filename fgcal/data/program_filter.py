@@ -44,8 +44,11 @@ class Frames:
 
     work_objects: np.ndarray  # (N, 4, 4)
     tools: np.ndarray  # (N, 4, 4)
-    payload_mass_kg: float | None = None
+    payload_mass_kg: float | None = None  # None: the robot file's (the calibration's payload)
     payload_com_m: np.ndarray | None = None
+    payload_source: str = "the robot file's: the calibration's payload"  # whose load it is, in words
+    tool_names: tuple[str, ...] = ()  # per target: a tooldata's name, tool0 or the --tool numbers
+    work_object_names: tuple[str, ...] = ()  # per target: a wobjdata's name, wobj0 or the --base numbers
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,7 @@ class Filtered:
     controller_in_W: np.ndarray  # (4, 4) the controller's base frame in the calibration's W
     in_region: np.ndarray | None  # (N,) solved, joints within the calibrated region's ranges; None: no region
     payload_mass_kg: float  # the load the deflection was computed for
+    payload_com_m: np.ndarray  # (3,) its centre of mass in the flange frame
     motion_offset: np.ndarray | None = None  # (N, n) lost motion allowed for (rad or m); None: not allowed for
     motion_unsolved: np.ndarray | None = None  # (N,) the allowance could not be solved (a tiny move)
 
@@ -153,6 +157,10 @@ def controller_ik(
             break
         start = q[todo] if k == 0 else _starts(rng, low, high, kind, [configs[t] for t in todo])
         solved = nominal.ik(flange[todo], start, frame="flange", clamp=True)
+        singular = np.flatnonzero(solved.status == "near singularity")
+        if len(singular):  # free joints (a wrist's 4 and 6 at joint 5 = 0): into the configuration's quadrants
+            boxes = _boxes(low, high, kind, [configs[todo[row]] for row in singular])
+            solved.q[singular] = _into_box(nominal, flange[todo[singular]], solved.q[singular], *boxes)
         below = configurations(nominal, kind, solved.q - BOUNDARY_RAD)
         above = configurations(nominal, kind, solved.q + BOUNDARY_RAD)
         exact = configurations(nominal, kind, solved.q)
@@ -184,8 +192,36 @@ def _consistent(wanted: dict[str, int], exact: dict, below: dict, above: dict) -
     return True
 
 
-def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]) -> np.ndarray:
-    """Random joints within the ranges, in the quadrants and signs the configurations name."""
+def _into_box(
+    nominal: Robot, flange: np.ndarray, q: np.ndarray, lower: np.ndarray, upper: np.ndarray, rounds: int = 3
+) -> np.ndarray:
+    """Joints (N, n) at a singularity moved along the Jacobian's null space (the motions that
+    leave the flange where it is) toward the middle of the box [lower, upper] their
+    configuration names, then put back on the flange pose. At ABB's calibration home (joint 5 at
+    0) joints 4 and 6 turn together: the IK from a random start ends anywhere along that line,
+    mostly outside the quadrants cf4 and cf6 name, and the target was "configuration not found"."""
+    names = [f"q{i + 1}" for i in range(nominal.n_joints)]
+    middle = 0.5 * (lower + upper)
+    for _ in range(rounds):
+        J = nominal.jacobian(q, names, frame="flange")  # (N, 6, n)
+        _, sv, Vt = np.linalg.svd(J)
+        rank = (np.pad(sv, ((0, 0), (0, max(0, nominal.n_joints - sv.shape[1])))) > NULL_SV).sum(axis=1)
+        for row in range(len(q)):
+            null = Vt[row, rank[row] :]  # (k, n): the directions of no flange motion
+            q[row] += null.T @ (null @ (middle[row] - q[row]))
+        refined = nominal.ik(flange, q, frame="flange")
+        q = np.where(np.isin(refined.status, SOLVED)[:, None], refined.q, q)
+    return q
+
+
+NULL_SV = 1e-6  # a singular value of the flange Jacobian below this (m or rad per rad): a free motion
+
+
+def _boxes(
+    low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, n) lower and upper joint values within the ranges, in the quadrants and signs the
+    configurations name."""
     lower = np.tile(low, (len(configs), 1))
     upper = np.tile(high, (len(configs), 1))
     for row, config in enumerate(configs):
@@ -202,7 +238,12 @@ def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dic
         for joint, (a, b) in bounds.items():
             lower[row, joint] = max(lower[row, joint], a)
             upper[row, joint] = max(lower[row, joint], min(upper[row, joint], b))
-    return rng.uniform(lower, upper)
+    return lower, upper
+
+
+def _starts(rng, low: np.ndarray, high: np.ndarray, kind: str, configs: list[dict[str, int]]) -> np.ndarray:
+    """Random joints within the ranges, in the quadrants and signs the configurations name."""
+    return rng.uniform(*_boxes(low, high, kind, configs))
 
 
 def kinematics_frames(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
@@ -260,11 +301,20 @@ def filter_targets(
         motion_unsolved = np.zeros(len(poses), dtype=bool)
         motion_unsolved[order[keep & ~allowed]] = True
     corrected = inverse(frames.work_objects) @ nominal.fk(solved.q) @ frames.tools
-    moved = inverse(poses) @ corrected
+    correction_m = np.linalg.norm(corrected[:, :3, 3] - poses[:, :3, 3], axis=1)
+    correction_rad = np.linalg.norm(so3_log((inverse(poses) @ corrected)[:, :3, :3]), axis=-1)
+    moved = (correction_m > UNCHANGED_M) | (correction_rad > UNCHANGED_RAD)  # else the target keeps its text
     after = configurations(nominal, kind, solved.q)
     reached = np.isin(solved.status, SOLVED)
     status = solved.status.astype(object)
     status[reached & found & significant_change(nominal, q_nominal, solved.q)] = "configuration changed"
+    # The same path, other configuration data (a joint that was within BOUNDARY_RAD of a quadrant's
+    # edge or of 0 crossed it): written, and said, never a plain "ok".
+    plain = reached & found & moved & np.isin(status, ("ok", "near singularity"))
+    for k in np.flatnonzero(plain):
+        changed = {key for key, value in configs[k].items() if after[k].get(key, value) != value}
+        if changed:
+            status[k] = "turn changed" if "T" in changed else "configuration data changed"
     status[within & ~found] = "configuration not found"  # the controller itself has no such branch
     in_region = None
     if robot.region is not None:  # each joint within the range the calibration saw (and a degree)
@@ -275,13 +325,14 @@ def filter_targets(
         q=solved.q,
         q_nominal=q_nominal,
         configs=after,
-        correction_m=np.linalg.norm(corrected[:, :3, 3] - poses[:, :3, 3], axis=1),
-        correction_rad=np.linalg.norm(so3_log(moved[:, :3, :3]), axis=-1),
+        correction_m=correction_m,
+        correction_rad=correction_rad,
         residual_m=solved.residual_m,
         status=status.astype(str),
         controller_in_W=T_W_ctrl,
         in_region=in_region,
         payload_mass_kg=float(robot.payload_mass),
+        payload_com_m=np.array(robot.payload_com, dtype=float),
         motion_offset=motion_offset,
         motion_unsolved=motion_unsolved,
     )
@@ -320,6 +371,7 @@ def _names(names: list[str]) -> str:
 
 
 REGION_MARGIN_RAD = np.radians(1.0)
+UNCHANGED_M, UNCHANGED_RAD = 5e-7, 1e-8  # a correction below these is none (the files hold um and 1e-9)
 BOUNDARY_RAD = np.radians(0.1)  # a joint this close to a quadrant's edge may cross it for any correction
 
 
@@ -339,7 +391,9 @@ def significant_change(nominal: Robot, before: np.ndarray, after: np.ndarray) ->
 
 # -- a program file in, a corrected program and a table out --------------------------------------
 
-WRITTEN = ("ok", "near singularity", "configuration changed")  # statuses whose targets are corrected
+# The statuses whose targets are corrected: on the same branch (the last two with configuration
+# data rewritten near a quadrant's edge: KUKA's T, else confdata or S), or on another.
+WRITTEN = ("ok", "near singularity", "turn changed", "configuration data changed", "configuration changed")
 
 
 def frame_from_numbers(values: list[float]) -> np.ndarray:
@@ -348,11 +402,20 @@ def frame_from_numbers(values: list[float]) -> np.ndarray:
     return pose_from_xyz_rpy(np.array([x, y, z]) * 1e-3, np.radians([c, b, a]))
 
 
-def program_frames(program, tool: list[str] | None, base: list[str] | None, robot: Robot) -> Frames:
+def program_frames(
+    program,
+    tool: list[str] | None,
+    base: list[str] | None,
+    robot: Robot,
+    payload_mass: float | None = None,
+    payload_com: np.ndarray | None = None,
+) -> Frames:
     """Each target's work object and TCP: ``tool``/``base`` from the command line (a name the
     RAPID module declares, or X Y Z A B C in mm and deg) before the module's own (the tool and
     \\WObj of the first instruction using the target), else the flange and the base frame. The
-    tool's load (RAPID tload) is the payload the deflection is computed for."""
+    deflection's payload is the tool's load: ``payload_mass``/``payload_com`` as given (KRL has
+    no tooldata; either alone keeps the other of the load it replaces), else the tooldata's tload
+    (RAPID), else the robot file's."""
     from ..core.errors import InputError
 
     def given(values: list[str] | None, declared: dict, what: str):
@@ -378,37 +441,58 @@ def program_frames(program, tool: list[str] | None, base: list[str] | None, robo
     base_given = given(base, program.work_objects, "base")
 
     def resolve(target, chosen, declared: dict, neutral: str, what: str, option: str):
-        """The frame (or the declared data) a target uses: given, the module's, or the neutral one."""
+        """The frame (or the declared data) a target uses and its name: given, the module's, or the neutral one."""
         if isinstance(chosen, np.ndarray):
-            return chosen
-        if chosen is None or chosen.lower() == neutral:
-            return np.eye(4)
+            return chosen, f"{option} {' '.join(tool if option == '--tool' else base)}"
+        if chosen is None or chosen.lower() == neutral:  # KRL's $TOOL and $BASE: the flange and the base frame
+            return np.eye(4), neutral if program.kind == "rapid" else {"tool0": "flange", "wobj0": "base"}[neutral]
         if _declared(chosen, declared) is not None:
-            return declared[_declared(chosen, declared)]
+            return declared[_declared(chosen, declared)], _declared(chosen, declared)
         raise InputError(program.path, f"line {target.line}, {target.name}", f"{what} {chosen!r} is not declared "
                          f"in the module: give it with {option} X Y Z A B C (mm, deg)")  # fmt: skip
 
-    tools, objects, loads = [], [], set()
+    tools, objects, loads, tool_names, object_names = [], [], {}, [], []
     for target in program.targets:
         used = tool_given if tool_given is not None else target.tool
-        tool_data = resolve(target, used, program.tools, "tool0", "tool", "--tool")
+        tool_data, name = resolve(target, used, program.tools, "tool0", "tool", "--tool")
+        tool_names.append(name)
         if isinstance(tool_data, np.ndarray):
             tools.append(tool_data)
         else:
             if not tool_data.robhold:
                 raise InputError(program.path, f"tooldata {used}", "a stationary tool (robhold FALSE) is not supported")
             tools.append(tool_data.tcp)
-            loads.add((tool_data.mass_kg, tuple(tool_data.cog_m)))
+            if tool_data.mass_kg > 0:
+                loads.setdefault((tool_data.mass_kg, tuple(tool_data.cog_m)), name)
         used = base_given if base_given is not None else target.work_object
-        objects.append(resolve(target, used, program.work_objects, "wobj0", "work object", "--base"))
-    loads = {load for load in loads if load[0] > 0}
-    if len(loads) > 1:
+        frame, name = resolve(target, used, program.work_objects, "wobj0", "work object", "--base")
+        objects.append(frame)
+        object_names.append(name)
+    if len(loads) > 1 and (payload_mass is None or payload_com is None):
         raise InputError(program.path, "tooldata", "the targets use tools of different loads: filter them one tool "
-                         "at a time (--tool NAME)")  # fmt: skip
-    mass, cog = next(iter(loads)) if loads else (None, None)
+                         "at a time (--tool NAME), or state one load (--payload-mass and --payload-com)")  # fmt: skip
+    if loads:
+        (mass, cog), name = next(iter(loads.items()))
+        source = f"tooldata {name}'s tload"
+    else:
+        mass, cog = None, None
+        source = Frames.payload_source + (
+            "; --payload-mass and --payload-com state the tool's load" if program.kind == "krl"
+            else "; a tooldata's tload, or --payload-mass and --payload-com, state the tool's load"
+        )  # fmt: skip
+    if payload_mass is not None or payload_com is not None:  # stated: before the tooldata's
+        named = [option for option, value in (("--payload-mass", payload_mass), ("--payload-com", payload_com))
+                 if value is not None]  # fmt: skip
+        rest = "" if len(named) == 2 else f"; the rest: {source.split(';')[0]}"
+        mass = float(payload_mass) if payload_mass is not None else (robot.payload_mass if mass is None else mass)
+        if payload_com is not None:
+            cog = tuple(float(v) for v in payload_com)
+        elif cog is None:
+            cog = tuple(float(v) for v in robot.payload_com)
+        source = " and ".join(named) + rest
     return Frames(
         np.array(objects).reshape(-1, 4, 4), np.array(tools).reshape(-1, 4, 4), mass,
-        None if cog is None else np.array(cog),
+        None if cog is None else np.array(cog), source, tuple(tool_names), tuple(object_names),
     )  # fmt: skip
 
 
@@ -449,19 +533,25 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
     return notes
 
 
-def correction_rows(program, result: Filtered, written: np.ndarray) -> tuple[list[str], list[list]]:
-    """The table of corrections (mm, mdeg, um, deg: named in the header). A target that was not
-    solved (unreachable, outside the limits, no branch of its configuration) has no figures."""
+def correction_rows(
+    program, result: Filtered, written: np.ndarray, frames: Frames, shift: int = 0
+) -> tuple[list[str], list[list]]:
+    """The table of corrections (mm, mdeg, um, deg: named in the header), with each target's line
+    in the corrected program (``shift``: the lines its header added), tool and work object. A
+    target that was not solved (unreachable, outside the limits, no branch of its configuration)
+    has no figures."""
     n = result.q.shape[1]
-    header = ["target", "line", "status", "corrected", "in_calibrated_region", "dx_mm", "dy_mm", "dz_mm",
-              "correction_mm", "rotation_mdeg", "residual_um", *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
+    header = ["target", "line", "tool", "work_object", "status", "corrected", "in_calibrated_region", "dx_mm",
+              "dy_mm", "dz_mm", "correction_mm", "rotation_mdeg", "residual_um",
+              *[f"q{i}_deg" for i in range(1, n + 1)]]  # fmt: skip
     if result.motion_offset is not None:
         header += [f"lost_motion_q{i}_mdeg" for i in range(1, n + 1)]
     rows = []
     for k, target in enumerate(program.targets):
         unsolved = result.status[k] not in WRITTEN
         region = "-" if result.in_region is None or unsolved else "yes" if result.in_region[k] else "no"
-        row = [target.name, target.line, str(result.status[k]), "yes" if written[k] else "no", region]
+        row = [target.name, target.line + shift, frames.tool_names[k], frames.work_object_names[k],
+               str(result.status[k]), "yes" if written[k] else "no", region]  # fmt: skip
         if result.status[k] not in WRITTEN:
             rows.append(row + [""] * (len(header) - len(row)))
             continue

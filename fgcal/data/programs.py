@@ -768,3 +768,37 @@ def _integer_text(original: str, value: int, where: str) -> str:
     letter, width = original[1], len(original) - 3
     digits = format(value, "b" if letter in "Bb" else "X")
     return f"'{letter}{digits.rjust(width, '0')}'"
+
+
+# ---------------------------------------------------------------------------------------------
+# The comment header: what a corrected program assumed (fgcal.data.assumptions)
+
+CORRECTED_MARK = "corrected by fgcal compensate"  # the header's first words: a program corrected already
+_FIRST_LINE = {
+    "rapid": re.compile(r"[ \t]*MODULE\b", re.IGNORECASE),
+    "krl": re.compile(r"[ \t]*DEFDAT\b", re.IGNORECASE),
+}
+COMMENT = {"rapid": "!", "krl": ";"}
+
+
+def corrected_at(program: Program) -> int | None:
+    """The line of an fgcal header in the program (it was corrected already), else None."""
+    mark = re.compile(rf"^[ \t]*{re.escape(COMMENT[program.kind])}[ \t]*{CORRECTED_MARK}", re.MULTILINE)
+    found = mark.search(program.text)
+    return None if found is None else program.text.count("\n", 0, found.start()) + 1
+
+
+def with_header(program: Program, text: str, lines: list[str]) -> tuple[str, int]:
+    """``text`` (the program's, corrected) with ``lines`` (comments, ASCII) after its MODULE or
+    DEFDAT line, where the language has comments (before it, RAPID has none and KRL keeps its
+    ``&`` header), in the file's line endings; and how many lines came in (0: no such line)."""
+    opening = None
+    for match in re.finditer(r"[^\n]*\n", text):
+        if _FIRST_LINE[program.kind].match(match.group(0)):
+            opening = match
+            break
+    if opening is None:
+        return text, 0
+    ending = "\r\n" if opening.group(0).endswith("\r\n") else "\n"
+    block = "".join(line + ending for line in lines)
+    return text[: opening.end()] + block + text[opening.end() :], len(lines)

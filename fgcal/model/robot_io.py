@@ -198,7 +198,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     doc = Fields(raw, source)
     doc.check_keys(ROBOT_KEYS)
     units = parse_units(doc.raw("units", None), source)
-    name = doc.string("name")
+    name = _xml_name(doc.string("name"), source, "name")
     doc.string("source")
     convention = doc.string("dh_convention", "standard", CONVENTIONS)
     joints = doc.sub_list("joints")
@@ -335,11 +335,11 @@ def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
     if doc.has("flange_joint"):
         out["flange_joint"] = doc.integer("flange_joint", n, minimum=0, maximum=n) - 1
     if doc.has("flange_name"):
-        out["flange_name"] = check_name(doc.string("flange_name"), doc.source, "flange_name")
+        out["flange_name"] = _link_name(doc.string("flange_name"), doc.source, "flange_name")
     tips = []
     for k, tip in enumerate(doc.sub_list("tips") if doc.has("tips") else []):
         tip.check_keys(("name", "joint", "xyz", "rpy"))
-        name = check_name(tip.string("name"), doc.source, f"tips[{k}].name")
+        name = _link_name(tip.string("name"), doc.source, f"tips[{k}].name")
         joint = tip.integer("joint", minimum=0, maximum=n) - 1
         pose = pose_from_xyz_rpy(
             tip.vector("xyz", 3, [0, 0, 0], units.to_m), tip.vector("rpy", 3, [0, 0, 0], units.to_rad)
@@ -350,6 +350,23 @@ def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
         raise doc.error("tips", f"tip names must differ (and differ from the flange's): {names}")
     out["tips"] = tuple(tips)
     return out
+
+
+def _link_name(text: str, source: str | Path, field: str) -> str:
+    """A tip's name, which fgcal export writes as a URDF link's: printable, not empty or blank, and
+    characters XML can hold (not U+FFFE, U+FFFF or a lone surrogate)."""
+    if not text.strip():
+        raise InputError(source, field, f"an empty name: a tip is a link of the exported URDF, {text!r}")
+    return _xml_name(text, source, field)
+
+
+def _xml_name(text: str, source: str | Path, field: str) -> str:
+    """A name fgcal export writes into a URDF: printable, in characters XML can hold."""
+    check_name(text, source, field)
+    bad = next((c for c in text if 0xD800 <= ord(c) <= 0xDFFF or ord(c) in (0xFFFE, 0xFFFF)), None)
+    if bad is not None:
+        raise InputError(source, field, f"U+{ord(bad):04X} is no character XML (a URDF) can hold: {text!r}")
+    return text
 
 
 MAX_REGION = 10000  # configurations a robot file may list as its calibrated region

@@ -192,9 +192,7 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
             f'    <limit lower="{number(low)}" upper="{number(high)}" effort="0" velocity="0"/>{follows}\n'
             "  </joint>"
         )
-    # A tree's tips are links by their names (the flange's too), unless a name is the layout's own.
-    taken = {"world", "base_link", "tool0", *(f"link_{i + 1}" for i in range(robot.n_links))}
-    tip_links = {name: f"{name}_tip" if name in taken else name for name in robot.tip_names}
+    tip_links = tip_link_names(robot)
     flange = tip_links[robot.flange_name] if is_tree(robot) else "flange"
     flange_parent, T_parent = link_of(robot.n_links - 1 if robot.flange_joint is None else robot.flange_joint)
     parts.append(_link_xml(flange, float(robot.payload_mass), robot.payload_com))
@@ -209,6 +207,25 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
         )
     parts.append("</robot>")
     return "\n".join(parts) + "\n"
+
+
+def tip_link_names(robot: Robot) -> dict[str, str]:
+    """The link of each tip in fgcal's layout: its name, unless that is a name of the layout
+    (world, base_link, tool0, link_i), then ``NAME_tip`` (``NAME_tip2``, ...: never another
+    link's name, so that no two links share one)."""
+    layout = {"world", "base_link", "tool0", *(f"link_{i + 1}" for i in range(robot.n_links))}
+    taken = layout | {name for name in robot.tip_names if name not in layout}
+    out = {}
+    for name in robot.tip_names:
+        if name not in layout:
+            out[name] = name
+            continue
+        link, k = f"{name}_tip", 2
+        while link in taken:
+            link, k = f"{name}_tip{k}", k + 1
+        taken.add(link)
+        out[name] = link
+    return out
 
 
 def _joint_range(robot: Robot, link: int) -> tuple[float, float]:
@@ -353,6 +370,8 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
             # fgcal's own layout carries it as the flange link's inertial; a robot's own URDF does not.
             "in_urdf": joint_names is None,
         },
+        # fgcal's layout of a tree: each tip's link (its name, unless the layout has that name)
+        **({"tip_links": tip_link_names(robot)} if joint_names is None and is_tree(robot) else {}),
         "base_in_world": pose(frames["base"]),
         "tool_in_flange": pose(inverse(frames["flange"]) @ frames["tool"]),
         "joints": joints,
@@ -378,15 +397,16 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
     }
 
 
-def check_outputs(path: str | Path) -> tuple[Path, Path]:
-    """The URDF's path and its sidecar's, both checked writable (before any work)."""
+def check_outputs(path: str | Path, field: str | None = None) -> tuple[Path, Path]:
+    """The URDF's path and its sidecar's, both checked writable (before any work); ``field``: the
+    option that named it."""
     path = Path(path)
     if path.suffix.lower() != ".urdf":
-        raise InputError(path, None, "the URDF file name must end in .urdf")
+        raise InputError(path, field, "the URDF file name must end in .urdf")
     if path.is_dir():
-        raise InputError(path, None, "is a folder: give the URDF file's name")
-    output_dir(path.parent, None)
-    output_file(path)
+        raise InputError(path, field, "is a folder: give the URDF file's name")
+    output_dir(path.parent, field)
+    output_file(path, field)
     sidecar = path.with_name(f"{path.stem}.compliance.yaml")
     output_file(sidecar)
     return path, sidecar

@@ -19,7 +19,7 @@ from ..core.errors import InputError
 from ..core.outputs import distinct, output_file, write_text
 from ..model.rigid_fit import RigidFit, region_sample, rigid_refit, without_compliances
 from ..model.robot_io import load_robot
-from ..model.urdf_export import check_outputs, export_urdf, is_tree, template_of
+from ..model.urdf_export import check_outputs, export_urdf, is_tree, template_of, tip_link_names
 
 LOSS_WARNING = 0.20  # the URDF alone losing more than this fraction of the held-out accuracy is warned of
 
@@ -37,11 +37,11 @@ def export_command(
     nominal: str | None = None,
     say: Callable[[str], None] = print,
 ) -> int:
-    path = None if urdf is None else check_outputs(urdf)[0]  # before the work, not after it
+    path = None if urdf is None else check_outputs(urdf, "--urdf")[0]  # before the work, not after it
     sidecar = None if path is None else path.with_name(f"{path.stem}.compliance.yaml")
-    robot_input = robot_file if Path(robot_file).suffix else None  # a file, not a bundled name
-    distinct({"--urdf": path, "the sidecar": sidecar, "--ur-kinematics": ur_kinematics},
-             {"ROBOT": robot_input, "--template": template, "--calibration": calibration})  # fmt: skip
+    outputs = {"--urdf": path, "the sidecar": sidecar, "--ur-kinematics": ur_kinematics}
+    inputs = {"ROBOT": robot_file, "--template": template, "--calibration": calibration, "--nominal": nominal}
+    distinct(outputs, {k: v for k, v in inputs.items() if v is not None and Path(v).suffix})  # bundled names: none
     if ur_kinematics is not None:
         if Path(ur_kinematics).suffix.lower() not in (".yaml", ".yml"):
             raise InputError(ur_kinematics, "--ur-kinematics", "the kinematics file's name ends in .yaml")
@@ -54,6 +54,10 @@ def export_command(
         option = "--rigid-fit" if rigid_fit else "--calibration"
         raise InputError(robot_file, option, f"{robot.name} is a tree: {option} fits and scores the flange's tool "
                          "only, not every tip; export it without (the sidecar keeps the compliances)")  # fmt: skip
+    # What the robot file names and the calibration reads are inputs too: the URDF the robot came
+    # from (written into, never over), the calibration's datasets.
+    recorded = None if robot.urdf is None else robot.urdf[0]
+    distinct(outputs, {**inputs, f"urdf.file of {robot_file}": recorded, **_calibration_inputs(calibration)})
     if payload_mass is not None or payload_com is not None:
         mass = robot.payload_mass if payload_mass is None else payload_mass
         com = robot.payload_com if payload_com is None else np.array(payload_com, dtype=float)
@@ -118,11 +122,31 @@ def export_command(
     held = "joint compliances and lost motion" if robot.history else "joint compliances"
     say(f"wrote {written} ({robot.name}, {robot.n_links} joints) and {sidecar} ({held}, which URDF cannot")
     if template_file is None:
-        tips = "".join(f", {name}" for name in robot.tip_names[1:])
-        say(f"  express); links: world, base_link, link_1..link_{robot.n_links}, flange, tool0{tips}")
+        # A tree's flange is a link by its name, as each tip (renamed where the layout has the name).
+        links = tip_link_names(robot) if is_tree(robot) else {robot.flange_name: "flange"}
+        flange, *tips = [links[name] for name in robot.tip_names]
+        others = "".join(f", {link}" for link in tips)
+        say(f"  express); links: world, base_link, link_1..link_{robot.n_links}, {flange}, tool0{others}")
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0
+
+
+def _calibration_inputs(calibration: str | None) -> dict[str, Path]:
+    """The files --calibration reads: its datasets' files (dataset.yaml, the tables, the robot)."""
+    if calibration is None:
+        return {}
+    from ..calibration.config import load_config
+
+    config = load_config(calibration)
+    folders = [config.dataset, *config.validation_datasets]
+    return {
+        f"--calibration's dataset file {file.name}": file
+        for folder in folders
+        if folder.is_dir()
+        for file in sorted(folder.iterdir())
+        if file.is_file()
+    }
 
 
 def _write_ur_kinematics(robot, nominal: str | None, path: Path, say: Callable[[str], None]) -> None:
