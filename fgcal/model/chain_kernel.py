@@ -53,6 +53,21 @@ def int_table(ints, which):
 
 
 @compiled(inline=True)
+def int_row(ints, which, row):
+    """Row ``row`` of the integer section ``which``, a view (columns,): no reshape, which costs
+    about 20 ns at every call."""
+    offset, columns = ints[3 * which] + row * ints[3 * which + 2], ints[3 * which + 2]
+    return ints[offset : offset + columns]
+
+
+@compiled(inline=True)
+def real_row(ints, reals, which, row):
+    """Row ``row`` of the real section ``which``, a view (columns,)."""
+    offset, columns = ints[3 * which] + row * ints[3 * which + 2], ints[3 * which + 2]
+    return reals[offset : offset + columns]
+
+
+@compiled(inline=True)
 def real_table(ints, reals, which):
     """The real section ``which`` of a compiled model, a view (rows, columns)."""
     offset, rows, columns = ints[3 * which], ints[3 * which + 1], ints[3 * which + 2]
@@ -84,8 +99,8 @@ def evaluation(ints, buffer, n_conf):
     """One evaluation's arrays, views of ``buffer`` (see :func:`evaluation_offsets`)."""
     n_elements = ints[3 * ELEMENTS + 2]
     n_links, n_bodies = ints[3 * BENDS + 2], ints[3 * BODIES + 2]
-    flags = int_table(ints, FLAGS)
-    offsets = evaluation_offsets(n_elements + 1, n_conf, n_links, n_bodies, flags[0, 1], flags[0, 0])
+    flags = int_row(ints, FLAGS, 0)
+    offsets = evaluation_offsets(n_elements + 1, n_conf, n_links, n_bodies, flags[1], flags[0])
     frames, size = (n_elements + 1, n_conf, 3, 4), (n_elements + 1) * n_conf * 12
     rigid = buffer[offsets[0] : offsets[0] + size].reshape(frames)
     deformed = buffer[offsets[1] : offsets[1] + size].reshape(frames)
@@ -95,7 +110,7 @@ def evaluation(ints, buffer, n_conf):
     moments = buffer[offsets[5] : offsets[6]].reshape((n_conf, 3 * n_links))
     carried_mass = buffer[offsets[6] : offsets[7]]
     body_masses = buffer[offsets[7] : offsets[8]]
-    rvec_left = buffer[offsets[8] : offsets[9]].reshape((flags[0, 1], 3, 3))
+    rvec_left = buffer[offsets[8] : offsets[9]].reshape((flags[1], 3, 3))
     return rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left
 
 
@@ -115,20 +130,26 @@ def rotation_vector(params, first, left, out):
         a, b = 1.0 - theta**2 / 6.0, 0.5 - theta**2 / 24.0
     else:
         a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
-    k = np.zeros((3, 3))
-    k[0, 1], k[0, 2], k[1, 0], k[1, 2], k[2, 0], k[2, 1] = -r2, r1, r2, -r0, -r1, r0
-    for i in range(3):
-        for j in range(3):
-            square = k[i, 0] * k[0, j] + k[i, 1] * k[1, j] + k[i, 2] * k[2, j]
-            out[i, j] = (1.0 if i == j else 0.0) + a * k[i, j] + b * square
+    # [r]x and its square, term by term as (k @ k)[i, j] = sum_l k[i, l] k[l, j].
+    k01, k02, k10, k12, k20, k21 = -r2, r1, r2, -r0, -r1, r0
+    out[0, 0] = 1.0 + b * (k01 * k10 + k02 * k20)
+    out[0, 1] = a * k01 + b * (k02 * k21)
+    out[0, 2] = a * k02 + b * (k01 * k12)
+    out[1, 0] = a * k10 + b * (k12 * k20)
+    out[1, 1] = 1.0 + b * (k10 * k01 + k12 * k21)
+    out[1, 2] = a * k12 + b * (k10 * k02)
+    out[2, 0] = a * k20 + b * (k21 * k10)
+    out[2, 1] = a * k21 + b * (k20 * k01)
+    out[2, 2] = 1.0 + b * (k20 * k02 + k21 * k12)
 
 
 @compiled(inline=True)
-def frames(tables, constants, params, q, moments, root, out):
+def frames(tables, constants, params, q, moments, bent, root, out):
     """Fill ``out`` (K+1, N, 3, 4) with the chain's frames at N configurations ``q`` (N, n), the
     top three rows of each 4x4 transform: ``out[k + 1]`` the frame after element k, ``out[0]``
     the top three rows of ``root`` (4, 4). ``moments`` (N, 3L) scale the deflections'
-    parameters; with none, (N, 0), each is its parameter's value."""
+    parameters; with none, (N, 0), each is its parameter's value. Not ``bent``: every
+    deflection is zero (the undeformed chain), whatever ``moments`` hold."""
     kind, param, moment, joint, start = tables[0], tables[1], tables[2], tables[3], tables[4]
     const, sign = constants[0], constants[1]
     n_conf = q.shape[0]
@@ -152,8 +173,10 @@ def frames(tables, constants, params, q, moments, root, out):
         j, m = (axis + 1) % 3, (axis + 2) % 3
         for n in range(n_conf):
             value = const[k]
-            if param[k] >= 0:  # no moments given: the parameter's value itself
-                value += params[param[k]] * (moments[n, moment[k]] if moment[k] >= 0 and use_moments else 1.0)
+            if param[k] >= 0 and moment[k] >= 0:  # a deflection: no moments given, its parameter's value
+                value += params[param[k]] * ((moments[n, moment[k]] if use_moments else 1.0) if bent else 0.0)
+            elif param[k] >= 0:
+                value += params[param[k]]
             if joint[k] >= 0:
                 value += sign[k] * q[n, joint[k]]
             # Only what the element leaves as it was is copied.
@@ -214,6 +237,9 @@ def gravity(
                 moments[n, 3 * i + c] = frame[0, c] * tau0 + frame[1, c] * tau1 + frame[2, c] * tau2
 
 
+_IDENTITY = np.eye(4)  # the root of a robot's chain (numba freezes it into the code: no allocation)
+
+
 @compiled
 def forward(ints, reals, params, q, buffer):
     """One evaluation into ``buffer`` (:func:`evaluation`) at N configurations ``q`` (N, n): the
@@ -222,7 +248,8 @@ def forward(ints, reals, params, q, buffer):
     One call, where several would each pay the dispatch of their arrays (and returning an
     array costs its boxing)."""
     tables, constants = int_table(ints, ELEMENTS), real_table(ints, reals, CONSTANTS)
-    bodies, masses = int_table(ints, BODIES), real_table(ints, reals, MASSES)[0]
+    body_frame, mass_param = int_row(ints, BODIES, 0), int_row(ints, BODIES, 1)
+    masses = real_row(ints, reals, MASSES, 0)
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left = evaluation(
         ints, buffer, q.shape[0]
     )
@@ -231,17 +258,15 @@ def forward(ints, reals, params, q, buffer):
         if kind[k] == 6:
             rotation_vector(params, param[k], True, rvec_left[rvec_slot[k]])
     for b in range(masses.shape[0]):
-        body_masses[b] = masses[b] * params[bodies[1, b]] if bodies[1, b] >= 0 else masses[b]
-    root = np.eye(4)
-    unbent = np.zeros(moments.shape)  # zero moments: no deflection (none at all would be the parameters')
-    frames(tables, constants, params, q, unbent, root, rigid)
+        body_masses[b] = masses[b] * params[mass_param[b]] if mass_param[b] >= 0 else masses[b]
+    frames(tables, constants, params, q, moments, False, _IDENTITY, rigid)
     gravity(
-        rigid, bodies[0], real_table(ints, reals, COMS), body_masses, int_table(ints, CARRIED),
-        int_table(ints, BENDS)[0], real_table(ints, reals, GRAVITY)[0],
+        rigid, body_frame, real_table(ints, reals, COMS), body_masses, int_table(ints, CARRIED),
+        int_row(ints, BENDS, 0), real_row(ints, reals, GRAVITY, 0),
         com_world, weighted, torque_world, moments, carried_mass,
     )  # fmt: skip
-    if int_table(ints, FLAGS)[0, 0]:
-        frames(tables, constants, params, q, moments, root, deformed)
+    if int_row(ints, FLAGS, 0)[0]:
+        frames(tables, constants, params, q, moments, True, _IDENTITY, deformed)
 
 
 @compiled(inline=True)

@@ -93,7 +93,7 @@ class ChainModel:
     compliant: bool
     history: bool
     motion_first: int  # the index of lm1 (-1: no motion terms)
-    ints: np.ndarray  # the integer tables packed for the kernels (chain_kernel's sections)
+    ints: np.ndarray  # the integer tables packed for the kernels (chain_kernel's sections); never written
     reals: np.ndarray  # the real ones
     evaluation: dict[str, tuple[int, int, tuple]]  # array: (a, b, shape): it starts at a + b N
     _columns: dict[tuple, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
@@ -107,14 +107,16 @@ class ChainModel:
     def n_links(self) -> int:
         return len(self.bend)
 
-    def check(self, params: np.ndarray, q: np.ndarray) -> None:
-        """ValueError unless ``params`` and ``q`` cover every index of the tables."""
-        self.layout.check(params, q)
-
     def buffer_size(self, n_conf: int) -> int:
         """The floats one evaluation at ``n_conf`` configurations takes."""
         a, b, _ = self.evaluation["end"]
         return a + b * n_conf
+
+    def check(self, params: np.ndarray, q: np.ndarray) -> None:
+        """ValueError unless ``params`` (P,) and ``q`` (N, n) cover every index of the tables."""
+        layout = self.layout
+        if params.ndim != 1 or len(params) < layout.n_params or q.ndim != 2 or q.shape[1] < layout.n_joints:
+            layout.check(params, q)  # the message
 
     def array(self, buffer: np.ndarray, name: str, n_conf: int) -> np.ndarray:
         """The array ``name`` (one of :data:`EVALUATION`) of an evaluation, a view of ``buffer``."""
@@ -194,7 +196,6 @@ class ChainModel:
                 raise InputError(None, "wrt", f"unknown parameter or joint name {name!r}")
         entries = np.array(rows, dtype=np.int64).reshape(-1, 6).T.copy()
         scale_array = np.array(scales, dtype=float)
-        entries.flags.writeable = scale_array.flags.writeable = False  # shared by every later evaluation
         return entries, scale_array
 
 
@@ -249,7 +250,9 @@ def of(robot: Description) -> ChainModel:
 
 def _pack(int_tables: dict[int, object], real_tables: dict[int, object]) -> tuple[np.ndarray, np.ndarray]:
     """The sections of chain_kernel as its two arrays: the header (offset, rows, columns per
-    section) and the integer tables in one, the real tables in the other, each C-ordered."""
+    section) and the integer tables in one, the real tables in the other, each C-ordered.
+    Nothing writes them, yet they stay writable (as the Jacobian entries do): numba's dispatch
+    takes about 25 ns longer for each read-only array, at every call."""
     header = np.zeros(ck.HEADER, dtype=np.int64)
     packed: dict[type, list[np.ndarray]] = {np.int64: [header], np.float64: []}
     ends = {np.int64: ck.HEADER, np.float64: 0}
@@ -263,7 +266,6 @@ def _pack(int_tables: dict[int, object], real_tables: dict[int, object]) -> tupl
     if set(int_tables) | set(real_tables) != set(range(ck.N_SECTIONS)):
         raise ValueError("every section of the compiled model is packed once")
     ints, reals = np.concatenate(packed[np.int64]), np.concatenate(packed[np.float64])
-    ints.flags.writeable = reals.flags.writeable = False
     return ints, reals
 
 

@@ -176,7 +176,7 @@ def evaluate(
     chain_layout.check(params, q, moments)
     frames = np.empty((len(chain) + 1, q.shape[0], 3, 4))
     root = ROOT if root is None else _as_floats(root)
-    chain_kernel.frames(chain_layout.tables, chain_layout.constants, params, q, moments, root, frames)
+    chain_kernel.frames(chain_layout.tables, chain_layout.constants, params, q, moments, True, root, frames)
     return homogeneous(frames)
 
 

@@ -46,11 +46,10 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
     signs and coupling coefficients. ``point`` (3,): the point of mode POINT, in the frame."""
     tables = ck.int_table(ints, ck.ELEMENTS)
     kind, param, moment, start, rvec_slot = tables[0], tables[1], tables[2], tables[4], tables[5]
-    moves_out = ck.int_table(ints, ck.ANCESTRY)[frame]
-    mass_param, bend = ck.int_table(ints, ck.BODIES)[1], ck.int_table(ints, ck.BENDS)[0]
+    mass_param, bend = ck.int_row(ints, ck.BODIES, 1), ck.int_row(ints, ck.BENDS, 0)
     carried, moves_bend = ck.int_table(ints, ck.CARRIED), ck.int_table(ints, ck.MOVES_BEND)
-    set_bodies, moved_set = ck.int_table(ints, ck.BODY_SETS), ck.int_table(ints, ck.MOVED_SET)[0]
-    nominal, g = ck.real_table(ints, reals, ck.MASSES)[0], ck.real_table(ints, reals, ck.GRAVITY)[0]
+    set_bodies, moved_set = ck.int_table(ints, ck.BODY_SETS), ck.int_row(ints, ck.MOVED_SET, 0)
+    nominal, g = ck.real_row(ints, reals, ck.MASSES, 0), ck.real_row(ints, reals, ck.GRAVITY, 0)
     n_conf = out.shape[0]
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left = ck.evaluation(
         ints, buffer, n_conf
@@ -60,45 +59,43 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
     )  # fmt: skip
     n_targets = out.shape[1] if mode == SPATIAL else out.shape[2]
     n_links, n_bodies = bend.shape[0], masses.shape[0]
-
-    # The deflections on the frame's path: their elements, moments and compliances.
-    n_deflections = 0
-    for k in range(kind.shape[0]):
-        if moves_out[k] and moment[k] >= 0:
-            n_deflections += 1
-    deflection_element = np.empty(n_deflections, dtype=np.int64)
-    deflection_moment = np.empty(n_deflections, dtype=np.int64)
-    compliance = np.empty(n_deflections)
-    coupled = False  # the moments bend the frame: a compliance on its path is not zero
-    needed = np.zeros(n_links, dtype=np.bool_)  # the joints whose moments do
-    d = 0
-    for k in range(kind.shape[0]):
-        if moves_out[k] and moment[k] >= 0:
-            deflection_element[d], deflection_moment[d], compliance[d] = k, moment[k], params[param[k]]
-            coupled = coupled or compliance[d] != 0.0
-            needed[moment[k] // 3] = True
-            d += 1
-
+    moves_out = ck.int_row(ints, ck.ANCESTRY, frame)
+    deflection_element, deflection_moment, compliance, needed, coupled = _deflections(
+        moves_out, param, moment, params, n_links
+    )
+    n_deflections = deflection_element.shape[0]
     deflection_twists = np.zeros((n_deflections, 6))
     unit = np.zeros(6)
     rate = np.zeros(3 * n_links)
     spatial = np.empty((n_targets, 6))
     has_motion = motion.shape[1] > 0
-    n_sets = set_bodies.shape[0] if coupled else 0  # without coupling, no moment's rate is needed
+    # The sets of bodies whose first mass moments C_S the names' moment rates need (none without
+    # coupling), and whether any name bends the frame through the moments.
+    n_sets = set_bodies.shape[0]
+    used = np.zeros(n_sets, dtype=np.bool_)
+    bending = False
+    for e in range(elements.shape[0]):
+        if coupled and elements[e] < 0:
+            bending = True
+        elif coupled and moment_of[e] < 0:
+            used[moved_set[elements[e]]] = bending = True
     set_mass = np.zeros((n_links, n_sets))  # M_S
     set_moment = np.zeros((n_links, n_sets, 3))  # C_S at the configuration
     for i in range(n_links):
         for s in range(n_sets):
-            for b in range(n_bodies):
-                if carried[i, b] and set_bodies[s, b]:
-                    set_mass[i, s] += masses[b]
+            if used[s]:
+                for b in range(n_bodies):
+                    if carried[i, b] and set_bodies[s, b]:
+                        set_mass[i, s] += masses[b]
     for n in range(n_conf):
         spatial[:, :] = 0.0
-        if coupled:
+        if bending:
             for i in range(n_links):
                 if not needed[i]:
                     continue
                 for s in range(n_sets):
+                    if not used[s]:
+                        continue
                     c0 = c1 = c2 = 0.0
                     for b in range(n_bodies):
                         if carried[i, b] and set_bodies[s, b]:
@@ -106,7 +103,7 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
                             c1 += weighted[n, b, 1]
                             c2 += weighted[n, b, 2]
                     set_moment[i, s, 0], set_moment[i, s, 1], set_moment[i, s, 2] = c0, c1, c2
-        for d in range(n_deflections):
+        for d in range(n_deflections if bending else 0):
             ck.twist(kind, start, rvec_slot, rvec_left, deformed, n, deflection_element[d], 0, deflection_twists[d])
         for e in range(elements.shape[0]):
             k, target = elements[e], targets[e]
@@ -118,7 +115,7 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
                 continue
             if features[e] >= 0:
                 scale *= motion[n, features[e]] if has_motion else 0.0
-            if moves_out[k]:
+            if moves_out[k] and scale != 0.0:  # (a motion term without motion: no column)
                 coefficient = scale * (moments[n, moment_of[e]] if moment_of[e] >= 0 else 1.0)
                 ck.twist(kind, start, rvec_slot, rvec_left, deformed, n, k, columns[e], unit)
                 for c in range(6):
@@ -154,6 +151,30 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
                     rate[3 * i + c] = frame_i[0, c] * d0 + frame_i[1, c] * d1 + frame_i[2, c] * d2
             _add_bending(compliance, deflection_moment, deflection_twists, scale, rate, spatial[target])
         _store(mode, spatial, deformed[frame, n], point, out[n])
+
+
+@compiled(inline=True)
+def _deflections(moves_out, param, moment, params, n_links):
+    """The deflections on a frame's path (``moves_out`` (K,)): their elements, moments and
+    compliances (M,); the joints whose moments they take (L,); and whether the moments bend
+    the frame at all (a compliance on the path is not zero)."""
+    n_deflections = 0
+    for k in range(moment.shape[0]):
+        if moves_out[k] and moment[k] >= 0:
+            n_deflections += 1
+    element = np.empty(n_deflections, dtype=np.int64)
+    of_moment = np.empty(n_deflections, dtype=np.int64)
+    compliance = np.empty(n_deflections)
+    needed = np.zeros(n_links, dtype=np.bool_)
+    coupled = False
+    d = 0
+    for k in range(moment.shape[0]):
+        if moves_out[k] and moment[k] >= 0:
+            element[d], of_moment[d], compliance[d] = k, moment[k], params[param[k]]
+            coupled = coupled or compliance[d] != 0.0
+            needed[moment[k] // 3] = True
+            d += 1
+    return element, of_moment, compliance, needed, coupled
 
 
 @compiled(inline=True)

@@ -52,10 +52,13 @@ _CONSTANT_OVER_CONFIGURATIONS = ("carried_mass", "body_masses", "rvec_left")
 @dataclass(eq=False)
 class KinematicsData:
     """Everything computed for one parameter vector at N configurations: Pinocchio's Data to
-    the robot's compiled model (``model``). The arrays below are views of one ``buffer``, which
-    the compiled kernels fill and read whole (one array argument where there would be nine),
-    made when first read. (Not frozen: a frozen dataclass's construction costs 0.4 us more, a
-    tenth of a single configuration's FK.)"""
+    the robot's compiled model (``model``). The compiled kernels fill and read one ``buffer``
+    whole (one array argument where there would be nine); the arrays below are made from it when
+    first read. The frames are views; the gravity arrays (moments to rvec_left) read-only
+    copies, a few per cent of the buffer: a caller that keeps the moments (the identifiability
+    analysis, after the graph's evaluations are forgotten) must not keep the frames' tens of
+    megabytes alive with them. (Not frozen: a frozen dataclass's construction costs 0.4 us more,
+    a tenth of a single configuration's FK.)"""
 
     model: ChainModel
     params: np.ndarray
@@ -78,40 +81,45 @@ class KinematicsData:
     @cached_property
     def moments(self) -> np.ndarray:
         """(N, 3L) gravity moments t_i of the L joints of the geometry, N m."""
-        return self._array("moments")
+        return self._copy("moments")
 
     @cached_property
     def weighted(self) -> np.ndarray:
         """(N, B, 3) m_b c_b of each body (mass scales applied), kg m."""
-        return self._array("weighted")
+        return self._copy("weighted")
 
     @cached_property
     def com_world(self) -> np.ndarray:
         """(N, B, 3) c_b, each body's centre of mass in W, m."""
-        return self._array("com_world")
+        return self._copy("com_world")
 
     @cached_property
     def carried_mass(self) -> np.ndarray:
         """(L,) M_i: the mass joint i carries, kg."""
-        return self._array("carried_mass")
+        return self._copy("carried_mass")
 
     @cached_property
     def body_masses(self) -> np.ndarray:
         """(B,) m_b, mass scales applied, kg."""
-        return self._array("body_masses")
+        return self._copy("body_masses")
 
     @cached_property
     def torque_world(self) -> np.ndarray:
         """(N, L, 3) tau_i in W, N m."""
-        return self._array("torque_world")
+        return self._copy("torque_world")
 
     @cached_property
     def rvec_left(self) -> np.ndarray:
         """(R, 3, 3) left Jacobians of the rotation-vector elements."""
-        return self._array("rvec_left")
+        return self._copy("rvec_left")
 
     def _array(self, name: str) -> np.ndarray:
         return self.model.array(self.buffer, name, len(self.q))
+
+    def _copy(self, name: str) -> np.ndarray:
+        out = self._array(name).copy()
+        out.flags.writeable = False
+        return out
 
     def subset(self, rows: np.ndarray) -> KinematicsData:
         """The data of some of the configurations (what forward() would give for them)."""
@@ -213,10 +221,9 @@ def frame_pose(robot: Robot, data: KinematicsData, frame: str = "flange") -> np.
     return homogeneous(data.frames[data.model.frame_index(frame)])
 
 
+# Empty and zero, and writable: numba's dispatch takes longer for a read-only array.
 _NO_MOTION = np.zeros((1, 0))
-_NO_MOTION.flags.writeable = False
 _ORIGIN = np.zeros(3)
-_ORIGIN.flags.writeable = False
 
 
 def spatial_jacobian(robot: Robot, data: KinematicsData, wrt: Sequence[str], frame: str = "flange") -> np.ndarray:
@@ -246,7 +253,9 @@ def jacobian(
 def _columns(data: KinematicsData, wrt: Sequence[str], frame: str | int, mode: int, point: np.ndarray) -> np.ndarray:
     """The kernel's Jacobian in ``mode`` (jacobian_kernel.SPATIAL, BODY or POINT)."""
     model = data.model
-    index = model.frame_index(frame)
+    index = model.frame_names.get(frame) if type(frame) is str else None  # the common case, first
+    if index is None:
+        index = model.frame_index(frame)
     entries, scales = model.columns(wrt)
     n_conf, n_names = len(data.q), len(wrt)
     if mode == jacobian_kernel.SPATIAL:
