@@ -15,9 +15,10 @@ keep nothing between calls. It holds
 
 What depends on a call's arguments is computed per call, but for one thing: the Jacobian entries
 of a list of names (:meth:`ChainModel.columns`) are memoised in a dict the model owns, keyed by the
-names. Building them walks every element in Python (about 40 us for a full model's 78 names,
-twice a single configuration's whole evaluation), and a calibration, an IK or an online update
-asks for the same names at every evaluation; the key costs a tuple of the names and its hash.
+names. Building them walks every element in Python (about 60 us for a full model's 78 names,
+four times a single configuration's whole evaluation), and a calibration, an IK or an online
+update asks for the same names at every evaluation; the key, a tuple of the names and its hash,
+costs 0.65 us for the 78.
 """
 
 from __future__ import annotations
