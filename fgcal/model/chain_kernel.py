@@ -1,6 +1,6 @@
-"""The chain's compiled kernel: FK, gravity moments and the spatial Jacobian columns of an
-elementary transform sequence (fgcal.model.ets) in loops over configurations and elements, compiled
-by numba (issue 26).
+"""The chain's compiled kernel: FK and gravity moments of an elementary transform sequence
+(fgcal.model.ets) in loops over configurations and elements, compiled by numba (issue 26); its
+Jacobian columns are fgcal.model.jacobian_kernel's.
 
 NumPy evaluates the chain one element at a time over every configuration: fast per number
 for thousands of configurations, but a single configuration (IK, an online update) pays a
@@ -8,14 +8,16 @@ few microseconds of dispatch for each of hundreds of small array operations. The
 the same arithmetic as scalars. ``cache=True`` keeps the machine code on disk, so that only
 the first process after an install compiles.
 
-The functions take plain arrays (a chain's tables, built once per chain by fgcal.model.ets.layout) and fill
-preallocated outputs; fgcal.model.ets and fgcal.model.kinematics hold the meaning and call them.
-Conventions: ``kind`` 0, 1, 2 rotations about x, y, z; 3, 4, 5 translations; 6 a rotation
-vector (three parameters, its 3x3 rotation and left Jacobian given in ``rvec_rotation`` and
-``rvec_left`` at the element's ``rvec_slot``). Index -1 means "none". A chain's tables come as
-two arrays, since each array a kernel takes costs about 50 ns of dispatch at every call: the
-integer ``tables`` (6, K), rows kind, param, moment, joint, start, rvec_slot, and the real
-``constants`` (2, K), rows const, sign (fgcal.model.ets.layout).
+A robot's constant tables (its compiled model, fgcal.model.chain_model, built once per robot)
+reach the kernels packed in two arrays, ``ints`` and ``reals``, and one evaluation's arrays
+(fgcal.model.kinematics.KinematicsData) in one ``buffer``: numba's dispatch costs about 50 ns
+per array argument at every call, which for a dozen arrays was most of a single
+configuration's cost. The sections below name the tables; :func:`int_table`,
+:func:`real_table` and :func:`evaluation` unpack them as views.
+
+Element conventions: ``kind`` 0, 1, 2 rotations about x, y, z; 3, 4, 5 translations; 6 a
+rotation vector (three parameters; its rotation and left Jacobian computed here from them, its
+``rvec_slot`` its row among the rotation vectors). Index -1 means "none".
 """
 
 from __future__ import annotations
@@ -24,17 +26,135 @@ import numpy as np
 
 from ..core.compiled import compiled
 
+# The sections of a compiled model: each a C-ordered 2-D table; ``ints`` starts with a header of
+# three entries (offset, rows, columns) per section, the offsets of the real ones into ``reals``.
+ELEMENTS = 0  # (6, K) kind, param, moment, joint, start, rvec_slot (fgcal.model.ets.Layout)
+ANCESTRY = 1  # (K+1, K) 1: element k lies on the path from the root to frame f
+BODIES = 2  # (2, B) each body's frame; the parameter of its mass scale (-1: none)
+BENDS = 3  # (1, L) each joint's bending frame B_i
+CARRIED = 4  # (L, B) 1: joint i carries body b (its motion moves it)
+MOVES_BEND = 5  # (L, K) 1: element k moves the bending frame B_i
+BODY_SETS = 6  # (S, B) the distinct sets of bodies an element moves
+MOVED_SET = 7  # (1, K) the set element k moves
+FLAGS = 8  # (1, 2) compliant (0 or 1), the number of rotation vectors R
+CONSTANTS = 9  # reals (2, K) const, sign
+COMS = 10  # reals (B, 3) each body's centre of mass in its frame, m
+MASSES = 11  # reals (1, B) each body's mass before its scale, kg
+GRAVITY = 12  # reals (1, 3) g in the root frame, m/s^2
+N_SECTIONS = 13
+HEADER = 3 * N_SECTIONS
+
 
 @compiled(inline=True)
-def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
+def int_table(ints, which):
+    """The integer section ``which`` of a compiled model, a view (rows, columns)."""
+    offset, rows, columns = ints[3 * which], ints[3 * which + 1], ints[3 * which + 2]
+    return ints[offset : offset + rows * columns].reshape((rows, columns))
+
+
+@compiled(inline=True)
+def int_row(ints, which, row):
+    """Row ``row`` of the integer section ``which``, a view (columns,): no reshape, which costs
+    about 20 ns at every call."""
+    offset, columns = ints[3 * which] + row * ints[3 * which + 2], ints[3 * which + 2]
+    return ints[offset : offset + columns]
+
+
+@compiled(inline=True)
+def real_row(ints, reals, which, row):
+    """Row ``row`` of the real section ``which``, a view (columns,)."""
+    offset, columns = ints[3 * which] + row * ints[3 * which + 2], ints[3 * which + 2]
+    return reals[offset : offset + columns]
+
+
+@compiled(inline=True)
+def real_table(ints, reals, which):
+    """The real section ``which`` of a compiled model, a view (rows, columns)."""
+    offset, rows, columns = ints[3 * which], ints[3 * which + 1], ints[3 * which + 2]
+    return reals[offset : offset + rows * columns].reshape((rows, columns))
+
+
+@compiled(inline=True)
+def evaluation_offsets(n_frames, n_conf, n_links, n_bodies, n_rvecs, compliant):
+    """Where each array of one evaluation starts in its buffer, and the buffer's size: rigid and
+    deformed frames (K+1, N, 3, 4; one array for a rigid model), com_world and weighted (N, B,
+    3), torque_world (N, L, 3), moments (N, 3L), carried_mass (L,), body_masses (B,) and
+    rvec_left (R, 3, 3). The arrays that grow with N come first, so each offset is a + b N
+    (fgcal.model.chain_model computes a and b from this function, run as Python)."""
+    frames = n_frames * n_conf * 12
+    deformed = frames if compliant else 0
+    com_world = deformed + frames
+    weighted = com_world + n_conf * n_bodies * 3
+    torque_world = weighted + n_conf * n_bodies * 3
+    moments = torque_world + n_conf * n_links * 3
+    carried_mass = moments + n_conf * n_links * 3
+    body_masses = carried_mass + n_links
+    rvec_left = body_masses + n_bodies
+    size = rvec_left + 9 * n_rvecs
+    return 0, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left, size
+
+
+@compiled(inline=True)
+def evaluation(ints, buffer, n_conf):
+    """One evaluation's arrays, views of ``buffer`` (see :func:`evaluation_offsets`)."""
+    n_elements = ints[3 * ELEMENTS + 2]
+    n_links, n_bodies = ints[3 * BENDS + 2], ints[3 * BODIES + 2]
+    flags = int_row(ints, FLAGS, 0)
+    offsets = evaluation_offsets(n_elements + 1, n_conf, n_links, n_bodies, flags[1], flags[0])
+    frames, size = (n_elements + 1, n_conf, 3, 4), (n_elements + 1) * n_conf * 12
+    rigid = buffer[offsets[0] : offsets[0] + size].reshape(frames)
+    deformed = buffer[offsets[1] : offsets[1] + size].reshape(frames)
+    com_world = buffer[offsets[2] : offsets[3]].reshape((n_conf, n_bodies, 3))
+    weighted = buffer[offsets[3] : offsets[4]].reshape((n_conf, n_bodies, 3))
+    torque_world = buffer[offsets[4] : offsets[5]].reshape((n_conf, n_links, 3))
+    moments = buffer[offsets[5] : offsets[6]].reshape((n_conf, 3 * n_links))
+    carried_mass = buffer[offsets[6] : offsets[7]]
+    body_masses = buffer[offsets[7] : offsets[8]]
+    rvec_left = buffer[offsets[8] : offsets[9]].reshape((flags[1], 3, 3))
+    return rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left
+
+
+@compiled(inline=True)
+def rotation_vector(params, first, left, out):
+    """``out`` (3, 3): the rotation Exp(r) of the rotation vector ``r = params[first:first+3]``
+    (rad), or with ``left`` its left Jacobian J_l(r); fgcal.core.se3's so3_exp and
+    so3_left_jacobian, with their series near 0."""
+    r0, r1, r2 = params[first], params[first + 1], params[first + 2]
+    theta = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    if left:
+        if theta < 1e-6:
+            a, b = 0.5 - theta**2 / 24.0, 1.0 / 6.0 - theta**2 / 120.0
+        else:
+            a, b = (1.0 - np.cos(theta)) / theta**2, (theta - np.sin(theta)) / theta**3
+    elif theta < 1e-8:
+        a, b = 1.0 - theta**2 / 6.0, 0.5 - theta**2 / 24.0
+    else:
+        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+    # [r]x and its square, term by term as (k @ k)[i, j] = sum_l k[i, l] k[l, j].
+    k01, k02, k10, k12, k20, k21 = -r2, r1, r2, -r0, -r1, r0
+    out[0, 0] = 1.0 + b * (k01 * k10 + k02 * k20)
+    out[0, 1] = a * k01 + b * (k02 * k21)
+    out[0, 2] = a * k02 + b * (k01 * k12)
+    out[1, 0] = a * k10 + b * (k12 * k20)
+    out[1, 1] = 1.0 + b * (k10 * k01 + k12 * k21)
+    out[1, 2] = a * k12 + b * (k10 * k02)
+    out[2, 0] = a * k20 + b * (k21 * k10)
+    out[2, 1] = a * k21 + b * (k20 * k01)
+    out[2, 2] = 1.0 + b * (k20 * k02 + k21 * k12)
+
+
+@compiled(inline=True)
+def frames(tables, constants, params, q, moments, bent, root, out):
     """Fill ``out`` (K+1, N, 3, 4) with the chain's frames at N configurations ``q`` (N, n), the
     top three rows of each 4x4 transform: ``out[k + 1]`` the frame after element k, ``out[0]``
     the top three rows of ``root`` (4, 4). ``moments`` (N, 3L) scale the deflections'
-    parameters; with none, (N, 0), each is its parameter's value."""
-    kind, param, moment, joint, start, rvec_slot = tables[0], tables[1], tables[2], tables[3], tables[4], tables[5]
+    parameters; with none, (N, 0), each is its parameter's value. Not ``bent``: every
+    deflection is zero (the undeformed chain), whatever ``moments`` hold."""
+    kind, param, moment, joint, start = tables[0], tables[1], tables[2], tables[3], tables[4]
     const, sign = constants[0], constants[1]
     n_conf = q.shape[0]
     use_moments = moments.shape[1] > 0
+    rotation = np.empty((3, 3))
     # Element by element over every configuration: each pass streams through two contiguous
     # blocks of frames.
     for n in range(n_conf):
@@ -42,7 +162,7 @@ def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
     for k in range(kind.shape[0]):
         s, axis = start[k], kind[k]
         if axis == 6:
-            rotation = rvec_rotation[rvec_slot[k]]
+            rotation_vector(params, param[k], False, rotation)
             for n in range(n_conf):
                 for r in range(3):
                     b0, b1, b2 = out[s, n, r, 0], out[s, n, r, 1], out[s, n, r, 2]
@@ -53,8 +173,10 @@ def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
         j, m = (axis + 1) % 3, (axis + 2) % 3
         for n in range(n_conf):
             value = const[k]
-            if param[k] >= 0:  # no moments given: the parameter's value itself
-                value += params[param[k]] * (moments[n, moment[k]] if moment[k] >= 0 and use_moments else 1.0)
+            if param[k] >= 0 and moment[k] >= 0:  # a deflection: no moments given, its parameter's value
+                value += params[param[k]] * ((moments[n, moment[k]] if use_moments else 1.0) if bent else 0.0)
+            elif param[k] >= 0:
+                value += params[param[k]]
             if joint[k] >= 0:
                 value += sign[k] * q[n, joint[k]]
             # Only what the element leaves as it was is copied.
@@ -78,10 +200,10 @@ def frames(tables, constants, rvec_rotation, params, q, moments, root, out):
 def gravity(
     rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments, carried_mass
 ):  # fmt: skip
-    """The gravity moments of the undeformed chain ``rigid`` (K+1, N, 3, 4): each body's centre
-    of mass ``com_world`` (N, B, 3) and ``weighted`` m_b c_b, each joint's torque
-    ``torque_world`` (N, L, 3) = (C_i - M_i o_i) x g, moment (N, 3L) = R_i^T tau_i, and
-    ``carried_mass`` (L,) M_i."""
+    """The gravity moments of the undeformed chain ``rigid`` (K+1, N, 3, 4) with the body
+    ``masses`` (B,): each body's centre of mass ``com_world`` (N, B, 3) and ``weighted``
+    m_b c_b, each joint's torque ``torque_world`` (N, L, 3) = (C_i - M_i o_i) x g, moment
+    (N, 3L) = R_i^T tau_i, and ``carried_mass`` (L,) M_i."""
     n_bodies, n_links = masses.shape[0], bend.shape[0]
     for i in range(n_links):
         carried_mass[i] = 0.0
@@ -115,25 +237,40 @@ def gravity(
                 moments[n, 3 * i + c] = frame[0, c] * tau0 + frame[1, c] * tau1 + frame[2, c] * tau2
 
 
+_IDENTITY = np.eye(4)  # the root of a robot's chain (numba freezes it into the code: no allocation)
+
+
 @compiled
-def forward(
-    tables, constants, rvec_rotation, params, q, root,
-    body_frame, coms, masses, carried, bend, g, compliant,
-    rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
-):  # fmt: skip
-    """:func:`frames` of the undeformed chain into ``rigid``, its :func:`gravity` moments and
-    carried masses, and, if ``compliant``, the frames they deform into ``deformed``. One call,
-    where three would each pay the dispatch of a dozen arrays (and returning an array costs
-    its boxing)."""
-    unbent = np.zeros(moments.shape)  # zero moments: no deflection (none at all would be the parameters')
-    frames(tables, constants, rvec_rotation, params, q, unbent, root, rigid)
-    gravity(rigid, body_frame, coms, masses, carried, bend, g, com_world, weighted, torque_world, moments, carried_mass)
-    if compliant:
-        frames(tables, constants, rvec_rotation, params, q, moments, root, deformed)
+def forward(ints, reals, params, q, buffer):
+    """One evaluation into ``buffer`` (:func:`evaluation`) at N configurations ``q`` (N, n): the
+    left Jacobians of the rotation vectors, the undeformed chain, each body's mass (its group's
+    scale applied), the gravity moments, and, for a compliant model, the chain they deform.
+    One call, where several would each pay the dispatch of their arrays (and returning an
+    array costs its boxing)."""
+    tables, constants = int_table(ints, ELEMENTS), real_table(ints, reals, CONSTANTS)
+    body_frame, mass_param = int_row(ints, BODIES, 0), int_row(ints, BODIES, 1)
+    masses = real_row(ints, reals, MASSES, 0)
+    rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left = evaluation(
+        ints, buffer, q.shape[0]
+    )
+    kind, param, rvec_slot = tables[0], tables[1], tables[5]
+    for k in range(kind.shape[0]):
+        if kind[k] == 6:
+            rotation_vector(params, param[k], True, rvec_left[rvec_slot[k]])
+    for b in range(masses.shape[0]):
+        body_masses[b] = masses[b] * params[mass_param[b]] if mass_param[b] >= 0 else masses[b]
+    frames(tables, constants, params, q, moments, False, _IDENTITY, rigid)
+    gravity(
+        rigid, body_frame, real_table(ints, reals, COMS), body_masses, int_table(ints, CARRIED),
+        int_row(ints, BENDS, 0), real_row(ints, reals, GRAVITY, 0),
+        com_world, weighted, torque_world, moments, carried_mass,
+    )  # fmt: skip
+    if int_row(ints, FLAGS, 0)[0]:
+        frames(tables, constants, params, q, moments, True, _IDENTITY, deformed)
 
 
 @compiled(inline=True)
-def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
+def twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     """Spatial unit twist (omega, v0) in ``out`` (6,) of element k's column (0, or 0..2 for a
     rotation vector) on ``frames`` at configuration n."""
     before = frames[start[k], n]
@@ -155,158 +292,3 @@ def _twist(kind, start, rvec_slot, rvec_left, frames, n, k, column, out):
     out[3] = -(out[1] * o2 - out[2] * o1)
     out[4] = -(out[2] * o0 - out[0] * o2)
     out[5] = -(out[0] * o1 - out[1] * o0)
-
-
-@compiled
-def spatial_columns(
-    tables, rvec_left, deformed, rigid,
-    entries, scales, moves_out,
-    motion, moments,
-    deflections, deflection_compliance,
-    carried, moved_set, set_bodies, moves_bend, bend, weighted, masses, carried_mass, torque_world, g,
-    out,
-):  # fmt: skip
-    """Add to ``out`` (N, T, 6) the spatial twists of a frame w.r.t. T names, entered through
-    the entries (5, E), rows target, element, column, motion feature, moment or -1, with
-    their ``scales`` (E,). ``deflections`` (2, M): the element and the moment of each
-    deflection on the frame's path.
-
-    An entry's element moves the frame directly when it lies on the frame's path
-    (``moves_out``): its twist on the deformed chain times its scale, its motion feature and,
-    for a compliance, its moment. A geometric entry also bends every deflection on the path
-    through the gravity moments it changes (kinematics.moment_derivatives' formula)::
-
-        d tau_i = ((omega x C_S + M_S v0) - [moves B_i] M_i (omega x o_i + v0)) x g
-                  - [moves B_i] omega x tau_i,          d t_i = R_i^T d tau_i
-
-    S is the bodies joint i carries among those the element moves: element k moves the bodies
-    of its set ``set_bodies[moved_set[k]]`` (S, B); a chain has few such sets, so C_S and M_S
-    are summed once per joint and set, not once per entry.
-    """
-    kind, start, rvec_slot = tables[0], tables[4], tables[5]
-    targets, elements, columns, features, moment_of = entries[0], entries[1], entries[2], entries[3], entries[4]
-    deflection_element, deflection_moment = deflections[0], deflections[1]
-    n_links, n_bodies = bend.shape[0], masses.shape[0]
-    n_deflections = deflection_element.shape[0]
-    coupled = False
-    for d in range(n_deflections):
-        if deflection_compliance[d] != 0.0:
-            coupled = True
-    needed = np.zeros(n_links, dtype=np.bool_)
-    for d in range(n_deflections):
-        needed[deflection_moment[d] // 3] = True
-    deflection_twists = np.zeros((n_deflections, 6))
-    twist = np.zeros(6)
-    rate = np.zeros(3 * n_links)
-    has_motion = motion.shape[1] > 0
-    n_sets = set_bodies.shape[0]
-    set_mass = np.zeros((n_links, n_sets))  # M_S
-    set_moment = np.zeros((n_links, n_sets, 3))  # C_S at the configuration
-    for i in range(n_links):
-        for s in range(n_sets):
-            for b in range(n_bodies):
-                if carried[i, b] and set_bodies[s, b]:
-                    set_mass[i, s] += masses[b]
-    for n in range(deformed.shape[1]):
-        if coupled:
-            for i in range(n_links):
-                if not needed[i]:
-                    continue
-                for s in range(n_sets):
-                    c0 = c1 = c2 = 0.0
-                    for b in range(n_bodies):
-                        if carried[i, b] and set_bodies[s, b]:
-                            c0 += weighted[n, b, 0]
-                            c1 += weighted[n, b, 1]
-                            c2 += weighted[n, b, 2]
-                    set_moment[i, s, 0], set_moment[i, s, 1], set_moment[i, s, 2] = c0, c1, c2
-        for d in range(n_deflections):
-            _twist(kind, start, rvec_slot, rvec_left, deformed, n, deflection_element[d], 0, deflection_twists[d])
-        for e in range(elements.shape[0]):
-            k, target = elements[e], targets[e]
-            scale = scales[e]
-            if features[e] >= 0:
-                scale *= motion[n, features[e]] if has_motion else 0.0
-            if moves_out[k]:
-                coefficient = scale * (moments[n, moment_of[e]] if moment_of[e] >= 0 else 1.0)
-                _twist(kind, start, rvec_slot, rvec_left, deformed, n, k, columns[e], twist)
-                for c in range(6):
-                    out[n, target, c] += coefficient * twist[c]
-            if moment_of[e] >= 0 or not coupled or scale == 0.0:
-                continue
-            _twist(kind, start, rvec_slot, rvec_left, rigid, n, k, columns[e], twist)
-            w0, w1, w2, v0, v1, v2 = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]
-            s = moved_set[k]
-            for i in range(n_links):
-                if not needed[i]:
-                    continue
-                c0, c1, c2 = set_moment[i, s, 0], set_moment[i, s, 1], set_moment[i, s, 2]
-                mass = set_mass[i, s]
-                l0 = w1 * c2 - w2 * c1 + mass * v0
-                l1 = w2 * c0 - w0 * c2 + mass * v1
-                l2 = w0 * c1 - w1 * c0 + mass * v2
-                frame = rigid[bend[i], n]
-                if moves_bend[i, k]:
-                    o0, o1, o2 = frame[0, 3], frame[1, 3], frame[2, 3]
-                    l0 -= carried_mass[i] * (w1 * o2 - w2 * o1 + v0)
-                    l1 -= carried_mass[i] * (w2 * o0 - w0 * o2 + v1)
-                    l2 -= carried_mass[i] * (w0 * o1 - w1 * o0 + v2)
-                d0 = l1 * g[2] - l2 * g[1]
-                d1 = l2 * g[0] - l0 * g[2]
-                d2 = l0 * g[1] - l1 * g[0]
-                if moves_bend[i, k]:
-                    t0, t1, t2 = torque_world[n, i, 0], torque_world[n, i, 1], torque_world[n, i, 2]
-                    d0 -= w1 * t2 - w2 * t1
-                    d1 -= w2 * t0 - w0 * t2
-                    d2 -= w0 * t1 - w1 * t0
-                for c in range(3):
-                    rate[3 * i + c] = frame[0, c] * d0 + frame[1, c] * d1 + frame[2, c] * d2
-            for d in range(n_deflections):
-                weight = deflection_compliance[d] * scale * rate[deflection_moment[d]]
-                for c in range(6):
-                    out[n, target, c] += weight * deflection_twists[d, c]
-
-
-@compiled
-def body_twists(spatial, pose, out):
-    """Body twist Jacobian ``out`` (N, 6, T) of a frame at ``pose`` (N, 3 or 4, 4) from its spatial
-    twists (N, T, 6): omega_b = R^T omega, v_b = R^T (omega x o + v0). ``out`` may be
-    ``spatial``'s own memory (its reshape): each configuration's twists are read first."""
-    twists = np.empty((spatial.shape[1], 6))
-    for n in range(spatial.shape[0]):
-        twists[:, :] = spatial[n]
-        frame = pose[n]
-        o0, o1, o2 = frame[0, 3], frame[1, 3], frame[2, 3]
-        for t in range(spatial.shape[1]):
-            w0, w1, w2 = twists[t, 0], twists[t, 1], twists[t, 2]
-            u0 = w1 * o2 - w2 * o1 + twists[t, 3]
-            u1 = w2 * o0 - w0 * o2 + twists[t, 4]
-            u2 = w0 * o1 - w1 * o0 + twists[t, 5]
-            for c in range(3):
-                out[n, c, t] = frame[0, c] * w0 + frame[1, c] * w1 + frame[2, c] * w2
-                out[n, 3 + c, t] = frame[0, c] * u0 + frame[1, c] * u1 + frame[2, c] * u2
-
-
-@compiled
-def point_rates(spatial, pose, point, out):
-    """Jacobian ``out`` (N, 3, T) of the world position of ``point`` (3,), fixed in the frame at
-    ``pose`` (N, 3 or 4, 4), from the frame's spatial twists (N, T, 6): omega x p + v0."""
-    for n in range(spatial.shape[0]):
-        frame = pose[n]
-        p = np.zeros(3)
-        for r in range(3):
-            p[r] = frame[r, 0] * point[0] + frame[r, 1] * point[1] + frame[r, 2] * point[2] + frame[r, 3]
-        for t in range(spatial.shape[1]):
-            w0, w1, w2 = spatial[n, t, 0], spatial[n, t, 1], spatial[n, t, 2]
-            out[n, 0, t] = w1 * p[2] - w2 * p[1] + spatial[n, t, 3]
-            out[n, 1, t] = w2 * p[0] - w0 * p[2] + spatial[n, t, 4]
-            out[n, 2, t] = w0 * p[1] - w1 * p[0] + spatial[n, t, 5]
-
-
-@compiled
-def element_twists(tables, rvec_left, frames, elements, columns, out):
-    """Spatial unit twists ``out`` (N, E, 6) of E element columns on ``frames``."""
-    kind, start, rvec_slot = tables[0], tables[4], tables[5]
-    for n in range(frames.shape[1]):
-        for e in range(elements.shape[0]):
-            _twist(kind, start, rvec_slot, rvec_left, frames, n, elements[e], columns[e], out[n, e])

@@ -21,25 +21,10 @@ without them.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
-from ..core.se3 import so3_exp, so3_left_jacobian
 from . import chain_kernel
-
-# The rotation-vector elements' rotations and left Jacobians depend on their parameters alone (a
-# base or tool perturbation), which stay the same over an IK's or an online update's evaluations.
-
-
-@lru_cache(maxsize=256)
-def _rvec_tables_of(key: bytes) -> tuple[np.ndarray, np.ndarray]:
-    vectors = np.frombuffer(key).reshape(-1, 3)
-    rotations = np.stack([so3_exp(v) for v in vectors])
-    left = np.stack([so3_left_jacobian(v) for v in vectors])
-    rotations.flags.writeable = left.flags.writeable = False
-    return rotations, left
-
 
 AXES = ("Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "Rvec")
 
@@ -73,15 +58,14 @@ class ET:
 
 
 @dataclass(frozen=True)
-class _Layout:
+class Layout:
     """A chain as the compiled kernel's tables (fgcal.model.chain_kernel): one column per element,
     -1 for "none". ``tables`` (6, K) holds the integer rows, ``constants`` (2, K) the real ones,
-    each row also named below."""
+    each row also named below. A robot's are built once, in its compiled model
+    (fgcal.model.chain_model); :func:`layout` builds them for any sequence."""
 
     tables: np.ndarray  # (6, K) kind, param, moment, joint, start, rvec_slot
     constants: np.ndarray  # (2, K) const, sign
-    rvec_params: tuple[int, ...]  # each rotation vector's first parameter
-    rvec_indices: np.ndarray  # (3R,) the rotation vectors' parameters
     ancestry: np.ndarray  # (K+1, K) element k lies on the path from the root to frame f
     n_params: int  # the parameters, joints and moments the indices reach
     n_joints: int
@@ -109,7 +93,11 @@ class _Layout:
 
     @property
     def rvec_slot(self) -> np.ndarray:
-        return self.tables[5]  # the element's row in the rotation-vector tables
+        return self.tables[5]  # the element's row among the rotation vectors (-1: not one)
+
+    @property
+    def n_rvecs(self) -> int:
+        return int(np.count_nonzero(self.kind == AXES.index("Rvec")))
 
     @property
     def const(self) -> np.ndarray:
@@ -119,39 +107,30 @@ class _Layout:
     def sign(self) -> np.ndarray:
         return self.constants[1]  # the joint's sign
 
-    def check(self, params: np.ndarray, q: np.ndarray, moments: np.ndarray) -> None:
+    def check(self, params: np.ndarray, q: np.ndarray, moments: np.ndarray | None = None) -> None:
         """ValueError unless the arrays cover every index of the tables: the compiled kernel
-        does not check its bounds, and would read past them."""
+        does not check its bounds, and would read past them. ``moments`` None: the kernel
+        computes them (fgcal.model.kinematics.forward)."""
         if params.ndim != 1 or len(params) < self.n_params:
             raise ValueError(f"{self.n_params} parameters needed, got shape {params.shape}")
         if q.ndim != 2 or q.shape[1] < self.n_joints:
             raise ValueError(f"joint values (N, {self.n_joints}) needed, got shape {q.shape}")
-        if moments.ndim != 2 or len(moments) != len(q) or 0 < moments.shape[1] < self.n_moments:
+        if moments is not None and (
+            moments.ndim != 2 or len(moments) != len(q) or 0 < moments.shape[1] < self.n_moments
+        ):
             raise ValueError(f"moments (N, 0) or (N, {self.n_moments}) needed, got shape {moments.shape}")
 
 
-_LAYOUTS: dict[int, tuple[tuple[ET, ...], _Layout]] = {}
-
-
-def layout(chain: tuple[ET, ...]) -> _Layout:
-    # Keyed on identity: hashing a chain hashes every element, which costs more than a
-    # single-configuration evaluation. The entry keeps the chain alive, so ids stay unique.
-    entry = _LAYOUTS.get(id(chain))
-    if entry is None or entry[0] is not chain:
-        if len(_LAYOUTS) > 256:
-            _LAYOUTS.clear()
-        entry = _LAYOUTS[id(chain)] = (chain, _make_layout(chain))
-    return entry[1]
-
-
-def _make_layout(chain: tuple[ET, ...]) -> _Layout:
+def layout(chain: tuple[ET, ...]) -> Layout:
+    """The kernel's tables of ``chain``, built anew at each call (a robot holds its own, built
+    once: fgcal.model.chain_model)."""
     start = np.array([k if et.parent is None else et.parent for k, et in enumerate(chain)], dtype=np.int64)
     if np.any((start < 0) | (start > np.arange(len(chain)))):
         raise ValueError("an element starts from a frame that is not before it")
-    ancestry = np.zeros((len(chain) + 1, len(chain)), dtype=bool)
+    paths = np.zeros((len(chain) + 1, len(chain)), dtype=bool)
     for k in range(len(chain)):  # frame k + 1 is reached through element k and the path to its start
-        ancestry[k + 1] = ancestry[start[k]]
-        ancestry[k + 1, k] = True
+        paths[k + 1] = paths[start[k]]
+        paths[k + 1, k] = True
     rvecs = [k for k, et in enumerate(chain) if et.axis == "Rvec"]
     slot = np.full(len(chain), -1, dtype=np.int64)
     slot[rvecs] = np.arange(len(rvecs))
@@ -160,39 +139,25 @@ def _make_layout(chain: tuple[ET, ...]) -> _Layout:
         return np.array([-1 if getattr(et, field) is None else getattr(et, field) for et in chain], dtype=np.int64)
 
     kind = np.array([AXES.index(et.axis) for et in chain], dtype=np.int64)
-    layout = _Layout(
+    out = Layout(
         tables=np.array([kind, indices("param"), indices("moment"), indices("joint"), start, slot], dtype=np.int64),
         constants=np.array(
             [[et.const for et in chain], [et.sign if et.joint is not None else 0.0 for et in chain]], dtype=float
-        ),
-        rvec_params=tuple(chain[k].param for k in rvecs),
-        rvec_indices=np.array([chain[k].param + c for k in rvecs for c in range(3)], dtype=np.int64),
-        ancestry=ancestry,
+        ).reshape(2, -1),
+        ancestry=paths,
         n_params=max([et.param + (3 if et.axis == "Rvec" else 1) for et in chain if et.param is not None], default=0),
         n_joints=max([et.joint + 1 for et in chain if et.joint is not None], default=0),
         n_moments=max([et.moment + 1 for et in chain if et.moment is not None], default=0),
     )
-    for array in (layout.tables, layout.constants):
+    for array in (out.tables, out.constants, out.ancestry):
         array.flags.writeable = False  # shared by every evaluation of the chain
-    return layout
+    return out
 
 
 def ancestry(chain: tuple[ET, ...]) -> np.ndarray:
     """(K+1, K) bool: ``[f, k]`` element k lies on the path from the root to frame f (what
-    moves frame f); for a serial chain, k < f."""
+    moves frame f); for a serial chain, k < f. Built anew (a robot's: its chain_model's)."""
     return layout(chain).ancestry
-
-
-_NO_RVECS = np.zeros((1, 3, 3))
-_NO_RVECS.flags.writeable = False
-
-
-def rvec_tables(chain: tuple[ET, ...], params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rotations and left Jacobians (R, 3, 3) of the chain's rotation-vector elements."""
-    chain_layout = layout(chain)
-    if not chain_layout.rvec_params:
-        return _NO_RVECS, _NO_RVECS
-    return _rvec_tables_of(np.ascontiguousarray(params[chain_layout.rvec_indices], dtype=float).tobytes())
 
 
 def _as_floats(array: np.ndarray) -> np.ndarray:
@@ -204,14 +169,14 @@ def evaluate(
 ) -> np.ndarray:
     """Frames (K+1, N, 4, 4) along the chain for N configurations ``q`` (N, n_joints); the
     gravity moments (N, 3L) scale the deflections (with none, (N, 0), each deflection is its
-    parameter's value)."""
+    parameter's value). Builds the chain's tables at each call: a robot's evaluations go
+    through fgcal.model.kinematics.forward and its compiled model."""
     chain_layout = layout(chain)
     params, q, moments = _as_floats(params), _as_floats(q), _as_floats(moments)
     chain_layout.check(params, q, moments)
     frames = np.empty((len(chain) + 1, q.shape[0], 3, 4))
-    rotations, _ = rvec_tables(chain, params)
     root = ROOT if root is None else _as_floats(root)
-    chain_kernel.frames(chain_layout.tables, chain_layout.constants, rotations, params, q, moments, root, frames)
+    chain_kernel.frames(chain_layout.tables, chain_layout.constants, params, q, moments, True, root, frames)
     return homogeneous(frames)
 
 
@@ -225,22 +190,6 @@ def homogeneous(frames: np.ndarray) -> np.ndarray:
 
 ROOT = np.eye(4)  # the root frame of a chain evaluated without one
 ROOT.flags.writeable = False
-
-
-def element_twists(
-    chain: tuple[ET, ...], params: np.ndarray, frames: np.ndarray, elements: np.ndarray, columns: np.ndarray
-) -> np.ndarray:
-    """Spatial unit twists (N, E, 6) in the root frame of the elements' columns (0, or 0..2 of a
-    rotation vector): rows ``[omega, v0]`` such that a point p downstream of the element moves
-    by ``dp = omega x p + v0`` per unit change of the element's value."""
-    chain_layout = layout(chain)
-    _, left = rvec_tables(chain, params)
-    out = np.empty((frames.shape[1], len(elements), 6))
-    chain_kernel.element_twists(
-        chain_layout.tables, left, _as_floats(frames),
-        np.asarray(elements, dtype=np.int64), np.asarray(columns, dtype=np.int64), out,
-    )  # fmt: skip
-    return out
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 the elementary transform chain built from it (SPEC section 2).
 
 Per-evaluation quantities live in :mod:`fgcal.model.kinematics`; this module holds nothing that
-changes between evaluations.
+changes between evaluations. A robot's chain and its compiled model (fgcal.model.chain_model:
+every constant table the evaluations read) are built once per robot, at its first evaluation.
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from functools import cached_property
 import numpy as np
 
 from ..core.errors import InputError
-from . import kinematics
-from .ets import ET, Chain, ancestry
+from . import chain_model, kinematics
+from .chain_model import ChainModel
+from .ets import ET, Chain
 from .ik import IKResult, inverse_kinematics
 from .joints import DHJoint, Joint, perturbation_elements, pose_elements
 from .parameters import MASS_KIND, parameter_names
@@ -240,6 +242,12 @@ class Robot:
         """The elementary transform chain of this robot (built once per instance)."""
         return build_chain(self)
 
+    @cached_property
+    def compiled(self) -> ChainModel:
+        """The compiled model of the chain (fgcal.model.chain_model): its tables, bodies, paths
+        and names as the kernels read them, built once per instance, at its first evaluation."""
+        return chain_model.build(self)
+
     # -- evaluation (thin wrappers over fgcal.model.kinematics) --------------------------------
     def check_q(self, q: np.ndarray) -> np.ndarray:
         """Joint angles as an (N, n) float array (rad); wrong sizes or NaN raise InputError."""
@@ -306,7 +314,7 @@ class Robot:
         data = kinematics.forward(self, p, np.zeros((1, self.n_joints)))
         base_origin = kinematics.frame_pose(self, data, "base")[0, :3, 3]
         total = 0.0
-        path = ancestry(chain.elements)[kinematics.frame_index(self, tip)]
+        path = self.compiled.ancestry[self.compiled.frame_index(tip)]
         for k, element in enumerate(chain.elements):
             if not path[k] or k < chain.base_end:
                 continue
