@@ -397,10 +397,30 @@ def test_identifiability_judges_only_what_the_stages_release(dual_arm, tmp_path,
     released_kinds = {"theta", "d", "a", "alpha", "kz"}
     for name, reason in report["unidentifiable_reasons"].items():
         assert re.sub(r"\d+$", "", name) in released_kinds, (name, reason)
-        partners = re.findall(r"[+-][\d.]+ (\w+)", reason)
+        combination = re.match(r"a combination of other parameters \((.*)\)", reason)
+        partners = re.findall(r"[+-][\d.]+ (\w+)", combination.group(1)) if combination else []
         unreleased = [p for p in partners if re.sub(r"\d+$", "", p) not in released_kinds]
         assert not unreleased, (name, reason)
     statuses = {name: p["status"] for name, p in report["parameters"].items()}
     assert statuses["kx10"] == statuses["sx2"] == "not released"
     # kz10 and kz17 were fixed as combinations of kx/ky before; the data determine them.
     assert statuses["kz10"] == statuses["kz17"] == "estimated"
+
+
+def test_a_trees_report_says_what_each_compliance_moves_and_what_absorbs_a_parameter(dual_arm, tmp_path, capsys):
+    """Issue 38, item 6: a compliance of one arm was evaluated at another tip's point and read
+    "moves the tool up to 0 mm"; parameters taken by the tracker's pose or the reflectors read
+    "no effect on the measurements". Now each compliance moves its own arm's tip, by tip, and
+    such parameters are "absorbed by" the unknown that takes them."""
+    report = _calibrate(dual_arm / "data", tmp_path / "out", capsys)
+    compliances = {n: p for n, p in report["parameters"].items() if n[0] == "k" and p["status"] == "estimated"}
+    assert compliances
+    for name, entry in compliances.items():
+        tips = entry["deflection_at_tips_max_m"]
+        assert set(tips) == {"left_hand", "right_hand"}, tips
+        assert entry["deflection_at_tool_max_m"] == max(tips.values()) > 1e-6, (name, tips)
+    reasons = report["unidentifiable_reasons"]
+    absorbed = {n: r for n, r in reasons.items() if r.startswith("absorbed by")}
+    assert any(n.startswith("base.") for n in absorbed) and all("tracker" in r or "tool_points" in r or "together"
+                                                              in r for r in absorbed.values()), absorbed
+    assert not any(n.startswith("base.") and r.startswith("no effect") for n, r in reasons.items()), reasons

@@ -67,6 +67,16 @@ def group_of(name: str) -> int:
     return next(i for i, group in enumerate(GROUPS) if label in group)
 
 
+def aux_blocks(stage: StageGraph) -> dict[str, slice]:
+    """Each auxiliary unknown's columns in reduced_jacobian's (rows x n_aux) block, by name."""
+    blocks, offset = {}, 0
+    for name, (_, dim) in stage.dims.items():
+        if name != "P":
+            blocks[name] = slice(offset, offset + dim)
+            offset += dim
+    return blocks
+
+
 def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
     """Whitened Jacobians of the measurement residuals (no robust loss) w.r.t. the released
     parameters and the auxiliary unknowns, at the stage's values: (rows x m), (rows x n_aux)."""
@@ -110,7 +120,7 @@ def analyse(stage: StageGraph, min_information: float = 1.0, priors: Priors | No
         rows[np.arange(len(stated)), list(stated)] = 1.0 / np.array(list(stated.values()))
         J_p = np.vstack([J_p, rows])
         J_aux = np.vstack([J_aux, np.zeros((len(stated), J_aux.shape[1]))])
-    return select(J_p, J_aux, stage.released, moments, min_information)
+    return select(J_p, J_aux, stage.released, moments, min_information, aux_blocks(stage))
 
 
 def _mass_columns_with_compliance(stage: StageGraph, J_p: np.ndarray, moments: np.ndarray) -> None:
@@ -137,18 +147,27 @@ def _mass_columns_with_compliance(stage: StageGraph, J_p: np.ndarray, moments: n
 
 
 def select(
-    J_p: np.ndarray, J_aux: np.ndarray, names: list[str], moments: np.ndarray, min_information: float
+    J_p: np.ndarray,
+    J_aux: np.ndarray,
+    names: list[str],
+    moments: np.ndarray,
+    min_information: float,
+    aux: dict[str, slice] | None = None,
 ) -> Identifiability:
     """The pivoted Gram-Schmidt selection on whitened Jacobians (rows x m) and (rows x n_aux),
     the auxiliary unknowns projected out; ``moments`` (N, 3n) are the gravity moments over
-    the data, for the compliances' plausible deviations."""
+    the data, for the compliances' plausible deviations; ``aux`` names the auxiliary unknowns'
+    columns (a parameter they absorb is reported as absorbed by them, not as without effect)."""
+    moments_rms = np.sqrt(np.mean(moments**2, axis=0))
+    scales = np.array([parameter_scale(n, moments_rms) for n in names])
+    before_aux = np.linalg.norm(J_p, axis=0) * scales  # each column's information on its own
+    absorbing = _absorbing(J_p * scales[None, :], J_aux, aux or {}, before_aux, min_information)
     if J_aux.shape[1]:
         Q, R = np.linalg.qr(J_aux)
         keep = np.abs(np.diag(R)) > 1e-9 * max(1.0, np.abs(np.diag(R)).max())
         Q = Q[:, keep]
         J_p = J_p - Q @ (Q.T @ J_p)
-    moments_rms = np.sqrt(np.mean(moments**2, axis=0))
-    scaled = J_p * np.array([parameter_scale(n, moments_rms) for n in names])[None, :]
+    scaled = J_p * scales[None, :]
     columns = np.zeros((scaled.shape[0], scaled.shape[1]))  # the basis, filled column by column
     selected: list[int] = []
     rejected: list[int] = []
@@ -206,6 +225,11 @@ def select(
     for i in rejected:
         column = scaled[:, i]
         information = float(np.linalg.norm(column))
+        if information < min_information and i in absorbing:
+            unidentifiable[names[i]] = (
+                f"absorbed by {absorbing[i]} (information {before_aux[i]:.2g} alone, {information:.2g} beside it)"
+            )
+            continue
         if information < min_information:
             unidentifiable[names[i]] = f"no effect on the measurements (information {information:.2g})"
             continue
@@ -224,6 +248,29 @@ def select(
         singular, condition = np.zeros(0), float("inf")
     order = [names[i] for i in sorted(selected)]
     return Identifiability(order, unidentifiable, singular, condition, scaled.shape[0], absorbed_by)
+
+
+def _absorbing(
+    scaled: np.ndarray, J_aux: np.ndarray, aux: dict[str, slice], alone: np.ndarray, min_information: float
+) -> dict[int, str]:
+    """Columns that carry information alone but (nearly) none once the auxiliary unknowns are
+    projected out -> the unknowns that take them (each explaining at least half the column; else
+    all of them together): a tracker's pose takes the base, reflector positions the tool."""
+    out = {}
+    if not aux:
+        return out
+    bases = {}
+    for name, columns in aux.items():
+        Q, R = np.linalg.qr(J_aux[:, columns])
+        diagonal = np.abs(np.diag(R))
+        bases[name] = Q[:, diagonal > 1e-9 * max(1.0, diagonal.max())] if diagonal.size else Q
+    for i in np.flatnonzero(alone >= min_information):
+        column = scaled[:, i]
+        takers = [
+            name for name, Q in bases.items() if np.linalg.norm(Q.T @ column) >= 0.5 * alone[i]
+        ]
+        out[int(i)] = ", ".join(takers) if takers else "the auxiliary unknowns together"
+    return out
 
 
 def motion_warning(identifiability: Identifiability) -> str | None:

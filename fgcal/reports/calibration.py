@@ -64,7 +64,9 @@ def report_dict(result: CalibrationResult) -> dict:
             entry["prior_sigma"] = prior
             entry["prior"] = "stated" if problem.priors.stated(name) is not None else "soft bound"
         if name in deflections:
-            entry["deflection_at_tool_max_m"] = deflections[name]
+            entry["deflection_at_tool_max_m"] = max(deflections[name].values())
+            if len(deflections[name]) > 1:  # a tree: at each tip
+                entry["deflection_at_tips_max_m"] = deflections[name]
             sigma = sigmas.get(name, 0.0)
             if estimate[name] + 2.0 * sigma < 0:
                 entry["flag"] = "negative compliance beyond 2 sigma: an effective correction, not a stiffness"
@@ -247,18 +249,29 @@ def _region(result: CalibrationResult) -> dict | None:
     return region
 
 
-def compliance_deflections(result: CalibrationResult) -> dict[str, float]:
-    """For each estimated compliance, the largest displacement (m) it causes at the scored
-    point over the fitting configurations: what the value means at the tool."""
+def compliance_deflections(result: CalibrationResult) -> dict[str, dict[str, float]]:
+    """For each estimated compliance, the largest displacement (m) it causes over the fitting
+    configurations at each tip's scored points (a serial arm: its tool point), by tip: what the
+    value means where the robot works. A tree's compliance of one arm moves that arm's tip."""
     problem = result.problem
     names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
     if not names:
         return {}
     data = kinematics.forward(problem.robot, result.state.params, problem.observations.q)
-    frame = problem.scored_frame(result.state)
-    J = kinematics.jacobian(problem.robot, data, names, frame=frame, point=result.tool_point)  # (N, 3, k)
     values = np.array([result.state.params[problem.robot.parameter_names.index(n)] for n in names])
-    return {n: float(np.linalg.norm(J[:, :, i] * values[i], axis=1).max()) for i, n in enumerate(names)}
+    if isinstance(problem.frame, str):  # one frame: the report's tool point in it
+        points = [(problem.scored_frame(result.state), result.tool_point)]
+    else:
+        scored = problem.formulation.scored(problem, result.state)
+        tips = np.zeros(len(scored.points), dtype=int) if scored.tips is None else scored.tips
+        points = [(problem.frame[int(t)], p) for t, p in zip(tips, scored.points, strict=True)]
+    out: dict[str, dict[str, float]] = {n: {} for n in names}
+    for frame, point in points:
+        J = kinematics.jacobian(problem.robot, data, names, frame=frame, point=np.asarray(point))  # (N, 3, k)
+        for i, name in enumerate(names):
+            moved = float(np.linalg.norm(J[:, :, i] * values[i], axis=1).max())
+            out[name][frame] = max(out[name].get(frame, 0.0), moved)
+    return out
 
 
 def predicted_sigma(result: CalibrationResult) -> dict | None:
@@ -742,7 +755,10 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         status = p["status"]
         if "effective_value_absorbs" in p:
             status += f"; effective value (absorbs {', '.join(p['effective_value_absorbs'])})"
-        if "deflection_at_tool_max_m" in p:
+        if "deflection_at_tips_max_m" in p:  # a tree: at each tip
+            tips = ", ".join(f"{tip} {moved * 1e3:.3g} mm" for tip, moved in p["deflection_at_tips_max_m"].items())
+            status += f"; moves the tips up to: {tips}"
+        elif "deflection_at_tool_max_m" in p:
             status += f"; moves the tool up to {p['deflection_at_tool_max_m'] * 1e3:.3g} mm"
         if "flag" in p:
             status += f"; **{p['flag']}**"
