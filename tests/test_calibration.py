@@ -564,3 +564,26 @@ def test_real_data_no_parameter_is_fixed_against_ten_sigma(tmp_path, model):
     if model != "DH":  # DH's fixed parameters are exact combinations: no evidence either way
         assert len(result.fixed_evidence_sigmas) >= 5, result.fixed_evidence_sigmas
     assert max(result.fixed_evidence_sigmas.values(), default=0.0) <= 10, result.fixed_evidence_sigmas
+
+
+@pytest.mark.skipif(not FARO.exists(), reason="../shared/data/irb120_faro is not present")
+def test_real_data_flags_an_implausible_compliance(tmp_path):
+    """Issue 38, item 5: on the FARO IRB 120 (DH,s,e) kx2 and ky2 rotate joint 2 by 9-11 mrad
+    under gravity and move the tool by 4-4.6 mm: effective values, flagged as implausible; the
+    rotation is the estimate times the largest gravity moment, computed here apart."""
+    from fgcal.data.faro import convert_faro
+    from fgcal.model import kinematics
+
+    convert_faro(FARO, tmp_path / "faro")
+    config = CalibrationConfig.defaults(tmp_path / "faro", formulation="tracker", units={"length": "mm"},
+                                        noise={"tracker_sigma": 0.05})  # fmt: skip
+    result = calibrate(config)
+    doc = write_report(result, tmp_path / "report", plots=False)
+    robot, params = result.problem.robot, result.state.params
+    moments = kinematics.forward(robot, params, result.problem.observations.q).moments
+    for name, column in (("kx2", 3), ("ky2", 4)):
+        entry = doc["parameters"][name]
+        expected = abs(params[robot.parameter_names.index(name)]) * np.abs(moments[:, column]).max()
+        assert entry["joint_deflection_max_rad"] == pytest.approx(expected, rel=1e-12) and expected > 5e-3
+        assert entry["flag"].startswith("implausible"), entry
+    assert "implausible" not in doc["parameters"]["kz2"].get("flag", "")

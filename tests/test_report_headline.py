@@ -59,3 +59,27 @@ def test_the_headline_says_how_it_was_scored(tmp_path):
         assert protocol["n_held_out"] == len(calibration.result.problem.test) == doc["headline"]["n_configurations"]
         assert f"({text})" in doc["headline"]["text"]
         assert doc["headline"]["text"] in (tmp_path / kind / "report.md").read_text()
+
+
+def test_model_auto_times_every_model_it_compares(tmp_path):
+    """Issue 38, item 5: with model: auto the report's time covered only the chosen model."""
+    simulate(REPO / "datasets" / "cells" / "irb120_tracker.yaml", tmp_path / "data", seed=2, n_configurations=40)
+    timing = fgcal.calibrate(tmp_path / "data", formulation="tracker", model="auto").result.timing
+    assert timing["total_s"] > timing["chosen_model_total_s"] > 0
+    assert timing["cpu_s"] > timing["chosen_model_cpu_s"] > 0
+
+
+def test_the_motion_warning_names_the_cause():
+    """Issue 38, item 5: a lost-motion term hidden because its joint is barely seen (its offset
+    fixed too) was blamed on "one side, one speed"."""
+    from fgcal.calibration.identifiability import Identifiability, motion_warning
+
+    reasons = {
+        "lm2": "a combination of other parameters (+1 theta2); information left 0.01",
+        "lm6": "a combination of other parameters (+1 theta6); information left 0.01",
+        "theta6": "no effect on the measurements (information 1e-3)",
+    }
+    text = motion_warning(Identifiability([], reasons, np.zeros(0), 1.0, 10, {"lm2": ["theta2"]}))
+    same_way, unseen = text.split("; the motion-history terms ")
+    assert "lm2" in same_way and "one side, at one speed" in same_way and "lm6" not in same_way
+    assert unseen.startswith("lm6 stay at zero because the data barely see joint 6"), unseen

@@ -279,14 +279,32 @@ def motion_warning(identifiability: Identifiability) -> str | None:
     hidden = [n for n in identifiability.unidentifiable if is_motion(n)]
     if not hidden:
         return None
-    absorbing = sorted({p for n in hidden for p in identifiability.absorbed_by.get(n, [])})
-    into = f" (their effect is absorbed by {', '.join(absorbing)})" if absorbing else ""
-    return (
-        f"the motion-history terms {', '.join(hidden)} cannot be told apart from the joint offsets{into}: the "
-        "configurations were reached the same way (approached from one side, at one speed). They stay at zero, "
-        "and the calibration holds only for moves made the same way; to identify them, reach configurations "
-        "from both sides and at different speeds (docs/calibration.md, Motion history)"
-    )
+    # A term whose joint the data barely see (its offset fixed too, or no effect of its own) is
+    # not hidden by how the robot moved: more motion would not show it, more of that joint would.
+    unseen_joints = {split_name(n)[1] for n in identifiability.unidentifiable if split_name(n)[0] == "theta"}
+    unseen = [
+        n for n in hidden
+        if split_name(n)[1] in unseen_joints or not identifiability.unidentifiable[n].startswith("a combination")
+    ]  # fmt: skip
+    same_way = [n for n in hidden if n not in unseen]
+    parts = []
+    if same_way:
+        absorbing = sorted({p for n in same_way for p in identifiability.absorbed_by.get(n, [])})
+        into = f" (their effect is absorbed by {', '.join(absorbing)})" if absorbing else ""
+        parts.append(
+            f"the motion-history terms {', '.join(same_way)} cannot be told apart from the joint offsets{into}: the "
+            "configurations were reached the same way (approached from one side, at one speed). They stay at zero, "
+            "and the calibration holds only for moves made the same way; to identify them, reach configurations "
+            "from both sides and at different speeds (docs/calibration.md, Motion history)"
+        )
+    if unseen:
+        joints = sorted({int(split_name(n)[1]) for n in unseen})
+        parts.append(
+            f"the motion-history terms {', '.join(unseen)} stay at zero because the data barely see joint"
+            f"{'s' if len(joints) > 1 else ''} {', '.join(map(str, joints))} at all (its own parameters are fixed "
+            "too): measure points farther from its axis, not other approaches"
+        )
+    return "; ".join(parts)
 
 
 # A parameter fixed as unidentifiable that a fit releasing it would move by more than this many

@@ -19,7 +19,7 @@ from ..core import strict_json
 from ..core.memory import release_freed_memory
 from ..core.outputs import output_dir, save_figure, write_text
 from ..model import kinematics
-from ..model.parameters import unit_of
+from ..model.parameters import is_motion, split_name, unit_of
 from ..model.robot import Robot
 from ..model.robot_io import save_robot
 from .diagnostics import motion_terms, plot_residual_diagnostics
@@ -43,6 +43,7 @@ def report_dict(result: CalibrationResult) -> dict:
         for partner in partners:
             absorbs.setdefault(partner, []).append(fixed)
     deflections = compliance_deflections(result)
+    angles = compliance_angles(result)
     parameters = {}
     released_by_stages = set(releasable(problem.candidates, config.stages))
     for name in problem.candidates:
@@ -68,10 +69,26 @@ def report_dict(result: CalibrationResult) -> dict:
             if len(deflections[name]) > 1:  # a tree: at each tip
                 entry["deflection_at_tips_max_m"] = deflections[name]
             sigma = sigmas.get(name, 0.0)
+            entry["joint_deflection_max_rad"] = angles[name]
             if estimate[name] + 2.0 * sigma < 0:
                 entry["flag"] = "negative compliance beyond 2 sigma: an effective correction, not a stiffness"
             elif estimate[name] < 0:
                 entry["flag"] = "negative, but within 2 sigma of zero"
+            elif angles[name] > PLAUSIBLE_JOINT_DEFLECTION_RAD:
+                entry["flag"] = (
+                    f"implausible: it deflects its joint by up to {angles[name] * 1e3:.3g} mrad under gravity, beyond "
+                    f"the {PLAUSIBLE_JOINT_DEFLECTION_RAD * 1e3:g} mrad any industrial joint bends; an effective "
+                    "correction absorbing other errors, not a stiffness"
+                )
+        if is_motion(name) and name in sigmas and split_name(name)[0] == "lm":
+            # The sign says which way (fgcal.model.motion): negative is short of the command, the
+            # usual lost motion of a drive against friction; positive is an overshoot.
+            side = "short of" if estimate[name] < 0 else "beyond"
+            size = f"{abs(estimate[name]) * (1e3 if unit_of(name) == 'm' else 180e3 / np.pi):.3g}"
+            entry["meaning"] = (
+                f"lands {size} {'mm' if unit_of(name) == 'm' else 'mdeg'} {side} its command in the direction of "
+                "its last move"
+            )
         if truth is not None:
             entry["truth"] = float(truth[name])
         parameters[name] = entry
@@ -247,6 +264,29 @@ def _region(result: CalibrationResult) -> dict | None:
         if all(len(e) for e in per_config):
             region["measured_m"] = np.array([np.sqrt(np.mean(e**2)) for e in per_config])
     return region
+
+
+# A gravity deflection of a joint beyond this (0.29 deg) is no stiffness: an industrial joint bends
+# by a few mrad at most under its own arm and load (the seed cell's KR 125 with 125 kg: 4.7 mrad at
+# most; the FARO IRB 120's DH,s,e fit gives kx2 11.3 and ky2 9.1 mrad, moving the tool 4-4.6 mm,
+# effective values absorbing other errors).
+PLAUSIBLE_JOINT_DEFLECTION_RAD = 0.005
+
+
+def compliance_angles(result: CalibrationResult) -> dict[str, float]:
+    """For each estimated compliance, the largest rotation (rad) it gives its joint over the
+    fitting configurations: its value times the largest gravity moment of its component."""
+    problem = result.problem
+    names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
+    if not names:
+        return {}
+    moments = kinematics.forward(problem.robot, result.state.params, problem.observations.q).moments
+    out = {}
+    for name in names:
+        kind, joint = split_name(name)
+        column = moments[:, 3 * (int(joint) - 1) + "xyz".index(kind[1])]
+        out[name] = float(abs(result.state.params[problem.robot.parameter_names.index(name)]) * np.abs(column).max())
+    return out
 
 
 def compliance_deflections(result: CalibrationResult) -> dict[str, dict[str, float]]:
@@ -762,6 +802,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             status += f"; moves the tool up to {p['deflection_at_tool_max_m'] * 1e3:.3g} mm"
         if "flag" in p:
             status += f"; **{p['flag']}**"
+        if "meaning" in p:
+            status += f"; {p['meaning']}"
         if p.get("prior") == "stated":
             status += f"; prior sigma {small(p['prior_sigma'])}"
         if p.get("moved_if_released_sigmas", 0.0) > 10:
