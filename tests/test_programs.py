@@ -406,3 +406,34 @@ def test_missing_file_is_an_input_error(tmp_path):
 def test_programs_without_targets(tmp_path, name, text):
     program = _read(tmp_path, text, name)
     assert program.targets == () and write_program(program, {}) == text
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-be", "utf-8-sig"])
+def test_a_program_saved_as_utf16_or_with_a_bom_reads_and_writes_back_so(tmp_path, encoding):
+    """Issue 43, item 5: a UTF-16 module (as Windows editors save) reported "no targets"."""
+    plain = tmp_path / "plain.mod"
+    plain.write_text(RAPID, encoding="utf-8")
+    saved = tmp_path / "saved.mod"
+    data = RAPID.encode(encoding)
+    saved.write_bytes((b"\xfe\xff" + data) if encoding == "utf-16-be" else data)  # -be writes no mark itself
+    program, reference = read_program(saved), read_program(plain)
+    assert [t.name for t in program.targets] == [t.name for t in reference.targets] and program.targets
+    assert all(np.allclose(a.pose, b.pose) for a, b in zip(program.targets, reference.targets, strict=True))
+    assert program.encoding == ("utf-8-sig" if encoding == "utf-8-sig" else "utf-16")  # written back so
+
+
+def test_utf16_without_a_mark_is_refused_clearly(tmp_path):
+    path = tmp_path / "bare.mod"
+    path.write_bytes(RAPID.encode("utf-16-le"))
+    with pytest.raises(InputError, match="NUL bytes: UTF-16 without a byte-order mark"):
+        read_program(path)
+
+
+def test_a_krl_src_is_pointed_to_its_dat(tmp_path, capsys):
+    from fgcal.commands.cli import main
+
+    (tmp_path / "weld.src").write_text("DEF weld()\nLIN XP1\nEND\n")
+    (tmp_path / "weld.dat").write_text(KRL)
+    assert main(["compensate", "kuka_kr125_2", str(tmp_path / "weld.src"), "--out", str(tmp_path / "o.src")]) == 2
+    error = capsys.readouterr().err
+    assert "weld.src" in error and "targets are declared in weld.dat" in error and "\n" == error[-1]

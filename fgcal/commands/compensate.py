@@ -31,6 +31,13 @@ def cmd_compensate(args: argparse.Namespace) -> int:
 
     if args.tip is not None and robot.tip_error(args.tip):
         raise InputError(args.robot, "--tip", robot.tip_error(args.tip))
+    if Path(args.targets).suffix.lower() == ".src":  # KRL: the motions; the targets are in the .dat
+        data = Path(args.targets).with_suffix(".dat")
+        raise InputError(
+            args.targets, None, f"a KRL .src holds the motions; its targets are declared in {data.name}"
+            f"{'' if data.exists() else ' (not found beside it)'}: compensate that file (a target written inline "
+            "in the .src, LIN {X ...}, is not corrected: declare it in the .dat)",
+        )  # fmt: skip
     if Path(args.targets).suffix.lower() in RAPID_SUFFIXES + KRL_SUFFIXES:
         if args.tip is not None:
             raise InputError(args.targets, "--tip", "a robot program drives its robot's flange: --tip is for a CSV")

@@ -27,6 +27,7 @@ Everything else (FDAT, PDAT, LDAT, E6AXIS, AXIS, FRAME, comments after ``;``) is
 from __future__ import annotations
 
 import bisect
+import codecs
 import math
 import re
 from collections.abc import Callable, Iterator, Mapping
@@ -126,12 +127,23 @@ MAX_VALUE = 1e10  # beyond this a number is a typo (9E+09 is RAPID's unused exte
 
 
 def _read_text(path: Path) -> tuple[str, str]:
-    """The file's exact text (no newline translation) and its encoding: UTF-8, else Latin-1."""
+    """The file's exact text (no newline translation) and its encoding, written back the same:
+    UTF-16 or UTF-8 with a byte-order mark (editors on Windows save so), else UTF-8, else Latin-1.
+    UTF-16 read as Latin-1 had a NUL between every character, and no target was found."""
     read_file_text(path, encoding="latin-1")  # the checks: exists, a regular file, not huge
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(path, None, f"cannot read file: {exc.strerror}") from None
+    for mark, encoding in ((codecs.BOM_UTF8, "utf-8-sig"), (codecs.BOM_UTF16_LE, "utf-16"),
+                           (codecs.BOM_UTF16_BE, "utf-16")):  # fmt: skip
+        if data.startswith(mark):
+            try:
+                return data.decode(encoding), encoding
+            except UnicodeDecodeError as exc:
+                raise InputError(path, None, f"not {encoding} text after its byte-order mark: {exc.reason}") from None
+    if b"\x00" in data:
+        raise InputError(path, None, "NUL bytes: UTF-16 without a byte-order mark, or not a program; save it as UTF-8")
     try:
         return data.decode("utf-8"), "utf-8"
     except UnicodeDecodeError:
