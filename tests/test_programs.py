@@ -436,4 +436,4 @@ def test_a_krl_src_is_pointed_to_its_dat(tmp_path, capsys):
     (tmp_path / "weld.dat").write_text(KRL)
     assert main(["compensate", "kuka_kr125_2", str(tmp_path / "weld.src"), "--out", str(tmp_path / "o.src")]) == 2
     error = capsys.readouterr().err
-    assert "weld.src" in error and "targets are declared in weld.dat" in error and "\n" == error[-1]
+    assert "weld.src" in error and "targets are declared in weld.dat" in error and error[-1] == "\n"
