@@ -437,3 +437,26 @@ def test_a_krl_src_is_pointed_to_its_dat(tmp_path, capsys):
     assert main(["compensate", "kuka_kr125_2", str(tmp_path / "weld.src"), "--out", str(tmp_path / "o.src")]) == 2
     error = capsys.readouterr().err
     assert "weld.src" in error and "targets are declared in weld.dat" in error and error[-1] == "\n"
+
+
+def test_inline_targets_are_listed_not_silently_kept(tmp_path):
+    """Issue 43, item 5: RAPID motions with a target written inline were skipped without a word
+    ("correcting 4 targets")."""
+    from fgcal.data.program_filter import check_program
+
+    inline = (
+        "    MoveL [[500,0,600],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]], v100, z10, tool0;\n"
+        "    ! MoveL [[1,2,3],[1,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]], v100, fine, tool0;\n"
+        "    MoveJ \\Conc, [[400,0,500],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]], v100, z10, tool0;\n"
+    )
+    text = RAPID.replace("ENDMODULE", "  PROC extra()\n" + inline + "  ENDPROC\nENDMODULE")
+    path = tmp_path / "inline.mod"
+    path.write_text(text)
+    program = read_program(path)
+    # The module's own inline MoveL, and the two added (not the one in a comment).
+    lines = text.splitlines()
+    expected = [k + 1 for k, line in enumerate(lines) if "[[" in line and line.strip().startswith("Move")]
+    notes = [n for n in check_program(program, True, True) if "inline" in n]
+    assert len(expected) == 3 and len(notes) == 1, (expected, notes)
+    shown = ", ".join(map(str, expected))
+    assert notes[0].startswith(f"3 motions with a target written inline ([[x, y, z], ...]; lines {shown})"), notes

@@ -511,6 +511,7 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
     """Refuse configuration data no controller writes; the notes a person should read about
     frames the program does not name (they default to the flange and the base frame)."""
     from ..core.errors import InputError
+    from .programs import inline_targets
 
     for target in program.targets:
         for key, value in target.config.items():
@@ -527,6 +528,13 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
                 f"{len(unused)} of the targets ({named}) are used by no MoveL, MoveJ or MoveC of the module: they "
                 "are taken with tool0 and wobj0 (give --tool and --base)"
             )
+    inline = inline_targets(program)
+    if inline:
+        shown = ", ".join(map(str, inline[:8])) + (", ..." if len(inline) > 8 else "")
+        notes.append(
+            f"{len(inline)} motions with a target written inline ([[x, y, z], ...]; lines {shown}) are not "
+            "corrected: they have no name to correct them by; declare them as robtargets"
+        )
     if program.kind == "krl" and not (tool_given and base_given):
         notes.append("KRL targets are taken in $BASE = the robot's base frame and with $TOOL = the flange where "
                      "--base and --tool do not give them")  # fmt: skip

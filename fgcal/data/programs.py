@@ -126,6 +126,25 @@ MAX_PROGRAM_BYTES = 32 * 10**6  # a 32 MB module holds some 200 000 targets
 MAX_VALUE = 1e10  # beyond this a number is a typo (9E+09 is RAPID's unused external axis)
 
 
+# A motion whose first positional argument is a literal (after any switches: MoveJ \\Conc, [[...]]).
+_INLINE = re.compile(
+    r"\b(Move[A-Za-z]*|Search[A-Za-z]*|Arc[A-Za-z]*|Trigg[A-Za-z]*)\s*(\\\w+\s*,?\s*)*\[\s*\[", re.IGNORECASE
+)
+
+
+def inline_targets(program: Program) -> list[int]:
+    """Lines of a RAPID module's motions whose target is written inline (``MoveL [[x, y, z],
+    ...], ...``): no name to correct it by, so they are listed rather than silently kept."""
+    if program.kind != "rapid":
+        return []
+    lines = []
+    for number, line in enumerate(program.text.splitlines(), start=1):
+        code = re.sub(r'"[^"]*"', '""', line).split("!", 1)[0]  # no strings; a comment, from its mark
+        if _INLINE.search(code):
+            lines.append(number)
+    return lines
+
+
 def _read_text(path: Path) -> tuple[str, str]:
     """The file's exact text (no newline translation) and its encoding, written back the same:
     UTF-16 or UTF-8 with a byte-order mark (editors on Windows save so), else UTF-8, else Latin-1.
