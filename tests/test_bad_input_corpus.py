@@ -323,6 +323,9 @@ CASES = [
     ("config_holdout_null", _config(_set("validation.holdout", None)), CALIBRATE, "calibration.yaml",
      "validation.holdout"),
     ("config_bounds_unknown", _config(_set("bounds.warp", 1.0)), CALIBRATE, "calibration.yaml", "bounds.warp"),
+    # a null section is no "off": robust: null kept the Huber loss (an engineer's trial)
+    ("config_robust_null", _config(_set("robust", None)), CALIBRATE, "calibration.yaml", "robust"),
+    ("config_missing_dataset_named", _config(_set("dataset", "nowhere")), CALIBRATE, "calibration.yaml", "dataset"),
     ("config_bounds_parameter", _config(_set("bounds.alpha9", 1.0)), CALIBRATE, "calibration.yaml", "bounds.alpha9"),
     ("config_bounds_negative", _config(_set("bounds.kz", -1.0)), CALIBRATE, "calibration.yaml", "bounds.kz"),
     (

@@ -587,3 +587,16 @@ def test_real_data_flags_an_implausible_compliance(tmp_path):
         assert entry["joint_deflection_max_rad"] == pytest.approx(expected, rel=1e-12) and expected > 5e-3
         assert entry["flag"].startswith("implausible"), entry
     assert "implausible" not in doc["parameters"]["kz2"].get("flag", "")
+
+
+def test_a_partial_units_takes_the_rest_from_the_dataset(tmp_path):
+    """An engineer's trial: units: {length: mm} beside a dataset in mm and deg read the angles in
+    rad (a 0.05 deg prior became 0.05 rad)."""
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "dataset.yaml").write_text("units: {length: mm, angle: deg}\nmeasured: [tracker_points]\n")
+    config = parse_config({"dataset": "d", "units": {"length": "m"}, "bounds": {"alpha": 0.05}}, tmp_path / "c.yaml")
+    assert (config.units.length, config.units.angle) == ("m", "deg")
+    assert "the rest as the dataset's" in config.units_source
+    assert config.priors.sigma("alpha2") == pytest.approx(np.radians(0.05))
+    whole = parse_config({"dataset": "d", "units": {"length": "m", "angle": "rad"}}, tmp_path / "c.yaml")
+    assert whole.units.angle == "rad" and whole.units_source == "as the config's units: states"

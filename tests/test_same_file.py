@@ -99,3 +99,28 @@ def test_two_names_of_one_input_are_fine_and_a_new_output_is_fine(tmp_path):
     distinct({"--out": tmp_path / "new.csv"}, {"ROBOT": tmp_path / "robot.yaml", "--nominal": tmp_path / "same.yaml"})
     with pytest.raises(InputError, match="same file"):  # two outputs of one name not yet written
         distinct({"--out": tmp_path / "new.csv", "the table": tmp_path / "." / "new.csv"}, {})
+
+
+@pytest.mark.parametrize("link", ["path", "symlink", "hardlink"])
+def test_calibrate_writes_no_report_over_what_it_reads(tmp_path, capsys, link):
+    """Found by an engineer's trial: a dataset whose robot: is a calibrated_robot.yaml, calibrated
+    with --out its own folder, had that robot file replaced by the new one (exit 0)."""
+    from fgcal.simulation.simulate import simulate
+
+    data = tmp_path / "data"
+    simulate(REPO / "datasets" / "cells" / "irb120_tracker.yaml", data, seed=1, n_configurations=30)
+    shutil.copy(ROBOTS / "abb_irb120.yaml", tmp_path / "robot.yaml")
+    if link == "path":
+        shutil.move(tmp_path / "robot.yaml", data / "calibrated_robot.yaml")
+    elif link == "symlink":
+        (data / "calibrated_robot.yaml").symlink_to(tmp_path / "robot.yaml")
+    else:
+        os.link(tmp_path / "robot.yaml", data / "calibrated_robot.yaml")
+    header = (data / "dataset.yaml").read_text()
+    (data / "dataset.yaml").write_text(header.replace("robot: abb_irb120", "robot: calibrated_robot.yaml"))
+    (data / "c.yaml").write_text("dataset: .\nformulation: tracker\n")
+    before = (data / "calibrated_robot.yaml").read_bytes()
+    assert main(["calibrate", str(data / "c.yaml"), "--out", str(data), "--no-plots"]) == 2
+    error = capsys.readouterr().err
+    assert "calibrated_robot.yaml" in error and "--out" in error and "\n" not in error[:-1], error
+    assert (data / "calibrated_robot.yaml").read_bytes() == before

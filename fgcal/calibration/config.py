@@ -174,11 +174,13 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     doc = Fields(raw, source)
     doc.check_keys(CONFIG_KEYS)
     base = base_dir if base_dir is not None else source.parent
-    if doc.has("units"):
-        units, units_source = parse_units(doc.raw("units"), source), "as the config's units: states"
     header, dataset_doc = _dataset_header(base / doc.string("dataset"))
-    if not doc.has("units"):
-        stated = parse_units(dataset_doc["units"], header) if dataset_doc.get("units") is not None else None
+    stated = parse_units(dataset_doc["units"], header) if dataset_doc.get("units") is not None else None
+    if doc.has("units"):  # what it leaves out (units: {length: mm}) is the dataset's, as a whole one would be
+        units = parse_units(doc.raw("units"), source, default=stated or Units())
+        partial = stated and not {"length", "angle"} <= set(doc.raw("units") or {})
+        units_source = "as the config's units: states" + (", the rest as the dataset's" if partial else "")
+    else:
         units, units_source = (stated, "the dataset's units: the config states none") if stated else (
             Units(), "SI: neither the config nor the dataset states units"
         )  # fmt: skip

@@ -312,14 +312,19 @@ def motion_warning(identifiability: Identifiability) -> str | None:
 EVIDENCE_SIGMAS = 10.0
 
 
-def evidence_against_fixing(stage: StageGraph, fixed: list[str], variance_factor: float) -> dict[str, float]:
+def evidence_against_fixing(
+    stage: StageGraph, fixed: list[str], variance_factor: float, min_information: float
+) -> dict[str, float]:
     """For each parameter of ``fixed`` (released in ``stage`` beside the estimated ones, at the
     solution), how many sigmas a fit that also released it would move it: one Gauss-Newton step
     of the whitened (robust) residuals b on its column a, the auxiliary unknowns and the other
     released parameters projected out (P): z = |r.b| / |r| / sqrt(variance_factor), r = (I - P) a.
     The variance factor is the fit's (chi2/dof where the declared noise does not fit the
     residuals, either way), as the report's sigmas are: an over-declared noise hides no evidence.
-    A column the others (nearly) reproduce has |r| ~ 0 and no evidence either way (omitted)."""
+    Only a parameter the fit would determine is judged: its information at the fit's noise level,
+    |r| times its plausible deviation over sqrt(variance_factor), at least ``min_information``. A
+    direction the others (nearly) reproduce, such as a base tilt the tracker's pose takes but for
+    the gravity it turns, has no evidence either way (omitted): z of a vanishing |r| is noise."""
     n_rows = sum(m.n_rows for m in stage.measurements)
     aux_offsets, offset = {}, 0
     for name, (key, dim) in stage.dims.items():
@@ -340,6 +345,9 @@ def evidence_against_fixing(stage: StageGraph, fixed: list[str], variance_factor
             else:
                 J_aux[rows, aux_offsets[key] : aux_offsets[key] + dim] += block
         first = rows.stop
+    kinematics = stage.kinematics
+    moments = kinematics.data(kinematics.base[kinematics.index]).moments
+    moments_rms = np.sqrt(np.mean(moments**2, axis=0))
     stage.forget()
     index = {name: i for i, name in enumerate(stage.released)}
     others = np.hstack([J_aux, J_p[:, [index[n] for n in stage.released if n not in fixed]]])
@@ -353,7 +361,7 @@ def evidence_against_fixing(stage: StageGraph, fixed: list[str], variance_factor
         column = J_p[:, index[name]]
         r = column - Q @ (Q.T @ column)
         size = float(np.linalg.norm(r))
-        if size <= 1e-6 * max(float(np.linalg.norm(column)), 1e-300):
+        if size * parameter_scale(name, moments_rms) / np.sqrt(variance_factor) < min_information:
             continue
         out[name] = abs(float(r @ b)) / size / np.sqrt(variance_factor)
     return out

@@ -8,6 +8,7 @@ import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 
@@ -159,6 +160,8 @@ def _breakdowns_named(dataset: Dataset, observations: Callable[[], Observations 
 
 def calibrate(config: CalibrationConfig, progress: Say | None = None) -> CalibrationResult:
     """Load the config's dataset and calibrate (see :func:`calibrate_dataset`)."""
+    if not (Path(config.dataset) / "dataset.yaml").is_file() and not Path(config.dataset).is_file():
+        raise InputError(config.path, "dataset", f"no dataset at {config.dataset} (a folder with a dataset.yaml)")
     return calibrate_dataset(load_dataset(config.dataset), config, progress)
 
 
@@ -273,7 +276,9 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     evidence: dict[str, float] = {}
     fixed = [name for name in released_by_stages if name in final_ident.unidentifiable]
     if last_stage is not None and fixed:
-        evidence = evidence_against_fixing(build_graph(problem, [*released, *fixed], state), fixed, factor)
+        evidence = evidence_against_fixing(
+            build_graph(problem, [*released, *fixed], state), fixed, factor, config.min_information
+        )
     test_observations, flagged = formulation.test_observations(problem, state)
     measured = {}
     for label, st in (("before", before), ("after", state)):

@@ -66,8 +66,9 @@ def write_dataset_config(dataset: Dataset, command: str) -> Path:
     config = dataset_config(dataset)
     note = (
         f"# Written by {command}: the formulation that reads what the dataset measured, the extended\n"
-        "# model (model: auto fits DH to DH,s,e,h and keeps what the data support), lengths and angles in\n"
-        "# the dataset's units. State your instrument's noise (noise: in these units; docs/calibration.md):\n"
+        "# model DH,s,e (model: auto would fit DH to DH,s,e,h and keep what the data support), lengths and\n"
+        "# angles in the dataset's units. State your instrument's noise (noise: in these units;\n"
+        "# docs/calibration.md):\n"
         "# the report warns when it and the residuals differ by more than 10x.\n"
     )
     write_text(path, note + yaml.safe_dump(config, sort_keys=False))

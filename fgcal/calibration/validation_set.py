@@ -59,6 +59,8 @@ def with_validation_sets(dataset: Dataset, config: CalibrationConfig) -> tuple[D
 def with_validation_set(dataset: Dataset, path, config: CalibrationConfig, id_prefix: str = PREFIX) -> Dataset:
     """The dataset with the validation set at ``path`` appended, its ids prefixed."""
     where = config.path
+    if not (Path(path) / "dataset.yaml").is_file():
+        raise InputError(where, "validation.dataset", f"no dataset at {path} (a folder with a dataset.yaml)")
     if Path(path).resolve() == Path(dataset.path).resolve():
         raise InputError(where, "validation.dataset", f"{path} is the fitting set: a validation set is another session")
     other = load_dataset(path)

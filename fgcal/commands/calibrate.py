@@ -24,12 +24,40 @@ def score(result):
     return result
 
 
+REPORT_FILES = ("report.md", "report.json", "calibrated_robot.yaml", "estimates.yaml")
+
+
+def _inputs(config) -> dict[str, Path]:
+    """Every file a calibration reads: its config, the dataset's and validation sets' files (and
+    their truth), and the robot file a dataset header names."""
+    import yaml
+
+    inputs = {"CONFIG": Path(config.path)}
+    for folder in [Path(config.dataset), *map(Path, config.validation_datasets)]:
+        try:
+            robot = yaml.safe_load((folder / "dataset.yaml").read_text(encoding="utf-8")).get("robot")
+        except (OSError, ValueError, AttributeError, yaml.YAMLError):  # loading the dataset says what is wrong
+            robot = None
+        if isinstance(robot, str) and (folder / robot).is_file():
+            inputs[f"the robot file of the dataset {folder}"] = folder / robot
+        for path in [*folder.glob("*"), *(folder / "truth").glob("*")]:
+            if path.is_file():
+                inputs[f"the dataset's file {path}"] = path
+    return inputs
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..calibration.config import load_config
     from ..calibration.run import calibrate
+    from ..core.outputs import distinct
     from ..reports.calibration import write_report
 
-    result = score(calibrate(load_config(args.config), progress=Reporter()))
+    config = load_config(args.config)
+    # Before the work: a report written over the robot file, the config or a table it reads
+    # (--out the dataset's own folder, with its robot: calibrated_robot.yaml) would destroy it.
+    distinct({f"--out ({name})": Path(args.out) / name for name in REPORT_FILES}, _inputs(config))
+
+    result = score(calibrate(config, progress=Reporter()))
     started = time.perf_counter()
     doc = write_report(result, args.out, plots=not args.no_plots)
     say(
@@ -46,7 +74,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for warning in doc["warnings"]:  # the report's headline warnings, on the console too
         warn(warning)
     out = Path(args.out)
-    files = ["report.md", "report.json", "calibrated_robot.yaml", "estimates.yaml"]
+    files = list(REPORT_FILES)
     emit(args, {
         "out": str(out), "files": {name: str(out / name) for name in files},
         "model": doc["model"], "formulation": doc["formulation"], "headline": doc["headline"],

@@ -107,7 +107,10 @@ class Fields:
         return value
 
     def sub(self, key: str, default: Any = _MISSING) -> Fields:
-        value = self.raw(key, default, nullable=True)  # an empty section (``noise:``) is no section
+        # A section given as null (``robust: null``, or ``noise:`` with nothing under it) is
+        # refused as any null is: "robust: null" reads as "no robust loss" to a person, and
+        # taking it for the defaults would be silently wrong.
+        value = self.raw(key, default)
         return Fields(value if value is not None else {}, self.source, self.path(key))
 
     def items(self, key: str, default: Any = _MISSING) -> list[Fields | Any]:

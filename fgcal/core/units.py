@@ -39,6 +39,9 @@ def parse_units(raw: object, source: str | Path, field: str = "units", default: 
     unknown = set(raw) - {"length", "angle", "mass"}
     if unknown:
         raise InputError(source, f"{field}.{sorted(unknown)[0]}", "unknown unit kind (expected length, angle, mass)")
+    for kind in ("length", "angle", "mass"):
+        if kind in raw and raw[kind] is None:
+            raise InputError(source, f"{field}.{kind}", "is null: give a unit, or leave the field out for its default")
     length = str(raw.get("length", default.length))
     angle = str(raw.get("angle", default.angle))
     if length not in LENGTH_TO_M:

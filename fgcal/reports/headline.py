@@ -88,10 +88,18 @@ def warnings(result: CalibrationResult) -> list[str]:
                 f"angles in {config.units.angle} ({config.units_source}): check noise: and units:; every "
                 "sigma and prediction of this report depends on them"
             )
+    # Not a parameter the auxiliary unknowns take whole at the start (a base tilt under the
+    # tracker's pose): what moves it at the solution is the gravity direction the estimated
+    # compliances turn, a model effect report.json keeps (moved_if_released_sigmas), not a
+    # choice the user can act on.
+    reasons = result.identifiability.unidentifiable
     against = sorted(
-        ((name, sigmas) for name, sigmas in result.fixed_evidence_sigmas.items() if sigmas > EVIDENCE_SIGMAS),
+        (
+            (name, sigmas) for name, sigmas in result.fixed_evidence_sigmas.items()
+            if sigmas > EVIDENCE_SIGMAS and not reasons.get(name, "").startswith(("absorbed by", "no effect"))
+        ),
         key=lambda item: -item[1],
-    )
+    )  # fmt: skip
     if against:
         listed = ", ".join(f"{name} ({sigmas:.3g} sigma)" for name, sigmas in against[:6])
         more = f" and {len(against) - 6} more" if len(against) > 6 else ""
