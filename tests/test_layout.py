@@ -148,3 +148,70 @@ def test_the_layout_test_fails_on_a_module_outside_the_packages(tmp_path):
         assert "fgcal.stray" in str(exc)
     else:
         raise AssertionError("a module outside every layer's package was accepted")
+
+
+# Packages that reach formulations only through their protocol (Formulation, Planning): no
+# module in them names a registered formulation, its class, an instrument or a Planning kind.
+PROTOCOL_ONLY = ("planning",)
+
+
+def _formulation_words() -> tuple[set[str], set[str]]:
+    """(strings, identifiers) that single out a formulation: registered names and instruments;
+    the formulation classes and the Planning implementations."""
+    from fgcal.calibration.formulations import REGISTRY
+    from fgcal.calibration.plan_model import Planning
+    from fgcal.simulation.cell import INSTRUMENTS
+
+    strings = set(REGISTRY) | set(INSTRUMENTS) | {cls.instrument for cls in REGISTRY.values()}
+    identifiers = {cls.__name__ for cls in REGISTRY.values()} | {cls.__name__ for cls in Planning.__subclasses__()}
+    return strings, identifiers
+
+
+def _branches_on_a_formulation(source: str) -> list[str]:
+    """Where a module's code (docstrings aside) names a formulation or an instrument: a string
+    constant (compared, tested for membership, matched, a key, an argument) or a formulation's
+    or Planning implementation's class."""
+    strings, identifiers = _formulation_words()
+    tree = ast.parse(source)
+    documented = (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)
+    docstrings = {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, documented) and node.body and isinstance(node.body[0], ast.Expr)
+    }
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and node.value in strings and id(node) not in docstrings:
+            found.append(f"line {node.lineno}: {node.value!r}")
+        elif isinstance(node, ast.Name) and node.id in identifiers:
+            found.append(f"line {node.lineno}: {node.id}")
+        elif isinstance(node, ast.Attribute) and node.attr in identifiers:
+            found.append(f"line {node.lineno}: .{node.attr}")
+        elif isinstance(node, ast.alias) and node.name.rsplit(".", 1)[-1] in identifiers:
+            found.append(f"line {node.lineno}: import {node.name}")
+    return found
+
+
+def test_planning_asks_the_formulation():
+    """Planning reads what a formulation measures through ``Formulation.planning`` (docs/
+    architecture.md): no module of fgcal/planning branches on a formulation's name or
+    instrument, or picks a formulation's or a Planning's class."""
+    found = []
+    for package in PROTOCOL_ONLY:
+        for path in sorted((REPO / "fgcal" / package).rglob("*.py")):
+            found += [f"{path.relative_to(REPO)} {where}" for where in _branches_on_a_formulation(path.read_text())]
+    assert found == []
+
+
+def test_the_protocol_test_sees_a_branch_on_a_formulation():
+    """The branches this replaced, and their variants: the check that fails on them, works."""
+    planted = [
+        'if formulation.instrument == "tracker":\n    pass\n',
+        'PLANNED = {n: c.instrument for n, c in R.items() if c.instrument in ("camera", "tracker")}\n',
+        'match name:\n    case "pairs":\n        pass\n',
+        "from fgcal.calibration.plan_model import Reflectors\n",
+        "ok = isinstance(planning, plan_model.FlangeCamera)\n",
+    ]
+    for source in planted:
+        assert _branches_on_a_formulation(source), source
+    assert _branches_on_a_formulation('def f():\n    """camera"""\n    return "tracker point"\n') == []

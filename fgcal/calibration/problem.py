@@ -15,7 +15,8 @@ A formulation knows:
   once and used for the fit, for the held-out score and for the score's prediction;
 - how its held-out score is read off the measurement set, and what a simulation's truth
   says about its unknowns (:meth:`Formulation.true_state`, :meth:`Formulation.scored`);
-- the gauge of its score, and the likely causes of a first stage that cannot fit.
+- the gauge of its score, and the likely causes of a first stage that cannot fit;
+- what fgcal plan models of its measurements (:meth:`Formulation.planning`).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from ..factors import MeasurementSet, RobustLoss
 from ..model.parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
 from ..model.robot import Robot
 from .batch import BatchKinematics
+from .plan_model import Planning
 from .priors import Priors
 from .settings import MeasurementSettings
 from .state import State
@@ -268,8 +270,8 @@ class Formulation(ABC):
     # What measures (fgcal.simulation.cell.INSTRUMENTS): "camera" (on the flange, seeing the
     # cell's calibration objects), "tracker" (reflectors on the flange), "tracker_probe" (a 6D
     # probe), "touch", "ballbar", "static_camera". fgcal simulate suggests, for a cell's first
-    # instrument, the first registered formulation that reads it; fgcal plan models the camera
-    # and the tracker.
+    # instrument, the first registered formulation that reads it; fgcal plan, the first planned
+    # one (:meth:`planning`).
     instrument: ClassVar[str]
 
     # -- what the setup measures --------------------------------------------------------
@@ -328,10 +330,11 @@ class Formulation(ABC):
         """Per robust unit of ``observations``, the tree's tip it measures (None: all one frame)."""
         return None
 
-    def fixture_rotation_unknown(self, settings: MeasurementSettings) -> bool:
-        """Whether the calibration objects' orientation in W is an unknown (fgcal plan's camera
-        model; their position always is)."""
-        return False
+    def planning(self, settings: MeasurementSettings) -> Planning | None:
+        """What fgcal plan models of these measurements (fgcal.calibration.plan_model): how its
+        candidates are drawn, their whitened rows, the auxiliary unknowns' labels and prior
+        sigmas, the scored point and the gauge. None: not planned yet (whatever the settings)."""
+        return None
 
     # -- held-out scores and their prediction --------------------------------------------
 

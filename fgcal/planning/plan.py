@@ -19,6 +19,9 @@ import numpy as np
 
 from ..calibration.config import CalibrationConfig
 from ..calibration.formulations import REGISTRY
+from ..calibration.formulations import formulation as registered
+from ..calibration.plan_model import Candidates, Planning
+from ..calibration.settings import MeasurementSettings
 from ..core import strict_json
 from ..core.errors import InputError
 from ..core.outputs import output_dir, save_figure, write_text
@@ -29,7 +32,6 @@ from ..model.robot import MODELS
 from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
 from . import MAX_CANDIDATES
-from .candidates import Candidates, camera_candidates, joint_space_candidates
 from .exchange import CRITERIA, information_of, plan_design, predicted_sigma
 from .indices import observability
 from .information import Information, build_information
@@ -129,6 +131,7 @@ class Planner:
     candidates: Candidates
     info: Information
     timing_s: dict[str, float]
+    planning: Planning  # what the formulation measures (Formulation.planning)
 
     def space_filling(self, n: int) -> list[int]:
         return max_min_selection(self.candidates.q, self.cell.robot.limits, n, np.random.default_rng(self.seed + 1))
@@ -148,9 +151,16 @@ class Planner:
             )
 
 
-# The instruments whose measurements fgcal plan models, and the formulations reading them.
-PLANNED_INSTRUMENTS = ("camera", "tracker")
-PLANNED = {name: cls.instrument for name, cls in REGISTRY.items() if cls.instrument in PLANNED_INSTRUMENTS}
+def _planned() -> dict[str, str]:
+    """The formulations fgcal plan models (their ``planning`` is not None), in the registry's
+    order, and the instrument each reads."""
+    settings = MeasurementSettings()
+    return {name: cls.instrument for name, cls in REGISTRY.items() if cls().planning(settings) is not None}
+
+
+# The formulations fgcal plan models, and the instruments they read.
+PLANNED = _planned()
+PLANNED_INSTRUMENTS = tuple(dict.fromkeys(PLANNED.values()))
 
 
 def choose_formulation(cell: Cell, formulation: str | None) -> str:
@@ -215,22 +225,22 @@ def prepare(
             raise InputError(None, "--approach-offset", "leaves no room within a joint's limits")
         robot = replace(robot, limits=limits)
     cell = replace(cell, robot=robot)
+    config = CalibrationConfig.defaults(".", formulation=formulation, model=model)
+    planning = registered(formulation).planning(config.measurement)
+    if planning is None:  # choose_formulation planned it: its planning does not depend on settings
+        raise InputError(None, "--formulation", f"the {formulation} formulation is not planned yet")
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     started = time.process_time()
-    if PLANNED[formulation] == "tracker":
-        cand = joint_space_candidates(cell, n_candidates, rng)
-    else:
-        cand = camera_candidates(cell, n_candidates, rng, progress=say)
+    cand = planning.candidates(cell, n_candidates, rng, progress=say)
     timing["candidates"] = time.process_time() - started
     started = time.process_time()
-    config = CalibrationConfig.defaults(".", formulation=formulation, model=model)
     size = min(len(cand.q), reference_size)
     reference = np.array(max_min_selection(cand.q, robot.limits, size, np.random.default_rng(seed + 1)))
-    info = build_information(cell, robot, cand, config, reference, seed=seed)
+    info = build_information(cell, robot, cand, config, planning, reference, seed=seed)
     timing["information"] = time.process_time() - started
     say(f"  {info.n_params} identifiable parameters, {len(info.aux_labels)} auxiliary unknowns")
-    return Planner(cell, formulation, model, seed, cand, info, timing)
+    return Planner(cell, formulation, model, seed, cand, info, timing, planning)
 
 
 def plan(

@@ -20,8 +20,7 @@ from ..calibration.scoring import truth_errors
 from ..data.truth import load_truth
 from ..simulation.design import max_min_selection
 from ..simulation.simulate import simulate
-from .candidates import camera_candidates, joint_space_candidates
-from .plan import PLANNED, SCORED_POINT_C, plan, prepare, write_plan
+from .plan import SCORED_POINT_C, plan, prepare, write_plan
 
 
 def _score(dataset: Path, q_eval: np.ndarray, formulation: str) -> float:
@@ -70,10 +69,7 @@ def design_study(
         formulation = planner.formulation
         # Independent evaluation configurations: another candidate stream, thinned max-min.
         eval_rng = np.random.default_rng(10_000 + seed)
-        if PLANNED[planner.formulation] == "tracker":
-            pool = joint_space_candidates(planner.cell, 5 * n_eval, eval_rng)
-        else:
-            pool = camera_candidates(planner.cell, 5 * n_eval, eval_rng)
+        pool = planner.planning.candidates(planner.cell, 5 * n_eval, eval_rng)
         q_eval = pool.q[max_min_selection(pool.q, planner.cell.robot.limits, n_eval, np.random.default_rng(seed))]
         base = out_dir / f"seed{seed}"
         row = {"seed": seed, "planned": {}, "space_filling": {}}

@@ -33,6 +33,7 @@ from ...model.camera import solve_pnp
 from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..goodness import chi_median
+from ..plan_model import FlangeCamera, Planning
 from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, measured_table, rows_of, subset_of
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
@@ -106,8 +107,8 @@ class Pairs(Formulation):
     def gauge(self, settings: MeasurementSettings) -> str:
         return "rigid" if settings.fixture_orientation == "estimate" else "translation"
 
-    def fixture_rotation_unknown(self, settings: MeasurementSettings) -> bool:
-        return settings.fixture_orientation == "estimate"
+    def planning(self, settings: MeasurementSettings) -> Planning:
+        return FlangeCamera(rotation=settings.fixture_orientation == "estimate")
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         observations = pair_observations(dataset, settings, fit)

@@ -15,6 +15,7 @@ from ...data.truth import Truth
 from ...factors import MeasurementSet, Projections, RobustLoss
 from ...model.robot import Robot
 from ..batch import BatchKinematics
+from ..plan_model import FlangeCamera, Planning
 from ..problem import Formulation, HeldOut, Keys, Observations, Problem, Rejection, Scored
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
@@ -49,8 +50,8 @@ class Projection(Formulation):
     def gauge(self, settings: MeasurementSettings) -> str:
         return "rigid"
 
-    def fixture_rotation_unknown(self, settings: MeasurementSettings) -> bool:
-        return True
+    def planning(self, settings: MeasurementSettings) -> Planning:
+        return FlangeCamera(rotation=True)
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         return fit_pixels(dataset, fit, self.name)

@@ -22,6 +22,7 @@ from ...data.truth import Truth, named_points
 from ...factors import MeasurementSet, RobustLoss, TrackerPoints, point_jacobian
 from ...model.robot import Robot
 from ..batch import BatchKinematics
+from ..plan_model import Planning, Reflectors
 from ..problem import (
     Formulation,
     HeldOut,
@@ -98,6 +99,9 @@ class Tracker(Formulation):
         if tips == {problem.robot.flange_name}:
             return self.frame
         return tuple(t for t in problem.robot.tip_names if t in tips)
+
+    def planning(self, settings: MeasurementSettings) -> Planning:
+        return Reflectors()
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         rows = list(rows_of(dataset, measured_table(dataset, "tracker_points", self.name), "target", fit))

@@ -1,0 +1,228 @@
+"""What ``fgcal plan`` models of a formulation's measurements (``Formulation.planning``).
+
+A :class:`Planning` says how the formulation's candidate configurations are drawn from a cell
+and what each candidate measures: whitened Jacobian rows on the parameters and on the
+formulation's auxiliary unknowns, their labels and prior sigmas, the scored point and the
+gauge of the score. fgcal.planning calls only this protocol.
+
+- :class:`FlangeCamera` (pairs, projection): candidates see a 2x2 block of the calibration
+  objects' grid points; the rows are the block's four points in the camera frame,
+  ``p_C = R_C_W (T_W_F p_F - t_W_C)``, sigma the cell's camera point sigma; auxiliary: the
+  fixture translation (the relative pairs do not see it), and its rotation when the
+  formulation estimates it. The scored point is the mean block point in the camera frame.
+- :class:`Reflectors` (tracker): candidates uniform in joint space; the rows are the
+  reflectors in the tracker frame, ``p_T = T_T_W T_W_n(q) s_t``, sigma the cell's tracker
+  sigma; auxiliary: the tracker pose and the reflector positions s_t. The scored point is the
+  first reflector.
+
+A point pair is the difference of two such point measurements, so the absolute points in
+an unknown fixture frame carry the same information about the robot as the pairs that
+connect every image (up to the translation the pairs never see).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.se3 import inverse, skew, transform_points
+from ..model import kinematics
+from ..model.robot import Robot
+from ..simulation.cell import Cell
+from ..simulation.design import random_block_requests, solve_views, uniform_configurations
+
+PRIOR_SIGMA_AUX = {"translation": 1.0, "rotation": 1.0, "reflector": 0.1}  # m, rad, m: weak priors
+# A candidate needs its block in view, not a pose to 1e-9: fewer IK iterations, more candidates.
+IK_ITERATIONS, IK_TOL = 25, 1e-6
+
+
+@dataclass
+class Candidates:
+    q: np.ndarray  # (M, n) rad
+    blocks: list[str] | None  # camera cells: the label of the block each configuration sees
+    points_F: np.ndarray | None  # (M, 4, 3) the block's points in F (m)
+
+
+@dataclass(frozen=True)
+class PlanRows:
+    """What the candidates measure: rows whitened by the measurement sigma."""
+
+    params: np.ndarray  # (M, r, m) on the parameters ``names``
+    aux: np.ndarray  # (M, r, a) on the auxiliary unknowns
+    aux_labels: list[str]  # (a,)
+    aux_sigma: np.ndarray  # (a,) their weak prior sigmas (m, rad)
+    sigma_m: float  # the measurement sigma the rows are whitened by
+    frame: str  # the scored point's frame
+    point: np.ndarray  # (3,) the scored point in that frame
+    gauge: str  # what the score removes first: none, translation or rigid
+
+
+class Planning(ABC):
+    """How fgcal plan draws a formulation's candidates and what each of them measures."""
+
+    @abstractmethod
+    def candidates(
+        self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+    ) -> Candidates:
+        """``count`` candidate configurations of the cell (seeded by ``rng``), on the nominal model."""
+
+    @abstractmethod
+    def rows(
+        self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+    ) -> PlanRows:
+        """The whitened rows of every candidate (``data``: the kinematics at ``cand.q``) on the
+        parameters ``names`` and on the auxiliary unknowns."""
+
+
+@dataclass(frozen=True)
+class FlangeCamera(Planning):
+    """A camera on the flange seeing the cell's calibration objects (pairs, projection)."""
+
+    rotation: bool  # the fixture's orientation in W is an unknown (its position always is)
+
+    def candidates(
+        self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+    ) -> Candidates:
+        return camera_candidates(cell, count, rng, progress=progress)
+
+    def rows(
+        self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+    ) -> PlanRows:
+        J_p, J_aux, p_C = _camera_rows(robot, data, cell, cand, names, self.rotation)
+        sigma = cell.camera_point_sigma_m
+        labels = (["fixture.rx", "fixture.ry", "fixture.rz"] if self.rotation else []) + [
+            "fixture.tx",
+            "fixture.ty",
+            "fixture.tz",
+        ]
+        aux_sigma = ([PRIOR_SIGMA_AUX["rotation"]] * 3 if self.rotation else []) + [PRIOR_SIGMA_AUX["translation"]] * 3
+        return PlanRows(
+            params=J_p / sigma,
+            aux=J_aux / sigma,
+            aux_labels=labels,
+            aux_sigma=np.array(aux_sigma),
+            sigma_m=sigma,
+            frame="tool",
+            point=p_C.reshape(-1, 3).mean(axis=0),
+            gauge="rigid" if self.rotation else "translation",
+        )
+
+
+@dataclass(frozen=True)
+class Reflectors(Planning):
+    """A laser tracker measuring reflectors on the flange or a tree's tips (tracker)."""
+
+    def candidates(
+        self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+    ) -> Candidates:
+        return joint_space_candidates(cell, count, rng)
+
+    def rows(
+        self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+    ) -> PlanRows:
+        J_p, J_aux = _tracker_rows(robot, data, cell, cand, names)
+        sigma = cell.tracker_sigma_m
+        n_targets = len(cell.tracker_targets)
+        labels = ["tracker.rx", "tracker.ry", "tracker.rz", "tracker.tx", "tracker.ty", "tracker.tz"]
+        labels += [f"reflector{t + 1}.{a}" for t in range(n_targets) for a in "xyz"]
+        aux_sigma = [PRIOR_SIGMA_AUX["rotation"]] * 3 + [PRIOR_SIGMA_AUX["translation"]] * 3
+        aux_sigma += [PRIOR_SIGMA_AUX["reflector"]] * (3 * n_targets)
+        return PlanRows(
+            params=J_p / sigma,
+            aux=J_aux / sigma,
+            aux_labels=labels,
+            aux_sigma=np.array(aux_sigma),
+            sigma_m=sigma,
+            frame=cell.tracker_target_tips[0] if cell.tracker_target_tips else "flange",
+            point=cell.tracker_targets[0],
+            gauge="none",
+        )
+
+
+# -- candidates -------------------------------------------------------------------------------
+
+
+def camera_candidates(
+    cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+) -> Candidates:
+    """``count`` reachable configurations, each seeing a block with the nominal camera: random
+    viewpoints onto random 2x2 blocks of grid points at the design's standoff and viewing
+    angle, reached by IK, kept where the nominal camera sees the block."""
+    robot = cell.robot
+
+    # IK on the rigid DH,s model (the gravity deflection does not change what is visible),
+    # from two starts per viewpoint: more viewpoints for the same time than six starts.
+    ik_cell = replace(cell, robot=robot.with_model("DH,s"))
+    views = []
+    rounds = 0
+    while len(views) < count and rounds < 40:
+        rounds += 1
+        requests = random_block_requests(cell, max(256, int(1.4 * (count - len(views)))), rng)
+        views += solve_views(
+            ik_cell, requests, robot.fk_tool, rng, starts=2, iterations=IK_ITERATIONS, tol=IK_TOL, freeze_converged=True
+        )
+        if progress:
+            progress(f"  candidates: {min(len(views), count)} of {count} reachable, visible configurations")
+        if rounds >= 3 and not views:
+            raise InputError(cell.source, "objects", "no reachable configuration sees any block of the objects")
+    views = views[:count]
+    if len(views) < count:
+        raise InputError(cell.source, "objects", f"only {len(views)} reachable, visible configurations found")
+    return Candidates(
+        np.array([v.q for v in views]),
+        [v.block[0].name for v in views],
+        np.array([[p.position_F for p in v.block] for v in views]),
+    )
+
+
+def joint_space_candidates(cell: Cell, count: int, rng: np.random.Generator) -> Candidates:
+    """``count`` configurations uniform within the joint limits (fgcal.simulation.design); the
+    reflectors are taken to be visible: fgcal's cells do not model the tracker's line of sight."""
+    return Candidates(uniform_configurations(cell.robot, count, rng), None, None)
+
+
+# -- rows ---------------------------------------------------------------------------------------
+
+
+def _camera_rows(
+    robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str], rotation: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows on the parameters and on the fixture, and the block points in the camera frame."""
+    T_C_W = inverse(kinematics.frame_pose(robot, data, "tool"))
+    J_body = kinematics.jacobian(robot, data, names, frame="tool")  # (M, 6, m)
+    p_W = transform_points(cell.fixture_pose[None, None], cand.points_F)  # (M, 4, 3)
+    p_C = transform_points(T_C_W[:, None], p_W)
+    # The camera moves by its body twist (w, v): d p_C = p_C x w - v = [skew(p_C), -I] (w, v).
+    lever = np.concatenate([skew(p_C), np.broadcast_to(-np.eye(3), (*p_C.shape, 3))], axis=-1)  # (M, 4, 3, 6)
+    J_p = (lever @ J_body[:, None]).reshape(len(cand.q), -1, len(names))
+    R_C_W = T_C_W[:, None, :3, :3]
+    # The fixture moves in W by (w, t): d p_W = w x p_W + t.
+    blocks = [np.broadcast_to(R_C_W, (*p_C.shape, 3))]
+    if rotation:
+        blocks.insert(0, -R_C_W @ skew(p_W))
+    J_aux = np.concatenate(blocks, axis=-1).reshape(len(cand.q), -1, 3 * len(blocks))
+    return J_p, J_aux, p_C
+
+
+def _tracker_rows(
+    robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    R_T_W = cell.tracker_pose[:3, :3].T
+    n_conf, n_targets = len(cand.q), len(cell.tracker_targets)
+    tips = cell.tracker_target_tips or ("flange",) * n_targets  # a tree's reflectors: on their tips
+    J_p = np.zeros((n_conf, 3 * n_targets, len(names)))
+    J_aux = np.zeros((n_conf, 3 * n_targets, 6 + 3 * n_targets))
+    for t, s in enumerate(cell.tracker_targets):
+        rows = slice(3 * t, 3 * t + 3)
+        T_W_n = kinematics.frame_pose(robot, data, tips[t])
+        J_p[:, rows] = R_T_W @ kinematics.jacobian(robot, data, names, frame=tips[t], point=s)
+        p_W = transform_points(T_W_n, s)
+        # The tracker moves in W by (w, t): d p_T = R_T_W (p_W x w - t); the reflector by d s.
+        J_aux[:, rows, :3] = R_T_W @ skew(p_W)
+        J_aux[:, rows, 3:6] = -R_T_W
+        J_aux[:, rows, 6 + 3 * t : 9 + 3 * t] = R_T_W @ T_W_n[:, :3, :3]
+    return J_p, J_aux
