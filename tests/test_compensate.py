@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from conftest import SEED_CELL, SHARED, calibrate
@@ -231,3 +233,22 @@ def test_targets_solved_in_chunks_are_solved_as_one(monkeypatch):
     chunked = compensate(robot, robot, targets, None)
     np.testing.assert_allclose(chunked.q, whole.q, rtol=0, atol=1e-12)
     assert list(chunked.status) == list(whole.status) == ["ok"] * 25
+
+
+@pytest.mark.parametrize(
+    ("header", "column", "hint"),
+    [
+        ("target,x,y,z,A,B,C", "A", "'a'"),
+        ("target,x,y,z,j1,j2,j3,j4,j5,j6", "j1", "q1..q6"),
+        ("target,x,y,z,note", "note", "speed"),
+    ],
+)
+def test_a_column_fgcal_does_not_read_is_refused(tmp_path, header, column, hint):
+    """An engineer's trial: KUKA's upper-case A, B, C (or hints named j1..j6) were ignored and the
+    targets solved for their positions only, exit 0."""
+    from fgcal.data.compensation import TargetUnits, read_targets
+
+    values = ",".join(["0"] * (len(header.split(",")) - 4))
+    (tmp_path / "t.csv").write_text(f"{header}\nt1,500,0,600,{values}\n")
+    with pytest.raises(fgcal.InputError, match=rf"header: column '{column}' is not one fgcal reads.*{re.escape(hint)}"):
+        read_targets(tmp_path / "t.csv", 6, TargetUnits("mm", "deg", "abc"))

@@ -186,7 +186,24 @@ def read_targets(
     if repeat is not None:
         raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
     approach = approach_columns(path, header, body, n_joints, units.to_rad, prismatic, units.to_m)
+    _no_other_columns(path, header, n_joints)
     return Targets(names, positions, rotations, hints, approach, speed_column(path, header, body))
+
+
+def _no_other_columns(path: Path, header: list[str], n_joints: int) -> None:
+    """A column fgcal does not read is refused, naming it: KUKA's A, B, C (upper case) or hints
+    named j1..j6 were ignored without a word, and the targets solved for their positions only."""
+    known = {"target", "x", "y", "z", "speed", *(c for columns in ORIENTATIONS.values() for c in columns)}
+    known |= {f"{prefix}{i}" for prefix in ("q", "before_q") for i in range(1, n_joints + 1)}
+    for column in header:
+        if column in known:
+            continue
+        near = next((k for k in sorted(known) if k.lower() == column.strip().lower()), None)
+        hint = f" (column names are lower case: {near!r})" if near else (
+            f" (fgcal reads target, x, y, z, an orientation's columns, q1..q{n_joints}, before_q1..before_q{n_joints}"
+            " and speed)"
+        )  # fmt: skip
+        raise InputError(path, "header", f"column {column!r} is not one fgcal reads{hint}")
 
 
 def nominal_of(robot: Robot, nominal: str | Path | None) -> Robot:
