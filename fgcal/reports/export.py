@@ -145,9 +145,12 @@ def export_command(
         _write_ur_kinematics(exported, nominal, Path(ur_kinematics), say)
     if path is None:
         return 0
+    # The rigid fit folds what it can of the compliances into the geometry, but none of the lost
+    # motion (a joint offset that depends on the last move): the sidecar keeps the robot's.
     written, sidecar = export_urdf(
-        exported, path, template, accuracy=accuracy or None, nominal=_template_nominal(exported, template, nominal)
-    )
+        _with_history_of(exported, robot), path, template, accuracy=accuracy or None,
+        nominal=_template_nominal(exported, template, nominal),
+    )  # fmt: skip
     template_file = None if is_tree(exported) else template_of(exported, template)
     held = "joint compliances and lost motion" if robot.history else "joint compliances"
     say(f"wrote {written} ({robot.name}, {robot.n_links} joints) and {sidecar} ({held}, which URDF cannot")
@@ -160,6 +163,19 @@ def export_command(
     else:
         say(f"  express, and the robot's placement); {template_file[0].name} with the calibrated joint origins")
     return 0
+
+
+def _with_history_of(exported, robot):
+    """``exported`` with ``robot``'s motion-history terms (lost motion, speed), which no URDF holds
+    and the rigid fit does not touch; they do not move the URDF's geometry (fgcal.model.motion)."""
+    if exported is robot or not robot.history:
+        return exported
+    from dataclasses import replace
+
+    from ..model.parameters import is_motion
+
+    history = {name: value for name, value in robot.nominal_parameters().items() if is_motion(name)}
+    return replace(exported, overrides={**exported.nominal_parameters(), **history})
 
 
 def _xacro_inputs(*files: str | None) -> dict[str, Path]:
