@@ -105,6 +105,29 @@ def _cell_file(change: Callable[[dict], None]):
     return lambda root: _edit_yaml(root / "cell.yaml", change)
 
 
+def _xacro(include: str = "$(find arm_pkg)/macro.xacro", call: str = '<xacro:arm prefix=""/>'):
+    """A xacro package ``arm_pkg``: arm.xacro includes macro.xacro (an arm of one joint) and calls it."""
+
+    def apply(root: Path) -> None:
+        (root / "arm_pkg").mkdir()
+        (root / "arm_pkg" / "macro.xacro").write_text(
+            '<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:macro name="arm" params="prefix">'
+            '<link name="${prefix}base_link"/><link name="${prefix}tool0"/>'
+            '<joint name="${prefix}joint_1" type="revolute"><parent link="${prefix}base_link"/>'
+            '<child link="${prefix}tool0"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/>'
+            "</joint></xacro:macro></robot>",
+            encoding="utf-8",
+        )
+        (root / "arm_pkg" / "arm.xacro").write_text(
+            f'<robot name="arm" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:include filename="{include}"/>'
+            f"{call}</robot>",
+            encoding="utf-8",
+        )
+
+    return apply
+
+
+XACRO_FK = ["fk", "arm_pkg/arm.xacro", "0"]
 TWO_LOADS = (
     "MODULE M\nPERS tooldata a:=[TRUE,[[0,0,100],[1,0,0,0]],[1,[0,0,30],[1,0,0,0],0,0,0]];\n"
     "PERS tooldata b:=[TRUE,[[0,0,100],[1,0,0,0]],[2,[0,0,30],[1,0,0,0],0,0,0]];\n"
@@ -131,10 +154,24 @@ CASES = [
     ("robot_unknown_units", _robot(_set("units.length", "furlong")), FK, "robot.yaml", "units"),
     ("robot_gravity_short", _robot(_set("gravity", [0, -9.81])), FK, "robot.yaml", "gravity"),
     ("robot_huge_length", _joint(0, "d", 1e300), FK, "robot.yaml", "joints[0].d"),
+    # joint speed and effort limits, which fgcal export writes to URDF (issue 43, item 2)
+    ("robot_velocity_negative", _joint(1, "velocity", -3), FK, "robot.yaml", "joints[1].velocity"),
+    ("robot_velocity_nan", _joint(1, "velocity", float("nan")), FK, "robot.yaml", "joints[1].velocity"),
+    ("robot_effort_text", _joint(2, "effort", "strong"), FK, "robot.yaml", "joints[2].effort"),
+    ("robot_effort_huge", _joint(2, "effort", 1e300), FK, "robot.yaml", "joints[2].effort"),
     # names fgcal export writes into a URDF (issue 43, item 6)
     ("robot_flange_name_empty", _robot(_set("flange_name", "")), FK, "robot.yaml", "flange_name"),
     ("robot_tip_name_not_xml", _robot(_set("tips", [{"name": "a\ufffe", "joint": 2}])), FK, "robot.yaml", "tips"),
     ("robot_name_not_xml", _robot(_set("name", "arm\uffff")), FK, "robot.yaml", "name"),
+    # a vendor's xacro (issue 43, item 3): fgcal fk and export expand it; what xacro refuses names the file
+    ("xacro_package_missing", _xacro(), [*XACRO_FK, "--package", "arm_pkg=no_such_folder"], "no_such_folder",
+     "--package"),
+    ("xacro_find_unknown_package", _xacro(include="$(find other_pkg)/m.xacro"), XACRO_FK, "arm.xacro", "other_pkg"),
+    ("xacro_unknown_macro", _xacro(call="<xacro:no_such_arm/>"), XACRO_FK, "arm.xacro", "xacro failed"),
+    ("xacro_undefined_property", _xacro(call='<link name="${missing}"/>'), XACRO_FK, "arm.xacro", "xacro failed"),
+    ("xacro_malformed", _xacro(call="<link"), XACRO_FK, "arm.xacro", "xacro failed"),
+    ("xacro_template_fails", _xacro(call="<xacro:no_such_arm/>"),
+     ["export", "abb_irb120", "--urdf", "o.urdf", "--template", "arm_pkg/arm.xacro"], "arm.xacro", "xacro failed"),
     # fgcal compensate (issue 43): --tcp in --length-unit, a program corrected already, loads of several tools
     (
         "tcp_beyond_10_m_in_mm",

@@ -67,6 +67,11 @@ RUNS = {
          "--tip", "flange"],
         ["export", "dual_arm_torso", "--urdf", "{ws}/urdf/dual_arm.urdf"],
         ["fk", "dual_arm_torso", *["0.1"] * 17, "--tip", "right_hand"],
+        ["export", "{ws}/calibrated/calibrated_robot.yaml", "--urdf", "{ws}/urdf/raw.urdf", "--no-rigid-fit"],
+        ["fk", "{ws}/arm_description/urdf/arm.xacro", "0", "0.1", "0", "0.2", "0", "0.3", "0", "--package",
+         "{ws}/arm_description"],
+        ["export", "seven_axis", "--urdf", "{ws}/urdf/from_xacro.urdf", "--template",
+         "{ws}/arm_description/urdf/arm.xacro", "--package", "arm_description={ws}/arm_description"],
         ["compensate", "{ws}/calibrated/calibrated_robot.yaml", "{ws}/PALLET.dat", "--out", "{ws}/PALLET_cal.dat",
          "--tool", "0", "0", "100", "0", "0", "0", "--base", "1000", "0", "0", "0", "0", "0"],
     ],
@@ -185,6 +190,17 @@ def test_use_the_result_as_documented(ws, capsys):
                   for i, ((x, y, z), (a, b, c)) in enumerate(zip(positions, abc, strict=True)))
     )  # fmt: skip
     (ws / "PALLET.dat").write_text("\n".join([*lines, "ENDDAT"]) + "\n")
+    # A vendor-style xacro package: arm.xacro includes $(find arm_description)/urdf/macro.xacro.
+    urdf = (REPO / "datasets" / "robots" / "seven_axis.urdf").read_text()
+    body = urdf[urdf.index(">", urdf.index("<robot")) + 1 : urdf.index("</robot>")]
+    (ws / "arm_description" / "urdf").mkdir(parents=True)
+    (ws / "arm_description" / "urdf" / "macro.xacro").write_text(
+        f'<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:macro name="arm">{body}</xacro:macro></robot>'
+    )
+    (ws / "arm_description" / "urdf" / "arm.xacro").write_text(
+        '<robot name="seven_axis" xmlns:xacro="http://www.ros.org/wiki/xacro">'
+        '<xacro:include filename="$(find arm_description)/urdf/macro.xacro"/><xacro:arm/></robot>'
+    )
     printed = [_run(argv, ws, capsys) for argv in RUNS["use the result"]]
     for name in ("commands.csv", "commands2.csv"):
         rows = [line for line in (ws / name).read_text().splitlines() if not line.startswith("#")][1:]
@@ -198,6 +214,8 @@ def test_use_the_result_as_documented(ws, capsys):
     assert (ws / "commands_mm.csv").read_text().startswith("# commands from fgcal compensate")
     assert "\ntarget,q1_deg," in (ws / "commands_mm.csv").read_text()
     assert "accuracy" in yaml.safe_load((ws / "urdf" / "rigid.compliance.yaml").read_text())
+    assert "rigid fit" in printed[2] and "rigid fit" not in printed[-4]  # the default, and --no-rigid-fit
+    assert "T_W_n" in printed[-3] and "arm.xacro with the calibrated joint origins" in printed[-2]
 
 
 def test_online_as_documented(ws, capsys):

@@ -6,10 +6,15 @@ import argparse
 
 import numpy as np
 
-from .options import real
+from .options import add_package_option, real, xacro_packages
 
 
 def cmd_fk(args: argparse.Namespace) -> int:
+    with xacro_packages(args):
+        return _fk(args)
+
+
+def _fk(args: argparse.Namespace) -> int:
     from ..core.errors import InputError
     from ..model.robot_io import is_urdf_reference, load_robot
 
@@ -46,11 +51,12 @@ def cmd_fk(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fk", help="forward kinematics of a robot (bundled, or a robot file) at one configuration")
-    p.add_argument("robot", help="bundled robot name, robot YAML file or URDF")
+    p.add_argument("robot", help="bundled robot name, robot YAML file, URDF or xacro")
     p.add_argument(
         "--tip", help="tip link of a URDF (default tool0, else its only leaf), or the one tip of a tree to print"
     )
     p.add_argument("q", nargs="+", type=real(-1e6, 1e6, "rad, deg or m"), help="joint angles (rad, or deg with --deg)")
     p.add_argument("--deg", action="store_true", help="joint angles in degrees")
     p.add_argument("--tool", action="store_true", help="tool frame instead of the flange")
+    add_package_option(p)
     p.set_defaults(func=cmd_fk)

@@ -85,3 +85,21 @@ CONFIGURATIONS = integer(1, MAX_CONFIGURATIONS, "configurations")
 
 def count(n: int, noun: str) -> str:
     return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+def add_package_option(p: argparse.ArgumentParser) -> None:
+    """``--package``: where a xacro's ``$(find PKG)`` is, without ROS (fgcal.model.xacro_io)."""
+    p.add_argument(
+        "--package",
+        action="append",
+        metavar="[NAME=]PATH",
+        help="a ROS package's folder, for a xacro's $(find NAME) (PATH alone: the package named as its folder); "
+        "repeat for each. Default: a folder of that name that holds the xacro or sits beside one that does",
+    )
+
+
+def xacro_packages(args: argparse.Namespace):
+    """The context in which a xacro read by the command finds the packages of ``--package``."""
+    from ..model.xacro_io import packages, parse_packages
+
+    return packages(parse_packages(getattr(args, "package", None)))

@@ -76,6 +76,9 @@ class Robot:
     # Body groups whose masses are scaled by a parameter mass.{name}: (name, joints whose
     # links are the group's bodies).
     mass_groups: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    # The controller's joints' speed and effort limits, (moved, 2): rad/s (m/s) and N m (N), NaN
+    # where the robot file states none (None: none stated). Written to URDF, not used in fitting.
+    ratings: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -98,6 +101,7 @@ class Robot:
             ("limits", self.limits, (moved, 2)),
             ("masses", self.masses, (n,)),
             ("coms", self.coms, (n, 3)),
+            *((("ratings", self.ratings, (moved, 2)),) if self.ratings is not None else ()),
         ):
             if np.shape(arr) != shape:
                 raise ValueError(f"{name} has shape {np.shape(arr)}, expected {shape}")

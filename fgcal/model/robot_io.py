@@ -61,7 +61,10 @@ ROBOT_KEYS = (
 )
 DH_KEYS = ("theta", "d", "a", "alpha")
 ORIGIN_KEYS = ("origin", "axis", "type")
-JOINT_KEYS = (*DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "coupling", "direction", "limits", "mass", "com")
+JOINT_KEYS = (
+    *DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "coupling", "direction", "limits", "velocity", "effort", "mass",
+    "com",
+)  # fmt: skip
 CONVENTIONS = ("standard", "modified")
 # DH: the SPEC's (standard) or Craig's (modified)
 MAX_MOTION_TERM = float(np.radians(1.0))  # |lm|, |lv| in a robot file (SI)
@@ -82,7 +85,7 @@ def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
     path = Path(name_or_path)
     if path.suffix.lower() not in ROBOT_FILE_SUFFIXES and (robots_dir() / f"{name_or_path}.urdf").exists():
         path = robots_dir() / f"{name_or_path}.urdf"  # a bundled URDF robot
-    if path.suffix.lower() == ".urdf":
+    if path.suffix.lower() in URDF_SUFFIXES:  # a URDF, or a vendor's xacro expanded (fgcal.model.xacro_io)
         from .urdf_io import load_urdf
 
         return load_urdf(path, tip)
@@ -98,14 +101,15 @@ def load_robot(name_or_path: str | Path, tip: str | None = None) -> Robot:
     return parse_robot(read_yaml(path), path)
 
 
-ROBOT_FILE_SUFFIXES = (".yaml", ".yml", ".urdf")
+URDF_SUFFIXES = (".urdf", ".xacro")
+ROBOT_FILE_SUFFIXES = (".yaml", ".yml", *URDF_SUFFIXES)
 
 
 def is_urdf_reference(name_or_path: str | Path) -> bool:
     """A URDF file, or a bundled robot given by a URDF (as load_robot resolves it)."""
     path = Path(name_or_path)
     if path.suffix.lower() in ROBOT_FILE_SUFFIXES:
-        return path.suffix.lower() == ".urdf"
+        return path.suffix.lower() in URDF_SUFFIXES
     return (robots_dir() / f"{name_or_path}.urdf").exists()
 
 
@@ -133,8 +137,8 @@ def robot_reference(
         entry = Fields(raw, source or "<robot>", field)
         entry.check_keys(("file", "tip"))
         file = entry.string("file")
-        if Path(file).suffix.lower() != ".urdf":
-            raise entry.error("file", f"a tip link names a link of a URDF file, got {file!r}")
+        if Path(file).suffix.lower() not in URDF_SUFFIXES:
+            raise entry.error("file", f"a tip link names a link of a URDF (or xacro) file, got {file!r}")
         return {"file": resolved(file), "tip": entry.string("tip")}
     raise InputError(
         source, field, f"expected a bundled robot's name, a robot file or {{file: ARM.urdf, tip: LINK}}, got {raw!r}"
@@ -204,7 +208,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     joints = doc.sub_list("joints")
     if not joints:
         raise doc.error("joints", "a robot needs at least one joint")
-    geometries, directions, limits, masses, coms, parents, coupled = [], [], [], [], [], [], []
+    geometries, directions, limits, masses, coms, parents, coupled, ratings = [], [], [], [], [], [], [], []
     for number, joint in enumerate(joints, start=1):
         joint.check_keys(JOINT_KEYS)
         # A tree: the joint (1-based) whose link this one hangs from, 0 the base; default the one before.
@@ -224,6 +228,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         if not lim[0] < lim[1]:
             raise joint.error("limits", "lower limit must be below upper limit")
         limits.append(lim)
+        ratings.append(_ratings(joint, units.to_m if geometry.prismatic else units.to_rad))
     followers = {k for k, _, _ in coupled}
     for k, sources, _ in coupled:
         for leader, _ in sources:
@@ -274,16 +279,35 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         ),
         coupled=tuple(coupled),
         mass_groups=mass_groups,
+        ratings=np.array(ratings) if np.isfinite(ratings).any() else None,
         **_tree(doc, units, parents),
     )
+
+
+MAX_RATING = 1e6  # rad/s, m/s, N m or N: beyond is a typo, not a robot
+
+
+def _ratings(joint: Fields, to_si: float) -> tuple[float, float]:
+    """``velocity`` (the file's angle or length unit per second) and ``effort`` (N m, or N for a
+    prismatic joint) of a joint, SI; NaN where not stated."""
+    out = []
+    for key, scale in (("velocity", to_si), ("effort", 1.0)):
+        if not joint.has(key):
+            out.append(float("nan"))
+            continue
+        value = joint.number(key, positive=True)
+        if not np.isfinite(value) or value > MAX_RATING:
+            raise joint.error(key, f"must be finite, up to {MAX_RATING:g}, got {value!r}")
+        out.append(value * scale)
+    return out[0], out[1]
 
 
 def _coupling(joint: Fields, number: int, n: int, to_si: float) -> tuple[int, tuple[tuple[int, float], ...], float]:
     """A coupled joint's ``coupling: {joints: [..], coefficients: [..], offset}``: its value is
     ``sum c_i q_i + offset`` of the joints (1-based) it follows; it has no direction or limits."""
-    for key in ("direction", "limits"):
+    for key in ("direction", "limits", "velocity", "effort"):
         if joint.has(key):
-            raise joint.error(key, "a coupled joint follows others: its direction and limits are theirs")
+            raise joint.error(key, f"a coupled joint follows others: its {key} is theirs")
     entry = joint.sub("coupling")
     entry.check_keys(("joints", "coefficients", "offset"))
     sources = entry.items("joints")
@@ -400,8 +424,8 @@ def _urdf_origin(doc: Fields, source: Path) -> tuple[str, str] | None:
     entry = doc.sub("urdf")
     entry.check_keys(("file", "tip"))
     file = entry.string("file")
-    if Path(file).suffix.lower() != ".urdf":
-        raise entry.error("file", f"a URDF file's name ends in .urdf, got {file!r}")
+    if Path(file).suffix.lower() not in URDF_SUFFIXES:
+        raise entry.error("file", f"a URDF file's name ends in .urdf (a xacro's in .xacro), got {file!r}")
     return str((source.parent / file).resolve()), entry.string("tip")
 
 
@@ -471,6 +495,10 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
             column = next(columns)
             entry["direction"] = int(robot.directions[column])
             entry["limits"] = [float(v) for v in robot.limits[column]]
+            if robot.ratings is not None:
+                for key, value in zip(("velocity", "effort"), robot.ratings[column], strict=True):
+                    if np.isfinite(value):
+                        entry[key] = float(value)
         entry.update({"mass": float(robot.masses[i - 1]), "com": [float(v) for v in robot.coms[i - 1]]})
         joints.append(entry)
     doc = {

@@ -33,6 +33,12 @@ from .joints import OriginJoint
 from .robot import Robot
 
 TINY = 1e-12  # m or rad: below this a value is written as 0
+# What fgcal's own layout writes where the robot file states nothing: URDF readers need non-zero
+# joint speed and effort limits (MoveIt's time parameterisation divides by the speed, a simulator
+# clamps the effort) and a positive definite inertia (Gazebo rejects zero).
+PLACEHOLDER_VELOCITY = 1.0  # rad/s (m/s for a prismatic joint)
+PLACEHOLDER_EFFORT = 1000.0  # N m (N)
+INERTIA_DENSITY = 2700.0  # kg/m^3 (aluminium): a link's inertia is a solid sphere of its mass of this density
 
 
 def number(value: float) -> str:
@@ -127,13 +133,22 @@ def joint_frames(robot: Robot) -> dict:
 # -- a robot without a URDF of its own --------------------------------------------------------
 
 
+def sphere_inertia(mass: float) -> float:
+    """The principal moment (kg m^2) of a uniform solid sphere of ``mass`` at INERTIA_DENSITY about
+    its centre, 2/5 m r^2: a stand-in where the robot file gives a mass and a centre of mass only."""
+    radius = (3.0 * mass / (4.0 * np.pi * INERTIA_DENSITY)) ** (1.0 / 3.0)
+    return 0.4 * mass * radius**2
+
+
 def _link_xml(name: str, mass: float = 0.0, com: np.ndarray | None = None) -> str:
     if mass <= 0.0:
         return f"  <link name={quoteattr(name)}/>"
+    inertia = number(sphere_inertia(mass))
     return (
         f"  <link name={quoteattr(name)}>\n"
         f'    <inertial>\n      <origin xyz="{_vector(com)}" rpy="0 0 0"/>\n      <mass value="{number(mass)}"/>\n'
-        '      <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>\n    </inertial>\n  </link>'
+        f'      <inertia ixx="{inertia}" ixy="0" ixz="0" iyy="{inertia}" iyz="0" izz="{inertia}"/>\n'
+        "    </inertial>\n  </link>"
     )
 
 
@@ -153,7 +168,12 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
         '<?xml version="1.0"?>',
         _comment(
             f"Written by fgcal from {robot.name}. Joint values are the controller's (rad, m); the calibrated "
-            "geometry is folded into the joint origins and axes. Inertia tensors are not modelled (zero)."
+            "geometry is folded into the joint origins and axes."
+        ),
+        _comment(
+            "Inertias: each link's mass at its centre of mass as a uniform solid sphere of density "
+            f"{INERTIA_DENSITY:g} kg/m^3 (aluminium; I = 2/5 m r^2 about each axis): a stand-in that keeps simulators "
+            "stable, not identified. Joint limits (lower, upper) are the robot file's" + _ratings_note(robot)
         ),
     ]
     if sidecar:
@@ -174,6 +194,7 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
         parts.append(_link_xml(link, float(masses[i]), com_in_joint[:3]))
         kind = "prismatic" if robot.joints[i].prismatic else "revolute"
         low, high = _joint_range(robot, i)
+        velocity, effort = _rating(robot, i)
         follows = ""
         if i in coupled and len(coupled[i]) == 1:
             ((leader, c),) = coupled[i]
@@ -189,7 +210,8 @@ def urdf_document(robot: Robot, sidecar: str | None = None) -> str:
             f'    <parent link="{parent}"/>\n    <child link="{link}"/>\n'
             f"    {_origin_xml(inverse(T_parent) @ f['origins'][i])}\n"
             f'    <axis xyz="{_vector(_unit(f["axes"][i]))}"/>\n'
-            f'    <limit lower="{number(low)}" upper="{number(high)}" effort="0" velocity="0"/>{follows}\n'
+            f'    <limit lower="{number(low)}" upper="{number(high)}" effort="{number(effort)}" '
+            f'velocity="{number(velocity)}"/>{follows}\n'
             "  </joint>"
         )
     tip_links = tip_link_names(robot)
@@ -228,6 +250,37 @@ def tip_link_names(robot: Robot) -> dict[str, str]:
     return out
 
 
+def _rating(robot: Robot, link: int) -> tuple[float, float]:
+    """A joint's speed and effort limits: the robot file's, else the placeholders (a coupled joint's too)."""
+    (first, *_), _ = robot.drives[link]
+    stated = (np.nan, np.nan)
+    if robot.ratings is not None and link not in {k for k, _, _ in robot.coupled}:
+        stated = robot.ratings[first[0]]
+    velocity = float(stated[0]) if np.isfinite(stated[0]) else PLACEHOLDER_VELOCITY
+    effort = float(stated[1]) if np.isfinite(stated[1]) else PLACEHOLDER_EFFORT
+    return velocity, effort
+
+
+def _ratings_note(robot: Robot) -> str:
+    """What the URDF comment says of the joints' effort and velocity limits."""
+    stated = np.zeros((robot.n_links, 2), dtype=bool)
+    if robot.ratings is not None:
+        for i in range(robot.n_links):
+            if i not in {k for k, _, _ in robot.coupled}:
+                stated[i] = np.isfinite(robot.ratings[robot.drives[i][0][0][0]])
+    placeholder = (
+        f"PLACEHOLDERS ({PLACEHOLDER_EFFORT:g} N m or N, {PLACEHOLDER_VELOCITY:g} rad/s or m/s): the robot file "
+        "states none, take your robot's from its data sheet"
+    )
+    if stated.all():
+        return ", and so are effort and velocity."
+    if not stated.any():
+        return f"; effort and velocity are {placeholder}."
+    missing = [f"joint_{i + 1} {kind}" for i in range(robot.n_links) for kind, ok in
+               zip(("velocity", "effort"), stated[i], strict=True) if not ok]  # fmt: skip
+    return f", and so are effort and velocity, but for {', '.join(missing)}: {placeholder}."
+
+
 def _joint_range(robot: Robot, link: int) -> tuple[float, float]:
     """The URDF joint's range: the controller's limits, or for a coupled joint the range of
     sum c_i q_i + c_0 over its leaders' limits."""
@@ -252,64 +305,187 @@ def _moving_chain(template: Path, tip: str) -> tuple[list, str]:
     return chain, root
 
 
-def _check_template(robot: Robot, template: Path, tip: str) -> None:
-    """The template must be this robot's URDF: the same joints, origins, axes and tip."""
+SAME_ROBOT_M = 1e-9  # a template is the robot's URDF when its FK is the nominal model's to this (m, and rotation)
+SAME_ROBOT_CONFIGURATIONS = 32  # seeded configurations within the limits at which the FK is compared
+
+
+def _motion(joint, value: float) -> np.ndarray:
+    axis = np.asarray(joint.axis, dtype=float) / np.linalg.norm(joint.axis)
+    T = np.eye(4)
+    if joint.type == "prismatic":
+        T[:3, 3] = value * axis
+    else:
+        T[:3, :3] = so3_exp(value * axis)
+    return T
+
+
+def _template_fk(chain: list, root: str, tip: str, q: np.ndarray) -> np.ndarray:
+    """The tip link's pose in the root link's frame at joint values ``q`` (the chain's moving joints)."""
+    placed, k = {root: np.eye(4)}, 0
+    for joint in chain:
+        T = placed[joint.parent] @ joint.origin
+        if joint.type != "fixed":
+            T = T @ _motion(joint, q[k])
+            k += 1
+        placed[joint.child] = T
+    return placed[tip]
+
+
+def _is_own_urdf(robot: Robot, template: Path, tip: str) -> bool:
+    """The robot was read from this URDF: its joints are the template's (origins, axes, kinds)."""
     from .urdf_io import load_urdf
 
     nominal = load_urdf(template, tip)
-    if nominal.n_joints != robot.n_joints or not all(
-        isinstance(mine, OriginJoint)
-        and mine.prismatic == theirs.prismatic
-        and np.allclose(mine.origin, theirs.origin, atol=1e-9)
-        and np.allclose(mine.axis, theirs.axis, atol=1e-9)
-        for mine, theirs in zip(robot.joints, nominal.joints, strict=False)
+    return (
+        nominal.n_joints == robot.n_joints
+        and all(
+            isinstance(mine, OriginJoint)
+            and mine.prismatic == theirs.prismatic
+            and np.allclose(mine.origin, theirs.origin, atol=1e-9)
+            and np.allclose(mine.axis, theirs.axis, atol=1e-9)
+            for mine, theirs in zip(robot.joints, nominal.joints, strict=False)
+        )
+        and np.allclose(robot.flange_pose, nominal.flange_pose, atol=1e-9)
+    )
+
+
+def _body_offsets(robot: Robot, template: Path, tip: str, nominal: Robot | None) -> tuple[list, str, list]:
+    """The template's chain, its root, and for each of its moving joints the template's link frame
+    in fgcal's joint frame (``C_i``: constant, both frames on the same body).
+
+    A robot read from this URDF: ``C_i`` is the identity. Any other (a DH robot and the vendor's
+    URDF of it): ``nominal`` is the robot's nominal model, whose FK the template's must equal at
+    seeded configurations within the limits (SAME_ROBOT_M); then ``C_i`` is read off both at the
+    nominal values, and each joint's axis in the template must be fgcal's joint axis (the same line)."""
+    chain, root = _moving_chain(template, tip)
+    moving = [joint for joint in chain if joint.type != "fixed"]
+    if _is_own_urdf(robot, template, tip):
+        return chain, root, [np.eye(4)] * len(moving)
+    refusal = f"is not the URDF {robot.name} was described by, nor a URDF of the same robot"
+    if nominal is None:
+        raise InputError(template, "joints", f"{refusal}: give the robot's nominal model (--nominal) to compare")
+    if (
+        len(moving) != robot.n_links
+        or nominal.n_links != robot.n_links
+        or any(type(a) is not type(b) for a, b in zip(robot.joints, nominal.joints, strict=False))
+        or any(joint.mimic for joint in moving)
+        or any((joint.type == "prismatic") != robot.joints[i].prismatic for i, joint in enumerate(moving))
     ):
         raise InputError(
-            template, "joints", f"is not the URDF {robot.name} was described by: its chain to {tip} has other joints "
-            "(fgcal export writes the calibration into the robot's own URDF)",
+            template, "joints", f"{refusal}: its chain to {tip} has {len(moving)} moving joints of other kinds "
+            f"than {robot.name}'s {robot.n_links} (fgcal export writes the calibration into the robot's own URDF)",
         )  # fmt: skip
-    if not np.allclose(robot.flange_pose, nominal.flange_pose, atol=1e-9):
-        raise InputError(template, tip, f"the fixed joints up to {tip} differ from {robot.name}'s flange")
+    from .rigid_fit import without_compliances
+
+    rigid = without_compliances(nominal)
+    fn = joint_frames(rigid)
+    base = fn["base"]
+    low = np.maximum(rigid.limits[:, 0], -np.pi)
+    high = np.minimum(rigid.limits[:, 1], np.pi)
+    q = np.random.default_rng(0).uniform(low, high, (SAME_ROBOT_CONFIGURATIONS, rigid.n_joints))
+    q = np.vstack([np.zeros(rigid.n_joints), q])
+    expected = inverse(base) @ rigid.fk(q)  # the flange in the base frame 0, which the template's root is
+    got = np.array([_template_fk(chain, root, tip, row) for row in q])
+    gap = np.abs(got - expected).max()
+    if not gap <= SAME_ROBOT_M:
+        raise InputError(
+            template, "joints", f"{refusal}: its {tip} is up to {gap:.3g} (m, or in rotation) from {nominal.name}'s "
+            f"flange over {len(q)} configurations (compared within {SAME_ROBOT_M:g}); its chain to {tip} has other "
+            "joints (fgcal export writes the calibration into the robot's own URDF)",
+        )  # fmt: skip
+    offsets, placed, k = [], {root: np.eye(4)}, 0
+    for joint in chain:
+        placed[joint.child] = placed[joint.parent] @ joint.origin
+        if joint.type == "fixed":
+            continue
+        C = inverse(inverse(base) @ fn["joints"][k]) @ placed[joint.child]
+        axis = C[:3, :3].T @ fn["axes"][k]
+        theirs = np.asarray(joint.axis, dtype=float) / np.linalg.norm(joint.axis)
+        off_line = C[:3, 3] - (C[:3, 3] @ fn["axes"][k]) * fn["axes"][k]
+        if np.abs(axis - theirs).max() > SAME_ROBOT_M or (
+            joint.type != "prismatic" and np.linalg.norm(off_line) > SAME_ROBOT_M
+        ):
+            raise InputError(template, f"joint {joint.name}", f"{refusal}: its axis is not joint {k + 1}'s")
+        offsets.append(C)
+        k += 1
+    return chain, root, offsets
 
 
-def faithful_document(robot: Robot, template: Path, tip: str, sidecar: str | None = None):
-    """The lxml tree of ``template`` (the robot's own URDF) with the calibrated origins of the
-    moving joints between its root and ``tip``, and those joints' names; nothing else of the
-    document changes. The root link is the robot's base frame 0; fixed joints keep their origins."""
+def faithful_document(robot: Robot, template: Path, tip: str, sidecar: str | None = None, nominal: Robot | None = None):
+    """The lxml tree of ``template`` (the robot's own URDF, or a URDF of the same robot: the same
+    FK as ``nominal``) with the calibrated origins of the moving joints between its root and
+    ``tip``, and those joints' names; nothing else of the document changes, but where the
+    calibration moved the flange off the last joint's axis, the origin of the first fixed joint
+    after it. The root link is the robot's base frame 0; fixed joints keep their origins."""
     from lxml import etree
 
     from .urdf_io import read_document
 
-    _check_template(robot, template, tip)
+    chain, root_link, offsets = _body_offsets(robot, template, tip, nominal)
     tree = read_document(template)
-    chain, root_link = _moving_chain(template, tip)
     f = joint_frames(robot)
+    # Each moving joint's link frame, calibrated: the same body frame as in the template (C_i), on
+    # the calibrated joint frame.
+    links = [f["joints"][k] @ C for k, C in enumerate(offsets)]
+    axes = [C[:3, :3].T @ f["axes"][k] for k, C in enumerate(offsets)]
+    last = max(i for i, joint in enumerate(chain) if joint.type != "fixed")
+    tail = chain[last + 1 :]
+    F = np.eye(4)
+    for joint in tail:
+        F = F @ joint.origin
+    # What the calibration moved the flange by, in the last link's frame: a turn about its axis or
+    # a shift along it is the link's own (its zero); the rest goes into the first fixed joint after it.
+    delta = inverse(links[-1]) @ f["flange"] @ inverse(F)
+    flange_joint, flange_delta = None, None
+    if np.abs(delta - np.eye(4)).max() > TINY:
+        a = _unit(axes[-1])
+        along = chain[last].type == "prismatic" or np.linalg.norm(np.cross(delta[:3, 3], a)) < TINY
+        if np.abs(delta[:3, :3] @ a - a).max() < TINY and along:
+            links[-1] = links[-1] @ delta
+        elif tail:
+            flange_joint, flange_delta = tail[0].name, delta
+        else:
+            raise InputError(template, tip, f"the calibrated flange is off joint {robot.n_links}'s axis, and no "
+                             f"fixed joint after it can carry that: add one (a flange link) to the URDF")  # fmt: skip
     elements = {element.get("name"): element for element in tree.getroot().findall("joint")}
     placed = {root_link: f["base"]}  # W pose of each chain link in the new document
     moving = 0
     for joint in chain:
         parent = placed[joint.parent]
         if joint.type == "fixed":
-            placed[joint.child] = parent @ joint.origin
+            if joint.name == flange_joint:
+                origin = flange_delta @ joint.origin
+                element = elements[joint.name].find("origin")
+                if element is None:
+                    element = etree.SubElement(elements[joint.name], "origin")
+                for key, text in origin_attributes(origin).items():
+                    element.set(key, text)
+                placed[joint.child] = parent @ origin
+            else:
+                placed[joint.child] = parent @ joint.origin
             continue
-        J = f["joints"][moving]
+        L = links[moving]
         element = elements[joint.name]
         origin = element.find("origin")
         if origin is None:  # the default identity origin, now a calibrated one
             origin = etree.SubElement(element, "origin")
-        for key, text in origin_attributes(inverse(parent) @ J).items():
+        for key, text in origin_attributes(inverse(parent) @ L).items():
             origin.set(key, text)
-        axis = element.find("axis")
-        if axis is not None or not np.allclose(f["axes"][moving], [1.0, 0.0, 0.0], atol=TINY):
+        theirs = np.asarray(joint.axis, dtype=float) / np.linalg.norm(joint.axis)
+        if np.abs(_unit(axes[moving]) - theirs).max() > TINY:  # a calibrated axis (distortions)
+            axis = element.find("axis")
             if axis is None:
                 axis = etree.SubElement(element, "axis")
-            axis.set("xyz", _vector(_unit(f["axes"][moving])))
-        placed[joint.child] = J
+            axis.set("xyz", _vector(_unit(axes[moving])))
+        placed[joint.child] = L
         moving += 1
     tip_pose = placed[tip]
     if not np.allclose(tip_pose, f["flange"], atol=1e-9):  # the fixed joints to the tip are the robot's flange
         raise ValueError(f"the exported chain misses the flange by {np.abs(tip_pose - f['flange']).max():.3g}")
-    note = f"Calibrated by fgcal: the origins of the joints from {root_link} to {tip} carry the calibration."
+    note = f"Calibrated by fgcal: the origins of the joints from {root_link} to {tip} carry the calibration"
+    if flange_joint is not None:
+        note += f"; the origin of {flange_joint}, the flange's tilt or shift off joint {robot.n_links}'s axis"
+    note += "."
     if sidecar:
         note += f" Compliances and the robot's placement: {sidecar}"
     tree.getroot().addprevious(etree.Comment(" " + note.replace("--", "- -") + " "))
@@ -413,7 +589,11 @@ def check_outputs(path: str | Path, field: str | None = None) -> tuple[Path, Pat
 
 
 def export_urdf(
-    robot: Robot, path: str | Path, template: str | Path | None = None, accuracy: dict | None = None
+    robot: Robot,
+    path: str | Path,
+    template: str | Path | None = None,
+    accuracy: dict | None = None,
+    nominal: Robot | None = None,
 ) -> tuple[Path, Path]:
     """Write ``path`` (URDF) and its compliance sidecar beside it (``<stem>.compliance.yaml``,
     with ``accuracy``: what the URDF keeps, SI). A robot that came from a URDF (or
@@ -428,7 +608,7 @@ def export_urdf(
         text, names = urdf_document(robot, sidecar.name), None
     else:
         file, tip = source
-        tree, names = faithful_document(robot, file, tip, sidecar.name)
+        tree, names = faithful_document(robot, file, tip, sidecar.name, nominal)
         text = serialise(tree)
     write_text(path, text)
     document = compliance_document(robot, path.name, names)

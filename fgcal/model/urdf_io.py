@@ -1,6 +1,7 @@
 """URDF in and out.
 
-Reading: the file is parsed (lxml, well-formed XML only) and checked (:func:`read_document`),
+Reading: the file (a ``*.xacro`` expanded first: fgcal.model.xacro_io) is parsed (lxml,
+well-formed XML only) and checked (:func:`read_document`),
 then read into a small model of its own (:func:`_parse`: links with their mass and centre of
 mass, joints with type, parent, child, origin, axis, limits and mimic), with the URDF defaults:
 no ``<origin>`` is the identity, a missing ``xyz`` or ``rpy`` is zeros, ``rpy`` is fixed-axis
@@ -31,6 +32,7 @@ from ..core.fields import read_file_text
 from ..core.se3 import pose_from_xyz_rpy
 from .joints import OriginJoint
 from .robot import Robot
+from .xacro_io import expand, is_xacro
 
 MOVING = ("revolute", "continuous", "prismatic")
 CONTINUOUS_LIMITS_RAD = (-2 * np.pi, 2 * np.pi)
@@ -41,7 +43,10 @@ def read_document(path: Path):
     an invalid document is an InputError."""
     from lxml import etree
 
-    text = read_file_text(path)  # a regular file of a sane size (not a FIFO, not /dev/zero)
+    if is_xacro(path):  # a vendor's xacro, expanded (fgcal.model.xacro_io)
+        text, _ = expand(path)
+    else:
+        text = read_file_text(path)  # a regular file of a sane size (not a FIFO, not /dev/zero)
     # Well-formed XML only (no recovery from broken XML), without entities or network access.
     try:
         tree = etree.ElementTree(
