@@ -80,26 +80,33 @@ def aux_blocks(stage: StageGraph) -> dict[str, slice]:
 def reduced_jacobian(stage: StageGraph) -> tuple[np.ndarray, np.ndarray]:
     """Whitened Jacobians of the measurement residuals (no robust loss) w.r.t. the released
     parameters and the auxiliary unknowns, at the stage's values: (rows x m), (rows x n_aux)."""
-    aux_offsets, offset = {}, 0
-    for name, (key, dim) in stage.dims.items():
-        if name != "P":
-            aux_offsets[key] = offset
-            offset += dim
+    J_p, J_aux, _ = whitened_system(stage, robust=False)
+    return J_p, J_aux
+
+
+def whitened_system(stage: StageGraph, robust: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stage's whitened measurement rows at its values (through the robust loss if
+    ``robust``): the Jacobians w.r.t. the released parameters (rows x m) and the auxiliary
+    unknowns (rows x n_aux, in aux_blocks' order), and the residuals (rows,)."""
+    blocks = aux_blocks(stage)
+    columns = {stage.dims[name][0]: block for name, block in blocks.items()}
     # Filled in place: the stacked Jacobian is the largest array of the analysis.
     n_rows = sum(measurements.n_rows for measurements in stage.measurements)
     J_p = np.zeros((n_rows, stage.kinematics.n_released))
-    J_aux = np.zeros((n_rows, offset))
+    J_aux = np.zeros((n_rows, sum(block.stop - block.start for block in blocks.values())))
+    b = np.zeros(n_rows)
     first = 0
     for measurements in stage.measurements:
-        evaluation = measurements.whitened(measurements.read(stage.values), True, robust=False)
+        evaluation = measurements.whitened(measurements.read(stage.values), True, robust=robust)
         rows = slice(first, first + measurements.n_rows)
-        for block, (key, _, dim) in zip(evaluation.blocks, measurements.variables, strict=True):
+        b[rows] = evaluation.residual
+        for block, (key, _, _) in zip(evaluation.blocks, measurements.variables, strict=True):
             if key == stage.keys.params:
                 J_p[rows] += block
             else:
-                J_aux[rows, aux_offsets[key] : aux_offsets[key] + dim] += block
+                J_aux[rows, columns[key]] += block
         first = rows.stop
-    return J_p, J_aux
+    return J_p, J_aux, b
 
 
 def analyse(stage: StageGraph, min_information: float = 1.0, priors: Priors | None = None) -> Identifiability:
@@ -325,26 +332,8 @@ def evidence_against_fixing(
     |r| times its plausible deviation over sqrt(variance_factor), at least ``min_information``. A
     direction the others (nearly) reproduce, such as a base tilt the tracker's pose takes but for
     the gravity it turns, has no evidence either way (omitted): z of a vanishing |r| is noise."""
-    n_rows = sum(m.n_rows for m in stage.measurements)
-    aux_offsets, offset = {}, 0
-    for name, (key, dim) in stage.dims.items():
-        if name != "P":
-            aux_offsets[key] = offset
-            offset += dim
-    J_p = np.zeros((n_rows, stage.kinematics.n_released))
-    J_aux = np.zeros((n_rows, offset))
-    b = np.zeros(n_rows)
-    first = 0
-    for measurements in stage.measurements:
-        evaluation = measurements.whitened(measurements.read(stage.values), True)
-        rows = slice(first, first + measurements.n_rows)
-        b[rows] = evaluation.residual
-        for block, (key, _, dim) in zip(evaluation.blocks, measurements.variables, strict=True):
-            if key == stage.keys.params:
-                J_p[rows] += block
-            else:
-                J_aux[rows, aux_offsets[key] : aux_offsets[key] + dim] += block
-        first = rows.stop
+    J_p, J_aux, b = whitened_system(stage, robust=True)
+    n_rows = len(b)
     kinematics = stage.kinematics
     moments = kinematics.data(kinematics.base[kinematics.index]).moments
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))

@@ -4,18 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from ..core.console import say
+from .options import converted
 
 
 def cmd_convert_faro(args: argparse.Namespace) -> int:
-    from ..calibration.suggest import write_dataset_config
-    from ..data.dataset import load_dataset
     from ..data.faro import convert_faro
 
-    counts = convert_faro(args.src, args.out)
-    say(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-    config = write_dataset_config(load_dataset(args.out), "fgcal convert-faro")
-    say(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
+    converted(args.out, convert_faro(args.src, args.out), "fgcal convert-faro")
     return 0
 
 

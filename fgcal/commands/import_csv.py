@@ -4,18 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from ..core.console import say
+from .options import converted
 
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
-    from ..calibration.suggest import write_dataset_config
     from ..data.csv_import import import_tables
-    from ..data.dataset import load_dataset
 
-    counts = import_tables(args.mapping, args.out)
-    say(f"wrote {args.out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-    config = write_dataset_config(load_dataset(args.out), "fgcal import-csv")
-    say(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
+    converted(args.out, import_tables(args.mapping, args.out), "fgcal import-csv")
     return 0
 
 

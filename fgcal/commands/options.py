@@ -83,6 +83,18 @@ LENGTH_M = real(-10.0, 10.0, "m")
 CONFIGURATIONS = integer(1, MAX_CONFIGURATIONS, "configurations")
 
 
+def converted(out: str, counts: dict, command: str) -> None:
+    """After a converter wrote a dataset: its row counts, and the calibration config written
+    beside it (the formulation reading what it measured, in its units), as simulate does."""
+    from ..calibration.suggest import write_dataset_config
+    from ..core.console import say
+    from ..data.dataset import load_dataset
+
+    say(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    config = write_dataset_config(load_dataset(out), command)
+    say(f"  calibration config: {config} (fgcal calibrate {config} --out REPORT)")
+
+
 def count(n: int, noun: str) -> str:
     return f"{n} {noun}{'' if n == 1 else 's'}"
 
