@@ -460,3 +460,13 @@ def test_inline_targets_are_listed_not_silently_kept(tmp_path):
     assert len(expected) == 3 and len(notes) == 1, (expected, notes)
     shown = ", ".join(map(str, expected))
     assert notes[0].startswith(f"3 motions with a target written inline ([[x, y, z], ...]; lines {shown})"), notes
+
+
+@pytest.mark.parametrize("value", ["1e300", "-2E11"])
+def test_a_krl_number_beyond_any_place_is_refused_as_in_rapid(tmp_path, value):
+    """Issue 43, item 5: KRL's X 1e300 was read, and the target left as it was with a status,
+    where RAPID refuses any number beyond 1e10."""
+    path = tmp_path / "p.dat"
+    path.write_text(f"DEFDAT P\nDECL E6POS XP1={{X {value},Y 0,Z 1500,A 0,B 90,C 0,S 2,T 2}}\nENDDAT\n")
+    with pytest.raises(InputError, match=rf"line 2, XP1: X: '{value}' is out of range \(beyond 1e\+10\)"):
+        read_program(path)

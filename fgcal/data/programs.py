@@ -651,8 +651,8 @@ def _krl_real(key: str, text: str, fail: _Fail) -> float:
     if _KRL_REAL.fullmatch(text) is None:
         raise fail(f"{key}: {text!r} is not a number")
     value = float(re.sub(r"\s+", "", text))
-    if not math.isfinite(value):
-        raise fail(f"{key}: {text!r} is out of range")
+    if not math.isfinite(value) or abs(value) > MAX_VALUE:  # as RAPID's: X 1e300 is a typo, not a place
+        raise fail(f"{key}: {text!r} is out of range (beyond {MAX_VALUE:g})")
     return value
 
 
