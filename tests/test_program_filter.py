@@ -258,3 +258,17 @@ def test_the_base_frame_does_not_move_with_the_tools_load(irb120):
     heavy = filter_targets(robot, irb120.nominal, poses, configs, "rapid", Frames(tools, tools, 3.0, np.zeros(3)))
     np.testing.assert_array_equal(light.controller_in_W, heavy.controller_in_W)
     assert heavy.payload_mass_kg == 3.0 and np.all(heavy.correction_m != light.correction_m)
+
+
+def test_a_krl_axis_found_a_turn_out_is_taken_back():
+    """An engineer's trial: KRL's T gives each axis's sign only, and A6 came out at 379.6 deg
+    where 19.6 is the same pose with the same sign (flagged as outside the calibrated region)."""
+    from fgcal.data.program_filter import _least_turn
+    from fgcal.model.robot_io import load_robot
+
+    robot = load_robot("abb_irb120")  # A6 +-400 deg
+    q = np.radians([[10.0, 20.0, -30.0, 40.0, 50.0, 379.6], [10.0, 20.0, -30.0, 40.0, 50.0, -340.0]])
+    turned = _least_turn(robot, q)
+    assert np.allclose(np.degrees(turned[0]), [10.0, 20.0, -30.0, 40.0, 50.0, 19.6])
+    assert np.array_equal(turned[1], q[1])  # 20 deg would change the sign T names: kept
+    assert np.allclose(robot.fk(turned), robot.fk(q), atol=1e-12)

@@ -167,7 +167,24 @@ def controller_ik(
         for row, target in enumerate(todo):
             if solved.status[row] in SOLVED and _consistent(configs[target], exact[row], below[row], above[row]):
                 q[target], found[target] = solved.q[row], True
+    if kind == "krl":
+        q = _least_turn(nominal, q)
     return q, found
+
+
+def _least_turn(nominal: Robot, q: np.ndarray) -> np.ndarray:
+    """KRL's T gives each axis's sign, not its turn: an axis found a whole turn out (A6 at 379.6
+    deg where 19.6 is the same pose, the same sign and within the range) is taken back, so that the
+    corrected target keeps the turn the controller uses (found by an engineer's trial: the turn-out
+    solution also read as outside the calibrated region)."""
+    out = q.copy()
+    revolute = ~np.asarray(nominal.prismatic, dtype=bool)
+    low, high = nominal.limits[:, 0], nominal.limits[:, 1]
+    for shift in (-2 * np.pi, 2 * np.pi):
+        moved = out + shift * revolute
+        closer = (np.abs(moved) < np.abs(out)) & (np.sign(moved) == np.sign(out))
+        out = np.where(closer & (moved >= low) & (moved <= high), moved, out)
+    return out
 
 
 def _consistent(wanted: dict[str, int], exact: dict, below: dict, above: dict) -> bool:
