@@ -16,7 +16,16 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from ..model.parameters import COMPLIANCE_KINDS, MASS_KIND, MOTION_KINDS, is_mass, is_motion, kind_label, split_name
+from ..model.parameters import (
+    COMPLIANCE_KINDS,
+    MASS_KIND,
+    MOTION_KINDS,
+    is_mass,
+    is_motion,
+    kind_label,
+    moment_column,
+    split_name,
+)
 from .graph import StageGraph
 from .priors import Priors
 
@@ -49,9 +58,9 @@ def parameter_scale(name: str, moments_rms: np.ndarray) -> float:
     """Plausible deviation of a parameter: 1 cm for lengths, 10 mrad for angles and, for a
     compliance, the value that deflects its joint by 10 mrad at the RMS gravity moment of
     its component over the data (so the scale suits a 3 kg arm and a 125 kg arm alike)."""
-    kind, joint = split_name(name)
+    kind, _ = split_name(name)
     if kind in ("kx", "ky", "kz"):
-        moment = moments_rms[3 * (joint - 1) + "xyz".index(kind[1])]
+        moment = moments_rms[moment_column(name)]
         return SCALE["angle"] / max(float(moment), 1e-9)
     if kind in ("d", "a", "tx", "ty", "tz"):
         return SCALE["length"]

@@ -94,6 +94,13 @@ def default_compliant_joints(n_joints: int) -> tuple[int, ...]:
     return tuple(j for j in (1, 2, 3) if j <= n_joints)
 
 
+def moment_column(name: str) -> int:
+    """The column of a compliance's driving moment in KinematicsData.moments (N, 3n): joint i's
+    x, y, z components are columns 3(i-1) .. 3(i-1)+2."""
+    kind, joint = split_name(name)
+    return 3 * (int(joint) - 1) + "xyz".index(kind[1])
+
+
 def is_motion(name: str) -> bool:
     """A motion-history term (lm, lv) of a joint."""
     return split_name(name)[0] in MOTION_KINDS

@@ -19,7 +19,7 @@ from ..core import strict_json
 from ..core.memory import release_freed_memory
 from ..core.outputs import output_dir, save_figure, write_text
 from ..model import kinematics
-from ..model.parameters import is_motion, split_name, unit_of
+from ..model.parameters import is_motion, moment_column, split_name, unit_of
 from ..model.robot import Robot
 from ..model.robot_io import save_robot
 from .diagnostics import motion_terms, plot_residual_diagnostics
@@ -42,8 +42,7 @@ def report_dict(result: CalibrationResult) -> dict:
     for fixed, partners in result.final_identifiability.absorbed_by.items():
         for partner in partners:
             absorbs.setdefault(partner, []).append(fixed)
-    deflections = compliance_deflections(result)
-    angles = compliance_angles(result)
+    deflections, angles = compliance_effects(result)
     parameters = {}
     released_by_stages = set(releasable(problem.candidates, config.stages))
     for name in problem.candidates:
@@ -273,31 +272,30 @@ def _region(result: CalibrationResult) -> dict | None:
 PLAUSIBLE_JOINT_DEFLECTION_RAD = 0.005
 
 
-def compliance_angles(result: CalibrationResult) -> dict[str, float]:
-    """For each estimated compliance, the largest rotation (rad) it gives its joint over the
-    fitting configurations: its value times the largest gravity moment of its component."""
+def compliance_effects(result: CalibrationResult) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
+    """What each estimated compliance does over the fitting configurations (one kinematics pass):
+    the largest displacement (m) at each tip's scored points (compliance_deflections) and the
+    largest rotation (rad) of its joint (compliance_angles)."""
     problem = result.problem
     names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
     if not names:
-        return {}
-    moments = kinematics.forward(problem.robot, result.state.params, problem.observations.q).moments
-    out = {}
-    for name in names:
-        kind, joint = split_name(name)
-        column = moments[:, 3 * (int(joint) - 1) + "xyz".index(kind[1])]
-        out[name] = float(abs(result.state.params[problem.robot.parameter_names.index(name)]) * np.abs(column).max())
-    return out
-
-
-def compliance_deflections(result: CalibrationResult) -> dict[str, dict[str, float]]:
-    """For each estimated compliance, the largest displacement (m) it causes over the fitting
-    configurations at each tip's scored points (a serial arm: its tool point), by tip: what the
-    value means where the robot works. A tree's compliance of one arm moves that arm's tip."""
-    problem = result.problem
-    names = [n for n in result.released if unit_of(n) == "rad/(N m)"]
-    if not names:
-        return {}
+        return {}, {}
     data = kinematics.forward(problem.robot, result.state.params, problem.observations.q)
+    return compliance_deflections(result, names, data), compliance_angles(result, names, data.moments)
+
+
+def compliance_angles(result: CalibrationResult, names: list[str], moments: np.ndarray) -> dict[str, float]:
+    """For each compliance of ``names``, the largest rotation (rad) it gives its joint over the
+    configurations of ``moments`` (N, 3n): its value times the largest moment of its component."""
+    index = result.problem.robot.parameter_names.index
+    return {n: float(abs(result.state.params[index(n)]) * np.abs(moments[:, moment_column(n)]).max()) for n in names}
+
+
+def compliance_deflections(result: CalibrationResult, names: list[str], data) -> dict[str, dict[str, float]]:
+    """For each compliance of ``names``, the largest displacement (m) it causes over the
+    configurations of ``data`` at each tip's scored points (a serial arm: its tool point), by tip:
+    what the value means where the robot works. A tree's compliance of one arm moves that arm's tip."""
+    problem = result.problem
     values = np.array([result.state.params[problem.robot.parameter_names.index(n)] for n in names])
     if isinstance(problem.frame, str):  # one frame: the report's tool point in it
         points = [(problem.scored_frame(result.state), result.tool_point)]
