@@ -89,7 +89,7 @@ RUNS = {
         ["import-csv", "{ws}/mapping.yaml", "--out", "{ws}/imported"],
         ["convert-faro", str(FARO), "--out", "{ws}/faro"],
         ["bench", "--out", "{ws}/bench", "--seed", "2", "--sizes", "20", "--repeats", "1", "--json",
-         "--memory-n", "20", "--faro", "{ws}/faro"],
+         "--memory-n", "20", "--program-targets", "40", "--faro", "{ws}/faro"],
     ],
 }  # fmt: skip
 # What each run must leave behind (paths relative to the workspace).
@@ -267,6 +267,7 @@ def test_import_convert_and_bench_as_documented(ws, capsys):
     bench = json.loads(printed)
     assert bench["sizes"]["20"]["cpu_s"]["fgcal"] > 0 and (FARO.exists() == ("faro_cpu_s" in bench))
     assert bench["demo_cpu_s"] > 0 and bench["memory_peak_rss_mb"] > 0 and bench["memory_n_configurations"] == 20
+    assert bench["program_targets"] == [2, 40] and bench["program_to_csv_ratio"] > 0
     assert bench["kernel_fk_param_jacobian_batched_us"] > 0 and bench["kernel_fk_joint_jacobian_single_us"] > 0
     assert (bench["pinocchio_fk_joint_jacobian_us"] is None) == (importlib.util.find_spec("pinocchio") is None)
     assert (ws / "imported" / "dataset.yaml").exists()

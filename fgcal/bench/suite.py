@@ -50,6 +50,7 @@ from ..model import kinematics
 from ..model.robot_io import robots_dir
 from ..simulation.simulate import simulate
 from .kernel import kernel_bench
+from .programs import program_bench
 
 
 class PairResiduals:
@@ -526,6 +527,7 @@ def run_bench(
     say=print,
     faro: Path | None = None,
     memory_n: int = 3000,
+    program_targets: int = 4000,
 ) -> dict:
     """Every figure of ``fgcal bench``; ``say`` gets the human-readable lines. ``faro``: a
     dataset converted from the IRB 120 / FARO set (``fgcal convert-faro``), timed too."""
@@ -552,6 +554,9 @@ def run_bench(
     say("whole commands:")
     result.update(demo_bench(out, repeats, say))
     result.update(memory_bench(out, seed, memory_n, say))
+    say("program filtering:")
+    result.update(program_bench(out, simulated_case(out, seed, sizes[0], say), SEED_CELL, child_usage,
+                                _fgcal_command, say, (program_targets // 20, program_targets)))  # fmt: skip
     if faro is not None:
         say(f"FARO set ({faro}): whole calibrate command against a plain scipy DH fit")
         result.update(faro_bench(Path(faro), out / "faro", repeats, say))

@@ -23,7 +23,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
         return 2
     result = run_bench(
-        Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro, memory_n=args.memory_n
+        Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro, memory_n=args.memory_n,
+        program_targets=args.program_targets,
     )
     if args.json:
         print(strict_json.dumps(result))
@@ -58,5 +59,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=integer(20, 20000, "configurations"),
         default=3000,
         help="configurations of the seed cell whose calibrate command's peak RSS is measured (default 3000)",
+    )
+    p.add_argument(
+        "--program-targets",
+        type=integer(40, 200000, "targets"),
+        default=4000,
+        help="targets of the KRL program and CSV whose CPU per target fgcal compensate is timed on (default 4000; "
+        "a twentieth of them is the start-up's baseline)",
     )
     p.set_defaults(func=cmd_bench)

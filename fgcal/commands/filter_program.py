@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.console import say, warn
+from ..core.console import Reporter, say, warn
 from .options import count, emit
 
 
@@ -80,7 +80,7 @@ def compensate_program(
             approach = f"lost motion allowed for along the path: {assumption}"
             say(f"  allowing for lost motion along the path: {assumption} (--approach none: not allowed for)")
     configs = [t.config for t in program.targets]
-    result = filter_targets(robot, nominal, poses, configs, program.kind, frames, path)
+    result = filter_targets(robot, nominal, poses, configs, program.kind, frames, path, progress=Reporter())
     if result.motion_unsolved is not None:
         unsolved_motion([t.name for t, bad in zip(program.targets, result.motion_unsolved, strict=True) if bad])
     # A target the calibration leaves where it was (below what the file's digits hold) keeps its text.

@@ -346,14 +346,7 @@ def compensate(
         rows = slice(chunk, chunk + CHUNK)
         start = default_hints(nominal, targets[rows], tcp, frame=frame) if hints is None else hints[rows]
         parts.append(robot.ik(targets[rows], start, tcp=tcp, frame=frame, tol_m=tol_m, tol_rad=tol_rad))
-        done = min(chunk + CHUNK, len(targets))
-        step(progress, "compensating: targets", done, len(targets))
-        if progress is not None and done < len(targets):
-            elapsed = time.monotonic() - started
-            progress(
-                f"  {done} of {len(targets)} targets solved ({elapsed:.0f} s, about "
-                f"{elapsed / done * (len(targets) - done):.0f} s left)"
-            )
+        chunk_done(progress, min(chunk + CHUNK, len(targets)), len(targets), started)
     q = np.concatenate([p.q for p in parts])
     motion_offset = motion_solved = None
     if approach is not None and robot.history:
@@ -368,6 +361,16 @@ def compensate(
 
 
 CHUNK = 2000  # targets solved together
+
+
+def chunk_done(progress: Callable[[str], None] | None, done: int, total: int, started: float) -> None:
+    """Tell ``progress`` that ``done`` of ``total`` targets are solved (a bar on a terminal, a
+    line with the time left between chunks); ``started``: time.monotonic() at the first."""
+    step(progress, "compensating: targets", done, total)
+    if progress is not None and done < total:
+        elapsed = time.monotonic() - started
+        left = elapsed / done * (total - done)
+        progress(f"  {done} of {total} targets solved ({elapsed:.0f} s, about {left:.0f} s left)")
 
 
 SOLVED = ("ok", "near singularity")

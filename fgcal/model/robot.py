@@ -30,6 +30,9 @@ MODELS = ("DH", "DH,s", "DH,s,e", "DH,s,e,h")
 SAME_ROBOT_M = 0.05
 
 
+FK_CHUNK = 4096  # configurations per forward pass of Robot.fk (a pass keeps every link's frames)
+
+
 @dataclass(frozen=True)
 class Robot:
     """Constant description of a serial robot (SI units).
@@ -378,8 +381,14 @@ class Robot:
         self, q: np.ndarray, params: Mapping[str, float] | None, frame: str, motion: np.ndarray | None = None
     ) -> np.ndarray:
         q2 = self.check_q(q)
-        data = kinematics.forward(self, self.parameter_vector(params), q2, _motion(motion, q2))
-        out = kinematics.frame_pose(self, data, frame)
+        vector, features = self.parameter_vector(params), _motion(motion, q2)
+        # In chunks: a forward pass keeps every link's frames (about 13 kB a configuration), so
+        # 60,000 program targets at once took 800 MB for a (60000, 4, 4) answer.
+        out = np.empty((len(q2), 4, 4))
+        for start in range(0, len(q2), FK_CHUNK):
+            rows = slice(start, start + FK_CHUNK)
+            data = kinematics.forward(self, vector, q2[rows], None if features is None else features[rows])
+            out[rows] = kinematics.frame_pose(self, data, frame)
         return out[0] if np.ndim(q) == 1 else out
 
 
