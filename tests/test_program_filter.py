@@ -272,3 +272,44 @@ def test_a_krl_axis_found_a_turn_out_is_taken_back():
     assert np.allclose(np.degrees(turned[0]), [10.0, 20.0, -30.0, 40.0, 50.0, 19.6])
     assert np.array_equal(turned[1], q[1])  # 20 deg would change the sign T names: kept
     assert np.allclose(robot.fk(turned), robot.fk(q), atol=1e-12)
+
+
+def test_arrays_of_targets_and_tools_are_corrected_as_their_plain_twins(irb120, tmp_path, capsys):
+    """A robtarget array moved with an element of a tooldata array (``pts{3}``, ``guns{2}``)
+    gives the corrections of the same module written with plain names: the array was refused,
+    and a tool array's element was read as no tool."""
+    nominal = irb120.nominal
+    tcp = pose_from_xyz_rpy([0, 0, 0.15], [0, 0.3, 0])
+    taught = nominal.fk(irb120.q[:6]) @ tcp
+    configs = configurations(nominal, "rapid", irb120.q[:6])
+    values = []
+    for T, c in zip(taught, configs, strict=True):
+        q = _quaternion(T[:3, :3])
+        values.append(f"[[{T[0, 3] * 1e3:.3f},{T[1, 3] * 1e3:.3f},{T[2, 3] * 1e3:.3f}],[{','.join(f'{v:.9f}' for v in q)}],"
+                      f"[{c['cf1']},{c['cf4']},{c['cf6']},{c['cfx']}],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]")  # fmt: skip
+    gun = f"[TRUE,[[0,0,150],[{','.join(f'{v:.9f}' for v in _quaternion(tcp[:3, :3]))}]],[0.5,[0,0,30],[1,0,0,0],0,0,0]]"
+    other = "[TRUE,[[0,0,90],[1,0,0,0]],[0.5,[0,0,30],[1,0,0,0],0,0,0]]"
+    arrays = (f"MODULE Arrays\n    PERS tooldata guns{{2}} := [{other}, {gun}];\n"
+              f"    CONST robtarget pts{{6}} := [{', '.join(values)}];\n    PROC main()\n"
+              + "".join(f"        MoveL pts{{{k + 1}}}, v100, fine, guns{{2}};\n" for k in range(6))
+              + "    ENDPROC\nENDMODULE\n")  # fmt: skip
+    plain = (f"MODULE Plain\n    PERS tooldata gun2 := {gun};\n"
+             + "".join(f"    CONST robtarget p{k + 1} := {v};\n" for k, v in enumerate(values))
+             + "    PROC main()\n" + "".join(f"        MoveL p{k + 1}, v100, fine, gun2;\n" for k in range(6))
+             + "    ENDPROC\nENDMODULE\n")  # fmt: skip
+    tables = {}
+    for name, text in (("arrays", arrays), ("plain", plain)):
+        (tmp_path / f"{name}.mod").write_text(text)
+        argv = ["compensate", str(irb120.robot_file), str(tmp_path / f"{name}.mod"), "--out",
+                str(tmp_path / f"{name}_cal.mod")]  # fmt: skip
+        assert main(argv) == 0, capsys.readouterr().err
+        assert "used by no MoveL" not in capsys.readouterr().err
+        tables[name] = read_csv(tmp_path / f"{name}_cal.corrections.csv", [])
+    (columns, rows), (_, twins) = tables["arrays"], tables["plain"]
+    assert [row[0] for row in rows] == [f"pts{{{k + 1}}}" for k in range(6)] and {row[2] for row in rows} == {"guns{2}"}
+    first = columns.index("status")
+    assert [row[first:] for row in rows] == [row[first:] for row in twins]
+    assert all(row[columns.index("corrected")] == "yes" for row in rows)
+    corrected = {t.name: t.pose for t in read_program(tmp_path / "arrays_cal.mod").targets}
+    for k, t in enumerate(read_program(tmp_path / "plain_cal.mod").targets):
+        np.testing.assert_allclose(corrected[f"pts{{{k + 1}}}"], t.pose, atol=1e-12)

@@ -349,8 +349,13 @@ BAD_RAPID = {
     "quaternion of norm 2": (_robtarget(quat="[2,0,0,0]"), "norm 2"),
     "two numbers in the position": (_robtarget(trans="[1,2]"), "expected \\[...\\] of 3 items"),
     "four numbers in the position": (_robtarget(trans="[1,2,3,4]"), "expected \\[...\\] of 3 items"),
-    "a robtarget array": ("MODULE M\n  CONST robtarget pts{1} := [[[1,2,3],[1,0,0,0],[0,0,0,0],[0,0,0,0,0,0]]];",
-                          "not supported"),
+    "a robtarget array short of elements": (
+        "MODULE M\n  CONST robtarget pts{2} := [[[1,2,3],[1,0,0,0],[0,0,0,0],[0,0,0,0,0,0]]];",
+        "line 2, pts: array of 2 elements: expected \\[...\\] of 2 items, found 1"),
+    "an array of no elements": ("MODULE M\n  CONST robtarget pts{0} := [];", "array dimension '0'"),
+    "an array's element malformed": (
+        "MODULE M\n  CONST robtarget pts{2} := [[[1,2,3],[1,0,0,0],[0,0,0,0],[0,0,0,0,0,0]],\n"
+        "    [[1,2],[1,0,0,0],[0,0,0,0],[0,0,0,0,0,0]]];", "line 3, pts\\{2\\}: position"),
     "a value that is not an aggregate": ("MODULE M\n  CONST robtarget p2 := p1;\n", "expected \\[...\\]"),
     "a fractional confdata": (_robtarget().replace("[0,0,0,0]", "[0,0.5,0,0]"), "not an integer"),
     "declared twice": (_robtarget() + _robtarget(), "declared twice"),
@@ -470,3 +475,57 @@ def test_a_krl_number_beyond_any_place_is_refused_as_in_rapid(tmp_path, value):
     path.write_text(f"DEFDAT P\nDECL E6POS XP1={{X {value},Y 0,Z 1500,A 0,B 90,C 0,S 2,T 2}}\nENDDAT\n")
     with pytest.raises(InputError, match=rf"line 2, XP1: X: '{value}' is out of range \(beyond 1e\+10\)"):
         read_program(path)
+
+
+def _rt(x: float) -> str:
+    return f"[[{x},0,800],[0,0,1,0],[0,0,0,0],{EXTAX}]"
+
+
+ARRAYS = f"""MODULE CELL_ARRAYS
+    PERS tooldata guns{{2}} := [[TRUE,[[0,0,100],[1,0,0,0]],[1,[0,0,50],[1,0,0,0],0,0,0]],
+        [TRUE,[[0,0,200],[1,0,0,0]],[2,[0,0,80],[1,0,0,0],0,0,0]]];
+    TASK PERS wobjdata tables{{2}} := [[FALSE,TRUE,"",[[1000,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]],
+        [FALSE,TRUE,"",[[0,1000,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]]];
+    CONST robtarget pts{{3}} := [{_rt(501)}, {_rt(502)},
+        {_rt(503)}];
+    CONST robtarget grid {{ 2, 2 }} := [[{_rt(611)}, {_rt(612)}], [{_rt(621)}, {_rt(622)}]];
+    PROC main()
+        MoveL pts{{1}}, v100, fine, guns{{2}}\\WObj:=tables{{1}};
+        MoveL Offs(pts{{2}}, 0, 0, 10), v100, fine, guns{{1}};
+        FOR i FROM 1 TO 2 DO
+            MoveL grid{{i, 1}}, v100, z10, guns{{1}}\\WObj:=tables{{2}};
+        ENDFOR
+        MoveL grid{{2,2}}, v100, fine, guns{{2}};
+    ENDPROC
+ENDMODULE
+"""
+
+
+def test_rapid_arrays_give_their_elements_with_their_tools_and_work_objects(tmp_path):
+    """Arrays of robtargets, tooldata and wobjdata: one of each per element, named as RAPID
+    indexes them; an element moved by a literal index takes that instruction's tool and work
+    object (guns{2}: it was read as no tool), one moved through a loop's index the loop's."""
+    program = _read(tmp_path, ARRAYS, "arrays.mod")
+    names = [t.name for t in program.targets]
+    assert names == ["pts{1}", "pts{2}", "pts{3}", "grid{1,1}", "grid{1,2}", "grid{2,1}", "grid{2,2}"]
+    by_name = {t.name: t for t in program.targets}
+    assert np.allclose([by_name[n].pose[0, 3] for n in names], [0.501, 0.502, 0.503, 0.611, 0.612, 0.621, 0.622])
+    assert (by_name["pts{1}"].tool, by_name["pts{1}"].work_object) == ("guns{2}", "tables{1}")
+    assert (by_name["pts{2}"].tool, by_name["pts{2}"].work_object) == ("guns{1}", None)
+    assert by_name["pts{3}"].tool is None
+    for name in ("grid{1,1}", "grid{1,2}", "grid{2,1}"):  # the loop's use, with no place in the path
+        assert (by_name[name].tool, by_name[name].work_object, by_name[name].first_move) == ("guns{1}", "tables{2}",
+                                                                                             None)
+    assert by_name["grid{2,2}"].tool == "guns{2}" and by_name["grid{2,2}"].first_move is not None
+    assert by_name["grid{2,1}"].line == 8 and by_name["pts{3}"].line == 7
+    assert np.isclose(program.tools["guns{2}"].tcp[2, 3], 0.2) and program.tools["guns{2}"].mass_kg == 2
+    assert np.allclose(program.work_objects["tables{2}"][:3, 3], [0, 1, 0])
+    moved = by_name["grid{2,1}"].pose.copy()
+    moved[:3, 3] += [0.001, -0.002, 0.0005]
+    text = write_program(program, {"grid{2,1}": (moved, {})})
+    changed = [k for k, (a, b) in enumerate(zip(ARRAYS.splitlines(), text.splitlines(), strict=True), 1) if a != b]
+    assert changed == [8]  # the line of grid{2,1}, and no other
+    again = _read(tmp_path, text, "again.mod")
+    for old, new in zip(program.targets, again.targets, strict=True):
+        expected = moved if old.name == "grid{2,1}" else old.pose
+        np.testing.assert_allclose(new.pose, expected, atol=1e-9)

@@ -10,13 +10,14 @@ line endings stay byte for byte.
 
 RAPID (``.mod``, ``.modx``, ``.prg``, ``.sys``): ``robtarget``, ``tooldata`` and ``wobjdata``
 declarations (``CONST``/``PERS``/``VAR``, optionally ``LOCAL``/``TASK``) with literal aggregate
-values; comments (``!``) and strings are skipped. Refused (:class:`InputError`): arrays of
-robtargets (``robtarget pts{3} := ...``: not supported), a robtarget whose value is not a literal
-aggregate, a malformed or unterminated value, a quaternion of norm outside 0.9..1.1, a name declared
-twice. Not targets: declarations without a value (``VAR robtarget p;``), routine parameters,
-jointtargets, inline targets. Arrays of tooldata or wobjdata are skipped. Each target records the
-tool and ``\\WObj`` of the first MoveL/MoveJ/MoveC (or their DO/Sync variants) using it, directly
-or through ``Offs(...)``/``RelTool(...)``.
+values; comments (``!``) and strings are skipped. Refused (:class:`InputError`): a robtarget whose
+value is not a literal aggregate, a malformed or unterminated value, a quaternion of norm outside
+0.9..1.1, a name declared twice. Not targets: declarations without a value (``VAR robtarget p;``), routine parameters,
+jointtargets, inline targets. Arrays of robtargets, tooldata and wobjdata give one of each per
+element, named as RAPID indexes them (``pts{2}``, ``grid{1,3}``). Each target records the tool and
+``\\WObj`` of the first MoveL/MoveJ/MoveC (or their DO/Sync variants) using it, directly or through
+``Offs(...)``/``RelTool(...)``; an array's element used only through a variable index (``pts{i}``
+in a loop) takes that instruction's tool and work object, with no place in the path.
 
 KRL (``.dat``): ``[GLOBAL] [DECL] E6POS|POS NAME={...}`` on one line, components in any order,
 ``S``/``T`` as decimal integers or ``'B...'``/``'H...'`` literals (written back in the same style).
@@ -345,38 +346,64 @@ class _Declaration(NamedTuple):
 
 
 def _rapid_declarations(text: str, tokens: list[_Token], path: Path) -> Iterator[_Declaration]:
-    """The declarations of robtarget, tooldata and wobjdata with a value, in order."""
+    """The declarations of robtarget, tooldata and wobjdata with a value, in order; an array's
+    elements each as a declaration of its own, named as RAPID names them (``pts{2}``, ``grid{1,3}``)."""
     i = 0
     while i < len(tokens) - 2:
         tok, kind, name = tokens[i], tokens[i + 1], tokens[i + 2]
         is_declaration = tok.kind == "name" and tok.text.lower() in _STORAGE and name.kind == "name"
         if is_declaration and kind.kind == "name" and kind.text.lower() in _DATA_TYPES:
             ctx = _Context(text, tokens, path, name.text, tok.line)
-            declaration, i = _parse_declaration(kind.text.lower(), i + 3, ctx)
-            if declaration is not None:
-                yield declaration
+            declarations, i = _parse_declaration(kind.text.lower(), i + 3, ctx)
+            yield from declarations
         else:
             i += 1
 
 
-def _parse_declaration(data_type: str, i: int, ctx: _Context) -> tuple[_Declaration | None, int]:
-    """The declaration whose name ends before token ``i``: None if it has no value or is a parameter."""
-    is_array = ctx.at(i).text == "{"
-    if is_array:
+MAX_ARRAY_ELEMENTS = 10**6  # more elements than a 32 MB module can hold: a typo in the dimensions
+
+
+def _parse_declaration(data_type: str, i: int, ctx: _Context) -> tuple[list[_Declaration], int]:
+    """The declaration whose name ends before token ``i`` (an array's elements: several); none
+    if it has no value or is a routine's parameter."""
+    written: list[_Token] = []
+    if ctx.at(i).text == "{":
+        i += 1
         while ctx.at(i).text != "}":
+            written += [ctx.at(i)] if ctx.at(i).text != "," else []
             i += 1
         i += 1
     if i >= len(ctx.tokens) or ctx.tokens[i].kind != "assign":
-        return None, i  # no value (VAR robtarget p;), or a routine's parameter
-    if is_array:
-        if data_type == "robtarget":
-            raise ctx.fail(ctx.line, "arrays of robtargets are not supported: declare each target on its own")
-        return None, i
+        return [], i  # no value (VAR robtarget p;), or a routine's parameter (q{*})
+    dimensions: list[int] = []
+    for tok in written:
+        if tok.kind != "number" or not tok.text.isdigit() or int(tok.text) < 1:
+            raise ctx.fail(tok.line, f"array dimension {tok.text!r}: expected a whole number of at least 1")
+        dimensions.append(int(tok.text))
+    if math.prod(dimensions) > MAX_ARRAY_ELEMENTS:
+        raise ctx.fail(ctx.line, f"an array of {math.prod(dimensions)} elements: at most {MAX_ARRAY_ELEMENTS}")
     value, i = _parse_value(i + 1, ctx)
     end = ctx.at(i)
     if end.text != ";":
         raise ctx.fail(end.line, f"expected ';' after the value but found {end.text!r}")
-    return _Declaration(data_type, ctx, value), i + 1
+    if not dimensions:
+        return [_Declaration(data_type, ctx, value)], i + 1
+    return [
+        _Declaration(data_type, replace(ctx, name=f"{ctx.name}{{{','.join(map(str, index))}}}",
+                                        line=_first_line(element, ctx)), element)
+        for index, element in _elements(value, dimensions, ctx)
+    ], i + 1  # fmt: skip
+
+
+def _elements(value: _Node, dimensions: list[int], ctx: _Context, index: tuple[int, ...] = ()):
+    """An array value's elements with their (1-based) indices, row by row as RAPID writes them:
+    ``{2,3}`` is ``[[e11, e12, e13], [e21, e22, e23]]``."""
+    items = _aggregate(value, dimensions[0], f"array of {'x'.join(map(str, dimensions))} elements", ctx)
+    for k, item in enumerate(items, 1):
+        if len(dimensions) == 1:
+            yield (*index, k), item
+        else:
+            yield from _elements(item, dimensions[1:], ctx, (*index, k))
 
 
 def _robtarget(value: _Node, ctx: _Context) -> ProgramTarget:
@@ -449,8 +476,19 @@ def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[
         else:
             work_objects[ctx.name] = _wobjdata(declaration.value, ctx)
     uses = _motion_uses(tokens)
-    targets = [_with_use(target, uses.get(target.name.lower())) for target in targets]
+    # An array's element goes by its own use (pts{2}), else by a loop's over the array (pts{i}).
+    targets = [_with_use(target, _use_of(target.name, uses)) for target in targets]
     return tuple(targets), tools, work_objects
+
+
+def _use_of(name: str, uses: dict[str, _Use]) -> _Use | None:
+    """A target's use: its own (``pts{2}``), else a loop's over its array (``pts{i}``: the tool
+    and work object, not a place in the path: the loop's order is not known here)."""
+    own = uses.get(name.lower())
+    if own is not None or "{" not in name:
+        return own
+    loop = uses.get(name.split("{")[0].lower() + "{*}")
+    return None if loop is None else replace(loop, first_plain=None, approached_from=None)
 
 
 def _with_use(target: ProgramTarget, use: _Use | None) -> ProgramTarget:
@@ -511,11 +549,13 @@ def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
             name = _target_name(argument)
             plain = _single_name(argument)
             if name is not None:
+                name = _array_key(name) or name
                 use = uses.setdefault(name.lower(), _Use(tool, wobj, count=0))
                 use.count += 1
                 if plain is not None and use.first_plain is None:
                     use.first_plain, use.approached_from = ordinal, previous
-            previous = plain.lower() if plain is not None else None
+            # A loop's element (pts{i}) is not a place the robot is known to come from.
+            previous = plain.lower() if plain is not None and _array_key(plain) is None else None
             ordinal += 1
     return uses
 
@@ -547,19 +587,46 @@ def _wobj_at(tokens: list[_Token], i: int) -> str | None:
     """The work object's name if tokens ``i..i+3`` are ``\\WObj := name``."""
     window = tokens[i : i + 4]
     if len(window) == 4 and window[0].text == "\\" and window[1].text.lower() == "wobj" and window[2].kind == "assign":
-        return window[3].text if window[3].kind == "name" else None
+        if window[3].kind != "name":
+            return None
+        end = i + 4  # an array's element: wobjs{2}
+        if end < len(tokens) and tokens[end].text == "{":
+            end = next((k + 1 for k in range(end, len(tokens)) if tokens[k].text in "};"), end)
+        return _single_name(tokens[i + 3 : end])
     return None
 
 
 def _single_name(argument: list[_Token]) -> str | None:
-    return argument[0].text if len(argument) == 1 and argument[0].kind == "name" else None
+    """A name (``p10``) or an array's element (``pts{2}``, ``guns{i}``: as written, blanks
+    dropped); anything else None."""
+    if not argument or argument[0].kind != "name":
+        return None
+    if len(argument) == 1:
+        return argument[0].text
+    if argument[1].text == "{" and argument[-1].text == "}" and all(t.text not in "{}" for t in argument[2:-1]):
+        return argument[0].text + "".join(t.text for t in argument[1:])
+    return None
 
 
 def _target_name(argument: list[_Token]) -> str | None:
-    """``p10``, ``Offs(p10, ...)`` or ``RelTool(p10, ...)`` -> ``p10``; anything else None."""
+    """``p10``, ``Offs(p10, ...)`` or ``RelTool(p10, ...)`` -> ``p10`` (or an array's element);
+    anything else None."""
     if len(argument) >= 3 and argument[0].text.lower() in _TARGET_FUNCTIONS and argument[1].text == "(":
-        return argument[2].text if argument[2].kind == "name" else None
+        end = 3
+        if end < len(argument) and argument[end].text == "{":
+            end = next((k + 1 for k in range(end, len(argument)) if argument[k].text == "}"), end)
+        return _single_name(argument[2:end])
     return _single_name(argument)
+
+
+def _array_key(name: str) -> str | None:
+    """``pts{i}`` (an index that is not a literal number) -> ``pts{*}``: the key under which
+    a loop's use stands for every element of the array; None for other names."""
+    if "{" not in name:
+        return None
+    base, index = name.split("{", 1)
+    literal = all(part.strip().isdigit() for part in index.rstrip("}").split(","))
+    return None if literal else f"{base}{{*}}"
 
 
 # ---------------------------------------------------------------------------------------------
