@@ -626,6 +626,30 @@ CASES = [
     ("krl_out_rapid", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n"), "o.mod",
      "--out"),
     ("program_with_tcp", _program("p.mod", RAPID_TARGET, extra=["--tcp", "0", "0", "0.1"]), "p.mod", "--tcp"),
+    # Issue 43: declarations held in another file
+    ("declarations_missing", _program("p.mod", RAPID_TARGET, extra=["--declarations", "user.sys"]), "user.sys",
+     "not found"),
+    ("declarations_none_in_file", _prepare_then(lambda root: ((root / "user.sys").write_text("MODULE U\nENDMODULE\n"),
+     (root / "p.mod").write_text(RAPID_TARGET + "ENDMODULE\n")), ["compensate", "abb_irb120", "p.mod", "--out", "o.mod",
+     "--declarations", "user.sys"]), "user.sys", "declares no tool"),
+    ("declarations_krl_for_rapid", _prepare_then(lambda root: ((root / "c.dat").write_text("TOOL_DATA[1]={X 0}\n"),
+     (root / "p.mod").write_text(RAPID_TARGET + "ENDMODULE\n")), ["compensate", "abb_irb120", "p.mod", "--out", "o.mod",
+     "--declarations", "c.dat"]), "c.dat", "RAPID modules"),
+    ("declarations_tool_data_short", _prepare_then(lambda root: (
+     (root / "c.dat").write_text("DEFDAT $CONFIG\nTOOL_DATA[1]={X 0,Y 0,Z 100}\nENDDAT\n"),
+     (root / "p.dat").write_text("DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n")),
+     ["compensate", "abb_irb120", "p.dat", "--out", "o.dat", "--declarations", "c.dat"]), "line 2, TOOL_DATA[1]",
+     "missing A, B, C"),
+    ("declarations_load_nan", _prepare_then(lambda root: (
+     (root / "c.dat").write_text("TOOL_DATA[1]={X 0,Y 0,Z 1,A 0,B 0,C 0}\nLOAD_DATA[1]={M nan,CM {X 0},J {X 0}}\n"),
+     (root / "p.dat").write_text("DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n")),
+     ["compensate", "abb_irb120", "p.dat", "--out", "o.dat", "--declarations", "c.dat"]), "LOAD_DATA[1]", "M"),
+    ("declarations_on_a_csv", _argv("compensate", "robot.yaml", "targets.csv", "--out", "o.csv", "--declarations",
+     "u.sys"), "--declarations", "RAPID"),
+    ("krl_fdat_tool_undeclared", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\n"
+     "DECL FDAT FP1={TOOL_NO 2,BASE_NO 0}\nENDDAT\n", out="o.dat"), "XP1", "--declarations"),
+    ("krl_fdat_external_tcp", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\n"
+     "DECL FDAT FP1={TOOL_NO 0,BASE_NO 0,IPO_FRAME #TCP}\nENDDAT\n", out="o.dat"), "XP1", "IPO_FRAME #TCP"),
     ("csv_tool_option", _argv("compensate", "robot.yaml", "targets.csv", "--out", "o.csv", "--tool", "t"), "--tool",
      "RAPID"),
     ("csv_abc_without_orientation", _prepare_then(

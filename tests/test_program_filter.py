@@ -285,9 +285,11 @@ def test_arrays_of_targets_and_tools_are_corrected_as_their_plain_twins(irb120, 
     values = []
     for T, c in zip(taught, configs, strict=True):
         q = _quaternion(T[:3, :3])
-        values.append(f"[[{T[0, 3] * 1e3:.3f},{T[1, 3] * 1e3:.3f},{T[2, 3] * 1e3:.3f}],[{','.join(f'{v:.9f}' for v in q)}],"
-                      f"[{c['cf1']},{c['cf4']},{c['cf6']},{c['cfx']}],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]")  # fmt: skip
-    gun = f"[TRUE,[[0,0,150],[{','.join(f'{v:.9f}' for v in _quaternion(tcp[:3, :3]))}]],[0.5,[0,0,30],[1,0,0,0],0,0,0]]"
+        xyz, quaternion = ",".join(f"{v * 1e3:.3f}" for v in T[:3, 3]), ",".join(f"{v:.9f}" for v in q)
+        values.append(f"[[{xyz}],[{quaternion}],[{c['cf1']},{c['cf4']},{c['cf6']},{c['cfx']}],"
+                      "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]")  # fmt: skip
+    gun_quaternion = ",".join(f"{v:.9f}" for v in _quaternion(tcp[:3, :3]))
+    gun = f"[TRUE,[[0,0,150],[{gun_quaternion}]],[0.5,[0,0,30],[1,0,0,0],0,0,0]]"
     other = "[TRUE,[[0,0,90],[1,0,0,0]],[0.5,[0,0,30],[1,0,0,0],0,0,0]]"
     arrays = (f"MODULE Arrays\n    PERS tooldata guns{{2}} := [{other}, {gun}];\n"
               f"    CONST robtarget pts{{6}} := [{', '.join(values)}];\n    PROC main()\n"
@@ -313,3 +315,91 @@ def test_arrays_of_targets_and_tools_are_corrected_as_their_plain_twins(irb120, 
     corrected = {t.name: t.pose for t in read_program(tmp_path / "arrays_cal.mod").targets}
     for k, t in enumerate(read_program(tmp_path / "plain_cal.mod").targets):
         np.testing.assert_allclose(corrected[f"pts{{{k + 1}}}"], t.pose, atol=1e-12)
+
+
+def _corrections(path) -> list[list[str]]:
+    columns, rows = read_csv(path, [])
+    return [row[columns.index("status"):] for row in rows]
+
+
+def test_declarations_in_another_module_give_the_corrections_of_declarations_in_the_program(irb120, tmp_path, capsys):
+    """A RAPID module's tooldata and wobjdata held in user.sys (--declarations): the corrections
+    of the same declarations written in the module; a name in both is refused naming both."""
+    nominal = irb120.nominal
+    tcp, table = pose_from_xyz_rpy([0, 0, 0.12], [0.2, 0, 0]), pose_from_xyz_rpy([0.35, -0.1, 0.05], [0, 0, 0.3])
+    taught = inverse(table) @ nominal.fk(irb120.q[:5]) @ tcp
+    configs = configurations(nominal, "rapid", irb120.q[:5])
+    fmt = ",".join
+    def quaternion(R):
+        return fmt(f"{v:.9f}" for v in _quaternion(R))
+
+    declarations = (
+        f"    PERS tooldata torch := [TRUE,[[0,0,120],[{quaternion(tcp[:3, :3])}]],[1.5,[0,0,40],[1,0,0,0],0,0,0]];\n"
+        f"    TASK PERS wobjdata table := [FALSE,TRUE,\"\",[[350,-100,50],[{quaternion(table[:3, :3])}]],"
+        "[[0,0,0],[1,0,0,0]]];\n"
+    )  # fmt: skip
+    targets = "".join(
+        f"    CONST robtarget p{k}:=[[{fmt(f'{v * 1e3:.3f}' for v in T[:3, 3])}],[{quaternion(T[:3, :3])}],"
+        f"[{c['cf1']},{c['cf4']},{c['cf6']},{c['cfx']}],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]];\n"
+        for k, (T, c) in enumerate(zip(taught, configs, strict=True))
+    )  # fmt: skip
+    moves = "    PROC main()\n" + "".join(f"        MoveL p{k}, v100, fine, torch\\WObj:=table;\n" for k in range(5))
+    (tmp_path / "user.sys").write_text(f"MODULE user(SYSMODULE)\n{declarations}ENDMODULE\n")
+    (tmp_path / "own.mod").write_text(f"MODULE Own\n{declarations}{targets}{moves}    ENDPROC\nENDMODULE\n")
+    (tmp_path / "bare.mod").write_text(f"MODULE Bare\n{targets}{moves}    ENDPROC\nENDMODULE\n")
+    robot = str(irb120.robot_file)
+    assert main(["compensate", robot, str(tmp_path / "own.mod"), "--out", str(tmp_path / "own_cal.mod")]) == 0
+    assert main(["compensate", robot, str(tmp_path / "bare.mod"), "--out", str(tmp_path / "bare_cal.mod")]) == 2
+    assert "'torch' is not declared" in capsys.readouterr().err
+    argv = ["compensate", robot, str(tmp_path / "bare.mod"), "--out", str(tmp_path / "bare_cal.mod"), "--declarations",
+            str(tmp_path / "user.sys")]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    assert _corrections(tmp_path / "bare_cal.corrections.csv") == _corrections(tmp_path / "own_cal.corrections.csv")
+    lines = (tmp_path / "bare_cal.mod").read_text().splitlines()
+    header = " ".join(line[1:].strip() for line in lines if line[0] == "!")
+    assert "tooldata torch's tload" in header and "declared in user.sys (--declarations)" in header
+    argv = ["compensate", robot, str(tmp_path / "own.mod"), "--out", str(tmp_path / "twice.mod"), "--declarations",
+            str(tmp_path / "user.sys")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "user.sys: torch: declared in" in err and "own.mod too" in err, err
+
+
+def test_krl_tools_and_bases_come_from_the_config_dat_its_fdats_name(kr125, tmp_path, capsys):
+    """KUKA's $config.dat (--declarations): each target's FDAT names TOOL_NO and BASE_NO, whose
+    TOOL_DATA, BASE_DATA and LOAD_DATA give the corrections of --tool, --base and --payload-*."""
+    from fgcal.data.programs import krl_abc_deg
+
+    nominal = kr125.nominal
+    tool_numbers, base_numbers = [20, 0, 60, 0, 30, 0], [1500, -200, 300, 90, 0, 0]
+    taught = inverse(frame_from_numbers(base_numbers)) @ nominal.fk(kr125.q[:6]) @ frame_from_numbers(tool_numbers)
+    configs = configurations(nominal, "krl", kr125.q[:6])
+    lines = ["DEFDAT  PALLET PUBLIC"]
+    for k, (T, c) in enumerate(zip(taught, configs, strict=True)):
+        a, b, cc = krl_abc_deg(T[:3, :3])
+        xyz = ",".join(f"{axis} {v * 1e3:.3f}" for axis, v in zip("XYZ", T[:3, 3], strict=True))
+        lines.append(f"DECL E6POS XP{k + 1}={{{xyz},A {a:.5f},B {b:.5f},C {cc:.5f},S {c['S']},T {c['T']}}}")
+        lines.append(f'DECL FDAT FP{k + 1}={{TOOL_NO 3,BASE_NO 2,IPO_FRAME #BASE,POINT2[] " "}}')
+    (tmp_path / "pallet.dat").write_text("\n".join([*lines, "ENDDAT"]) + "\n")
+    frame = "X {},Y {},Z {},A {},B {},C {}".format
+    (tmp_path / "$config.dat").write_text(
+        "DEFDAT $CONFIG\nDECL FRAME TOOL_DATA[16]\nTOOL_DATA[1]={X 0,Y 0,Z 300,A 0,B 0,C 0}\n"
+        f"TOOL_DATA[3]={{{frame(*tool_numbers)}}} ; the gripper\nBASE_DATA[2]={{{frame(*base_numbers)}}}\n"
+        "LOAD_DATA[3]={M 12.5,CM {X 0,Y 0,Z 95,A 0,B 0,C 0},J {X 0,Y 0,Z 0}}\nENDDAT\n"
+    )  # fmt: skip
+    robot, source = str(kr125.robot_file), str(tmp_path / "pallet.dat")
+    assert main(["compensate", robot, source, "--out", str(tmp_path / "no.dat")]) == 2
+    assert "'TOOL_DATA[3]' is not declared" in capsys.readouterr().err
+    argv = ["compensate", robot, source, "--out", str(tmp_path / "given.dat"), "--tool", *map(str, tool_numbers),
+            "--base", *map(str, base_numbers), "--payload-mass", "12.5", "--payload-com", "0", "0", "0.095"]
+    assert main(argv) == 0, capsys.readouterr().err
+    argv = ["compensate", robot, source, "--out", str(tmp_path / "config.dat"), "--declarations",
+            str(tmp_path / "$config.dat")]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    declared = _corrections(tmp_path / "config.corrections.csv")
+    assert declared == _corrections(tmp_path / "given.corrections.csv")
+    assert all(row[1] == "yes" for row in declared)
+    lines = (tmp_path / "config.dat").read_text().splitlines()
+    header = " ".join(line[1:].strip() for line in lines if line[0] == ";")
+    assert "TOOL_DATA[3]" in header and "BASE_DATA[2]" in header and "12.5 kg" in header
+    assert "declared in $config.dat (--declarations)" in header

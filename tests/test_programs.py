@@ -194,7 +194,11 @@ def test_krl_targets_read(tmp_path):
     assert t["XP4"].config == {"S": 6, "T": 27}
     assert t["XP5"].config == {"S": 2, "T": 26}  # 'H1A'
     assert t["XP7"].config == {"S": 7, "T": 7} and t["XP8"].config == {"S": 0, "T": 8} and t["XP6"].config == {}
-    assert t["XP1"].line == 9 and t["XP1"].tool is None
+    assert t["XP1"].line == 9
+    # Each target's FDAT (FP1 for XP1) names its tool and base: TOOL_NO 1, BASE_NO 0 (the base frame).
+    assert (t["XP1"].tool, t["XP1"].work_object) == ("TOOL_DATA[1]", None)
+    assert (t["XP6"].tool, t["XP6"].work_object) == ("TOOL_DATA[1]", "BASE_DATA[2]")
+    assert (t["XP2"].tool, t["XP2"].work_object) == (None, None)  # no FDAT FP2
 
 
 def test_crlf_and_latin1_files_read_as_the_same_program(tmp_path):

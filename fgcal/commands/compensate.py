@@ -44,8 +44,9 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         from .filter_program import compensate_program
 
         return compensate_program(args, robot, nominal, _inputs(args, "PROGRAM"), _unsolved_motion)
-    if args.tool is not None or args.base is not None:
-        print("fgcal: error: --tool and --base apply to robot programs (RAPID, KRL), not to a CSV", file=sys.stderr)
+    if args.tool is not None or args.base is not None or args.declarations:
+        print("fgcal: error: --tool, --base and --declarations apply to robot programs (RAPID, KRL), not to a CSV",
+              file=sys.stderr)  # fmt: skip
         return 2
     if Path(args.out).suffix.lower() != ".csv":
         raise InputError(args.out, "--out", "the commands of a targets CSV are a .csv file")
@@ -142,6 +143,7 @@ def _inputs(args: argparse.Namespace, targets: str) -> dict[str, str | None]:
         targets: args.targets,
         "ROBOT": args.robot if Path(args.robot).suffix else None,
         "--nominal": args.nominal if args.nominal is not None and Path(args.nominal).suffix else None,
+        **{f"--declarations {path}": path for path in args.declarations or []},
     }
 
 
@@ -240,6 +242,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--tip", metavar="NAME",
         help="a tree's tip the targets are for (the robot's tip names, fgcal fk lists them; --tcp is then in that "
         "tip's frame); default the tool on the flange",
+    )  # fmt: skip
+    p.add_argument(
+        "--declarations", nargs="+", metavar="FILE",
+        help="files declaring a program's tools and work objects: RAPID modules (user.sys: tooldata, wobjdata), or "
+        "KUKA's $config.dat (TOOL_DATA, BASE_DATA, LOAD_DATA), which each target's FDAT (TOOL_NO, BASE_NO) names",
     )  # fmt: skip
     p.add_argument("--nominal", help="the controller's nominal model (default: the bundled robot of the same name)")
     p.add_argument(

@@ -39,6 +39,7 @@ def compensate_program(
         RAPID_SUFFIXES,
         corrected_at,
         read_program,
+        with_declarations,
         with_header,
         write_program,
     )
@@ -59,6 +60,8 @@ def compensate_program(
             raise InputError(source, option, "applies to a targets CSV: a program's units and frames are its own")
     output_file(table)
     program = read_program(source)
+    if args.declarations:
+        program = with_declarations(program, args.declarations)
     if not program.targets:
         raise InputError(source, None, "no targets (robtarget, E6POS or POS declarations) to correct")
     line = corrected_at(program)
@@ -135,13 +138,16 @@ def _assumptions(program, robot, nominal, frames, T_W_ctrl: np.ndarray, payload:
         )
 
     krl = program.kind == "krl"
+    used = {name.lower() for name in (*frames.tool_names, *frames.work_object_names)}
+    files = sorted({file for name, file in program.declared_in.items() if name in used})
+    from_files = f"; declared in {', '.join(files)} (--declarations)" if files else ""
     return Assumptions(
         what=f"corrected by fgcal compensate for a controller running the nominal model of {nominal.name} "
         f"({robot.name} as calibrated; the table beside this file lists each target)",
         frame="targets in their work objects (" + ("$BASE" if krl else "wobjdata") + f"): "
         f"{listed(frames.work_object_names, frames.work_objects)}; the controller's base frame lies in the "
         f"calibration's frame W at {pose_text(T_W_ctrl)}",
-        tool=("$TOOL" if krl else "tooldata") + f": {listed(frames.tool_names, frames.tools)}",
+        tool=("$TOOL" if krl else "tooldata") + f": {listed(frames.tool_names, frames.tools)}{from_files}",
         payload=payload,
         units="mm, and A B C in deg (R = Rz(A) Ry(B) Rx(C))" if krl else "mm, and quaternions q1..q4 = w x y z",
         approach=approach,

@@ -543,15 +543,20 @@ def program_frames(
         """The frame (or the declared data) a target uses and its name: given, the module's, or the neutral one."""
         if isinstance(chosen, np.ndarray):
             return chosen, f"{option} {' '.join(tool if option == '--tool' else base)}"
-        if chosen is None or chosen.lower() == neutral:  # KRL's $TOOL and $BASE: the flange and the base frame
+        if chosen is None or chosen.lower() == neutral:  # KRL's TOOL_NO 0, BASE_NO 0: the flange and the base frame
             return np.eye(4), neutral if program.kind == "rapid" else {"tool0": "flange", "wobj0": "base"}[neutral]
         if _declared(chosen, declared) is not None:
             return declared[_declared(chosen, declared)], _declared(chosen, declared)
+        holder = ("KUKA's $config.dat" if program.kind == "krl" else "the module that declares it (user.sys)")
         raise InputError(program.path, f"line {target.line}, {target.name}", f"{what} {chosen!r} is not declared "
-                         f"in the module: give it with {option} X Y Z A B C (mm, deg)")  # fmt: skip
+                         f"in the program: give {holder} with --declarations, or {option} X Y Z A B C "
+                         "(mm, deg)")  # fmt: skip
 
     tools, objects, loads, tool_names, object_names = [], [], {}, [], []
     for target in program.targets:
+        if target.fixed_tool:
+            raise InputError(program.path, f"line {target.line}, {target.name}", "its FDAT's IPO_FRAME #TCP (an "
+                             "external TCP: the robot moves the part) is not supported")  # fmt: skip
         used = tool_given if tool_given is not None else target.tool
         tool_data, name = resolve(target, used, program.tools, "tool0", "tool", "--tool")
         tool_names.append(name)
@@ -635,8 +640,13 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
             "corrected: they have no name to correct them by; declare them as robtargets"
         )
     if program.kind == "krl" and not (tool_given and base_given):
-        notes.append("KRL targets are taken in $BASE = the robot's base frame and with $TOOL = the flange where "
-                     "--base and --tool do not give them")  # fmt: skip
+        plain = [t.name for t in program.targets if (t.tool is None and not tool_given) or
+                 (t.work_object is None and not base_given)]  # fmt: skip
+        if plain:
+            named = ", ".join(plain[:5]) + (", ..." if len(plain) > 5 else "")
+            notes.append(f"{len(plain)} KRL targets ({named}) name no TOOL_NO or BASE_NO in an FDAT: they are taken "
+                         "with $TOOL = the flange and $BASE = the robot's base frame where --tool and --base do not "
+                         "give them")  # fmt: skip
     return notes
 
 

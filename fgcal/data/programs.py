@@ -63,14 +63,15 @@ class ProgramTarget:
     line: int  # 1-based line of the declaration
     pose: np.ndarray  # (4, 4), metres
     config: dict[str, int]  # RAPID: cf1, cf4, cf6, cfx; KRL: S and T when given
-    tool: str | None = None  # RAPID: the tool of the first motion instruction using the target
-    work_object: str | None = None  # RAPID: the \WObj of that instruction
+    tool: str | None = None  # RAPID: the tool of the first motion instruction using it; KRL: its FDAT's TOOL_DATA[n]
+    work_object: str | None = None  # RAPID: the \WObj of that instruction; KRL: its FDAT's BASE_DATA[m]
     spans: Mapping[str, tuple[int, int]] = field(default_factory=dict, repr=False)
     """Character offsets ``[start, end)`` into ``Program.text`` of each value (RAPID: x y z q1..q4
     cf1 cf4 cf6 cfx; KRL: X Y Z A B C and S T when given)."""
     first_move: int | None = None  # RAPID: ordinal of the first motion to the target itself (text order)
     moves: int = 0  # RAPID: how many motion instructions use it (Offs/RelTool of it too)
     approached_from: str | None = None  # RAPID: the target the robot comes from there (None: unknown)
+    fixed_tool: bool = False  # KRL: its FDAT's IPO_FRAME #TCP (an external TCP: the part moves)
 
 
 @dataclass(frozen=True)
@@ -91,9 +92,10 @@ class Program:
     kind: str  # "rapid" or "krl"
     text: str  # exactly as in the file (line endings kept)
     targets: tuple[ProgramTarget, ...]
-    tools: dict[str, ToolData]  # RAPID tooldata (empty for KRL)
-    work_objects: dict[str, np.ndarray]  # RAPID wobjdata: uframe @ oframe, (4, 4) m (empty for KRL)
+    tools: dict[str, ToolData]  # RAPID tooldata; KRL: TOOL_DATA[n] from --declarations (else empty)
+    work_objects: dict[str, np.ndarray]  # RAPID wobjdata: uframe @ oframe; KRL: BASE_DATA[m]; (4, 4) m
     encoding: str = "utf-8"  # "latin-1" when the file is not UTF-8: write the new text back with it
+    declared_in: dict[str, str] = field(default_factory=dict)  # lower-case name -> the file (--declarations)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -642,12 +644,30 @@ _KRL_BITS = re.compile(r"'([Bb])([01]+)'|'([Hh])([0-9A-Fa-f]+)'")
 _Fail = Callable[[str], InputError]  # builds the error naming the file, line and target
 
 
+_KRL_FDAT = re.compile(r"\s*(?:GLOBAL\s+)?(?:DECL\s+)?(?:GLOBAL\s+)?FDAT\s+([A-Za-z_$][\w$]*)\s*=\s*\{(.*)\}\s*$",
+                       re.IGNORECASE)  # fmt: skip
+_KRL_FDAT_FIELD = re.compile(r"(TOOL_NO|BASE_NO)\s+([0-9]+)|IPO_FRAME\s+#(\w+)", re.IGNORECASE)
+
+
 def _krl_targets(text: str, path: Path) -> tuple[ProgramTarget, ...]:
-    """The E6POS and POS targets of a KRL ``.dat`` file."""
+    """The E6POS and POS targets of a KRL ``.dat`` file, each with the tool and base its FDAT
+    names (the inline forms' ``XP1`` and ``FP1``: ``TOOL_DATA[n]``, ``BASE_DATA[m]``; 0 is the
+    flange or the robot's base frame)."""
     targets: list[ProgramTarget] = []
     seen: dict[str, int] = {}
+    motion_data: dict[str, tuple[str | None, str | None, bool]] = {}
     for number, start in enumerate(_line_starts(text), 1):
         code = _KRL_CODE.match(text, start).group()
+        fdat = _KRL_FDAT.match(code)
+        if fdat is not None:
+            fields = {m.group(1).upper() if m.group(1) else "IPO_FRAME": m.group(2) or m.group(3).upper()
+                      for m in _KRL_FDAT_FIELD.finditer(fdat.group(2))}  # fmt: skip
+            tool, base = int(fields.get("TOOL_NO", 0)), int(fields.get("BASE_NO", 0))
+            motion_data[fdat.group(1).lower()] = (
+                f"TOOL_DATA[{tool}]" if tool else None, f"BASE_DATA[{base}]" if base else None,
+                fields.get("IPO_FRAME") == "TCP",
+            )  # fmt: skip
+            continue
         match = _KRL_DECL.match(code)
         if match is None:
             continue
@@ -660,7 +680,13 @@ def _krl_targets(text: str, path: Path) -> tuple[ProgramTarget, ...]:
             raise InputError(path, field_name, f"declared twice (first on line {seen[name.lower()]})")
         seen[name.lower()] = number
         targets.append(target)
-    return tuple(targets)
+    out = []
+    for target in targets:
+        data = motion_data.get("f" + target.name[1:].lower()) if target.name[:1] in "xX" else None
+        if data is not None:
+            target = replace(target, tool=data[0], work_object=data[1], fixed_tool=data[2])
+        out.append(target)
+    return tuple(out)
 
 
 def _krl_target(code: str, at: int, offset: int, name: str, line: int, fail: _Fail) -> ProgramTarget | None:
@@ -731,6 +757,89 @@ def _krl_integer(key: str, text: str, fail: _Fail) -> int:
     if bits is None:
         raise fail(f"{key}: {text!r} is not an integer (decimal, 'B...' or 'H...')")
     return int(bits.group(2), 2) if bits.group(1) else int(bits.group(4), 16)
+
+
+# ---------------------------------------------------------------------------------------------
+# Declarations held in another file: RAPID's user.sys or a tools module, KUKA's $config.dat
+
+_KRL_SYSTEM = re.compile(
+    r"\s*(?:DECL\s+\w+\s+)?(TOOL_DATA|BASE_DATA|LOAD_DATA)\s*\[\s*([0-9]+)\s*\]\s*=\s*\{(.*)\}\s*$", re.IGNORECASE
+)
+_KRL_LOAD = re.compile(r"\s*M\s+(\S+?)\s*,\s*CM\s*\{([^}]*)\}", re.IGNORECASE)
+
+
+def with_declarations(program: Program, paths: list[str | Path]) -> Program:
+    """The program with the tools and work objects other files declare: RAPID modules
+    (``user.sys``: their tooldata and wobjdata), KUKA's ``$config.dat`` (``TOOL_DATA[n]``,
+    ``BASE_DATA[m]``, and ``LOAD_DATA[n]`` as tool n's load). A name declared twice, in the
+    program and a file or in two files, is refused naming both."""
+    tools, objects = dict(program.tools), dict(program.work_objects)
+    where = {name.lower(): program.path for name in [*tools, *objects]}
+    for path in map(Path, paths):
+        if program.kind == "rapid":
+            other = read_program(path)
+            if other.kind != "rapid":
+                accepted = ", ".join(RAPID_SUFFIXES)
+                raise InputError(path, "--declarations", f"a RAPID program takes RAPID modules ({accepted})")
+            found_tools, found_objects = other.tools, other.work_objects
+        else:
+            if path.suffix.lower() not in KRL_SUFFIXES:
+                raise InputError(path, "--declarations", "a KRL program takes KUKA's $config.dat (TOOL_DATA...)")
+            found_tools, found_objects = _krl_system_data(path)
+        if not found_tools and not found_objects:
+            raise InputError(path, "--declarations", "declares no tool or work object (tooldata, wobjdata; TOOL_DATA, "
+                             "BASE_DATA)")  # fmt: skip
+        for name in [*found_tools, *found_objects]:
+            if name.lower() in where:
+                raise InputError(path, name, f"declared in {where[name.lower()]} too: which one the controller uses "
+                                 "depends on its task and scope; give one file")  # fmt: skip
+            where[name.lower()] = path
+        tools.update(found_tools)
+        objects.update(found_objects)
+    files = {name: path.name for name, path in where.items() if path != program.path}
+    return replace(program, tools=tools, work_objects=objects, declared_in=files)
+
+
+def _krl_system_data(path: Path) -> tuple[dict[str, ToolData], dict[str, np.ndarray]]:
+    """``TOOL_DATA[n]`` (each with ``LOAD_DATA[n]``'s mass and centre of mass where it gives
+    one: M -1 is the controller's "no load data"), and ``BASE_DATA[m]``, of a $config.dat."""
+    text, _ = _read_text(path)
+    frames: dict[str, np.ndarray] = {}
+    loads: dict[int, tuple[float, np.ndarray]] = {}
+    for number, start in enumerate(_line_starts(text), 1):
+        code = _KRL_CODE.match(text, start).group()
+        match = _KRL_SYSTEM.match(code)
+        if match is None:
+            continue
+        kind, index, body = match.group(1).upper(), int(match.group(2)), match.group(3)
+        name = f"{kind}[{index}]"
+        fail = partial(InputError, path, f"line {number}, {name}")
+        if kind == "LOAD_DATA":
+            load = _KRL_LOAD.match(body)
+            if load is None:
+                raise fail("expected {M mass,CM {X ..,Y ..,Z ..,A ..,B ..,C ..},J {...}} (kg, mm)")
+            mass = _krl_real("M", load.group(1), fail)
+            cm = _krl_components(load.group(2), 0, len(load.group(2)), 0, fail)
+            cog = np.array([_krl_real(k, cm[k][0], fail) if k in cm else 0.0 for k in "XYZ"]) * MM
+            if mass > MAX_LOAD_KG or np.abs(cog).max() > MAX_COG_MM * MM:
+                raise fail(f"a mass of at most {MAX_LOAD_KG:g} kg and a centre of mass within {MAX_COG_MM:g} mm")
+            if mass >= 0:
+                loads[index] = (mass, cog)
+            continue
+        components = _krl_components(body, 0, len(body), 0, fail)
+        missing = [key for key in _KRL_POSE_KEYS if key not in components]
+        if missing:
+            raise fail(f"missing {', '.join(missing)}: a frame needs X, Y, Z, A, B and C (mm, deg)")
+        values = {key: _krl_real(key, components[key][0], fail) for key in _KRL_POSE_KEYS}
+        frames[name] = se3.pose_from_xyz_rpy(
+            np.array([values["X"], values["Y"], values["Z"]]) * MM, np.radians([values["C"], values["B"], values["A"]])
+        )
+    tools = {}
+    for name, frame in frames.items():
+        if name.startswith("TOOL_DATA"):
+            mass, cog = loads.get(int(name[10:-1]), (0.0, np.zeros(3)))
+            tools[name] = ToolData(frame, mass, cog, True)
+    return tools, {name: frame for name, frame in frames.items() if name.startswith("BASE_DATA")}
 
 
 # ---------------------------------------------------------------------------------------------
