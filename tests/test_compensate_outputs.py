@@ -70,7 +70,7 @@ def test_abbs_calibration_home_is_found(tmp_path, capsys):
     capsys.readouterr()
 
 
-def test_a_kuka_turn_changed_is_said(tmp_path, caplog):
+def test_a_kuka_turn_changed_is_said(tmp_path, capsys):
     """A4 at +0.05 deg (T bit 3 clear), corrected to -0.15 deg: T is rewritten, and the target's
     status says so (it was "ok")."""
     robot_file = _calibrated(tmp_path, "kuka_kr125_2", {"theta4": np.radians(0.2), "a2": 3e-4})
@@ -81,7 +81,8 @@ def test_a_kuka_turn_changed_is_said(tmp_path, caplog):
     (row,) = _rows(tmp_path / "o.corrections.csv")
     assert row["status"] == "turn changed" and row["corrected"] == "yes", row
     assert read_program(tmp_path / "o.dat").targets[0].config == {"S": 2, "T": 2 | 8}
-    assert "new T (turn)" in caplog.text, caplog.text
+    printed = "".join(capsys.readouterr())  # the command's lines go to stdout, warnings too (not to logging's root)
+    assert "new T (turn)" in printed, printed
 
 
 def test_unreachable_rows_carry_no_commands(tmp_path, capsys):
@@ -268,3 +269,20 @@ def test_a_corrected_program_states_its_assumptions_and_reads_back(tmp_path, kin
         np.testing.assert_allclose(target.pose[:3, 3] - original[:3, 3], dx, atol=1e-6)
     again = main(["compensate", str(robot_file), str(out), "--out", str(tmp_path / f"twice{suffix}")])
     assert again == 2 and not (tmp_path / f"twice{suffix}").exists()
+
+
+def test_inline_targets_of_the_src_beside_a_dat_are_listed(tmp_path, capsys):
+    """KRL: the .dat is corrected; motions of the .src beside it whose target is written inline
+    (LIN {X ...}) are not, and were skipped without a word: the warning lists their lines
+    (an axis-specific PTP {A1 ...} is no Cartesian target and is not listed)."""
+    robot_file = _calibrated(tmp_path, "kuka_kr125_2", {"a2": 3e-4})
+    nominal = fgcal.load_robot("kuka_kr125_2")
+    q = np.radians([[10, -80, 100, 5, 40, 20]])
+    (tmp_path / "P.dat").write_text(_krl([("XP1", nominal.fk(q)[0], configurations(nominal, "krl", q)[0])]))
+    (tmp_path / "P.src").write_text(
+        "DEF P()\nPTP {A1 0,A2 -90,A3 90,A4 0,A5 0,A6 0}\nPTP XP1\nLIN {X 1500,Y 0,Z 1500,A 0,B 90,C 0} C_DIS\n"
+        "; LIN {X 1,Y 2,Z 3} a comment\nSLIN {E6POS: X 1400,Y 10,Z 1500,A 0,B 90,C 0}\nEND\n"
+    )
+    assert main(["compensate", str(robot_file), str(tmp_path / "P.dat"), "--out", str(tmp_path / "o.dat")]) == 0
+    printed = "".join(capsys.readouterr())
+    assert "P.src beside it has 2 motions with a target written inline ({X ...}; lines 4, 6)" in printed, printed

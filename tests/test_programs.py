@@ -375,7 +375,8 @@ BAD_KRL = {
     "unterminated": ("DECL E6POS XP1={X 0,Y 1,Z 2,A 0,B 0,C 0\nENDDAT\n", "no '}'"),
     "empty component": ("DECL E6POS XP1={X 0,,Y 1,Z 2,A 0,B 0,C 0}\n", "malformed component"),
     "repeated component": ("DECL E6POS XP1={X 0,X 1,Y 1,Z 2,A 0,B 0,C 0}\n", "given twice"),
-    "an array": ("DECL E6POS XP[3]\n", "not supported"),
+    "an array of size 0": ("DECL E6POS XP[0]\n", "declared as DECL E6POS NAME\\[n\\]"),
+    "an array given a value": ("DECL E6POS XP[2]={X 0,Y 1,Z 2,A 0,B 0,C 0}\n", "element by element"),
 }  # fmt: skip
 
 
@@ -533,3 +534,32 @@ def test_rapid_arrays_give_their_elements_with_their_tools_and_work_objects(tmp_
     for old, new in zip(program.targets, again.targets, strict=True):
         expected = moved if old.name == "grid{2,1}" else old.pose
         np.testing.assert_allclose(new.pose, expected, atol=1e-9)
+
+
+KRL_ARRAYS = """DEFDAT PALLET
+DECL E6POS XPS[3]
+XPS[1]={X 1000,Y 0,Z 800,A 0,B 90,C 0,S 2,T 2}
+XPS[3]={X 1000,Y 200,Z 800,A 0,B 90,C 0,S 2,T 2} ; the last
+DECL POS XGRID[2,2]
+XGRID[2, 1]={X 900,Y 0,Z 700,A 10,B 80,C 0}
+FDAT_NOT_A_TARGET[1]={TOOL_NO 1}
+ENDDAT
+"""
+
+
+def test_krl_arrays_give_their_elements(tmp_path):
+    """DECL E6POS XPS[3] then XPS[1]={...}: a target per element (it was refused: 'arrays of
+    positions are not supported'); the write-back changes the element's line only."""
+    program = _read(tmp_path, KRL_ARRAYS, "pallet.dat")
+    assert [(t.name, t.line) for t in program.targets] == [("XPS[1]", 3), ("XPS[3]", 4), ("XGRID[2,1]", 6)]
+    assert np.allclose(program.targets[1].pose[:3, 3], [1.0, 0.2, 0.8])
+    assert program.targets[1].config == {"S": 2, "T": 2}
+    moved = program.targets[2].pose.copy()
+    moved[:3, 3] += [0.0005, 0, 0]
+    text = write_program(program, {"XGRID[2,1]": (moved, {})})
+    changed = [k for k, (a, b) in enumerate(zip(KRL_ARRAYS.splitlines(), text.splitlines(), strict=True), 1) if a != b]
+    assert changed == [6]
+    np.testing.assert_allclose(_read(tmp_path, text, "again.dat").targets[2].pose, moved, atol=1e-9)
+    with pytest.raises(InputError, match="outside the array's declared size") as info:
+        _read(tmp_path, KRL_ARRAYS.replace("XPS[3]={", "XPS[4]={"), "bad.dat")
+    assert info.value.field == "line 4, XPS[4]"

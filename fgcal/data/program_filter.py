@@ -615,7 +615,7 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
     """Refuse configuration data no controller writes; the notes a person should read about
     frames the program does not name (they default to the flange and the base frame)."""
     from ..core.errors import InputError
-    from .programs import inline_targets
+    from .programs import inline_targets, krl_inline_targets
 
     for target in program.targets:
         for key, value in target.config.items():
@@ -639,6 +639,11 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
             f"{len(inline)} motions with a target written inline ([[x, y, z], ...]; lines {shown}) are not "
             "corrected: they have no name to correct them by; declare them as robtargets"
         )
+    source, lines = krl_inline_targets(program)
+    if lines:
+        shown = ", ".join(map(str, lines[:8])) + (", ..." if len(lines) > 8 else "")
+        notes.append(f"{source.name} beside it has {len(lines)} motions with a target written inline ({{X ...}}; "
+                     f"lines {shown}): they are not corrected; declare them in {program.path.name}")  # fmt: skip
     if program.kind == "krl" and not (tool_given and base_given):
         plain = [t.name for t in program.targets if (t.tool is None and not tool_given) or
                  (t.work_object is None and not base_given)]  # fmt: skip

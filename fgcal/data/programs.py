@@ -21,7 +21,8 @@ in a loop) takes that instruction's tool and work object, with no place in the p
 
 KRL (``.dat``): ``[GLOBAL] [DECL] E6POS|POS NAME={...}`` on one line, components in any order,
 ``S``/``T`` as decimal integers or ``'B...'``/``'H...'`` literals (written back in the same style).
-Refused: a target missing one of X Y Z A B C, arrays of positions, a malformed component.
+Arrays: ``DECL E6POS XPS[3]`` then ``XPS[1]={X ...}`` lines, one target per element (``XPS[1]``).
+Refused: a target missing one of X Y Z A B C, a malformed component, an element outside its array.
 Everything else (FDAT, PDAT, LDAT, E6AXIS, AXIS, FRAME, comments after ``;``) is left alone.
 """
 
@@ -133,6 +134,25 @@ MAX_VALUE = 1e10  # beyond this a number is a typo (9E+09 is RAPID's unused exte
 _INLINE = re.compile(
     r"\b(Move[A-Za-z]*|Search[A-Za-z]*|Arc[A-Za-z]*|Trigg[A-Za-z]*)\s*(\\\w+\s*,?\s*)*\[\s*\[", re.IGNORECASE
 )
+
+
+_KRL_INLINE = re.compile(r"^\s*(?:S?PTP|S?LIN|S?CIRC)\b[^;]*\{\s*(?:[A-Za-z_]\w*\s*:\s*)?[XYZ]\s", re.IGNORECASE)
+
+
+def krl_inline_targets(program: Program) -> tuple[Path | None, list[int]]:
+    """The ``.src`` beside a KRL ``.dat`` (the same name) and the lines of its motions whose
+    Cartesian target is written inline (``LIN {X 1000, ...}``): they are not in the .dat, so
+    they are listed rather than silently kept. (None, []) without a .src or for RAPID."""
+    if program.kind != "krl":
+        return None, []
+    source = next((p for p in program.path.parent.glob(program.path.stem + ".*") if p.suffix.lower() == ".src"), None)
+    if source is None:
+        return None, []
+    try:
+        text, _ = _read_text(source)
+    except InputError:
+        return source, []  # unreadable: the .dat is what is corrected
+    return source, [n for n, line in enumerate(text.splitlines(), 1) if _KRL_INLINE.match(line)]
 
 
 def inline_targets(program: Program) -> list[int]:
@@ -646,6 +666,8 @@ _Fail = Callable[[str], InputError]  # builds the error naming the file, line an
 
 _KRL_FDAT = re.compile(r"\s*(?:GLOBAL\s+)?(?:DECL\s+)?(?:GLOBAL\s+)?FDAT\s+([A-Za-z_$][\w$]*)\s*=\s*\{(.*)\}\s*$",
                        re.IGNORECASE)  # fmt: skip
+_KRL_ELEMENT = re.compile(r"\s*([A-Za-z_$][\w$]*)\s*\[([0-9,\s]+)\]")
+_KRL_DIMENSIONS = re.compile(r"\s*\[\s*([0-9]+(?:\s*,\s*[0-9]+)*)\s*\]")
 _KRL_FDAT_FIELD = re.compile(r"(TOOL_NO|BASE_NO)\s+([0-9]+)|IPO_FRAME\s+#(\w+)", re.IGNORECASE)
 
 
@@ -656,6 +678,7 @@ def _krl_targets(text: str, path: Path) -> tuple[ProgramTarget, ...]:
     targets: list[ProgramTarget] = []
     seen: dict[str, int] = {}
     motion_data: dict[str, tuple[str | None, str | None, bool]] = {}
+    arrays: dict[str, list[int]] = {}  # lower-case name -> its dimensions
     for number, start in enumerate(_line_starts(text), 1):
         code = _KRL_CODE.match(text, start).group()
         fdat = _KRL_FDAT.match(code)
@@ -669,11 +692,30 @@ def _krl_targets(text: str, path: Path) -> tuple[ProgramTarget, ...]:
             )  # fmt: skip
             continue
         match = _KRL_DECL.match(code)
-        if match is None:
+        element = _KRL_ELEMENT.match(code) if match is None else None
+        if element is not None and element.group(1).lower() in arrays:  # XPS[2]={X ...}: an array's element
+            name = element.group(1) + "[" + re.sub(r"\s+", "", element.group(2)) + "]"
+            fail = partial(InputError, path, f"line {number}, {name}")
+            index = [int(v) for v in name[name.index("[") + 1 : -1].split(",")]
+            size = arrays[element.group(1).lower()]
+            if len(index) != len(size) or any(not 1 <= i <= n for i, n in zip(index, size, strict=False)):
+                raise fail(f"index outside the array's declared size [{','.join(map(str, size))}]")
+            target = _krl_target(code, element.end(), start, name, number, fail)
+        elif match is None:
             continue
-        name = match.group(2)
+        else:
+            name = match.group(2)
+            dimensions = _KRL_DIMENSIONS.match(code, match.end())
+            if dimensions is not None:  # DECL E6POS XPS[3]: its elements follow, one a line
+                sizes = [int(v) for v in dimensions.group(1).split(",")]
+                if min(sizes) < 1 or code[dimensions.end() :].strip():
+                    raise InputError(path, f"line {number}, {name}", "an array of positions is declared as "
+                                     "DECL E6POS NAME[n] and given element by element: NAME[1]={X ...}")  # fmt: skip
+                arrays[name.lower()] = sizes
+                continue
+            target = _krl_target(code, match.end(), start, name, number, partial(InputError, path,
+                                                                                 f"line {number}, {name}"))
         field_name = f"line {number}, {name}"
-        target = _krl_target(code, match.end(), start, name, number, partial(InputError, path, field_name))
         if target is None:
             continue
         if name.lower() in seen:
@@ -694,8 +736,6 @@ def _krl_target(code: str, at: int, offset: int, name: str, line: int, fail: _Fa
     rest = code[at:]
     if not rest.strip():
         return None
-    if rest.lstrip().startswith("["):
-        raise fail("arrays of positions are not supported: declare each target on its own")
     brace = re.match(r"\s*=\s*\{", rest)
     if brace is None:
         raise fail("expected '={X ..,Y ..,Z ..,A ..,B ..,C ..}' after the name")
