@@ -286,3 +286,29 @@ def test_inline_targets_of_the_src_beside_a_dat_are_listed(tmp_path, capsys):
     assert main(["compensate", str(robot_file), str(tmp_path / "P.dat"), "--out", str(tmp_path / "o.dat")]) == 0
     printed = "".join(capsys.readouterr())
     assert "P.src beside it has 2 motions with a target written inline ({X ...}; lines 4, 6)" in printed, printed
+
+
+def test_payload_com_follows_the_length_unit(tmp_path, capsys):
+    """--payload-com is in --length-unit, as --tcp is (it stayed in m with --length-unit mm, and
+    a centre of mass typed in mm read as metres); one beyond the arm's reach is refused."""
+    robot_file = _calibrated(tmp_path, "abb_irb120", {**COMPLIANT, "a2": 2e-4})
+    nominal = fgcal.load_robot("abb_irb120")
+    _, poses = _targets(nominal)
+    rows = [(f"p{k}", T[:3, 3]) for k, T in enumerate(poses)]
+    (tmp_path / "m.csv").write_text("target,x,y,z\n" + "".join(f"{n},{x:.9f},{y:.9f},{z:.9f}\n" for n, (x, y, z) in rows))
+    (tmp_path / "mm.csv").write_text(
+        "target,x,y,z\n" + "".join(f"{n},{x * 1e3:.6f},{y * 1e3:.6f},{z * 1e3:.6f}\n" for n, (x, y, z) in rows)
+    )
+    base = ["compensate", str(robot_file), "--payload-mass", str(LOAD_KG)]
+    assert main([*base, str(tmp_path / "m.csv"), "--out", str(tmp_path / "o_m.csv"), "--payload-com", "0", "0",
+                 "0.1"]) == 0  # fmt: skip
+    assert main([*base, str(tmp_path / "mm.csv"), "--out", str(tmp_path / "o_mm.csv"), "--length-unit", "mm",
+                 "--payload-com", "0", "0", "100"]) == 0  # fmt: skip
+    in_m, in_mm = _rows(tmp_path / "o_m.csv"), _rows(tmp_path / "o_mm.csv")
+    for a, b in zip(in_m, in_mm, strict=True):
+        assert abs(float(a["x_cmd"]) * 1e3 - float(b["x_cmd_mm"])) < 1e-3 and a["status"] == b["status"] == "ok"
+    assert "centre of mass (0, 0, 100) mm" in "".join(capsys.readouterr())
+    (tmp_path / "p.mod").write_text(_rapid([("p0", poses[0], configurations(nominal, "rapid", np.zeros((1, 6)))[0])]))
+    assert main([*base, str(tmp_path / "p.mod"), "--out", str(tmp_path / "o.mod"), "--payload-com", "0", "0",
+                 "8"]) == 2  # fmt: skip
+    assert "beyond the arm's reach" in capsys.readouterr().err

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..core.console import Reporter, say, warn
 from ..data.compensation import ORIENTATIONS
-from .options import JSON_HELP, LENGTH_M, count, emit, real
+from .options import JSON_HELP, count, emit, real
 
 
 def cmd_compensate(args: argparse.Namespace) -> int:
@@ -60,7 +60,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     loaded, source = robot, "the robot file's: the calibration's payload"
     if args.payload_mass is not None or args.payload_com is not None:
         mass = robot.payload_mass if args.payload_mass is None else args.payload_mass
-        com = robot.payload_com if args.payload_com is None else np.array(args.payload_com)
+        com = robot.payload_com if args.payload_com is None else payload_com(args.payload_com, units.to_m, robot)
         loaded = robot.with_tool(robot.tool_pose, float(mass), com)
         source = " and ".join(o for o, v in (("--payload-mass", args.payload_mass), ("--payload-com", args.payload_com))
                               if v is not None) + ("" if args.payload_mass is not None and args.payload_com is not None
@@ -121,6 +121,20 @@ ORIENTATION_WORDS = {
     "abc": "a b c, R = Rz(A) Ry(B) Rx(C)",
     "quaternion": "qw qx qy qz",
 }
+
+
+def payload_com(given: list[float], to_m: float, robot) -> np.ndarray:
+    """--payload-com in metres: given in --length-unit (a program's: m). A centre of mass farther
+    from the flange than the arm reaches is a unit slip (mm typed for m), refused."""
+    from ..core.errors import InputError
+
+    com = np.array(given, dtype=float) * to_m
+    reach = robot.reach_m()[1]
+    if np.linalg.norm(com) > reach:
+        unit = "mm" if to_m == 1e-3 else "m"
+        raise InputError(None, "--payload-com", f"{' '.join(map(str, given))}: {np.linalg.norm(com):.3g} m from the "
+                         f"flange, beyond the arm's reach ({reach:.3g} m); it is in {unit}")  # fmt: skip
+    return com
 
 
 def _tcp(given: list[float] | None, to_m: float) -> np.ndarray:
@@ -254,7 +268,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=real(0.0, 10000.0, "kg"),
         help="payload (kg) for the deflection (default the robot file's)",
     )
-    p.add_argument("--payload-com", type=LENGTH_M, nargs=3, help="payload centre of mass in the flange frame (m)")
+    p.add_argument(
+        "--payload-com", type=real(-1e4, 1e4, "m, or mm with --length-unit mm"), nargs=3,
+        help="payload centre of mass in the flange frame, in --length-unit (default m; a program's: m)",
+    )  # fmt: skip
     p.add_argument(
         "--tolerance-um",
         type=real(0.0, 1e6, "um", above_low=True),

@@ -43,6 +43,7 @@ def compensate_program(
         with_header,
         write_program,
     )
+    from .compensate import payload_com
 
     source, out = Path(args.targets), Path(args.out)
     table = out.with_name(f"{out.stem}.corrections.csv")
@@ -69,7 +70,7 @@ def compensate_program(
         raise InputError(source, f"line {line}", "was corrected by fgcal compensate already: correct the original")
     for note in check_program(program, args.tool is not None, args.base is not None):
         warn(note)
-    com = None if args.payload_com is None else np.array(args.payload_com, dtype=float)
+    com = None if args.payload_com is None else payload_com(args.payload_com, 1.0, robot)
     frames = program_frames(program, args.tool, args.base, robot, args.payload_mass, com)
     poses = np.array([target.pose for target in program.targets])
     say(f"correcting {len(poses)} targets of {source.name} ({program.kind.upper()})")
