@@ -295,7 +295,9 @@ def test_payload_com_follows_the_length_unit(tmp_path, capsys):
     nominal = fgcal.load_robot("abb_irb120")
     _, poses = _targets(nominal)
     rows = [(f"p{k}", T[:3, 3]) for k, T in enumerate(poses)]
-    (tmp_path / "m.csv").write_text("target,x,y,z\n" + "".join(f"{n},{x:.9f},{y:.9f},{z:.9f}\n" for n, (x, y, z) in rows))
+    (tmp_path / "m.csv").write_text(
+        "target,x,y,z\n" + "".join(f"{n},{x:.9f},{y:.9f},{z:.9f}\n" for n, (x, y, z) in rows)
+    )
     (tmp_path / "mm.csv").write_text(
         "target,x,y,z\n" + "".join(f"{n},{x * 1e3:.6f},{y * 1e3:.6f},{z * 1e3:.6f}\n" for n, (x, y, z) in rows)
     )

@@ -37,7 +37,7 @@ RUNS = {
          "--formulation", "pairs", "--model", "DH,s,e", "--seed", "2", "--no-plots"],
         ["plan", "irb120_tracker", "--n", "12", "--out", "{ws}/plan_tracker", "--candidates", "300", "--json"],
         ["plan", "irb120_tracker_lost_motion", "--n", "12", "--out", "{ws}/plan_lost", "--candidates", "300",
-         "--approach", "unidirectional", "--approach-offset", "3"],
+         "--approach", "unidirectional", "--approach-offset", "3", "--program", "rapid", "krl", "csv-deg"],
         ["simulate", "kr125_seed", "--out", "{ws}/planned", "--configurations", "{ws}/plan/configurations.csv"],
     ],
     "use the result": [

@@ -28,6 +28,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         approach_offset_rad=float(np.radians(args.approach_offset)),
     )
     written = write_plan(result, args.out, plot=not args.no_plots)
+    for kind in args.program or []:
+        written += [path.name for path in _program(kind, result, args)]
     say(
         f"  predicted position accuracy {result.predicted_sigma_m * 1e3:.4f} mm RMS over the region "
         f"(space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
@@ -55,6 +57,39 @@ def cmd_plan(args: argparse.Namespace) -> int:
         "approach": result.approach, "lost_motion": result.lost_motion,
     })  # fmt: skip
     return 0
+
+
+def _program(kind: str, result, args: argparse.Namespace) -> list[Path]:
+    """The plan as a program of ``kind`` (RAPID, KRL, CSV in degrees), stating its assumptions."""
+    from ..data.assumptions import Assumptions
+    from ..data.joint_programs import NAME, RAPID_SPEED, SETTLE_S, write_joint_program
+    from ..simulation.cell import load_cell
+
+    robot = load_cell(bundled_cell(args.cell)).robot
+    q = result.candidates.q[result.chosen]
+    approach = result.approach_points
+    com_mm = ", ".join(f"{v * 1e3:.6g}" for v in robot.payload_com)
+    motion = {"rapid": f"MoveAbsJ at {RAPID_SPEED}, fine, then {SETTLE_S:g} s",
+              "krl": f"PTP at 20 %, exact stop, then {SETTLE_S:g} s", "csv-deg": "a row each, in order"}  # fmt: skip
+    assumptions = Assumptions(
+        what=f"calibration measurement plan from fgcal plan: {result.n} configurations of {result.robot} for the "
+        f"cell {result.cell} ({result.criterion}, {result.formulation}, model {result.model}, seed {result.seed}); "
+        f"stop at each ({motion[kind]}) and measure it",
+        frame=f"joint positions as the model of {result.robot} defines each joint's zero and sign (the "
+        "controller's, for fgcal's bundled models): no Cartesian frame, no work object",
+        tool="the motions are in joints (the TCP sets only their speed: tool0, the flange); mount the measuring "
+        "tool the cell describes (its reflectors, camera, probe or ball)",
+        payload=f"{robot.payload_mass:g} kg, centre of mass ({com_mm}) mm in the flange frame: the cell's, which the "
+        "plan's compliances assume; set the controller's load data to it",
+        units="deg for a revolute joint, mm for a prismatic one",
+        approach=(f"each configuration from its approach point {np.degrees(result.approach_offset_rad):g} deg below "
+                  "on every joint, visited just before it (a_ / XA_ points)") if approach is not None
+        else "each configuration from the one before, in this order (the plan's)",
+    )  # fmt: skip
+    names = [f"p{k:04d}" for k in range(len(q))]  # as configurations.csv names them
+    paths = write_joint_program(kind, args.out, names, q, approach, assumptions, np.asarray(robot.prismatic, bool))
+    say(f"  {kind} program of the plan: {', '.join(p.name for p in paths)} ({NAME})")
+    return paths
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -95,6 +130,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=2.0,
         help="how far below each configuration its approach point is, deg (default 2)",
+    )  # fmt: skip
+    p.add_argument(
+        "--program", nargs="+", choices=("rapid", "krl", "csv-deg"), metavar="KIND",
+        help="also write the plan as a program to drive it: rapid (cal_plan.mod, MoveAbsJ), krl (cal_plan.src and "
+        ".dat, PTP to E6AXIS) or csv-deg (configurations_deg.csv), joints in degrees, in the plan's order with its "
+        "approach points",
     )  # fmt: skip
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
     p.add_argument("--json", action="store_true", help=JSON_HELP)

@@ -86,6 +86,16 @@ class ToolData:
 
 
 @dataclass(frozen=True)
+class JointTarget:
+    """A joint position a program declares: RAPID ``jointtarget`` (its robax), KRL ``E6AXIS`` or
+    ``AXIS`` (A1..A6), in degrees as written (a prismatic axis: mm)."""
+
+    name: str
+    line: int
+    joints_deg: np.ndarray  # (6,)
+
+
+@dataclass(frozen=True)
 class Program:
     """A robot program as read: its exact text and the targets, tools and work objects declared in it."""
 
@@ -367,14 +377,16 @@ class _Declaration(NamedTuple):
     value: _Node
 
 
-def _rapid_declarations(text: str, tokens: list[_Token], path: Path) -> Iterator[_Declaration]:
+def _rapid_declarations(
+    text: str, tokens: list[_Token], path: Path, types: tuple[str, ...] = _DATA_TYPES
+) -> Iterator[_Declaration]:
     """The declarations of robtarget, tooldata and wobjdata with a value, in order; an array's
     elements each as a declaration of its own, named as RAPID names them (``pts{2}``, ``grid{1,3}``)."""
     i = 0
     while i < len(tokens) - 2:
         tok, kind, name = tokens[i], tokens[i + 1], tokens[i + 2]
         is_declaration = tok.kind == "name" and tok.text.lower() in _STORAGE and name.kind == "name"
-        if is_declaration and kind.kind == "name" and kind.text.lower() in _DATA_TYPES:
+        if is_declaration and kind.kind == "name" and kind.text.lower() in types:
             ctx = _Context(text, tokens, path, name.text, tok.line)
             declarations, i = _parse_declaration(kind.text.lower(), i + 3, ctx)
             yield from declarations
@@ -501,6 +513,45 @@ def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[
     # An array's element goes by its own use (pts{2}), else by a loop's over the array (pts{i}).
     targets = [_with_use(target, _use_of(target.name, uses)) for target in targets]
     return tuple(targets), tools, work_objects
+
+
+def joint_path(program: Program) -> list[JointTarget]:
+    """The joint positions a program drives to, in the order its motions go to them: RAPID
+    ``jointtarget``s by its ``MoveAbsJ`` instructions; KRL ``E6AXIS``/``AXIS`` of the ``.dat`` by
+    the ``PTP`` motions of the ``.src`` of the same name beside it. Without such motions, in
+    declaration order. (Program filtering does not read them: joints need no correction.)"""
+    if program.kind == "rapid":
+        tokens = _rapid_tokens(program.text)
+        declared = [_jointtarget(d.value, d.ctx) for d in _rapid_declarations(program.text, tokens, program.path,
+                                                                               ("jointtarget",))]  # fmt: skip
+        moves = []
+        for i, tok in enumerate(tokens):
+            is_move = tok.kind == "name" and tok.text.lower() == "moveabsj"
+            if is_move and not (i and tokens[i - 1].text.lower() == "proc"):
+                arguments, _ = _instruction_arguments(tokens, i + 1)
+                name = _single_name(arguments[0]) if arguments else None
+                if name is not None:
+                    moves.append(name)
+    else:
+        declared = list(_krl_joint_targets(program.text, program.path))
+        source = next((p for p in program.path.parent.glob(program.path.stem + ".*") if p.suffix.lower() == ".src"),
+                      None)  # fmt: skip
+        moves = list(krl_joint_moves(source)) if source is not None else []
+    by_name = {target.name.lower(): target for target in declared}
+    if not moves:
+        return declared
+    missing = [name for name in moves if name.lower() not in by_name]
+    if missing:
+        raise InputError(program.path, None, f"moves to joint positions it does not declare: {', '.join(missing[:5])}")
+    return [by_name[name.lower()] for name in moves]
+
+
+def _jointtarget(value: _Node, ctx: _Context) -> JointTarget:
+    """``[[rax_1..rax_6], [eax_a..eax_f]]`` (deg; mm for a linear axis)."""
+    robax, extax = _aggregate(value, 2, "jointtarget [[rax_1,...,rax_6],[eax_a,...,eax_f]]", ctx)
+    joints, _ = _numbers(robax, 6, "robax [rax_1,...,rax_6]", ctx)
+    _numbers(extax, 6, "external axes", ctx)
+    return JointTarget(ctx.name, ctx.line, np.array(joints))
 
 
 def _use_of(name: str, uses: dict[str, _Use]) -> _Use | None:
@@ -729,6 +780,42 @@ def _krl_targets(text: str, path: Path) -> tuple[ProgramTarget, ...]:
             target = replace(target, tool=data[0], work_object=data[1], fixed_tool=data[2])
         out.append(target)
     return tuple(out)
+
+
+_KRL_AXIS_DECL = re.compile(r"\s*(?:GLOBAL\s+)?(?:DECL\s+)?(?:GLOBAL\s+)?(E6AXIS|AXIS)\s+([A-Za-z_$][\w$]*)\s*=\s*\{",
+                            re.IGNORECASE)  # fmt: skip
+
+
+def _krl_joint_targets(text: str, path: Path) -> tuple[JointTarget, ...]:
+    """The E6AXIS and AXIS declarations of a KRL ``.dat`` (A1..A6, deg)."""
+    out = []
+    for number, start in enumerate(_line_starts(text), 1):
+        code = _KRL_CODE.match(text, start).group()
+        match = _KRL_AXIS_DECL.match(code)
+        if match is None:
+            continue
+        name = match.group(2)
+        fail = partial(InputError, path, f"line {number}, {name}")
+        close_at = code.find("}", match.end())
+        if close_at < 0:
+            raise fail("unterminated value: no '}' on the line")
+        prefix = _KRL_TYPE_PREFIX.match(code, match.end(), close_at)
+        components = _krl_components(code, prefix.end() if prefix else match.end(), close_at, start, fail)
+        missing = [f"A{i}" for i in range(1, 7) if f"A{i}" not in components]
+        if missing:
+            raise fail(f"missing {', '.join(missing)}: an axis position needs A1 to A6")
+        out.append(JointTarget(name, number, np.array([_krl_real(f"A{i}", components[f"A{i}"][0], fail)
+                                                       for i in range(1, 7)])))  # fmt: skip
+    return tuple(out)
+
+
+_KRL_PTP = re.compile(r"^\s*S?PTP\s+([A-Za-z_$][\w$]*)\b", re.IGNORECASE)
+
+
+def krl_joint_moves(source: str | Path) -> tuple[str, ...]:
+    """The points a KRL ``.src`` moves to with PTP by name, in order (comments skipped)."""
+    text, _ = _read_text(Path(source))
+    return tuple(m.group(1) for line in text.splitlines() if (m := _KRL_PTP.match(_KRL_CODE.match(line).group())))
 
 
 def _krl_target(code: str, at: int, offset: int, name: str, line: int, fail: _Fail) -> ProgramTarget | None:

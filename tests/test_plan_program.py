@@ -1,0 +1,61 @@
+"""fgcal plan --program: the plan as a program a controller runs (RAPID MoveAbsJ, KRL PTP to
+E6AXIS, a CSV in degrees), read back by fgcal's own program reader to the same joints."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fgcal.commands.cli import main
+from fgcal.core.errors import InputError
+from fgcal.data.assumptions import Assumptions
+from fgcal.data.dataset import read_csv
+from fgcal.data.joint_programs import write_joint_program
+from fgcal.data.programs import joint_path, read_program
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    out = tmp_path_factory.mktemp("plan")
+    argv = ["plan", "irb120_tracker_lost_motion", "--n", "8", "--candidates", "200", "--out", str(out), "--approach",
+            "unidirectional", "--approach-offset", "3", "--no-plots", "--program", "rapid", "krl", "csv-deg"]
+    assert main(argv) == 0
+    columns, rows = read_csv(out / "configurations.csv", [])
+    table = np.array([[float(v) for v in row[1:]] for row in rows])
+    q, before = np.degrees(table[:, :6]), np.degrees(table[:, 6:12])
+    assert columns[7:13] == [f"before_q{i}" for i in range(1, 7)]
+    # The path the robot drives: each approach point, then its configuration.
+    return out, [row[0] for row in rows], np.stack([before, q], axis=1).reshape(-1, 6)
+
+
+@pytest.mark.parametrize("program", ["cal_plan.mod", "cal_plan.dat"])
+def test_the_program_drives_the_planned_joints(planned, program):
+    out, names, path = planned
+    read = joint_path(read_program(out / program))
+    assert len(read) == len(path) == 2 * len(names)
+    assert np.abs(np.array([t.joints_deg for t in read]) - path).max() < 1e-6
+    if program.endswith(".mod"):
+        expected = [name for n in names for name in (f"a_{n}", n)]
+    else:  # KRL: E6AXIS XA_P0000, XP0000, moved to by the .src's PTPs
+        expected = [name for n in names for name in (f"XA_{n.upper()}", f"X{n.upper()}")]
+    assert [t.name for t in read] == expected
+
+
+def test_the_programs_state_their_assumptions(planned):
+    out, _, _ = planned
+    for name, mark in (("cal_plan.mod", "!"), ("cal_plan.src", ";"), ("cal_plan.dat", ";"),
+                       ("configurations_deg.csv", "#")):  # fmt: skip
+        text = " ".join(line[1:].strip() for line in (out / name).read_text().splitlines() if line.startswith(mark))
+        for word in ("frame:", "tool:", "payload:", "units:", "approach:", "kg", "deg", "3 deg below"):
+            assert word in text, (name, word)
+    columns, rows = read_csv(out / "configurations_deg.csv", [])
+    assert columns[1] == "q1_deg" and columns[7] == "before_q1_deg" and len(rows) == 8
+
+
+def test_a_rapid_or_krl_program_is_for_six_axes(tmp_path):
+    words = Assumptions("what", "frame", "tool", "payload", "units", "approach")
+    with pytest.raises(InputError, match="csv-deg"):
+        write_joint_program("rapid", tmp_path, ["p0"], np.zeros((1, 7)), None, words, np.zeros(7, bool))
+    (path,) = write_joint_program("csv-deg", tmp_path, ["p0"], np.full((1, 7), 0.1), None, words, np.zeros(7, bool))
+    _, rows = read_csv(path, [])
+    assert np.allclose([float(v) for v in rows[0][1:]], np.degrees(0.1))
