@@ -9,6 +9,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from conftest import REPO
@@ -75,6 +76,33 @@ def test_dual_arm_cell_calibrates_to_its_prediction_with_compliances_and_mass_ra
         assert alone and all(shared[name]["sigma_all"] < s for s in alone), (name, shared[name])
     text = (dual_arm / "both" / "report.md").read_text()
     assert "## Shared by the chains" in text and "| left_hand alone | right_hand alone | all |" in text
+    # Each chain on its own (issue 40, item 7): the pooled figures are the tips' together.
+    by_tip = report["validation"]["by_tip"]
+    assert list(by_tip) == ["left_hand", "right_hand"] and "Held out per tip" in text
+    counts = np.array([entry["n_errors"] for entry in by_tip.values()])
+    for key, pooled in (("before_rms_m", before), ("after_rms_m", after), ("predicted_rms_m", predicted)):
+        tips = np.array([entry[key] for entry in by_tip.values()])
+        assert np.isclose(np.sqrt(np.sum(counts * tips**2) / counts.sum()), pooled, rtol=1e-9), key
+    for tip, entry in by_tip.items():
+        assert entry["before_rms_m"] / entry["after_rms_m"] >= 50.0, (tip, entry)
+        assert 1 / 1.5 <= entry["after_rms_m"] / entry["predicted_rms_m"] <= 1.5, (tip, entry)
+
+
+def test_each_tips_held_out_measurements_without_a_truth(dual_arm, capsys):
+    """Without a truth the per-tip figures are the held-out measurements' (tracker points on
+    each hand), with their prediction (the noise in it)."""
+    data = _copy_dataset(dual_arm / "data", dual_arm / "no_truth")
+    report = _calibrate(data, dual_arm / "no_truth_report", capsys)
+    assert report["validation"]["reference"] == "held-out measurements"
+    by_tip = report["validation"]["by_tip"]
+    assert list(by_tip) == ["left_hand", "right_hand"]
+    counts = np.array([entry["n_errors"] for entry in by_tip.values()])
+    after = np.array([entry["after_rms_m"] for entry in by_tip.values()])
+    pooled = report["validation"]["after"]["position_error_m"]["rms"]
+    assert np.isclose(np.sqrt(np.sum(counts * after**2) / counts.sum()), pooled, rtol=1e-9)
+    for tip, entry in by_tip.items():
+        assert entry["before_rms_m"] > 10 * entry["after_rms_m"], (tip, entry)
+        assert 1 / 1.5 <= entry["after_rms_m"] / entry["predicted_rms_m"] <= 1.5, (tip, entry)
 
 
 @pytest.mark.parametrize("hand", ["t1", "t2"])

@@ -191,6 +191,9 @@ class CalibrationResult:
     # Parameters the stages release but identifiability fixed -> how many sigmas a fit releasing
     # each would move it (calibration.identifiability.evidence_against_fixing)
     fixed_evidence_sigmas: Mapping[str, float] = field(default_factory=dict)
+    # A tree's held-out figures per tip (fgcal.calibration.by_tip.TipScore), as validation is:
+    # against the truth once scored with it, else the measurements'; None on a serial arm.
+    by_tip: Mapping[str, object] | None = None
     timing: Mapping[str, float] = field(default_factory=dict)
 
     @property

@@ -16,6 +16,7 @@ from ..core.errors import InputError
 from ..data.dataset import Dataset, load_dataset
 from ..factors import OutsideModelError
 from ..model.robot import MODELS
+from .by_tip import measured_by_tip
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
@@ -288,6 +289,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     prediction = None
     if test_observations is not None and covariance is not None and released:
         prediction = formulation.predicted_held_out(problem, test_observations, state, covariance, factor)
+    by_tip = measured_by_tip(problem, test_observations, before, state, covariance, factor)
     residual = None
     if config.residual_model == "gp":
         t = time.perf_counter()
@@ -331,6 +333,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         references=references,
         residual_model=residual,
         fixed_evidence_sigmas=evidence,
+        by_tip=by_tip,
         timing={
             "solve_s": solve_time,
             "total_s": time.perf_counter() - started,

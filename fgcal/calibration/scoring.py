@@ -16,6 +16,7 @@ import numpy as np
 from ..data.compensation import compensate, nominal_of
 from ..data.truth import Truth, load_truth
 from ..model.motion import MotionHistory, features
+from .by_tip import truth_by_tip
 from .gauge import remove_gauge
 from .prediction import predicted_against_truth, scored_covariances, scored_positions
 from .problem import HeldOut, Problem
@@ -77,13 +78,16 @@ def score_with_truth(result: CalibrationResult) -> CalibrationResult:
         other = load_truth(path)
         if other is None or other.parameters != truth.parameters:
             return result
-    validation = {
-        label: {k: stats(v.errors, v.configs) for k, v in truth_errors(problem, state, truth).items()}
-        for label, state in (("before", result.before), ("after", result.state))
-    }
+    errors = {label: truth_errors(problem, state, truth) for label, state in (("before", result.before),
+                                                                               ("after", result.state))}  # fmt: skip
+    validation = {label: {k: stats(v.errors, v.configs) for k, v in found.items()} for label, found in errors.items()}
+    factor = result.fit.variance_factor if result.fit is not None else 1.0
+    by_tip = None
+    if all("tool_point" in found for found in errors.values()):
+        main = {label: found["tool_point"].errors for label, found in errors.items()}
+        by_tip = truth_by_tip(problem, main, result.state, result.covariance, factor)
     prediction = None
     if result.covariance is not None:
-        factor = result.fit.variance_factor if result.fit is not None else 1.0
         test = problem.test
         prediction = predicted_against_truth(
             problem, result.state, result.covariance, problem.dataset.q[test], problem.dataset.motion[test], factor
@@ -94,6 +98,7 @@ def score_with_truth(result: CalibrationResult) -> CalibrationResult:
         validation=validation,
         prediction=prediction,
         gauge=problem.formulation.gauge(problem.settings),
+        by_tip=by_tip,
     )
 
 

@@ -158,6 +158,8 @@ def report_dict(result: CalibrationResult) -> dict:
             "gauge_removed": result.gauge,
             "predicted_position_sigma_m": predicted_sigma(result),
             "sets": validation_sets(result),
+            # A tree's chains one by one: each tip's before, after and prediction (None: serial).
+            "by_tip": None if result.by_tip is None else {tip: score.as_dict() for tip, score in result.by_tip.items()},
             "test_points": (
                 formulation.test_point_modes(problem, result.test_observations)
                 if result.test_observations is not None
@@ -684,6 +686,13 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             ]
             if "warning" in p:
                 lines += ["", f"**Warning:** {p['warning']}."]
+        if val.get("by_tip"):
+            lines += ["", "Held out per tip (each chain on its own; RMS, mm):", "",
+                      "| tip | errors | before | after | predicted |", "|---|---|---|---|---|"]  # fmt: skip
+            for tip, entry in val["by_tip"].items():
+                cells = [figure(entry[k] * 1e3) if entry[k] is not None else "-"
+                         for k in ("before_rms_m", "after_rms_m", "predicted_rms_m")]  # fmt: skip
+                lines.append(f"| {tip} | {entry['n_errors']} | " + " | ".join(cells) + " |")
         if val.get("sets"):
             lines += ["", "Held-out sets after calibration (RMS, mm):", ""]
             for entry in val["sets"]:
