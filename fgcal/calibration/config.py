@@ -8,15 +8,17 @@ from pathlib import Path
 
 from ..core.fields import Fields, read_yaml
 from ..core.noise import parse_noise
+from ..core.schema import validate
 from ..core.units import Units, parse_units
 from ..data.dataset import MEASUREMENTS
-from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
+from ..model.parameters import MASS_KIND
 from ..model.robot import MODELS
 from .formulations import NAMES, from_measured
 from .priors import Priors, parse_priors
+from .schema import KINDS
+from .schema import CalibrationConfig as ConfigSchema
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
-KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
 # DH angles and their translation corrections (tx, ty, tz) with the lengths.
 SEED_STAGES = (
@@ -27,28 +29,6 @@ SEED_STAGES = (
      "lm", "lv", MASS_KIND),
 )  # fmt: skip
 ONE_SHOT = (SEED_STAGES[-1],)
-CONFIG_KEYS = (
-    "dataset",
-    "units",
-    "formulation",
-    "model",
-    "compliant_joints",
-    "fixture_orientation",
-    "schedule",
-    "stages",
-    "bounds",
-    "noise",
-    "robust",
-    "pairs",
-    "validation",
-    "identifiability",
-    "solver",
-    "pixels_from",
-    "intrinsics",
-    "compare_models",
-    "residual_model",
-    "notes",
-)
 
 
 @dataclass(frozen=True)
@@ -171,8 +151,8 @@ def _formulation(doc: Fields, header: Path, dataset: dict) -> tuple[str, str]:
 
 
 def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> CalibrationConfig:
+    validate(raw, ConfigSchema, source)  # keys, types, nulls and choices; the checks below need the dataset
     doc = Fields(raw, source)
-    doc.check_keys(CONFIG_KEYS)
     base = base_dir if base_dir is not None else source.parent
     header, dataset_doc = _dataset_header(base / doc.string("dataset"))
     stated = parse_units(dataset_doc["units"], header) if dataset_doc.get("units") is not None else None
@@ -192,7 +172,6 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         if isinstance(j, bool) or not isinstance(j, int) or j < 1:
             raise doc.error("compliant_joints", f"joint numbers are integers >= 1, got {j!r}")
     validation = doc.sub("validation", {})
-    validation.check_keys(("holdout", "seed", "complement", "split", "dataset", "tool_points"))
     validation_datasets = _validation_datasets(validation, base)
     declared_points = validation.sub("tool_points", {})
     validation_tool_points = {
@@ -202,9 +181,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     if not 0.0 <= holdout < 0.9:
         raise validation.error("holdout", f"fraction of configurations held out must be in [0, 0.9), got {holdout}")
     ident = doc.sub("identifiability", {})
-    ident.check_keys(("min_information",))
     solver = doc.sub("solver", {})
-    solver.check_keys(("max_iterations",))
     stated = parse_noise(doc, units)
     measurement = MeasurementSettings(
         source=source,

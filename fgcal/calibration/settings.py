@@ -79,7 +79,6 @@ class MeasurementSettings:
 
 def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
     section = doc.sub("robust", {})
-    section.check_keys(list(ROBUST_DEFAULTS))
     out = {}
     for key, default in ROBUST_DEFAULTS.items():
         raw = section.raw(key, list(default) if default is not None else None, nullable=True)  # null: off
@@ -95,7 +94,6 @@ def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
 
 def parse_pairs(doc: Fields) -> PairSettings:
     section = doc.sub("pairs", {})
-    section.check_keys(("partner", "seed", "group_images", "points_from"))
     return PairSettings(
         partner=section.string("partner", "other_object", PARTNERS),
         seed=section.integer("seed", 0, minimum=0, maximum=2**32 - 1),
@@ -107,14 +105,12 @@ def parse_pairs(doc: Fields) -> PairSettings:
 def parse_intrinsics(doc: Fields) -> tuple[float, ...] | None:
     """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``."""
     section = doc.sub("intrinsics", {})
-    section.check_keys(("estimate", "prior_sigma"))
     estimate = section.raw("estimate", False)
     if not isinstance(estimate, bool):
         raise section.error("estimate", f"expected true or false, got {estimate!r}")
     if not estimate:
         return None
     prior = section.sub("prior_sigma", {})
-    prior.check_keys(("focal_px", "centre_px", "radial", "tangential"))
     focal = prior.number("focal_px", 5.0, positive=True)
     centre = prior.number("centre_px", 5.0, positive=True)
     radial = prior.number("radial", 0.01, positive=True)

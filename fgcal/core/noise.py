@@ -4,7 +4,10 @@ units, SI inside."""
 
 from __future__ import annotations
 
+from pydantic import Field, create_model
+
 from .fields import Fields
+from .schema import Number, Schema
 from .units import Units
 
 # Field (SI) -> (file key, kind of unit, fgcal's default when nobody states it).
@@ -29,7 +32,6 @@ UNIT = {"length": "m", "angle": "rad", "pixel": "px"}
 def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, float]:
     """The sigmas a document's ``noise`` section states (SI, by field); the rest unstated."""
     section = doc.sub(key, {})
-    section.check_keys(KEYS)
     scales = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}
     stated = {}
     for field, (name, kind, _) in NOISE.items():
@@ -53,3 +55,17 @@ def noise_document(stated: dict[str, float], units: Units | None = None) -> dict
 
 def defaults() -> dict[str, float]:
     return {field: default for field, (_, _, default) in NOISE.items()}
+
+
+
+_WORDS = {"length": "the file's length unit", "angle": "the file's angle unit", "pixel": "px"}
+# The schema of a ``noise`` section (fgcal.core.schema): each sigma positive, in the file's units.
+NoiseSection = create_model(
+    "Noise",
+    __base__=Schema,
+    __doc__="Declared standard deviations of the measurements, per coordinate, in the file's units.",
+    **{
+        key: (Number, Field(None, gt=0, description=f"sigma, {_WORDS[kind]} (default {default:g} SI)"))
+        for key, kind, default in NOISE.values()
+    },
+)

@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from ..core.errors import InputError
 from ..core.fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
 from ..core.outputs import output_dir
+from ..core.schema import validate
 from ..core.units import Units, parse_units
 from ..model.robot_io import embed_robot, referenced_robot, robot_reference
 from .dataset import (
@@ -35,25 +36,8 @@ from .dataset import (
     write_csv,
     write_header,
 )
+from .schema import ImportMapping
 
-IMPORT_FORMAT = "fgcal-import/1"
-MAPPING_KEYS = (
-    "format",
-    "robot",
-    "units",
-    "configurations",
-    "tracker_points",
-    "tracker_references",
-    "tracker_poses",
-    "distances",
-    "tool_distances",
-    "payload",
-    "order",
-    "tip",
-    "target_tips",
-    "source",
-    "notes",
-)
 READ_KEYS = ("file", "delimiter", "decimal", "header", "skip_rows", "encoding", "units", "not_found")
 # What each table mapping may name besides its reading options: the dataset's id columns (each
 # from a column, or one fixed name for every row with the ``_name`` form) and its values.
@@ -197,7 +181,6 @@ def _units(fields: Fields, default: Units) -> Units:
 
 
 def _configurations(fields: Fields, base: Path, units: Units, n_joints: int) -> tuple[Imported, dict[str, int]]:
-    fields.check_keys((*READ_KEYS, *TABLE_KEYS["configurations"]))
     source = read_source(fields, base)
     own = _units(fields, units)
     joints = fields.items("joints")
@@ -261,7 +244,6 @@ def _rotation(fields: Fields, source: SourceTable) -> tuple[list[int], str | Non
     if fields.has("quaternion"):
         return _columns(fields, source, "quaternion", 4), None
     euler = fields.sub("euler")
-    euler.check_keys(("columns", "sequence"))
     sequence = euler.string("sequence")
     # scipy's notation: lower case extrinsic (fixed axes), upper case intrinsic (moving axes).
     if not re.fullmatch(r"[xyz]{3}|[XYZ]{3}", sequence) or sequence[0] == sequence[1] or sequence[1] == sequence[2]:
@@ -274,7 +256,6 @@ def _rotation(fields: Fields, source: SourceTable) -> tuple[list[int], str | Non
 def _measurements(
     name: str, fields: Fields, base: Path, units: Units, configs: dict[str, int], n_configs: int
 ) -> Imported:
-    fields.check_keys((*READ_KEYS, *TABLE_KEYS[name]))
     source = read_source(fields, base)
     own = _units(fields, units)
     length_scale = own.to_m / units.to_m
@@ -379,9 +360,8 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     """The importer on a mapping document read from ``source`` (errors name it); ``origin``
     opens the dataset's ``source`` text."""
     out = Path(out)
+    validate(raw, ImportMapping, source)  # keys, types, nulls and choices; the checks below need the files
     doc = Fields(raw, source)
-    doc.check_keys(MAPPING_KEYS)
-    doc.check_format(IMPORT_FORMAT)
     units = parse_units(doc.raw("units", None), source)
     robot_ref, robot = referenced_robot(doc, base)
     configurations, configs = _configurations(doc.sub("configurations"), base, units, robot.n_joints)

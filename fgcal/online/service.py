@@ -16,7 +16,7 @@ import shutil
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from ..core import strict_json
 from ..core.errors import InputError
 from ..core.fields import Fields, read_yaml
 from ..core.outputs import subfolder, write_bytes, write_text
+from ..core.schema import validate
 from ..data.dataset import load_dataset
 from ..model.parameters import unit_of
 from ..model.robot import SAME_ROBOT_M
@@ -35,6 +36,7 @@ from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement
 from .report import write_final_report
+from .schema import OnlineSetup
 from .state import StateDir, encode_record, open_for_writing, write_atomic
 
 CONFIG = "config.yaml"
@@ -50,8 +52,9 @@ CHECKPOINT_EVERY = 25
 
 def load_config(path: Path) -> dict:
     """Validate a setup file; returns it with paths made absolute."""
-    fields_ = Fields(read_yaml(path), path)
-    fields_.check_keys(["dataset", "robot", "released", "settings", "target_accuracy_m"])
+    raw = read_yaml(path)
+    validate(raw, OnlineSetup, path)  # keys, types, nulls; the parameter names need the robot
+    fields_ = Fields(raw, path)
     config: dict = {"dataset": str((path.parent / fields_.string("dataset")).resolve())}
     if fields_.has("robot"):
         config["robot"] = robot_reference(path.parent, fields_.raw("robot"), path, "robot")
@@ -61,8 +64,6 @@ def load_config(path: Path) -> dict:
             raise fields_.error("released", "expected a list of parameter names")
         config["released"] = released
     settings = fields_.sub("settings", {})
-    allowed = [f.name for f in fields(OnlineSettings)]
-    settings.check_keys(allowed)
     config["settings"] = dict(settings.data)
     config["target_accuracy_m"] = fields_.number("target_accuracy_m", 5e-5, positive=True)
     return config
