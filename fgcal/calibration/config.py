@@ -15,7 +15,6 @@ from ..model.parameters import MASS_KIND
 from ..model.robot import MODELS
 from .formulations import NAMES, from_measured
 from .priors import Priors, parse_priors
-from .schema import KINDS
 from .schema import CalibrationConfig as ConfigSchema
 from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
 
@@ -79,30 +78,13 @@ class CalibrationConfig:
         return parse_config(raw, Path("<defaults>"), base_dir=Path("."))
 
 
-def _boolean(fields: Fields, key: str, default: bool) -> bool:
-    value = fields.raw(key, default)
-    if not isinstance(value, bool):
-        raise fields.error(key, f"expected true or false, got {value!r}")
-    return value
-
-
 def _stages(doc: Fields) -> tuple[str, tuple[tuple[str, ...], ...]]:
     schedule = doc.string("schedule", "staged", ("staged", "one_shot", "custom"))
     if not doc.has("stages"):
         if schedule == "custom":
             raise doc.error("stages", "schedule 'custom' needs a stages list")
         return schedule, SEED_STAGES if schedule == "staged" else ONE_SHOT
-    stages = []
-    for i, stage in enumerate(doc.items("stages")):
-        if not isinstance(stage, list) or not stage:
-            raise doc.error(f"stages[{i}]", "each stage is a non-empty list of parameter kinds")
-        for kind in stage:
-            if kind not in KINDS:
-                raise doc.error(f"stages[{i}]", f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})")
-        stages.append(tuple(stage))
-    if not stages:
-        raise doc.error("stages", "at least one stage: with none, nothing is estimated")
-    return "custom", tuple(stages)
+    return "custom", tuple(tuple(stage) for stage in doc.raw("stages"))  # their kinds: the schema's Stages
 
 
 def _validation_datasets(validation: Fields, base: Path) -> tuple[Path, ...]:
@@ -110,10 +92,7 @@ def _validation_datasets(validation: Fields, base: Path) -> tuple[Path, ...]:
     raw = validation.raw("dataset", None)
     if raw is None:
         return ()
-    entries = raw if isinstance(raw, list) else [raw]
-    if not entries or not all(isinstance(e, str) and e for e in entries):
-        raise validation.error("dataset", f"expected a dataset directory or a list of them, got {raw!r}")
-    paths = tuple(base / e for e in entries)
+    paths = tuple(base / e for e in (raw if isinstance(raw, list) else [raw]))
     if len({p.resolve() for p in paths}) != len(paths):
         raise validation.error("dataset", "a validation set is listed twice")
     return paths
@@ -167,19 +146,14 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     formulation, formulation_source = _formulation(doc, header, dataset_doc)
     schedule, stages = _stages(doc)
     # None: the seed's joints 1-3 that the robot has (resolved when the robot is known).
-    joints = tuple(doc.items("compliant_joints")) if doc.has("compliant_joints") else None
-    for j in joints or ():
-        if isinstance(j, bool) or not isinstance(j, int) or j < 1:
-            raise doc.error("compliant_joints", f"joint numbers are integers >= 1, got {j!r}")
+    joints = tuple(doc.raw("compliant_joints")) if doc.has("compliant_joints") else None
     validation = doc.sub("validation", {})
     validation_datasets = _validation_datasets(validation, base)
     declared_points = validation.sub("tool_points", {})
     validation_tool_points = {
         str(name): tuple(declared_points.vector(str(name), 3, scale=units.to_m)) for name in declared_points.data
     }
-    holdout = validation.number("holdout", 0.0 if validation_datasets else 0.25)
-    if not 0.0 <= holdout < 0.9:
-        raise validation.error("holdout", f"fraction of configurations held out must be in [0, 0.9), got {holdout}")
+    holdout = validation.number("holdout", 0.0 if validation_datasets else 0.25)  # in [0, 0.9): the schema
     ident = doc.sub("identifiability", {})
     solver = doc.sub("solver", {})
     stated = parse_noise(doc, units)
@@ -199,7 +173,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         formulation=formulation,
         formulation_source=formulation_source,
         model=doc.string("model", "DH,s,e", (*MODELS, "auto")),
-        compare_models=_boolean(doc, "compare_models", False),
+        compare_models=doc.raw("compare_models", False),
         compliant_joints=joints,
         schedule=schedule,
         stages=stages,
@@ -207,7 +181,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         measurement=measurement,
         holdout=holdout,
         split_seed=validation.integer("seed", 0, minimum=0, maximum=2**32 - 1),
-        complement=_boolean(validation, "complement", False),
+        complement=validation.raw("complement", False),
         split=validation.string("split", "random", ("random", "ordered")),
         min_information=ident.number("min_information", 3.0, positive=True),
         max_iterations=solver.integer("max_iterations", 100, minimum=1),

@@ -4,12 +4,12 @@ in the config's units: its own ``units:``, else the dataset's, else SI."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, create_model
 
 from ..core.noise import NoiseSection
-from ..core.schema import NUMBER_JSON, Number, Schema, Units, checked, choice, refuse, to_number, vector
+from ..core.schema import NUMBER_JSON, Number, Schema, Units, checked, refuse, to_number, vector
 from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
 from ..model.robot import MODELS
 from .formulations import NAMES
@@ -79,6 +79,27 @@ class Intrinsics(Schema):
     prior_sigma: PriorSigma = None
 
 
+def _stages(value: Any) -> Any:
+    if not isinstance(value, list):
+        raise refuse(f"expected a list, got {type(value).__name__}")
+    if not value:
+        raise refuse("at least one stage: with none, nothing is estimated")
+    for i, stage in enumerate(value):
+        if not isinstance(stage, list) or not stage:
+            raise refuse("each stage is a non-empty list of parameter kinds", f"[{i}]")
+        for kind in stage:
+            if kind not in KINDS:
+                raise refuse(f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})", f"[{i}]")
+    return value
+
+
+Stages = checked(
+    _stages,
+    {"type": "array", "minItems": 1, "items": {"type": "array", "minItems": 1, "items": {"enum": list(KINDS)}},
+     "description": "the parameter kinds each stage releases (schedule custom; a list gives it)"},
+)
+
+
 def _datasets(value: Any) -> Any:
     entries = value if isinstance(value, list) else [value]
     if not entries or not all(isinstance(e, str) and e for e in entries):
@@ -128,10 +149,12 @@ class CalibrationConfig(Schema):
     units: Units = Field(None, description="the config's units (default the dataset's)")
     formulation: Literal[NAMES] = Field(None, description="default: the one that reads the dataset's measured tables")
     model: Literal[(*MODELS, "auto")] = Field("DH,s,e", description="the error model; auto: compare and pick")
-    compliant_joints: list[int] = Field(None, description="1-based joints with a compliance (default 1-3)")
+    compliant_joints: list[Annotated[int, Field(ge=1)]] = Field(
+        None, description="1-based joints with a compliance (default 1-3)"
+    )
     fixture_orientation: Literal["known", "estimate"] = "known"
     schedule: Literal["staged", "one_shot", "custom"] = "staged"
-    stages: list[list[choice(KINDS, "parameter kind")]] = Field(None, description="parameter kinds each stage releases")
+    stages: Stages = None
     bounds: checked(
         _bounds,
         {"type": "object", "additionalProperties": NUMBER_POSITIVE,

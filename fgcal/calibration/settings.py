@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core.fields import Fields
+from ..core.fields import Fields, to_float
 from ..core.noise import NOISE
 
 PARTNERS = ("other_object", "same_object", "same_side", "any")
@@ -85,10 +85,8 @@ def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
         if raw is None or raw == "none":
             out[key] = None
             continue
-        if not (isinstance(raw, list) and len(raw) == 2 and raw[0] in ("huber", "cauchy")):
-            raise section.error(key, f"expected [huber|cauchy, threshold in sigmas] or none, got {raw!r}")
-        threshold = Fields({"k": raw[1]}, section.source, section.path(key)).number("k", positive=True)
-        out[key] = (str(raw[0]), threshold)
+        # [huber|cauchy, k > 0]: the schema's Loss
+        out[key] = (str(raw[0]), to_float(raw[1], section.source, f"{section.path(key)}[1]"))
     return out
 
 
@@ -105,10 +103,7 @@ def parse_pairs(doc: Fields) -> PairSettings:
 def parse_intrinsics(doc: Fields) -> tuple[float, ...] | None:
     """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``."""
     section = doc.sub("intrinsics", {})
-    estimate = section.raw("estimate", False)
-    if not isinstance(estimate, bool):
-        raise section.error("estimate", f"expected true or false, got {estimate!r}")
-    if not estimate:
+    if not section.raw("estimate", False):
         return None
     prior = section.sub("prior_sigma", {})
     focal = prior.number("focal_px", 5.0, positive=True)

@@ -144,10 +144,7 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
             cells = list(reader)
         except csv.Error as exc:
             raise InputError(path, f"line {numbered[reader.line_num - 1][0]}", f"not CSV: {exc}") from None
-    header = fields.raw("header", True)
-    if not isinstance(header, bool):
-        raise fields.error("header", f"expected true or false, got {header!r}")
-    if header:
+    if fields.raw("header", True):
         columns = [c.strip() for c in cells[0]]
         repeated = sorted(c for c, count in Counter(columns).items() if c and count > 1)
         if repeated:
@@ -161,9 +158,7 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
     for line, row in zip(line_numbers, rows, strict=True):
         if len(row) != len(columns):
             raise InputError(path, f"line {line}", f"expected {len(columns)} columns, got {len(row)}")
-    tokens = fields.items("not_found", [])
-    if not all(isinstance(t, (str, int, float)) and not isinstance(t, bool) for t in tokens):
-        raise fields.error("not_found", f"expected a list of cell texts, got {tokens!r}")
+    tokens = fields.items("not_found", [])  # texts or numbers: the schema's NotFound
     return SourceTable(path, columns, rows, line_numbers, decimal, NOT_FOUND + tuple(str(t) for t in tokens))
 
 
@@ -282,8 +277,6 @@ def _measurements(
             rotation = _rotation(fields, source)
     measured = value_columns + rotation[0]
     zeros = fields.raw("zeros_mean_not_found", False)
-    if not isinstance(zeros, bool):
-        raise fields.error("zeros_mean_not_found", f"expected true or false, got {zeros!r}")
     config_ids = list(configs)
     imported = Imported([*joins, *ids], [])
     lines = []  # of the rows kept

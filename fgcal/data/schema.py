@@ -95,6 +95,20 @@ def _column(value: Any) -> Any:
 Column = checked(_column, {"type": ["string", "integer"], "description": "a column's name, or its 1-based number"})
 
 
+def _not_found(value: Any) -> Any:
+    if not isinstance(value, list) or not all(isinstance(t, (str, int, float)) and not isinstance(t, bool)
+                                              for t in value):  # fmt: skip
+        raise refuse(f"expected a list of cell texts, got {value!r}")
+    return value
+
+
+NotFound = checked(
+    _not_found,
+    {"type": "array", "items": {"type": ["string", "number"]},
+     "description": "cell texts that mean 'not measured' (-999, NaN), besides the empty cell"},
+)
+
+
 class Read(Schema):
     """How a table mapping reads its file."""
 
@@ -105,7 +119,7 @@ class Read(Schema):
     skip_rows: int = Field(0, ge=0)
     encoding: str = "utf-8-sig"
     units: Units = Field(None, description="this file's units, if not the mapping's")
-    not_found: list[str] = Field(None, description="cell texts that mean 'not measured', besides the empty cell")
+    not_found: NotFound = None
 
 
 class Measured(Read):

@@ -417,9 +417,7 @@ def _joint_geometry(joint: Fields, units: Units, convention: str) -> DHJoint | M
             joint.number("a", 0.0, units.to_m),
             joint.number("alpha", 0.0, units.to_rad),
         )
-    kind = joint.raw("type", "revolute")
-    if kind not in ("revolute", "prismatic"):
-        raise joint.error("type", f"must be revolute or prismatic, got {kind!r}")
+    kind = joint.raw("type", "revolute")  # revolute or prismatic: the schema's Joint.type
     axis = joint.vector("axis", 3, [0, 0, 1])
     if np.linalg.norm(axis) < 1e-9:
         raise joint.error("axis", "must be a non-zero vector")
