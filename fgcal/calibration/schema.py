@@ -18,6 +18,7 @@ from .settings import PARTNERS, ROBUST_DEFAULTS
 LENGTH = "the config's length unit"
 ANGLE = "the config's angle unit"
 LOSSES = ("huber", "cauchy")
+LOSS = "[huber|cauchy, threshold in robust sigmas], or null or none: no robust loss (least squares)"
 # The parameter kinds a stage may release.
 KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
 NUMBER_POSITIVE = {"anyOf": [{**NUMBER_JSON["anyOf"][0], "exclusiveMinimum": 0}, *NUMBER_JSON["anyOf"][1:]]}
@@ -36,7 +37,7 @@ def _loss(value: Any) -> Any:
 Loss = checked(
     _loss,
     {
-        "description": "[huber|cauchy, threshold in robust sigmas]; null or none: no robust loss (least squares)",
+        "description": LOSS,
         "anyOf": [
             {"type": "array", "prefixItems": [{"enum": list(LOSSES)}, NUMBER_POSITIVE],
              "minItems": 2, "maxItems": 2},
@@ -52,7 +53,7 @@ Robust = create_model(
     __base__=Schema,
     __doc__="The robust loss of each measurement kind, in robust sigmas (null or none: off, least squares).",
     **{
-        key: (Loss, Field(list(default) if default else None, description=f"default {list(default or ['none'])}"))
+        key: (Loss, Field(list(default) if default else None, description=f"{LOSS}; default {default or 'none'}"))
         for key, default in ROBUST_DEFAULTS.items()
     },
 )

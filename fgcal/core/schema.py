@@ -237,10 +237,11 @@ def one_or_more(model: type[Schema]) -> Any:
 
 def _path(loc: tuple, at: str = "") -> str:
     out = ""
-    for part in loc:
-        if isinstance(part, int):
+    for k, part in enumerate(loc):
+        key = loc[k + 1 : k + 2] == ("[key]",)  # a mapping's key (not text) is at fault, not its value
+        if isinstance(part, int) and not key:
             out += f"[{part}]"
-        elif str(part).startswith(("function-", "(")):  # a validator's or a union branch's tag
+        elif part == "[key]" or str(part).startswith(("function-", "(")):  # pydantic's or a union branch's tag
             continue
         else:
             out += f".{part}" if out else str(part)
