@@ -1,6 +1,7 @@
 """What a calibration config says about the measurements: their noise, robust losses and the
-options of the formulations that read them (docs/calibration.md). Parsed here, below the
-formulations that use them; the pipeline's own settings are in fgcal.calibration.config."""
+options of the formulations that read them (docs/calibration.md). Defined here, below the
+formulations that use them; fgcal.calibration.config reads them (and the pipeline's own settings)
+from a config that fgcal.calibration.schema has validated."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core.fields import Fields, to_float
 from ..core.noise import NOISE
 
 PARTNERS = ("other_object", "same_object", "same_side", "any")
@@ -75,39 +75,3 @@ class MeasurementSettings:
     intrinsics_prior_sigmas: tuple[float, ...] | None = None
     # Tool points measured only by a separate validation set, declared on the flange (m).
     validation_tool_points: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
-
-
-def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
-    section = doc.sub("robust", {})
-    out = {}
-    for key, default in ROBUST_DEFAULTS.items():
-        raw = section.raw(key, list(default) if default is not None else None, nullable=True)  # null: off
-        if raw is None or raw == "none":
-            out[key] = None
-            continue
-        # [huber|cauchy, k > 0]: the schema's Loss
-        out[key] = (str(raw[0]), to_float(raw[1], section.source, f"{section.path(key)}[1]"))
-    return out
-
-
-def parse_pairs(doc: Fields) -> PairSettings:
-    section = doc.sub("pairs", {})
-    return PairSettings(
-        partner=section.string("partner", "other_object", PARTNERS),
-        seed=section.integer("seed", 0, minimum=0, maximum=2**32 - 1),
-        group_images=section.integer("group_images", 4, minimum=1),
-        points_from=section.string("points_from", "camera_points", ("camera_points", "pixels")),
-    )
-
-
-def parse_intrinsics(doc: Fields) -> tuple[float, ...] | None:
-    """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``."""
-    section = doc.sub("intrinsics", {})
-    if not section.raw("estimate", False):
-        return None
-    prior = section.sub("prior_sigma", {})
-    focal = prior.number("focal_px", 5.0, positive=True)
-    centre = prior.number("centre_px", 5.0, positive=True)
-    radial = prior.number("radial", 0.01, positive=True)
-    tangential = prior.number("tangential", 0.001, positive=True)
-    return (focal, focal, centre, centre, radial, radial, tangential, tangential, radial)

@@ -4,9 +4,13 @@ units, SI inside."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from pathlib import Path
+
 from pydantic import Field, create_model
 
-from .fields import Fields
+from .errors import InputError
+from .fields import to_float
 from .schema import Number, Schema
 from .units import Units
 
@@ -29,20 +33,21 @@ LARGEST = {"length": 1.0, "angle": 1.0, "pixel": 1e3}
 UNIT = {"length": "m", "angle": "rad", "pixel": "px"}
 
 
-def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, float]:
-    """The sigmas a document's ``noise`` section states (SI, by field); the rest unstated."""
-    section = doc.sub(key, {})
+def stated_noise(section: Mapping | None, units: Units, source: str | Path, prefix: str = "noise") -> dict[str, float]:
+    """The sigmas a ``noise`` section states (SI, by field; the file's schema has checked each is
+    a positive number); the rest (absent) unstated."""
     scales = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}
     stated = {}
     for field, (name, kind, _) in NOISE.items():
-        if section.has(name):
-            sigma = section.number(name, scale=scales[kind], positive=True)
-            if not SMALLEST[kind] <= sigma <= LARGEST[kind]:
-                raise section.error(
-                    name, f"{sigma:.3g} {UNIT[kind]} is no instrument's noise (from {SMALLEST[kind]:g} to "
-                    f"{LARGEST[kind]:g} {UNIT[kind]})",
-                )  # fmt: skip
-            stated[field] = sigma
+        if (section or {}).get(name) is None:
+            continue
+        sigma = to_float(section[name], source, f"{prefix}.{name}") * scales[kind]
+        if not SMALLEST[kind] <= sigma <= LARGEST[kind]:
+            raise InputError(
+                source, f"{prefix}.{name}", f"{sigma:.3g} {UNIT[kind]} is no instrument's noise (from "
+                f"{SMALLEST[kind]:g} to {LARGEST[kind]:g} {UNIT[kind]})",
+            )  # fmt: skip
+        stated[field] = sigma
     return stated
 
 

@@ -48,7 +48,7 @@ import yaml
 
 from ..core.errors import InputError
 from ..core.fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
-from ..core.noise import parse_noise
+from ..core.noise import stated_noise
 from ..core.outputs import write_text
 from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy
@@ -373,7 +373,8 @@ def load_dataset(path: str | Path) -> Dataset:
         raise InputError(config_path, "config", "duplicate configuration ids")
     history = _history(config_path, cfg_header, cfg_body, q, units, doc.string("order", "measured", ORDERS))
 
-    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=parse_noise(doc, units), history=history)
+    noise = stated_noise(doc.raw("noise", {}), units, header_path)
+    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=noise, history=history)
     known = set(configs)
     for name in TABLES:
         if not files.has(name):
