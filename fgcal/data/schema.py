@@ -48,7 +48,7 @@ class Board(Schema):
 
 
 class Markers(Schema):
-    dictionary: Literal[DICTIONARY] = DICTIONARY
+    dictionary: Literal[DICTIONARY] = Field(DICTIONARY, description="the ArUco dictionary (the only one fgcal reads)")
     marker_ratio: Number = Field(None, gt=0, description="a marker's side over a square's")
     boards: list[Board]
 
