@@ -8,7 +8,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from ..core.schema import Number, Pose, Schema, Units, checked, choice, numbers, refuse, to_number, vector
+from ..core.schema import NUMBER_JSON, Number, Pose, Schema, Units, checked, choice, numbers, refuse, to_number, vector
 from ..model.schema import Camera, Intrinsics, Payload, RobotReference
 from . import MAX_CONFIGURATIONS
 
@@ -46,7 +46,7 @@ def _targets(value: Any) -> Any:
     return value
 
 
-_POINTS = {"type": "array", "items": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}}
+_POINTS = {"type": "array", "items": {"type": "array", "items": NUMBER_JSON, "minItems": 3, "maxItems": 3}}
 Targets = checked(
     _targets,
     {
