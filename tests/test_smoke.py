@@ -81,6 +81,7 @@ RUNS = {
         ["online-feed", "{ws}/seed", "--inbox", "{ws}/inbox", "--first", "0", "--n", "20", "--cycle-size", "10"],
         ["online", "--state", "{ws}/state", "--inbox", "{ws}/inbox", "--setup", "{ws}/setup.yaml", "--once",
          "--poll", "0.1"],
+        ["schema", "online"],
     ],
     "demo": [
         ["demo", "--out", "{ws}/demo", "--seed", "2", "--n", "60"],

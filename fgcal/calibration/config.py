@@ -6,17 +6,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core.fields import Fields, read_yaml
-from ..core.noise import parse_noise
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.fields import read_yaml, to_float
+from ..core.noise import stated_noise
+from ..core.schema import validate
 from ..core.units import Units, parse_units
 from ..data.dataset import MEASUREMENTS
-from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
-from ..model.robot import MODELS
+from ..model.parameters import MASS_KIND
 from .formulations import NAMES, from_measured
 from .priors import Priors, parse_priors
-from .settings import MeasurementSettings, Noise, parse_intrinsics, parse_pairs, parse_robust
+from .schema import CalibrationConfig as ConfigSchema
+from .schema import Identifiability, Pairs, PriorSigma, Robust, Solver, Validation
+from .schema import Intrinsics as IntrinsicsSchema
+from .settings import ROBUST_DEFAULTS, MeasurementSettings, Noise, PairSettings
 
-KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
 # Joints given by their origins (URDF) take their rotation corrections (rx, ry, rz) with the
 # DH angles and their translation corrections (tx, ty, tz) with the lengths.
 SEED_STAGES = (
@@ -27,28 +32,6 @@ SEED_STAGES = (
      "lm", "lv", MASS_KIND),
 )  # fmt: skip
 ONE_SHOT = (SEED_STAGES[-1],)
-CONFIG_KEYS = (
-    "dataset",
-    "units",
-    "formulation",
-    "model",
-    "compliant_joints",
-    "fixture_orientation",
-    "schedule",
-    "stages",
-    "bounds",
-    "noise",
-    "robust",
-    "pairs",
-    "validation",
-    "identifiability",
-    "solver",
-    "pixels_from",
-    "intrinsics",
-    "compare_models",
-    "residual_model",
-    "notes",
-)
 
 
 @dataclass(frozen=True)
@@ -99,43 +82,21 @@ class CalibrationConfig:
         return parse_config(raw, Path("<defaults>"), base_dir=Path("."))
 
 
-def _boolean(fields: Fields, key: str, default: bool) -> bool:
-    value = fields.raw(key, default)
-    if not isinstance(value, bool):
-        raise fields.error(key, f"expected true or false, got {value!r}")
-    return value
+def _stages(config: ConfigSchema, source: Path) -> tuple[str, tuple[tuple[str, ...], ...]]:
+    if config.stages is None:
+        if config.schedule == "custom":
+            raise InputError(source, "stages", "schedule 'custom' needs a stages list")
+        return config.schedule, SEED_STAGES if config.schedule == "staged" else ONE_SHOT
+    return "custom", tuple(tuple(stage) for stage in config.stages)
 
 
-def _stages(doc: Fields) -> tuple[str, tuple[tuple[str, ...], ...]]:
-    schedule = doc.string("schedule", "staged", ("staged", "one_shot", "custom"))
-    if not doc.has("stages"):
-        if schedule == "custom":
-            raise doc.error("stages", "schedule 'custom' needs a stages list")
-        return schedule, SEED_STAGES if schedule == "staged" else ONE_SHOT
-    stages = []
-    for i, stage in enumerate(doc.items("stages")):
-        if not isinstance(stage, list) or not stage:
-            raise doc.error(f"stages[{i}]", "each stage is a non-empty list of parameter kinds")
-        for kind in stage:
-            if kind not in KINDS:
-                raise doc.error(f"stages[{i}]", f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})")
-        stages.append(tuple(stage))
-    if not stages:
-        raise doc.error("stages", "at least one stage: with none, nothing is estimated")
-    return "custom", tuple(stages)
-
-
-def _validation_datasets(validation: Fields, base: Path) -> tuple[Path, ...]:
+def _validation_datasets(raw: str | list[str] | None, base: Path, source: Path) -> tuple[Path, ...]:
     """``validation.dataset``: one directory, or a list of them (relative to the config)."""
-    raw = validation.raw("dataset", None)
     if raw is None:
         return ()
-    entries = raw if isinstance(raw, list) else [raw]
-    if not entries or not all(isinstance(e, str) and e for e in entries):
-        raise validation.error("dataset", f"expected a dataset directory or a list of them, got {raw!r}")
-    paths = tuple(base / e for e in entries)
+    paths = tuple(base / e for e in (raw if isinstance(raw, list) else [raw]))
     if len({p.resolve() for p in paths}) != len(paths):
-        raise validation.error("dataset", "a validation set is listed twice")
+        raise InputError(source, "validation.dataset", "a validation set is listed twice")
     return paths
 
 
@@ -147,11 +108,11 @@ def _dataset_header(dataset: Path) -> tuple[Path, dict]:
     return header, doc if isinstance(doc, dict) else {}
 
 
-def _formulation(doc: Fields, header: Path, dataset: dict) -> tuple[str, str]:
+def _formulation(config: ConfigSchema, source: Path, header: Path, dataset: dict) -> tuple[str, str]:
     """The config's formulation, else the one that reads what the dataset measured; and where
     it came from, for the report."""
-    if doc.has("formulation"):
-        return doc.string("formulation", choices=NAMES), "the config"
+    if config.formulation is not None:
+        return config.formulation, "the config"
     if not dataset:  # no header to ask (loading the dataset will say why): the seed's formulation
         return NAMES[0], "not given: the seed's default"
     measured = dataset.get("measured")
@@ -162,81 +123,93 @@ def _formulation(doc: Fields, header: Path, dataset: dict) -> tuple[str, str]:
         return NAMES[0], "not given: the seed's default"
     readers = from_measured(listed, on_flange)
     if not readers:
-        raise doc.error(
-            "formulation", f"not given, and {header} lists no measured table a formulation reads (measured: "
-            f"{measured!r}); give one of {', '.join(NAMES)}",
+        raise InputError(
+            source, "formulation", f"not given, and {header} lists no measured table a formulation reads "
+            f"(measured: {measured!r}); give one of {', '.join(NAMES)}",
         )  # fmt: skip
     others = f"; {', '.join(readers[1:])} would read it too" if len(readers) > 1 else ""
     return readers[0], f"not given: the dataset's measured tables ({', '.join(map(str, measured))}){others}"
 
 
+def _robust(robust: Robust, source: Path) -> dict[str, tuple[str, float] | None]:
+    """Each measurement kind's loss: (huber|cauchy, threshold in robust sigmas), or None (null or
+    none: least squares)."""
+    out = {}
+    for key in ROBUST_DEFAULTS:
+        loss = getattr(robust, key)
+        off = loss is None or loss == "none"
+        out[key] = None if off else (str(loss[0]), to_float(loss[1], source, f"robust.{key}[1]"))
+    return out
+
+
+def _intrinsics(intrinsics: IntrinsicsSchema | None) -> tuple[float, ...] | None:
+    """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``:
+    the prior sigmas (fx, fy, cx, cy in px; k1, k2, p1, p2, k3), or None: fixed."""
+    if intrinsics is None or not intrinsics.estimate:
+        return None
+    prior = intrinsics.prior_sigma or PriorSigma()
+    focal, centre, radial, tangential = prior.focal_px, prior.centre_px, prior.radial, prior.tangential
+    return (focal, focal, centre, centre, radial, radial, tangential, tangential, radial)
+
+
 def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> CalibrationConfig:
-    doc = Fields(raw, source)
-    doc.check_keys(CONFIG_KEYS)
+    """A calibration config from its YAML document: validated by its schema (keys, types, nulls,
+    choices and bounds; its defaults are the schema's), then what needs the dataset."""
+    config = validate(raw, ConfigSchema, source)
     base = base_dir if base_dir is not None else source.parent
-    header, dataset_doc = _dataset_header(base / doc.string("dataset"))
+    header, dataset_doc = _dataset_header(base / config.dataset)
     stated = parse_units(dataset_doc["units"], header) if dataset_doc.get("units") is not None else None
-    if doc.has("units"):  # what it leaves out (units: {length: mm}) is the dataset's, as a whole one would be
-        units = parse_units(doc.raw("units"), source, default=stated or Units())
-        partial = stated and not {"length", "angle"} <= set(doc.raw("units") or {})
+    if config.units is not None:  # what it leaves out (units: {length: mm}) is the dataset's, as a whole one would be
+        units = parse_units(config.units, source, default=stated or Units())
+        partial = stated and not {"length", "angle"} <= set(config.units)
         units_source = "as the config's units: states" + (", the rest as the dataset's" if partial else "")
     else:
         units, units_source = (stated, "the dataset's units: the config states none") if stated else (
             Units(), "SI: neither the config nor the dataset states units"
         )  # fmt: skip
-    formulation, formulation_source = _formulation(doc, header, dataset_doc)
-    schedule, stages = _stages(doc)
+    formulation, formulation_source = _formulation(config, source, header, dataset_doc)
+    schedule, stages = _stages(config, source)
     # None: the seed's joints 1-3 that the robot has (resolved when the robot is known).
-    joints = tuple(doc.items("compliant_joints")) if doc.has("compliant_joints") else None
-    for j in joints or ():
-        if isinstance(j, bool) or not isinstance(j, int) or j < 1:
-            raise doc.error("compliant_joints", f"joint numbers are integers >= 1, got {j!r}")
-    validation = doc.sub("validation", {})
-    validation.check_keys(("holdout", "seed", "complement", "split", "dataset", "tool_points"))
-    validation_datasets = _validation_datasets(validation, base)
-    declared_points = validation.sub("tool_points", {})
+    joints = tuple(config.compliant_joints) if config.compliant_joints is not None else None
+    validation = config.validation or Validation()
+    validation_datasets = _validation_datasets(validation.dataset, base, source)
     validation_tool_points = {
-        str(name): tuple(declared_points.vector(str(name), 3, scale=units.to_m)) for name in declared_points.data
+        str(name): tuple(np.array(xyz) * units.to_m) for name, xyz in (validation.tool_points or {}).items()
     }
-    holdout = validation.number("holdout", 0.0 if validation_datasets else 0.25)
-    if not 0.0 <= holdout < 0.9:
-        raise validation.error("holdout", f"fraction of configurations held out must be in [0, 0.9), got {holdout}")
-    ident = doc.sub("identifiability", {})
-    ident.check_keys(("min_information",))
-    solver = doc.sub("solver", {})
-    solver.check_keys(("max_iterations",))
-    stated = parse_noise(doc, units)
+    holdout = validation.holdout if validation.holdout is not None else 0.0 if validation_datasets else 0.25
+    noise = stated_noise(config.noise.model_dump(exclude_unset=True) if config.noise else None, units, source)
+    pairs = config.pairs or Pairs()
     measurement = MeasurementSettings(
         source=source,
-        noise=Noise.stated(stated),
-        noise_stated=stated,
-        robust=parse_robust(doc),
-        fixture_orientation=doc.string("fixture_orientation", "known", ("known", "estimate")),
-        pairs=parse_pairs(doc),
-        intrinsics_prior_sigmas=parse_intrinsics(doc),
+        noise=Noise.stated(noise),
+        noise_stated=noise,
+        robust=_robust(config.robust or Robust(), source),
+        fixture_orientation=config.fixture_orientation,
+        pairs=PairSettings(pairs.partner, pairs.seed, pairs.group_images, pairs.points_from),
+        intrinsics_prior_sigmas=_intrinsics(config.intrinsics),
         validation_tool_points=validation_tool_points,
     )
     return CalibrationConfig(
         path=source,
-        dataset=(base / doc.string("dataset")),
+        dataset=(base / config.dataset),
         formulation=formulation,
         formulation_source=formulation_source,
-        model=doc.string("model", "DH,s,e", (*MODELS, "auto")),
-        compare_models=_boolean(doc, "compare_models", False),
+        model=config.model,
+        compare_models=config.compare_models,
         compliant_joints=joints,
         schedule=schedule,
         stages=stages,
-        priors=parse_priors(doc, units),
+        priors=parse_priors(config.bounds, units, source),
         measurement=measurement,
         holdout=holdout,
-        split_seed=validation.integer("seed", 0, minimum=0, maximum=2**32 - 1),
-        complement=_boolean(validation, "complement", False),
-        split=validation.string("split", "random", ("random", "ordered")),
-        min_information=ident.number("min_information", 3.0, positive=True),
-        max_iterations=solver.integer("max_iterations", 100, minimum=1),
-        pixels_from=doc.string("pixels_from", "table", ("table", "images")),
+        split_seed=validation.seed,
+        complement=validation.complement,
+        split=validation.split,
+        min_information=(config.identifiability or Identifiability()).min_information,
+        max_iterations=(config.solver or Solver()).max_iterations,
+        pixels_from=config.pixels_from,
         validation_datasets=validation_datasets,
-        residual_model=doc.string("residual_model", "none", ("none", "gp")),
+        residual_model=config.residual_model,
         units=units,
         units_source=units_source,
     )

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.fields import Fields
+from ..core.fields import to_float
 from ..core.units import Units
 from ..model.parameters import (
     COMPLIANCE_KINDS,
@@ -96,15 +97,15 @@ class Priors:
                 raise InputError(self.source, f"bounds.{name}", f"not a parameter of {robot_name} (e.g. {examples})")
 
 
-def parse_priors(doc: Fields, units: Units) -> Priors:
+def parse_priors(bounds: Mapping | None, units: Units, source: str | Path) -> Priors:
     """``bounds: {length: 0.01, alpha: 0.05, d6: 0.5, kz2: 2e-7}``: a class, a kind or a
     parameter name, each a positive sigma in the config's units (lengths, angles; compliances in
-    angle units per N m; mass scales unitless)."""
-    section = doc.sub("bounds", {})
+    angle units per N m; mass scales unitless). ``bounds`` is the config's section as its schema
+    validated it (each sigma a positive number)."""
     by_class, by_kind, by_name = {}, {}, {}
-    for key in section.data:
+    for key, sigma in (bounds or {}).items():
         key = str(key)
-        value = section.number(key, positive=True)
+        value = to_float(sigma, source, f"bounds.{key}")
         if key in CLASSES:
             by_class[key] = value
         elif key in KINDS:
@@ -113,8 +114,9 @@ def parse_priors(doc: Fields, units: Units) -> Priors:
             try:
                 split_name(key)
             except ValueError:
-                raise section.error(
-                    key, f"not a class ({', '.join(CLASSES)}), a kind ({', '.join(KINDS)}) or a parameter name"
-                ) from None
+                raise InputError(
+                    source, f"bounds.{key}",
+                    f"not a class ({', '.join(CLASSES)}), a kind ({', '.join(KINDS)}) or a parameter name",
+                ) from None  # fmt: skip
             by_name[key] = value
-    return Priors(units, by_class, by_kind, by_name, str(doc.source))
+    return Priors(units, by_class, by_kind, by_name, str(source))

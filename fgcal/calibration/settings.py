@@ -1,6 +1,7 @@
 """What a calibration config says about the measurements: their noise, robust losses and the
-options of the formulations that read them (docs/calibration.md). Parsed here, below the
-formulations that use them; the pipeline's own settings are in fgcal.calibration.config."""
+options of the formulations that read them (docs/calibration.md). Defined here, below the
+formulations that use them; fgcal.calibration.config reads them (and the pipeline's own settings)
+from a config that fgcal.calibration.schema has validated."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core.fields import Fields
 from ..core.noise import NOISE
 
 PARTNERS = ("other_object", "same_object", "same_side", "any")
@@ -75,48 +75,3 @@ class MeasurementSettings:
     intrinsics_prior_sigmas: tuple[float, ...] | None = None
     # Tool points measured only by a separate validation set, declared on the flange (m).
     validation_tool_points: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
-
-
-def parse_robust(doc: Fields) -> dict[str, tuple[str, float] | None]:
-    section = doc.sub("robust", {})
-    section.check_keys(list(ROBUST_DEFAULTS))
-    out = {}
-    for key, default in ROBUST_DEFAULTS.items():
-        raw = section.raw(key, list(default) if default is not None else None, nullable=True)  # null: off
-        if raw is None or raw == "none":
-            out[key] = None
-            continue
-        if not (isinstance(raw, list) and len(raw) == 2 and raw[0] in ("huber", "cauchy")):
-            raise section.error(key, f"expected [huber|cauchy, threshold in sigmas] or none, got {raw!r}")
-        threshold = Fields({"k": raw[1]}, section.source, section.path(key)).number("k", positive=True)
-        out[key] = (str(raw[0]), threshold)
-    return out
-
-
-def parse_pairs(doc: Fields) -> PairSettings:
-    section = doc.sub("pairs", {})
-    section.check_keys(("partner", "seed", "group_images", "points_from"))
-    return PairSettings(
-        partner=section.string("partner", "other_object", PARTNERS),
-        seed=section.integer("seed", 0, minimum=0, maximum=2**32 - 1),
-        group_images=section.integer("group_images", 4, minimum=1),
-        points_from=section.string("points_from", "camera_points", ("camera_points", "pixels")),
-    )
-
-
-def parse_intrinsics(doc: Fields) -> tuple[float, ...] | None:
-    """``intrinsics: {estimate: true, prior_sigma: {focal_px, centre_px, radial, tangential}}``."""
-    section = doc.sub("intrinsics", {})
-    section.check_keys(("estimate", "prior_sigma"))
-    estimate = section.raw("estimate", False)
-    if not isinstance(estimate, bool):
-        raise section.error("estimate", f"expected true or false, got {estimate!r}")
-    if not estimate:
-        return None
-    prior = section.sub("prior_sigma", {})
-    prior.check_keys(("focal_px", "centre_px", "radial", "tangential"))
-    focal = prior.number("focal_px", 5.0, positive=True)
-    centre = prior.number("centre_px", 5.0, positive=True)
-    radial = prior.number("radial", 0.01, positive=True)
-    tangential = prior.number("tangential", 0.001, positive=True)
-    return (focal, focal, centre, centre, radial, radial, tangential, tangential, radial)

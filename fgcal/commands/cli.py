@@ -23,13 +23,14 @@ from . import (
     online,
     online_feed,
     plan,
+    schema,
     simulate,
 )
 
 # In the order of ``fgcal --help``; each module registers its subcommand(s) and their handler.
 COMMANDS = (
     simulate, calibrate, demo, bench, compensate, online, online_feed, convert_faro, import_csv, plan, export,
-    listing, fk,
+    listing, fk, schema,
 )  # fmt: skip
 
 

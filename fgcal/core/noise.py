@@ -4,7 +4,14 @@ units, SI inside."""
 
 from __future__ import annotations
 
-from .fields import Fields
+from collections.abc import Mapping
+from pathlib import Path
+
+from pydantic import Field, create_model
+
+from .errors import InputError
+from .fields import to_float
+from .schema import Number, Schema
 from .units import Units
 
 # Field (SI) -> (file key, kind of unit, fgcal's default when nobody states it).
@@ -26,21 +33,21 @@ LARGEST = {"length": 1.0, "angle": 1.0, "pixel": 1e3}
 UNIT = {"length": "m", "angle": "rad", "pixel": "px"}
 
 
-def parse_noise(doc: Fields, units: Units, key: str = "noise") -> dict[str, float]:
-    """The sigmas a document's ``noise`` section states (SI, by field); the rest unstated."""
-    section = doc.sub(key, {})
-    section.check_keys(KEYS)
+def stated_noise(section: Mapping | None, units: Units, source: str | Path, prefix: str = "noise") -> dict[str, float]:
+    """The sigmas a ``noise`` section states (SI, by field; the file's schema has checked each is
+    a positive number); the rest (absent) unstated."""
     scales = {"length": units.to_m, "angle": units.to_rad, "pixel": 1.0}
     stated = {}
     for field, (name, kind, _) in NOISE.items():
-        if section.has(name):
-            sigma = section.number(name, scale=scales[kind], positive=True)
-            if not SMALLEST[kind] <= sigma <= LARGEST[kind]:
-                raise section.error(
-                    name, f"{sigma:.3g} {UNIT[kind]} is no instrument's noise (from {SMALLEST[kind]:g} to "
-                    f"{LARGEST[kind]:g} {UNIT[kind]})",
-                )  # fmt: skip
-            stated[field] = sigma
+        if (section or {}).get(name) is None:
+            continue
+        sigma = to_float(section[name], source, f"{prefix}.{name}") * scales[kind]
+        if not SMALLEST[kind] <= sigma <= LARGEST[kind]:
+            raise InputError(
+                source, f"{prefix}.{name}", f"{sigma:.3g} {UNIT[kind]} is no instrument's noise (from "
+                f"{SMALLEST[kind]:g} to {LARGEST[kind]:g} {UNIT[kind]})",
+            )  # fmt: skip
+        stated[field] = sigma
     return stated
 
 
@@ -53,3 +60,17 @@ def noise_document(stated: dict[str, float], units: Units | None = None) -> dict
 
 def defaults() -> dict[str, float]:
     return {field: default for field, (_, _, default) in NOISE.items()}
+
+
+
+_WORDS = {"length": "the file's length unit", "angle": "the file's angle unit", "pixel": "px"}
+# The schema of a ``noise`` section (fgcal.core.schema): each sigma positive, in the file's units.
+NoiseSection = create_model(
+    "Noise",
+    __base__=Schema,
+    __doc__="Declared standard deviations of the measurements, per coordinate, in the file's units.",
+    **{
+        key: (Number, Field(None, gt=0, description=f"sigma, {_WORDS[kind]} (default {default:g} SI)"))
+        for key, kind, default in NOISE.values()
+    },
+)

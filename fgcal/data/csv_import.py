@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from ..core.errors import InputError
 from ..core.fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
 from ..core.outputs import output_dir
+from ..core.schema import validate
 from ..core.units import Units, parse_units
 from ..model.robot_io import embed_robot, referenced_robot, robot_reference
 from .dataset import (
@@ -35,25 +36,8 @@ from .dataset import (
     write_csv,
     write_header,
 )
+from .schema import ImportMapping
 
-IMPORT_FORMAT = "fgcal-import/1"
-MAPPING_KEYS = (
-    "format",
-    "robot",
-    "units",
-    "configurations",
-    "tracker_points",
-    "tracker_references",
-    "tracker_poses",
-    "distances",
-    "tool_distances",
-    "payload",
-    "order",
-    "tip",
-    "target_tips",
-    "source",
-    "notes",
-)
 READ_KEYS = ("file", "delimiter", "decimal", "header", "skip_rows", "encoding", "units", "not_found")
 # What each table mapping may name besides its reading options: the dataset's id columns (each
 # from a column, or one fixed name for every row with the ``_name`` form) and its values.
@@ -160,10 +144,7 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
             cells = list(reader)
         except csv.Error as exc:
             raise InputError(path, f"line {numbered[reader.line_num - 1][0]}", f"not CSV: {exc}") from None
-    header = fields.raw("header", True)
-    if not isinstance(header, bool):
-        raise fields.error("header", f"expected true or false, got {header!r}")
-    if header:
+    if fields.raw("header", True):
         columns = [c.strip() for c in cells[0]]
         repeated = sorted(c for c, count in Counter(columns).items() if c and count > 1)
         if repeated:
@@ -177,9 +158,7 @@ def read_source(fields: Fields, base: Path) -> SourceTable:
     for line, row in zip(line_numbers, rows, strict=True):
         if len(row) != len(columns):
             raise InputError(path, f"line {line}", f"expected {len(columns)} columns, got {len(row)}")
-    tokens = fields.items("not_found", [])
-    if not all(isinstance(t, (str, int, float)) and not isinstance(t, bool) for t in tokens):
-        raise fields.error("not_found", f"expected a list of cell texts, got {tokens!r}")
+    tokens = fields.items("not_found", [])  # texts or numbers: the schema's NotFound
     return SourceTable(path, columns, rows, line_numbers, decimal, NOT_FOUND + tuple(str(t) for t in tokens))
 
 
@@ -197,7 +176,6 @@ def _units(fields: Fields, default: Units) -> Units:
 
 
 def _configurations(fields: Fields, base: Path, units: Units, n_joints: int) -> tuple[Imported, dict[str, int]]:
-    fields.check_keys((*READ_KEYS, *TABLE_KEYS["configurations"]))
     source = read_source(fields, base)
     own = _units(fields, units)
     joints = fields.items("joints")
@@ -261,7 +239,6 @@ def _rotation(fields: Fields, source: SourceTable) -> tuple[list[int], str | Non
     if fields.has("quaternion"):
         return _columns(fields, source, "quaternion", 4), None
     euler = fields.sub("euler")
-    euler.check_keys(("columns", "sequence"))
     sequence = euler.string("sequence")
     # scipy's notation: lower case extrinsic (fixed axes), upper case intrinsic (moving axes).
     if not re.fullmatch(r"[xyz]{3}|[XYZ]{3}", sequence) or sequence[0] == sequence[1] or sequence[1] == sequence[2]:
@@ -274,7 +251,6 @@ def _rotation(fields: Fields, source: SourceTable) -> tuple[list[int], str | Non
 def _measurements(
     name: str, fields: Fields, base: Path, units: Units, configs: dict[str, int], n_configs: int
 ) -> Imported:
-    fields.check_keys((*READ_KEYS, *TABLE_KEYS[name]))
     source = read_source(fields, base)
     own = _units(fields, units)
     length_scale = own.to_m / units.to_m
@@ -301,8 +277,6 @@ def _measurements(
             rotation = _rotation(fields, source)
     measured = value_columns + rotation[0]
     zeros = fields.raw("zeros_mean_not_found", False)
-    if not isinstance(zeros, bool):
-        raise fields.error("zeros_mean_not_found", f"expected true or false, got {zeros!r}")
     config_ids = list(configs)
     imported = Imported([*joins, *ids], [])
     lines = []  # of the rows kept
@@ -379,9 +353,8 @@ def import_mapping(raw: object, source: str | Path, base: Path, out: str | Path,
     """The importer on a mapping document read from ``source`` (errors name it); ``origin``
     opens the dataset's ``source`` text."""
     out = Path(out)
+    validate(raw, ImportMapping, source)  # keys, types, nulls and choices; the checks below need the files
     doc = Fields(raw, source)
-    doc.check_keys(MAPPING_KEYS)
-    doc.check_format(IMPORT_FORMAT)
     units = parse_units(doc.raw("units", None), source)
     robot_ref, robot = referenced_robot(doc, base)
     configurations, configs = _configurations(doc.sub("configurations"), base, units, robot.n_joints)

@@ -48,35 +48,19 @@ import yaml
 
 from ..core.errors import InputError
 from ..core.fields import Fields, check_name, first_repeat, is_plain_number, read_file_text, read_yaml
-from ..core.noise import parse_noise
+from ..core.noise import stated_noise
 from ..core.outputs import write_text
+from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy
 from ..core.units import Units, parse_units
-from ..model.boards import DICTIONARY, SideBoard
+from ..model.boards import SideBoard
 from ..model.camera import Camera, parse_camera
 from ..model.motion import MotionHistory, features
 from ..model.robot import Robot
 from ..model.robot_io import referenced_robot
+from .schema import DATASET_FORMAT, MEASURED, DatasetHeader
 
-FORMAT = "fgcal-dataset/1"
-HEADER_KEYS = (
-    "format",
-    "robot",
-    "units",
-    "measured",
-    "files",
-    "camera",
-    "payload",
-    "fixture",
-    "images",
-    "markers",
-    "tracker",
-    "tip",
-    "noise",
-    "order",
-    "source",
-    "notes",
-)
+FORMAT = DATASET_FORMAT
 ORDERS = ("measured", "unknown")
 MAX_SPEED_FACTOR = 100.0
 # table name -> (id columns, numeric columns, kind of numeric columns)
@@ -92,17 +76,7 @@ TABLES = {
     "distances": (("config", "pivot"), ("distance",), "length"),
     "tool_distances": (("config_a", "config_b"), ("distance",), "length"),
 }
-MEASUREMENTS = (
-    "camera_points",
-    "pixels",
-    "tracker_points",
-    "tracker_references",
-    "touch_points",
-    "point_distances",
-    "tracker_poses",
-    "distances",
-    "tool_distances",
-)
+MEASUREMENTS = MEASURED  # the tables a dataset may list as measured (data.schema: one list)
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
 # what overflows the algebra (a 1e300 reading once hung the tracker initialisation).
 LIMITS = {"length": 1e4, "pixel": 1e6, "angle": 1e3, "unitless": 1e3}
@@ -365,19 +339,13 @@ def load_dataset(path: str | Path) -> Dataset:
     path = Path(path)
     header_path = path / "dataset.yaml" if path.is_dir() else path
     root = header_path.parent
-    doc = Fields(read_yaml(header_path), header_path)
-    doc.check_keys(HEADER_KEYS)
-    doc.check_format(FORMAT)
+    raw = read_yaml(header_path)
+    validate(raw, DatasetHeader, header_path)  # keys, types, nulls and choices; the checks below need the files
+    doc = Fields(raw, header_path)
     units = parse_units(doc.raw("units", None), header_path)
     _, robot = referenced_robot(doc, root, inside=root)
     files = doc.sub("files")
-    files.check_keys(("configurations", *TABLES))
-    measured = doc.items("measured")
-    for i, kind in enumerate(measured):
-        if kind not in MEASUREMENTS:
-            raise InputError(
-                header_path, f"measured[{i}]", f"unknown measurement kind {kind!r} (known: {MEASUREMENTS})"
-            )
+    for kind in doc.items("measured"):  # each one of MEASUREMENTS: the schema
         if not files.has(kind):
             raise files.error(kind, f"'{kind}' is listed in measured but has no file")
 
@@ -400,7 +368,8 @@ def load_dataset(path: str | Path) -> Dataset:
         raise InputError(config_path, "config", "duplicate configuration ids")
     history = _history(config_path, cfg_header, cfg_body, q, units, doc.string("order", "measured", ORDERS))
 
-    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=parse_noise(doc, units), history=history)
+    noise = stated_noise(doc.raw("noise", {}), units, header_path)
+    dataset = Dataset(root, robot, configs, q, header=dict(doc.data), noise=noise, history=history)
     known = set(configs)
     for name in TABLES:
         if not files.has(name):
@@ -441,7 +410,6 @@ def load_dataset(path: str | Path) -> Dataset:
             )
     if doc.has("tracker") and "tracker_points" in dataset.tables:
         tracker = doc.sub("tracker")
-        tracker.check_keys(("targets", "tips"))
         declared = {str(t) for t in tracker.items("targets")}
         dataset.target_tips = target_tips(tracker.sub("tips"), declared, dataset.robot) if tracker.has("tips") else {}
         bad = [t for t in dataset.tables["tracker_points"].ids["target"] if t not in declared]
@@ -453,7 +421,6 @@ def load_dataset(path: str | Path) -> Dataset:
             )
     if doc.has("camera"):
         cam = doc.sub("camera")
-        cam.check_keys(("image_size", "intrinsics", "distortion", "mounting"))
         dataset.camera = parse_camera(cam)
         # The camera is the robot's tool: its mounting is the nominal T_n_C. Without one, the
         # camera may be fixed in the cell (static_camera) and the tool stays at the flange.
@@ -466,7 +433,6 @@ def load_dataset(path: str | Path) -> Dataset:
         dataset.tip = dataset.robot.flange_name if tip == "flange" else tip
     if doc.has("payload"):
         payload = doc.sub("payload")
-        payload.check_keys(("mass", "com"))
         dataset.robot = dataset.robot.with_tool(
             dataset.robot.tool_pose,
             payload.number("mass", nonnegative=True),
@@ -526,12 +492,9 @@ def _check_poses(dataset: Dataset, path: Path) -> None:
 
 
 def _boards(markers: Fields, units: Units) -> list:
-    markers.check_keys(("dictionary", "marker_ratio", "boards"))
-    if markers.string("dictionary", DICTIONARY) != DICTIONARY:
-        raise markers.error("dictionary", f"only {DICTIONARY} is supported")
+    # markers.dictionary: DICT_5X5_1000 only (the schema's Markers)
     boards = []
     for board in markers.sub_list("boards"):
-        board.check_keys(("name", "squares", "square", "first_id", "pose", "corners"))
         squares = board.vector("squares", 2)
         corners = [str(c) for c in board.items("corners")]
         if len(corners) != int(squares[0] - 1) * int(squares[1] - 1):
@@ -550,7 +513,6 @@ def _boards(markers: Fields, units: Units) -> list:
 
 
 def _pose(fields: Fields, units: Units) -> np.ndarray:
-    fields.check_keys(("xyz", "rpy"))
     return pose_from_xyz_rpy(
         fields.vector("xyz", 3, [0, 0, 0], units.to_m), fields.vector("rpy", 3, [0, 0, 0], units.to_rad)
     )

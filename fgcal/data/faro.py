@@ -13,7 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..core.errors import InputError
-from .csv_import import IMPORT_FORMAT, import_mapping
+from .csv_import import import_mapping
+from .schema import IMPORT_FORMAT
 
 
 def faro_mapping(src: Path, robot: str = "abb_irb120") -> dict:

@@ -66,7 +66,6 @@ def parse_camera(fields: Fields) -> Camera:
     if np.any(size < 1) or np.any(size != np.round(size)):
         raise fields.error("image_size", f"expected two positive integers (width, height) in px, got {size.tolist()}")
     intr = fields.sub("intrinsics")
-    intr.check_keys(("fx", "fy", "cx", "cy"))
     return Camera(
         fx=intr.number("fx", positive=True),
         fy=intr.number("fy", positive=True),

@@ -32,39 +32,16 @@ import yaml
 from ..core.errors import InputError
 from ..core.fields import Fields, check_name, read_file_text, read_yaml
 from ..core.outputs import write_text
+from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, rpy_from_rotation
 from ..core.units import Units, parse_units
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .parameters import LENGTH_KINDS, MASS_KIND, is_motion, parameter_names, split_name
 from .robot import MODELS, Robot
+from .schema import RobotFile
 
-ROBOT_KEYS = (
-    "name",
-    "source",
-    "model",
-    "dh_convention",
-    "units",
-    "joints",
-    "base",
-    "flange",
-    "tool",
-    "payload",
-    "gravity",
-    "parameters",
-    "urdf",
-    "calibrated_region",
-    "flange_joint",
-    "flange_name",
-    "tips",
-    "mass_groups",
-    "notes",
-)
 DH_KEYS = ("theta", "d", "a", "alpha")
 ORIGIN_KEYS = ("origin", "axis", "type")
-JOINT_KEYS = (
-    *DH_KEYS, *ORIGIN_KEYS, "convention", "parent", "coupling", "direction", "limits", "velocity", "effort", "mass",
-    "com",
-)  # fmt: skip
 CONVENTIONS = ("standard", "modified")
 # DH: the SPEC's (standard) or Craig's (modified)
 MAX_MOTION_TERM = float(np.radians(1.0))  # |lm|, |lv| in a robot file (SI)
@@ -183,7 +160,6 @@ def _pose(fields: Fields, key: str, units: Units) -> np.ndarray:
     if not fields.has(key):
         return np.eye(4)
     sub = fields.sub(key)
-    sub.check_keys(("xyz", "rpy"))
     return pose_from_xyz_rpy(sub.vector("xyz", 3, [0, 0, 0], units.to_m), sub.vector("rpy", 3, [0, 0, 0], units.to_rad))
 
 
@@ -199,8 +175,8 @@ def parameter_scale(name: str, units: Units) -> float:
 
 def parse_robot(raw: object, source: str | Path) -> Robot:
     """Validate a robot document and build the :class:`Robot` (SI units)."""
+    validate(raw, RobotFile, source)  # keys, types, nulls and choices; the checks below need the chain
     doc = Fields(raw, source)
-    doc.check_keys(ROBOT_KEYS)
     units = parse_units(doc.raw("units", None), source)
     name = _xml_name(doc.string("name"), source, "name")
     doc.string("source")
@@ -210,7 +186,6 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         raise doc.error("joints", "a robot needs at least one joint")
     geometries, directions, limits, masses, coms, parents, coupled, ratings = [], [], [], [], [], [], [], []
     for number, joint in enumerate(joints, start=1):
-        joint.check_keys(JOINT_KEYS)
         # A tree: the joint (1-based) whose link this one hangs from, 0 the base; default the one before.
         parents.append(joint.integer("parent", number - 1, minimum=0, maximum=number - 1) - 1)
         geometry = _joint_geometry(joint, units, convention)
@@ -240,7 +215,6 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
                                       "prismatic): a coupled joint follows joints of its own kind")  # fmt: skip
     mass_groups = _mass_groups(doc, len(joints))
     payload = doc.sub("payload", {})
-    payload.check_keys(("mass", "com"))
     gravity = doc.vector("gravity", 3, [0.0, 0.0, -9.81])
     overrides = {}
     names = set(parameter_names([g.kinds for g in geometries], len(directions), [g for g, _ in mass_groups]))
@@ -309,7 +283,6 @@ def _coupling(joint: Fields, number: int, n: int, to_si: float) -> tuple[int, tu
         if joint.has(key):
             raise joint.error(key, f"a coupled joint follows others: its {key} is theirs")
     entry = joint.sub("coupling")
-    entry.check_keys(("joints", "coefficients", "offset"))
     sources = entry.items("joints")
     if not sources:
         raise entry.error("joints", "the joints (1-based) this one follows, at least one")
@@ -362,7 +335,6 @@ def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
         out["flange_name"] = _link_name(doc.string("flange_name"), doc.source, "flange_name")
     tips = []
     for k, tip in enumerate(doc.sub_list("tips") if doc.has("tips") else []):
-        tip.check_keys(("name", "joint", "xyz", "rpy"))
         name = _link_name(tip.string("name"), doc.source, f"tips[{k}].name")
         joint = tip.integer("joint", minimum=0, maximum=n) - 1
         pose = pose_from_xyz_rpy(
@@ -422,7 +394,6 @@ def _urdf_origin(doc: Fields, source: Path) -> tuple[str, str] | None:
     if not doc.has("urdf"):
         return None
     entry = doc.sub("urdf")
-    entry.check_keys(("file", "tip"))
     file = entry.string("file")
     if Path(file).suffix.lower() not in URDF_SUFFIXES:
         raise entry.error("file", f"a URDF file's name ends in .urdf (a xacro's in .xacro), got {file!r}")
@@ -446,9 +417,7 @@ def _joint_geometry(joint: Fields, units: Units, convention: str) -> DHJoint | M
             joint.number("a", 0.0, units.to_m),
             joint.number("alpha", 0.0, units.to_rad),
         )
-    kind = joint.raw("type", "revolute")
-    if kind not in ("revolute", "prismatic"):
-        raise joint.error("type", f"must be revolute or prismatic, got {kind!r}")
+    kind = joint.raw("type", "revolute")  # revolute or prismatic: the schema's Joint.type
     axis = joint.vector("axis", 3, [0, 0, 1])
     if np.linalg.norm(axis) < 1e-9:
         raise joint.error("axis", "must be a non-zero vector")

@@ -16,7 +16,7 @@ import shutil
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +25,9 @@ import yaml
 from ..calibration.covariance import position_covariance
 from ..core import strict_json
 from ..core.errors import InputError
-from ..core.fields import Fields, read_yaml
+from ..core.fields import read_yaml
 from ..core.outputs import subfolder, write_bytes, write_text
+from ..core.schema import validate
 from ..data.dataset import load_dataset
 from ..model.parameters import unit_of
 from ..model.robot import SAME_ROBOT_M
@@ -35,6 +36,7 @@ from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement
 from .report import write_final_report
+from .schema import OnlineSetup
 from .state import StateDir, encode_record, open_for_writing, write_atomic
 
 CONFIG = "config.yaml"
@@ -49,22 +51,16 @@ CHECKPOINT_EVERY = 25
 
 
 def load_config(path: Path) -> dict:
-    """Validate a setup file; returns it with paths made absolute."""
-    fields_ = Fields(read_yaml(path), path)
-    fields_.check_keys(["dataset", "robot", "released", "settings", "target_accuracy_m"])
-    config: dict = {"dataset": str((path.parent / fields_.string("dataset")).resolve())}
-    if fields_.has("robot"):
-        config["robot"] = robot_reference(path.parent, fields_.raw("robot"), path, "robot")
-    if fields_.has("released"):
-        released = fields_.items("released")
-        if not all(isinstance(n, str) for n in released):
-            raise fields_.error("released", "expected a list of parameter names")
-        config["released"] = released
-    settings = fields_.sub("settings", {})
-    allowed = [f.name for f in fields(OnlineSettings)]
-    settings.check_keys(allowed)
-    config["settings"] = dict(settings.data)
-    config["target_accuracy_m"] = fields_.number("target_accuracy_m", 5e-5, positive=True)
+    """Validate a setup file (its schema: online.schema.OnlineSetup); returns it with paths made
+    absolute and the settings it states (as the schema read them)."""
+    setup = validate(read_yaml(path), OnlineSetup, path)
+    config: dict = {"dataset": str((path.parent / setup.dataset).resolve())}
+    if setup.robot is not None:
+        config["robot"] = robot_reference(path.parent, setup.robot, path, "robot")
+    if setup.released is not None:
+        config["released"] = list(setup.released)
+    config["settings"] = setup.settings.model_dump(exclude_unset=True) if setup.settings is not None else {}
+    config["target_accuracy_m"] = setup.target_accuracy_m
     return config
 
 
@@ -72,26 +68,12 @@ def _digest(record: dict) -> bytes:
     return hashlib.sha256(encode_record(record)).digest()[:16]
 
 
-def _joints(settings: Fields, key: str) -> tuple[int, ...]:
-    items = settings.items(key)
-    if not all(isinstance(v, int) and not isinstance(v, bool) for v in items):
-        raise settings.error(key, f"expected a list of joint numbers, got {items!r}")
-    return tuple(items)
-
-
-def _settings(config: dict, source: Path) -> OnlineSettings:
-    defaults = OnlineSettings()
-    settings = Fields(config["settings"], source, "settings")
-    values: dict = {}
-    for key in config["settings"]:
-        default = getattr(defaults, key)
-        if isinstance(default, tuple) or key == "compliant_joints":  # its default, None, means 1-3
-            values[key] = _joints(settings, key)
-        elif isinstance(default, int):
-            values[key] = settings.integer(key, minimum=1)
-        else:
-            values[key] = settings.number(key, positive=True)
-    return replace(defaults, **values)
+def _settings(config: dict) -> OnlineSettings:
+    """The settings a setup states (load_config), over the defaults."""
+    values = dict(config["settings"])
+    if values.get("compliant_joints") is not None:  # None (the default): the seed's 1-3
+        values["compliant_joints"] = tuple(values["compliant_joints"])
+    return replace(OnlineSettings(), **values)
 
 
 class OnlineService:
@@ -149,7 +131,7 @@ class OnlineService:
                     + (f"flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap) else "joint counts differ"),
                 )  # fmt: skip
         points = dataset.points_F()
-        settings = _settings(self.config, config_path)
+        settings = _settings(self.config)
 
         def new_calibrator() -> OnlineCalibrator:
             return OnlineCalibrator(robot, dataset.camera, points, settings, self.config.get("released"))

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.fields import Fields, read_yaml
+from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, transform_points
 from ..core.units import parse_units
 from ..model.camera import Camera, parse_camera
@@ -19,29 +20,9 @@ from ..model.parameters import default_compliant_joints
 from ..model.robot import Robot
 from ..model.robot_io import load_referenced, robot_reference
 from . import MAX_CONFIGURATIONS
+from .schema import CellFile
 
 SIDES = ("+x", "-x", "+y", "-y", "+z", "-z")
-CELL_KEYS = (
-    "name",
-    "robot",
-    "units",
-    "base",
-    "fixture",
-    "objects",
-    "grid",
-    "camera",
-    "payload",
-    "tracker",
-    "tip",
-    "touch",
-    "ballbar",
-    "static_camera",
-    "noise",
-    "perturbation",
-    "motion_history",
-    "design",
-    "notes",
-)
 DESIGNS = ("seed", "space_filling")
 APPROACHES = ("previous", "from_below")
 
@@ -229,12 +210,10 @@ class Cell:
 
 def _pose(fields: Fields, key: str, to_m: float, to_rad: float) -> np.ndarray:
     sub = fields.sub(key, {})
-    sub.check_keys(("xyz", "rpy"))
     return pose_from_xyz_rpy(sub.vector("xyz", 3, [0, 0, 0], to_m), sub.vector("rpy", 3, [0, 0, 0], to_rad))
 
 
 def _cuboid_sides(obj: Fields, pitch: float, margin: float, to_m: float, to_rad: float) -> list[Side]:
-    obj.check_keys(("name", "size", "pose", "sides"))
     name = obj.string("name")
     size = obj.vector("size", 3, scale=to_m)
     if np.any(size <= 0):
@@ -279,7 +258,6 @@ def _named_points(section: Fields, key: str, to_m: float, minimum: int, needed: 
     names unique."""
     names, points = [], []
     for point in section.sub_list(key):
-        point.check_keys(("name", "xyz"))
         names.append(point.string("name"))
         points.append(point.vector("xyz", 3, scale=to_m))
     if len(points) < minimum:
@@ -290,7 +268,6 @@ def _named_points(section: Fields, key: str, to_m: float, minimum: int, needed: 
 
 
 def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
-    touch.check_keys(("probe", "points", "touches_per_point", "max_tilt", "known_distances"))
     names, points = _named_points(touch, "points", to_m, 3, "points are needed to touch")
     known = touch.raw("known_distances", True)
     if not isinstance(known, bool):
@@ -309,11 +286,9 @@ def _touch(touch: Fields, to_m: float, to_rad: float) -> TouchSetup:
 
 
 def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
-    bar.check_keys(("ball", "pivots", "length", "readings_per_pivot", "max_tilt", "between_configurations"))
     pairs, centre, radius = 0, None, 0.0
     if bar.has("between_configurations"):
         between = bar.sub("between_configurations")
-        between.check_keys(("readings", "centre", "radius"))
         pairs = between.integer("readings", minimum=6, maximum=MAX_CONFIGURATIONS // 2)
         centre = between.vector("centre", 3, scale=to_m)
         radius = between.number("radius", scale=to_m, nonnegative=True)
@@ -340,9 +315,7 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
 
 
 def _static_camera(section: Fields, to_m: float, to_rad: float) -> StaticCameraSetup:
-    section.check_keys(("pose", "image_size", "intrinsics", "distortion", "board", "max_view_angle"))
     board = section.sub("board")
-    board.check_keys(("mount", "corners", "square"))
     corners = board.vector("corners", 2)
     if np.any(corners < 2) or np.any(corners != np.round(corners)):
         raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
@@ -369,7 +342,6 @@ def _motion_truth(doc: Fields, n_joints: int, to_rad: float) -> MotionTruth | No
     if not doc.has("motion_history"):
         return None
     section = doc.sub("motion_history")
-    section.check_keys(("lost_motion", "speed", "approach", "approach_offset"))
     zeros = [0.0] * n_joints
     lost = np.array(section.vector("lost_motion", n_joints, zeros, to_rad))
     speed = np.array(section.vector("speed", n_joints, zeros, to_rad))
@@ -385,8 +357,9 @@ def _motion_truth(doc: Fields, n_joints: int, to_rad: float) -> MotionTruth | No
 def load_cell(path: str | Path) -> Cell:
     """Load and validate a cell file; every error names the file and field."""
     path = Path(path)
-    doc = Fields(read_yaml(path), path)
-    doc.check_keys(CELL_KEYS)
+    raw = read_yaml(path)
+    validate(raw, CellFile, path)  # keys, types, nulls and choices; the checks below need the robot
+    doc = Fields(raw, path)
     units = parse_units(doc.raw("units", None), path)
     to_m, to_rad = units.to_m, units.to_rad
     robot_ref = robot_reference(path.parent, doc.raw("robot"), path)
@@ -399,10 +372,8 @@ def load_cell(path: str | Path) -> Cell:
     camera_fields = doc.sub("camera") if doc.has("camera") or doc.has("objects") else None
     camera = None
     if camera_fields is not None:
-        camera_fields.check_keys(("mounting", "image_size", "intrinsics", "distortion"))
         camera = parse_camera(camera_fields)
     payload = doc.sub("payload", {})
-    payload.check_keys(("mass", "com"))
     robot = robot.with_tool(
         _pose(camera_fields, "mounting", to_m, to_rad) if camera_fields is not None else robot.tool_pose,
         payload_mass=payload.number("mass", robot.payload_mass, nonnegative=True),
@@ -418,7 +389,6 @@ def load_cell(path: str | Path) -> Cell:
         raise doc.error("tip", "a flange camera is the flange's tool: a tree's other tips carry targets, not cameras")
 
     grid = doc.sub("grid", {})
-    grid.check_keys(("pitch", "margin"))
     pitch = grid.number("pitch", 40.0 * 1e-3 / to_m, to_m, positive=True)
     margin = grid.number("margin", pitch / to_m, to_m, nonnegative=True)
     sides = []
@@ -431,7 +401,6 @@ def load_cell(path: str | Path) -> Cell:
         raise doc.error("objects", f"duplicate object name or side among {sorted(set(names))}")
 
     tracker = doc.sub("tracker", {})
-    tracker.check_keys(("pose", "targets", "probe"))
     targets, target_tips = _tracker_targets(tracker, robot, to_m, tip)
 
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
@@ -442,33 +411,7 @@ def load_cell(path: str | Path) -> Cell:
     if len(setups) > 1:
         raise doc.error(setups[1], f"a cell has one of camera, touch, ballbar and static_camera; got {setups}")
     noise = doc.sub("noise", {})
-    noise.check_keys(
-        (
-            "camera_point_sigma",
-            "pixel_sigma_px",
-            "tracker_sigma",
-            "tracker_angle_sigma",
-            "touch_sigma",
-            "spacing_sigma",
-            "distance_sigma",
-        )
-    )
     pert = doc.sub("perturbation", {})
-    pert.check_keys(
-        (
-            "length",
-            "angle",
-            "distortion",
-            "compliance",
-            "compliant_joints",
-            "base_length",
-            "base_angle",
-            "base_tilt",
-            "tool_length",
-            "tool_angle",
-            "mass_scale",
-        )
-    )
     mass_scale = pert.number("mass_scale", 0.0, nonnegative=True)
     if mass_scale >= 1.0 or (mass_scale and not robot.mass_groups):
         raise pert.error("mass_scale", "a half-width below 1, for a robot whose file declares mass_groups")
@@ -487,7 +430,6 @@ def load_cell(path: str | Path) -> Cell:
         robot = robot.with_model("DH,s,e,h")
 
     design = doc.sub("design", {})
-    design.check_keys(("kind", "n_configurations", "blocks_per_side", "views_per_block", "standoff", "max_view_angle"))
     standoff = design.vector("standoff", 2, [0.3 / to_m, 0.5 / to_m], to_m)
     if not 0 < standoff[0] <= standoff[1]:
         raise design.error("standoff", "expected [near, far] with 0 < near <= far")

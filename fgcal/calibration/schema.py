@@ -1,0 +1,174 @@
+"""The schema of a calibration config (docs/calibration.md); parse_config validates a config here
+first, then reads its settings and checks what needs the dataset or the robot. Lengths and angles
+in the config's units: its own ``units:``, else the dataset's, else SI."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, create_model
+
+from ..core.noise import NoiseSection
+from ..core.schema import NUMBER_JSON, Number, Schema, Units, checked, refuse, to_number, vector
+from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
+from ..model.robot import MODELS
+from .formulations import NAMES
+from .settings import PARTNERS, ROBUST_DEFAULTS
+
+LENGTH = "the config's length unit"
+ANGLE = "the config's angle unit"
+LOSSES = ("huber", "cauchy")
+LOSS = "[huber|cauchy, threshold in robust sigmas], or null or none: no robust loss (least squares)"
+# The parameter kinds a stage may release.
+KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
+NUMBER_POSITIVE = {"anyOf": [{**NUMBER_JSON["anyOf"][0], "exclusiveMinimum": 0}, *NUMBER_JSON["anyOf"][1:]]}
+
+
+def _loss(value: Any) -> Any:
+    if value is None or value == "none":
+        return value
+    if not (isinstance(value, list) and len(value) == 2 and value[0] in LOSSES):
+        raise refuse(f"expected [huber|cauchy, threshold in sigmas] or none, got {value!r}")
+    if not to_number(value[1], "[1]") > 0:
+        raise refuse(f"must be > 0, got {value[1]!r}", "[1]")
+    return value
+
+
+Loss = checked(
+    _loss,
+    {
+        "description": LOSS,
+        "anyOf": [
+            {"type": "array", "prefixItems": [{"enum": list(LOSSES)}, NUMBER_POSITIVE],
+             "minItems": 2, "maxItems": 2},
+            {"const": "none"},
+            {"type": "null"},
+        ],
+    },
+    nullable=True,
+)
+# The robust loss of each measurement kind (settings.ROBUST_DEFAULTS: the kinds and defaults).
+Robust = create_model(
+    "Robust",
+    __base__=Schema,
+    __doc__="The robust loss of each measurement kind, in robust sigmas (null or none: off, least squares).",
+    **{
+        key: (Loss, Field(list(default) if default else None, description=f"{LOSS}; default {default or 'none'}"))
+        for key, default in ROBUST_DEFAULTS.items()
+    },
+)
+
+
+class Pairs(Schema):
+    """How the pairs formulation groups its images."""
+
+    partner: Literal[PARTNERS] = "other_object"
+    seed: int = Field(0, ge=0, le=2**32 - 1)
+    group_images: int = Field(4, ge=1)
+    points_from: Literal["camera_points", "pixels"] = "camera_points"
+
+
+class PriorSigma(Schema):
+    focal_px: Number = Field(5.0, gt=0)
+    centre_px: Number = Field(5.0, gt=0)
+    radial: Number = Field(0.01, gt=0)
+    tangential: Number = Field(0.001, gt=0)
+
+
+class Intrinsics(Schema):
+    estimate: bool = Field(False, description="estimate the camera's intrinsics (with priors around the dataset's)")
+    prior_sigma: PriorSigma = None
+
+
+def _stages(value: Any) -> Any:
+    if not isinstance(value, list):
+        raise refuse(f"expected a list, got {type(value).__name__}")
+    if not value:
+        raise refuse("at least one stage: with none, nothing is estimated")
+    for i, stage in enumerate(value):
+        if not isinstance(stage, list) or not stage:
+            raise refuse("each stage is a non-empty list of parameter kinds", f"[{i}]")
+        for kind in stage:
+            if kind not in KINDS:
+                raise refuse(f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})", f"[{i}]")
+    return value
+
+
+Stages = checked(
+    _stages,
+    {"type": "array", "minItems": 1, "items": {"type": "array", "minItems": 1, "items": {"enum": list(KINDS)}},
+     "description": "the parameter kinds each stage releases (schedule custom; a list gives it)"},
+)
+
+
+def _datasets(value: Any) -> Any:
+    entries = value if isinstance(value, list) else [value]
+    if not entries or not all(isinstance(e, str) and e for e in entries):
+        raise refuse(f"expected a dataset directory or a list of them, got {value!r}")
+    return value
+
+
+class Validation(Schema):
+    """The held-out configurations the calibration is scored on."""
+
+    holdout: Number = Field(None, ge=0, lt=0.9, description="fraction held out (default 0.25, 0 with a dataset)")
+    seed: int = Field(0, ge=0, le=2**32 - 1)
+    complement: bool = Field(False, description="fit on the held-out part and hold out the fitting part")
+    split: Literal["random", "ordered"] = "random"
+    dataset: checked(
+        _datasets,
+        {"description": "separate validation set(s): a dataset folder or a list, relative to the config",
+         "anyOf": [{"type": "string", "minLength": 1}, {"type": "array", "items": {"type": "string", "minLength": 1},
+                                                          "minItems": 1}]},
+    ) = None  # fmt: skip
+    tool_points: dict[str, vector(3)] = Field(None, description=f"points only a validation set measures, {LENGTH}")
+
+
+class Identifiability(Schema):
+    min_information: Number = Field(3.0, gt=0)
+
+
+class Solver(Schema):
+    max_iterations: int = Field(100, ge=1)
+
+
+def _bounds(value: Any) -> Any:
+    if not isinstance(value, dict):
+        raise refuse(f"expected a mapping, got {type(value).__name__}")
+    for key, sigma in value.items():
+        if sigma is None:
+            raise refuse("is null: give a value", str(key))
+        if not to_number(sigma, str(key)) > 0:
+            raise refuse(f"must be > 0, got {sigma!r}", str(key))
+    return value
+
+
+class CalibrationConfig(Schema):
+    """A calibration config (fgcal calibrate)."""
+
+    dataset: str = Field(description="the dataset folder, relative to the config")
+    units: Units = Field(None, description="the config's units (default the dataset's)")
+    formulation: Literal[NAMES] = Field(None, description="default: the one that reads the dataset's measured tables")
+    model: Literal[(*MODELS, "auto")] = Field("DH,s,e", description="the error model; auto: compare and pick")
+    compliant_joints: list[Annotated[int, Field(ge=1)]] = Field(
+        None, description="1-based joints with a compliance (default 1-3)"
+    )
+    fixture_orientation: Literal["known", "estimate"] = "known"
+    schedule: Literal["staged", "one_shot", "custom"] = "staged"
+    stages: Stages = None
+    bounds: checked(
+        _bounds,
+        {"type": "object", "additionalProperties": NUMBER_POSITIVE,
+         "description": f"prior sigmas by class, kind or parameter name ({LENGTH}, {ANGLE})"},
+    ) = None  # fmt: skip
+    noise: NoiseSection = Field(None, description="the measurements' sigmas (win over the dataset's)")
+    robust: Robust = None
+    pairs: Pairs = None
+    validation: Validation = None
+    identifiability: Identifiability = None
+    solver: Solver = None
+    pixels_from: Literal["table", "images"] = "table"
+    intrinsics: Intrinsics = None
+    compare_models: bool = False
+    residual_model: Literal["none", "gp"] = "none"
+    notes: Any = None

@@ -1,0 +1,40 @@
+"""The schema of an online setup file (fgcal online --setup; docs/online.md); service.load_config
+validates a setup here first, then resolves its paths and checks its parameter names."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from ..core.schema import Number, Schema
+from ..model.schema import RobotReference
+
+
+class Settings(Schema):
+    """The online calibration's settings (SI; per-cycle sigmas of the random walk)."""
+
+    pixel_sigma_px: Number = Field(None, gt=0, description="px (default 0.1)")
+    prior_sigma_m: Number = Field(None, gt=0, description="m (default 5e-3)")
+    prior_sigma_rad: Number = Field(None, gt=0, description="rad (default 5e-3)")
+    prior_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) (default 1e-6)")
+    drift_sigma_m: Number = Field(None, gt=0, description="m per cycle (default 1e-6)")
+    drift_sigma_rad: Number = Field(None, gt=0, description="rad per cycle (default 1e-6)")
+    drift_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) per cycle (default 1e-10)")
+    window_images: int = Field(None, ge=1, description="images in the window (default 20; at least twice "
+                               "marginalise_every)")  # fmt: skip
+    marginalise_every: int = Field(None, ge=1, description="images leave the window in blocks (default 5)")
+    alarm_lag_images: int = Field(None, ge=1, description="default 5")
+    alarm_false_rate: Number = Field(None, gt=0, description="per image, over all parameters (default 1e-3)")
+    outlier_gate_px: Number = Field(None, gt=0, description="px (default 3)")
+    compliant_joints: list[int] = Field(None, description="1-based joints with a compliance (default 1-3)")
+    relinearize_fraction: Number = Field(None, gt=0, description="of a prior sigma (default 0.1)")
+    relinearize_pose: Number = Field(None, gt=0, description="rad, m (default 1e-4)")
+
+
+class OnlineSetup(Schema):
+    """An online setup (fgcal online --setup)."""
+
+    dataset: str = Field(description="the calibration's dataset folder, relative to the setup")
+    robot: RobotReference = None
+    released: list[str] = Field(None, description="the parameters recalibrated online (default: the calibration's)")
+    settings: Settings = None
+    target_accuracy_m: Number = Field(5e-5, gt=0, description="m")
