@@ -10,7 +10,7 @@ import numpy as np
 
 from ..core.console import Reporter, say, warn
 from ..data.compensation import ORIENTATIONS
-from .options import JSON_HELP, count, emit, real
+from .options import JSON_HELP, count, emit, payload_com, real
 
 
 def cmd_compensate(args: argparse.Namespace) -> int:
@@ -121,20 +121,6 @@ ORIENTATION_WORDS = {
     "abc": "a b c, R = Rz(A) Ry(B) Rx(C)",
     "quaternion": "qw qx qy qz",
 }
-
-
-def payload_com(given: list[float], to_m: float, robot) -> np.ndarray:
-    """--payload-com in metres: given in --length-unit (a program's: m). A centre of mass farther
-    from the flange than the arm reaches is a unit slip (mm typed for m), refused."""
-    from ..core.errors import InputError
-
-    com = np.array(given, dtype=float) * to_m
-    reach = robot.reach_m()[1]
-    if np.linalg.norm(com) > reach:
-        unit = "mm" if to_m == 1e-3 else "m"
-        raise InputError(None, "--payload-com", f"{' '.join(map(str, given))}: {np.linalg.norm(com):.3g} m from the "
-                         f"flange, beyond the arm's reach ({reach:.3g} m); it is in {unit}")  # fmt: skip
-    return com
 
 
 def _tcp(given: list[float] | None, to_m: float) -> np.ndarray:

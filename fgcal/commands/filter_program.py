@@ -43,7 +43,7 @@ def compensate_program(
         with_header,
         write_program,
     )
-    from .compensate import payload_com
+    from .options import payload_com
 
     source, out = Path(args.targets), Path(args.out)
     table = out.with_name(f"{out.stem}.corrections.csv")

@@ -115,3 +115,17 @@ def xacro_packages(args: argparse.Namespace):
     from ..model.xacro_io import packages, parse_packages
 
     return packages(parse_packages(getattr(args, "package", None)))
+
+
+def payload_com(given: list[float], to_m: float, robot) -> np.ndarray:
+    """--payload-com in metres: given in --length-unit (a program's: m). A centre of mass farther
+    from the flange than the arm reaches is a unit slip (mm typed for m), refused."""
+    from ..core.errors import InputError
+
+    com = np.array(given, dtype=float) * to_m
+    reach = robot.reach_m()[1]
+    if np.linalg.norm(com) > reach:
+        unit = "mm" if to_m == 1e-3 else "m"
+        raise InputError(None, "--payload-com", f"{' '.join(map(str, given))}: {np.linalg.norm(com):.3g} m from the "
+                         f"flange, beyond the arm's reach ({reach:.3g} m); it is in {unit}")  # fmt: skip
+    return com
