@@ -416,3 +416,45 @@ def test_a_measurement_whose_fold_fails_is_quarantined_and_never_blocks_a_replay
     service = _service(small_case, state, inbox)
     assert service.calibrator.n_images == 11 and list(service.quarantined) == [names[6]]
     service.close()
+
+
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "sigint"])
+def test_a_stop_signal_finishes_the_measurement_writes_the_report_and_exits_0(small_case, tmp_path, stop):
+    """Issue 41: SIGTERM (systemd, docker stop) and SIGINT stop the service cleanly in the
+    middle of a run: the measurement under way is finished, report.md and report.json are
+    written, the exit status is 0, and every acknowledged measurement is in the log, folded
+    in and moved aside; the rest wait in the inbox (which the command created)."""
+    inbox, state = tmp_path / "new" / "inbox", tmp_path / "state"
+    n = feed_dataset(small_case / "data", tmp_path / "staging", cycle_size=10)
+    command = [sys.executable, "-m", "fgcal", "online", "--state", str(state), "--inbox", str(inbox)]
+    command += ["--setup", str(small_case / "setup.yaml"), "--poll", "0.05"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    log = state / LOG
+    deadline = time.monotonic() + 120
+    while not inbox.is_dir() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert inbox.is_dir() and process.poll() is None
+    # Measurements arrive one by one while the service runs; the stop comes after 12 are logged.
+    staged = sorted((tmp_path / "staging").glob("*.json"))
+    for path in staged:
+        os.replace(path, inbox / path.name)
+        time.sleep(0.01)
+        if log.exists() and log.read_bytes().count(b"\n") >= 12:
+            break
+    while (not log.exists() or log.read_bytes().count(b"\n") < 12) and time.monotonic() < deadline:
+        time.sleep(0.005)
+    process.send_signal(stop)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert f"{stop.name}: finishing the current measurement" in out, out
+    with StateDir(state) as locked:
+        logged = [r["name"] for r in locked.read_log().records]
+    processed = sorted(p.name for p in (state / "processed").iterdir())
+    waiting = sorted(p.name for p in inbox.glob("*.json"))
+    assert len(logged) >= 12 and sorted(logged) == processed  # acknowledged: logged and moved aside
+    assert sorted(processed + waiting + [p.name for p in staged if (tmp_path / "staging" / p.name).exists()]) == \
+        sorted(p.name for p in staged) and len(staged) == n  # fmt: skip
+    report = json.loads((state / "report.json").read_text())
+    assert report["n_images"] == report["n_logged"] == len(logged)  # each one folded in
+    assert f"images folded in: {len(logged)}" in (state / "report.md").read_text()
+    assert f"{len(logged)} images; predicted RMS flange sigma" in out and f"(stopped by {stop.name})" in out

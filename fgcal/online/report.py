@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.outputs import save_figure, write_text
+from ..model.parameters import unit_of
 
 
 def read_history(state: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
@@ -79,20 +80,47 @@ def write_final_report(state: Path, report: dict) -> None:
         lines.append(f"- still dominated by their priors (sigma > prior/2): {', '.join(report['prior_dominated'])}")
     for problem in report["problems"]:
         lines.append(f"- problem: {problem}")
-    lines += ["", "| parameter | unit | estimate | sigma | sigma / prior |", "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Lengths in mm, angles in deg (changes and sigmas in mdeg), compliances in urad/(N m); report.json "
+        "holds the same in SI.",
+        "",
+        "| parameter | estimate | change from the start | sigma | sigma / prior |",
+        "|---|---|---|---|---|",
+    ]
     for name, entry in report["parameters"].items():
         if entry["status"] == "released":
+            scale, label = human_unit(entry["unit"])
+            value = (
+                f"{np.degrees(entry['estimate']):.5f} deg"
+                if entry["unit"] == "rad"
+                else f"{entry['estimate'] * scale:.4f} {label}".rstrip()
+            )
             lines.append(
-                f"| {name} | {entry['unit']} | {entry['estimate']:.6g} | {entry['sigma']:.3e} | "
-                f"{entry['sigma'] / entry['prior_sigma']:.3g} |"
+                f"| {name} | {value} | {human(name, entry['estimate'] - entry['start'])} | "
+                f"{entry['sigma'] * scale:.3g} {label} | {entry['sigma'] / entry['prior_sigma']:.3g} |"
             )
     if report["alarms"]:
         lines += ["", "## Drift alarms", "", "| image | file | parameters (z, change) |", "|---|---|---|"]
         for alarm in report["alarms"]:
             shown = alarm["parameters"][:6]
-            flagged = "; ".join(f"{p['parameter']} ({p['z']:+.1f}, {p['change']:+.2e} {p['unit']})" for p in shown)
+            flagged = "; ".join(
+                f"{p['parameter']} ({p['z']:+.1f}, {human(p['parameter'], p['change'])})" for p in shown
+            )
             more = len(alarm["parameters"]) - len(shown)
             lines.append(f"| {alarm['image']} | {alarm['name']} | {flagged}{f'; {more} more' if more else ''} |")
     if plot is not None:
         lines += ["", f"![sigmas]({plot.name})"]
     write_text(state / "report.md", "\n".join(lines) + "\n")
+
+
+def human_unit(unit: str) -> tuple[float, str]:
+    """(scale, label) of a change or a sigma in the units an engineer reads, as the batch
+    report: mm, mdeg, urad/(N m)."""
+    return {"m": (1e3, "mm"), "rad": (180e3 / np.pi, "mdeg"), "rad/(N m)": (1e6, "urad/(N m)")}.get(unit, (1.0, unit))
+
+
+def human(name: str, change: float) -> str:
+    """A change of parameter ``name`` (SI) in mm, mdeg or urad/(N m), with its sign."""
+    scale, label = human_unit(unit_of(name))
+    return f"{change * scale:+.4g} {label}".rstrip()

@@ -24,9 +24,11 @@ import yaml
 
 from ..calibration.covariance import position_covariance
 from ..core import strict_json
+from ..core.console import detail
+from ..core.console import say as log_info
 from ..core.errors import InputError
 from ..core.fields import Fields, read_yaml
-from ..core.outputs import subfolder, write_bytes, write_text
+from ..core.outputs import output_dir, subfolder, write_bytes, write_text
 from ..data.dataset import load_dataset
 from ..model.parameters import unit_of
 from ..model.robot import SAME_ROBOT_M
@@ -34,7 +36,7 @@ from ..model.robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement
-from .report import write_final_report
+from .report import human, write_final_report
 from .state import StateDir, encode_record, open_for_writing, write_atomic
 
 CONFIG = "config.yaml"
@@ -103,8 +105,13 @@ class OnlineService:
         inbox: str | Path,
         setup: str | Path | None = None,
         say: Callable[[str], None] | None = None,
+        stop: Callable[[], bool] | None = None,
     ) -> None:
-        self.say = say or (lambda _msg: None)
+        # Lines go through the fgcal logger by default (fgcal -q keeps the warnings only).
+        self.say = say or log_info
+        # Asked between measurements: True once a stop was requested (SIGTERM or SIGINT in
+        # fgcal online); the current measurement is finished first.
+        self.stop_requested = stop or (lambda: False)
         self.state = StateDir(state_dir)
         self.state.lock()
         try:
@@ -114,9 +121,7 @@ class OnlineService:
             raise
 
     def _start(self, inbox: Path, setup: str | Path | None) -> None:
-        self.inbox = inbox
-        if not self.inbox.is_dir():
-            raise InputError(self.inbox, None, "inbox directory does not exist")
+        self.inbox = output_dir(inbox, "--inbox")  # created, as fgcal online-feed creates it
         state, box = self.state.path.resolve(), self.inbox.resolve()
         if box == state or box.is_relative_to(state):
             raise InputError(self.inbox, "--inbox", f"is the state directory or inside it ({self.state.path}): "
@@ -182,6 +187,9 @@ class OnlineService:
         self.predicted: dict | None = None  # after the last image folded in
         self._final_at = -1  # n_images when report.md was last written
         self.logged: dict[str, bytes] = {}  # name -> digest of the logged record
+        cal = self.calibrator
+        self._previous = cal.current_params()[cal.model.index].copy()  # before the last measurement
+        self._cycle: dict = {"label": None, "n": 0, "start": self._previous.copy()}
         self.quarantined: dict[str, str] = {}  # name -> why folding it in failed
         if self._history_handle is not None:
             self._history_handle.close()
@@ -278,6 +286,8 @@ class OnlineService:
     # -- one measurement --------------------------------------------------------------------
 
     def _fold(self, measurement: Measurement, replaying: bool = False) -> OnlineUpdate | None:
+        if measurement.cycle != self._cycle["label"]:  # the cycle in progress has ended
+            self._log_cycle(detail if replaying else None)
         try:
             update = self.calibrator.add(measurement.q, list(measurement.pixels), measurement.cycle)
         except InputError as error:
@@ -292,6 +302,7 @@ class OnlineService:
         if not replaying:
             self.latencies.append(update.update_s)
         predicted = self.predicted = self.predicted_accuracy()
+        self._log_measurement(measurement, update, predicted, replaying)
         if self.met_at is None and predicted["rms_m"] <= self.target_m:
             self.met_at = update.n_images
         if update.alarms:
@@ -316,6 +327,47 @@ class OnlineService:
         )
         self._history_handle.flush()
         return update
+
+    def _log_measurement(
+        self, measurement: Measurement, update: OnlineUpdate, predicted: dict, replaying: bool
+    ) -> None:
+        """One line per measurement, and one per work cycle when the next cycle starts (mm and
+        mdeg); a replay's lines are details (fgcal -v)."""
+        line = detail if replaying else self.say
+        cal = self.calibrator
+        estimate = cal.current_params()[cal.model.index]
+        step = (estimate - self._previous) / cal.sigmas
+        i = int(np.argmax(np.abs(step)))
+        name = cal.released[i]
+        if measurement.cycle != self._cycle["label"] or not self._cycle["n"]:
+            self._cycle = {"label": measurement.cycle, "n": 0, "start": self._previous.copy()}
+        self._cycle["n"] += 1
+        cycle = "-" if measurement.cycle is None else measurement.cycle
+        line(
+            f"{measurement.name}: image {update.n_images}, cycle {cycle}, "
+            f"{len(measurement.pixels)} observations, {update.update_s * 1e3:.1f} ms; predicted RMS flange sigma "
+            f"{predicted['rms_m'] * 1e3:#.3g} mm; largest step {name} {human(name, estimate[i] - self._previous[i])} "
+            f"({step[i]:+.2f} sigma)"
+            + (f"; {len(update.rejected_points)} points gated" if update.rejected_points else "")
+        )
+        self._previous = estimate
+
+    def _log_cycle(self, line: Callable[[str], None] | None = None) -> None:
+        """The line of the work cycle in progress: its measurements and its largest change."""
+        cycle = self._cycle
+        if not cycle["n"]:
+            return
+        cal = self.calibrator
+        change = cal.current_params()[cal.model.index] - cycle["start"]
+        i = int(np.argmax(np.abs(change) / cal.sigmas))
+        name = cal.released[i]
+        label = cycle["label"] if cycle["label"] is not None else "-"
+        (line or self.say)(
+            f"cycle {label}: {cycle['n']} measurements; predicted RMS flange sigma "
+            f"{self.predicted['rms_m'] * 1e3:#.3g} mm; largest change {name} {human(name, change[i])} "
+            f"({change[i] / cal.sigmas[i]:+.2f} sigma); {len(self.alarms)} drift alarms so far"
+        )
+        cycle["n"] = 0
 
     def _quarantine(self, measurement: Measurement, error: Exception) -> None:
         """Mark a logged measurement whose folding-in failed, durably (a marker record in the
@@ -345,6 +397,8 @@ class OnlineService:
         returns how many were new."""
         count = 0
         for entry in entries(self.inbox):
+            if self.stop_requested():
+                break
             if entry.problem is not None:
                 self._reject_entry(entry)
                 continue
@@ -425,15 +479,20 @@ class OnlineService:
         )
 
     def run(self, once: bool, poll_s: float = 1.0, max_idle_s: float | None = None) -> None:
-        """Process the inbox; with ``once`` until it is empty, otherwise until interrupted."""
+        """Process the inbox; with ``once`` until it is empty, otherwise until a stop is
+        requested (then the current measurement is finished first) or ``max_idle_s`` passed."""
         idle_since = time.monotonic()
-        while True:
+        while not self.stop_requested():
             if self.process_inbox():
                 idle_since = time.monotonic()
                 self.write_final()
             if once or (max_idle_s is not None and time.monotonic() - idle_since > max_idle_s):
                 break
-            time.sleep(poll_s)
+            waited = 0.0
+            while waited < poll_s and not self.stop_requested():  # a stop is seen within 0.1 s
+                time.sleep(min(0.1, poll_s - waited))
+                waited += 0.1
+        self._log_cycle()
         self.write_final()
 
     # -- outputs ----------------------------------------------------------------------------
