@@ -285,6 +285,17 @@ class Formulation(ABC):
         """The observations of the fitting configurations; InputError when they cannot
         calibrate (missing table, too few)."""
 
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """The observations of ``subset`` (one configuration, or a work cycle's) for online
+        recalibration (fgcal.online), labelled as ``like`` (the observations the online
+        calibration started from: their names index its auxiliary unknowns), without the check
+        that they alone could calibrate; InputError for what ``like`` does not know. The
+        default, :meth:`fit_observations`, suits a formulation whose observations carry no
+        labels of auxiliary unknowns and no such check."""
+        return self.fit_observations(dataset, settings, subset)
+
     @abstractmethod
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         """The held-out observations (None: nothing held out) and the held-out measurements

@@ -62,6 +62,9 @@ class OnlineSettings:
     alarm_lag_images: int = 5
     alarm_false_rate: float = 1e-3  # per image, over all parameters
     outlier_gate_px: float = 3.0
+    # Measurements held back and folded in together before the first update (formulations
+    # other than the camera's, fgcal.online.protocol): they start the auxiliary unknowns.
+    start_measurements: int = 10
     compliant_joints: tuple[int, ...] | None = None  # None: the seed's 1-3 that the robot has
     # Relinearise p_c when it moved by this fraction of its prior sigma, a pose by this (rad, m).
     relinearize_fraction: float = 0.1
