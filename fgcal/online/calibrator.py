@@ -457,6 +457,25 @@ class OnlineCalibrator:
         T_W_C = self.robot.fk_tool(q[None, :], self.robot.parameter_dict(self.current_params()))[0]
         return T_W_C @ T_C_F
 
+    # -- the service's measurements (fgcal.online.measurement) ----------------------------
+
+    def check(self, measurement, source) -> None:
+        """InputError for a measurement file this calibrator cannot take (before it is logged)."""
+        if not measurement.pixels:
+            raise InputError(source, "pixels", "a flange camera's image needs pixels")
+        unknown = [n for n, _ in measurement.pixels if n not in self.points_F]
+        if unknown:
+            raise InputError(source, f"pixels.{unknown[0]}", "unknown calibration point")
+
+    def fold(self, measurement) -> OnlineUpdate:
+        """:meth:`add` of a measurement file's image (its other tables are not read)."""
+        return self.add(measurement.q, list(measurement.pixels), measurement.cycle)
+
+    def window_q(self) -> np.ndarray:
+        """The configurations of the images in the window (rad)."""
+        rows = sorted(self.model.q)[-self.settings.window_images :]
+        return np.array([self.model.q[r] for r in rows]).reshape(-1, self.robot.n_joints)
+
     # -- the estimate ---------------------------------------------------------------------
 
     def batch_initial(self) -> gtsam.Values:

@@ -107,6 +107,7 @@ class FormulationCalibrator:
         self.measurement_settings = replace(MeasurementSettings(), noise=Noise.stated(reference.noise))
         # The measurements' tables come from the inbox; the rest (calibration points) stays.
         static = {name: t for name, t in reference.tables.items() if "config" not in t.ids}
+        self.measured = sorted(name for name, t in reference.tables.items() if "config" in t.ids)
         self.template = replace(
             reference, robot=self.robot, configs=np.zeros(0, dtype=object), q=np.zeros((0, robot.n_joints)),
             tables=static, history=None,
@@ -344,6 +345,22 @@ class FormulationCalibrator:
             time.perf_counter() - started,
             extra or {},
         )
+
+    # -- the service's measurements (fgcal.online.measurement) ------------------------------------
+
+    def check(self, measurement, source) -> None:
+        """InputError for a measurement file without a table the reference dataset measures
+        (before it is logged); what the formulation reads of it is checked as it is folded in."""
+        tables = {"pixels"} if measurement.pixels else set()
+        tables |= {name for name, _, _ in measurement.observations}
+        if self.formulation.kind not in tables and not tables & set(self.measured):
+            raise InputError(
+                source, "observations", f"no table the {self.formulation.name} formulation reads (the reference "
+                f"dataset measures {', '.join(sorted(self.measured)) or 'none'}; got {', '.join(sorted(tables))})",
+            )  # fmt: skip
+
+    def fold(self, measurement) -> OnlineUpdate:
+        return self.add(measurement.reading(), measurement.cycle)
 
     # -- bounded memory -------------------------------------------------------------------------
 

@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from ..calibration.covariance import position_covariance
+from ..calibration.formulations import NAMES
 from ..core import strict_json
 from ..core.console import detail
 from ..core.console import say as log_info
@@ -36,6 +37,7 @@ from ..model.robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement
+from .protocol import FormulationCalibrator
 from .report import human, write_final_report
 from .state import StateDir, encode_record, open_for_writing, write_atomic
 
@@ -53,8 +55,14 @@ CHECKPOINT_EVERY = 25
 def load_config(path: Path) -> dict:
     """Validate a setup file; returns it with paths made absolute."""
     fields_ = Fields(read_yaml(path), path)
-    fields_.check_keys(["dataset", "robot", "released", "settings", "target_accuracy_m"])
+    fields_.check_keys(["dataset", "formulation", "model", "robot", "released", "settings", "target_accuracy_m"])
     config: dict = {"dataset": str((path.parent / fields_.string("dataset")).resolve())}
+    if fields_.has("formulation"):
+        config["formulation"] = fields_.string("formulation", choices=NAMES)
+    if fields_.has("model"):
+        if "formulation" not in config:
+            raise fields_.error("model", "a model is chosen with a formulation (formulation: NAME)")
+        config["model"] = fields_.string("model")
     if fields_.has("robot"):
         config["robot"] = robot_reference(path.parent, fields_.raw("robot"), path, "robot")
     if fields_.has("released"):
@@ -137,28 +145,17 @@ class OnlineService:
         else:
             raise InputError(self.state.path, None, "no config.yaml: set the state directory up with --setup FILE")
         dataset = load_dataset(self.config["dataset"])
-        if dataset.camera is None or "points" not in dataset.tables:
-            raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
-        if dataset.camera_mounting is None:
-            raise InputError(
-                Path(self.config["dataset"]) / "dataset.yaml", "camera.mounting", "online calibration takes a camera "
-                "on the flange, and this dataset's camera has no mounting (a camera fixed in the cell?)",
-            )  # fmt: skip
-        robot = dataset.robot
-        if "robot" in self.config:
-            robot = load_referenced(self.config["robot"])
-            gap = robot.flange_gap_m(dataset.robot)
-            if gap > SAME_ROBOT_M:
-                raise InputError(
-                    setup or config_path, "robot", f"{robot.name} is not the dataset's {dataset.robot.name}: their "
-                    + (f"flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap) else "joint counts differ"),
-                )  # fmt: skip
-        points = dataset.points_F()
+        robot = self._robot(dataset, setup or config_path)
         settings = _settings(self.config, config_path)
+        if "formulation" in self.config:  # any registered formulation, through its protocol
 
-        def new_calibrator() -> OnlineCalibrator:
-            return OnlineCalibrator(robot, dataset.camera, points, settings, self.config.get("released"))
-
+            def new_calibrator():
+                return FormulationCalibrator(
+                    dataset, self.config["formulation"], settings, self.config.get("released"), robot,
+                    self.config.get("model"),
+                )  # fmt: skip
+        else:  # a flange camera's images (fgcal.online.calibrator)
+            new_calibrator = self._camera(dataset, robot, settings)
         self._new_calibrator = new_calibrator
         try:
             self.calibrator = new_calibrator()
@@ -178,6 +175,39 @@ class OnlineService:
         self._replay()
         for name in recover_claims(self.inbox):
             self.say(f"took back {name}: claimed by a process that stopped before it was logged")
+
+    def _robot(self, dataset, setup: Path):
+        """The starting model: the setup's robot file, or the dataset's robot."""
+        if "robot" not in self.config:
+            return dataset.robot
+        robot = load_referenced(self.config["robot"])
+        gap = robot.flange_gap_m(dataset.robot)
+        if gap > SAME_ROBOT_M:
+            raise InputError(
+                setup, "robot", f"{robot.name} is not the dataset's {dataset.robot.name}: their "
+                + (f"flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap) else "joint counts differ"),
+            )  # fmt: skip
+        return robot
+
+    def _camera(self, dataset, robot, settings: OnlineSettings):
+        """The calibrator of a flange camera's images, checked against the dataset."""
+        if dataset.camera is None or "points" not in dataset.tables:
+            raise InputError(
+                self.config["dataset"], "camera", "without a formulation, online calibration takes a flange camera's "
+                f"images and needs the camera and the points; for another instrument name its formulation in the setup "
+                f"(formulation: one of {', '.join(NAMES)})",
+            )  # fmt: skip
+        if dataset.camera_mounting is None:
+            raise InputError(
+                Path(self.config["dataset"]) / "dataset.yaml", "camera.mounting", "online calibration takes a camera "
+                "on the flange, and this dataset's camera has no mounting (a camera fixed in the cell?)",
+            )  # fmt: skip
+        points = dataset.points_F()
+
+        def new_calibrator() -> OnlineCalibrator:
+            return OnlineCalibrator(robot, dataset.camera, points, settings, self.config.get("released"))
+
+        return new_calibrator
 
     def _begin(self) -> None:
         """Everything a replay rebuilds: the estimate's companions and history.csv."""
@@ -289,7 +319,7 @@ class OnlineService:
         if measurement.cycle != self._cycle["label"]:  # the cycle in progress has ended
             self._log_cycle(detail if replaying else None)
         try:
-            update = self.calibrator.add(measurement.q, list(measurement.pixels), measurement.cycle)
+            update = self.calibrator.fold(measurement)
         except InputError as error:
             self.skipped.append({"name": measurement.name, "reason": error.message})
             self.say(f"skipped {measurement.name}: {error.message}")
@@ -344,8 +374,8 @@ class OnlineService:
         self._cycle["n"] += 1
         cycle = "-" if measurement.cycle is None else measurement.cycle
         line(
-            f"{measurement.name}: image {update.n_images}, cycle {cycle}, "
-            f"{len(measurement.pixels)} observations, {update.update_s * 1e3:.1f} ms; predicted RMS flange sigma "
+            f"{measurement.name}: measurement {update.n_images}, cycle {cycle}, "
+            f"{measurement.n_observations} observations, {update.update_s * 1e3:.1f} ms; predicted RMS flange sigma "
             f"{predicted['rms_m'] * 1e3:#.3g} mm; largest step {name} {human(name, estimate[i] - self._previous[i])} "
             f"({step[i]:+.2f} sigma)"
             + (f"; {len(update.rejected_points)} points gated" if update.rejected_points else "")
@@ -382,10 +412,9 @@ class OnlineService:
     def predicted_accuracy(self) -> dict:
         """Predicted flange position sigma (m) at the configurations in the window."""
         cal = self.calibrator
-        rows = sorted(cal.model.q)[-cal.settings.window_images :]
-        if not rows:
+        q = cal.window_q()
+        if not len(q):
             return {"rms_m": float("nan"), "max_m": float("nan"), "n_configurations": 0}
-        q = np.array([cal.model.q[r] for r in rows])
         cov = position_covariance(
             cal.robot, cal.current_params(), cal.released, cal.covariance, q, "flange", np.zeros(3)
         )
@@ -409,9 +438,7 @@ class OnlineService:
             try:
                 robot = self.calibrator.robot
                 measurement = read_measurement(claimed, robot.n_joints, entry.name, source, robot.limits)
-                unknown = [n for n, _ in measurement.pixels if n not in self.calibrator.points_F]
-                if unknown:
-                    raise InputError(source, f"pixels.{unknown[0]}", "unknown calibration point")
+                self.calibrator.check(measurement, source)
                 if entry.name in self.logged:
                     if _digest(measurement.to_record()) == self.logged[entry.name]:
                         # Acknowledged just before a crash, not yet moved aside.
