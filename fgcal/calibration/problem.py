@@ -273,6 +273,8 @@ class Formulation(ABC):
     # instrument, the first registered formulation that reads it; fgcal plan, the first planned
     # one (:meth:`planning`).
     instrument: ClassVar[str]
+    # Why online recalibration (fgcal.online) cannot take it one configuration at a time; None: it can.
+    not_incremental: ClassVar[str | None] = None
 
     # -- what the setup measures --------------------------------------------------------
 

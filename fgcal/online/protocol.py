@@ -102,6 +102,11 @@ class FormulationCalibrator:
                 f"must be at least twice marginalise_every ({s.marginalise_every}), got {s.window_images}",
             )
         self.formulation = registered(formulation)
+        if self.formulation.not_incremental:
+            raise InputError(
+                None, "formulation", f"the {formulation} formulation cannot be refined online: "
+                f"{self.formulation.not_incremental}",
+            )  # fmt: skip
         robot = robot or reference.robot
         self.robot = robot.with_model(model or robot.model)
         self.measurement_settings = replace(MeasurementSettings(), noise=Noise.stated(reference.noise))

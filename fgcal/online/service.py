@@ -162,7 +162,7 @@ class OnlineService:
         except InputError as error:
             if error.source is not None:
                 raise
-            field_ = error.field if error.field == "released" else f"settings.{error.field}"
+            field_ = error.field if error.field in ("released", "formulation") else f"settings.{error.field}"
             raise InputError(setup or config_path, field_, error.message) from None
         if not config_path.exists():  # written once the setup has proved usable
             write_atomic(config_path, yaml.safe_dump(self.config, sort_keys=False).encode("utf-8"))
