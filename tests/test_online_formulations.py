@@ -102,10 +102,15 @@ def test_lost_motion_online_fits_dh_s_e_h_with_the_approaches_in_the_files(tmp_p
     assert calibrator.current_params()[calibrator.model.index][i] > 5 * calibrator.sigmas[i]
 
 
+@pytest.fixture(scope="module")
+def drifted(tmp_path_factory):
+    return simulated(tmp_path_factory, "irb120_tracker", 300, Drift("a2", 2e-4, 150))
+
+
 @pytest.mark.parametrize("cycle_size", [None, 10], ids=["change_points", "random_walk_cycles"])
-def test_a_link_length_change_is_flagged_and_tracked_on_tracker_data(tmp_path_factory, cycle_size):
+def test_a_link_length_change_is_flagged_and_tracked_on_tracker_data(drifted, cycle_size):
     """Drift on tracker data: a2 + 0.2 mm from configuration 150 on."""
-    data = simulated(tmp_path_factory, "irb120_tracker", 300, Drift("a2", 2e-4, 150))
+    data = drifted
     calibrator = FormulationCalibrator(load_dataset(data), "tracker", TRACKER_SETTINGS)
     alarmed = fold_all(calibrator, dataset_measurements(data, cycle_size))
     assert alarmed and 150 <= alarmed[0] < 160, alarmed

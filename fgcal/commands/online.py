@@ -33,11 +33,11 @@ def cmd_online(args: argparse.Namespace) -> int:
             signal.signal(s, handler)
     report = service.report()
     if not report["n_images"]:
-        say(f"no image folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
+        say(f"no measurement folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
         return 0
     accuracy = report["predicted_accuracy"]
     say(
-        f"{report['n_images']} images; predicted RMS flange sigma {accuracy['rms_m'] * 1e3:#.4g} mm; "
+        f"{report['n_images']} measurements; predicted RMS flange sigma {accuracy['rms_m'] * 1e3:#.4g} mm; "
         f"{len(report['alarms'])} drift alarms; wrote {args.state}/report.json, report.md, calibrated_robot.yaml"
         + (f" (stopped by {stop[0]})" if stop else "")
     )
