@@ -155,7 +155,7 @@ def test_every_incremental_formulation_runs_online(formulation, bundled_sim, tmp
     # The measurements informed the estimate: some parameter far below its prior.
     assert min(e["sigma"] / e["prior_sigma"] for e in released) < 0.1
     assert np.isfinite(report["predicted_accuracy"]["rms_m"])
-    assert "images folded in: " in (tmp_path / "state" / "report.md").read_text()
+    assert "measurements folded in: " in (tmp_path / "state" / "report.md").read_text()
 
 
 def test_a_formulation_that_cannot_be_incremental_says_why(seed_sim):

@@ -476,5 +476,5 @@ def test_a_stop_signal_finishes_the_measurement_writes_the_report_and_exits_0(ca
         sorted(p.name for p in staged) and len(staged) == n  # fmt: skip
     report = json.loads((state / "report.json").read_text())
     assert report["n_images"] == report["n_logged"] == len(logged)  # each one folded in
-    assert f"images folded in: {len(logged)}" in (state / "report.md").read_text()
+    assert f"measurements folded in: {len(logged)}" in (state / "report.md").read_text()
     assert f"{len(logged)} measurements; predicted RMS flange sigma" in out and f"(stopped by {stop.name})" in out

@@ -61,14 +61,15 @@ def write_final_report(state: Path, report: dict) -> None:
     lines = [
         f"# Online calibration of {report['robot']}",
         "",
-        f"- images folded in: {report['n_images']} (logged {report['n_logged']}, skipped {len(report['skipped'])})",
+        f"- measurements folded in: {report['n_images']} (logged {report['n_logged']}, "
+        f"skipped {len(report['skipped'])})",
         f"- predicted flange position sigma over the window: RMS {accuracy['rms_m'] * 1e3:#.4g} mm, "
         f"max {accuracy['max_m'] * 1e3:#.4g} mm ({accuracy['n_configurations']} configurations)",
         f"- stopping rule ({rule['rule']}, target {rule['target_m'] * 1e3:#.3g} mm): "
-        + (f"met at image {rule['met_at_image']}" if rule["met"] else "not met yet"),
-        f"- drift alarms (images that raised one): {len(report['alarms'])} (test: false-alarm rate "
-        f"{report['alarm_test']['false_alarm_rate_per_image']:g} per image, |z| > "
-        f"{report['alarm_test']['threshold_z']:.2f}, lag {report['alarm_test']['lag_images']} images)",
+        + (f"met at measurement {rule['met_at_image']}" if rule["met"] else "not met yet"),
+        f"- drift alarms (measurements that raised one): {len(report['alarms'])} (test: false-alarm rate "
+        f"{report['alarm_test']['false_alarm_rate_per_image']:g} per measurement, |z| > "
+        f"{report['alarm_test']['threshold_z']:.2f}, lag {report['alarm_test']['lag_images']} measurements)",
     ]
     if report["latency_ms"]["n_updates"]:
         latency = report["latency_ms"]

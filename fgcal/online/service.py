@@ -365,13 +365,17 @@ class OnlineService:
         mdeg); a replay's lines are details (fgcal -v)."""
         line = detail if replaying else self.say
         cal = self.calibrator
+        if measurement.cycle != self._cycle["label"] or not self._cycle["n"]:
+            self._cycle = {"label": measurement.cycle, "n": 0, "start": self._previous.copy()}
+        self._cycle["n"] += 1
+        if "pending_images" in update.extra:  # held back until the unknowns can be started
+            line(f"{measurement.name}: held back ({update.extra['pending_images']} so far; the first ones start the "
+                 "instrument's unknowns together)")  # fmt: skip
+            return
         estimate = cal.current_params()[cal.model.index]
         step = (estimate - self._previous) / cal.sigmas
         i = int(np.argmax(np.abs(step)))
         name = cal.released[i]
-        if measurement.cycle != self._cycle["label"] or not self._cycle["n"]:
-            self._cycle = {"label": measurement.cycle, "n": 0, "start": self._previous.copy()}
-        self._cycle["n"] += 1
         cycle = "-" if measurement.cycle is None else measurement.cycle
         line(
             f"{measurement.name}: measurement {update.n_images}, cycle {cycle}, "
