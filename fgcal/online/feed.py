@@ -18,7 +18,11 @@ def dataset_measurements(dataset_dir: str | Path, cycle_size: int | None = None)
     dataset = load_dataset(dataset_dir)
     measured = {name: table for name, table in dataset.tables.items() if "config" in table.ids}
     if not measured:
-        raise InputError(dataset_dir, "measured", "the dataset has no measurement table")
+        raise InputError(
+            dataset_dir, "measured", "the dataset has no table of one configuration's measurements (readings between "
+            "two configurations, such as tool_distances, are no one configuration's: online recalibration cannot "
+            "take them)",
+        )  # fmt: skip
     rows: dict[str, dict[str, np.ndarray]] = {name: {} for name in measured}
     for name, table in measured.items():
         configs = np.asarray(table.ids["config"])

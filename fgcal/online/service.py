@@ -193,8 +193,8 @@ class OnlineService:
         """The calibrator of a flange camera's images, checked against the dataset."""
         if dataset.camera is None or "points" not in dataset.tables:
             raise InputError(
-                self.config["dataset"], "camera", "without a formulation, online calibration takes a flange camera's "
-                f"images and needs the camera and the points; for another instrument name its formulation in the setup "
+                self.config["dataset"], None, "has no camera with calibration points: without a formulation, online "
+                "calibration takes a flange camera's images; for another instrument name its formulation in the setup "
                 f"(formulation: one of {', '.join(NAMES)})",
             )  # fmt: skip
         if dataset.camera_mounting is None:
