@@ -84,6 +84,33 @@ def test_tracker_online_in_cycles_of_10_equals_batch(tracker300):
     assert len(alarmed) <= 2, alarmed  # no change in this stream
 
 
+def test_tracker_online_without_cycles_equals_fgcals_batch_calibration(tracker300, tmp_path):
+    """Against fgcal's own batch calibration of the same 300 configurations (nothing held out;
+    its stages, robust loss and rejection): with one parameter vector for the run (no cycles,
+    so no random walk) the online estimate ends within 0.1 sigma of it on every parameter both
+    release. (With cycles the random walk lets the last cycle's parameters differ from a
+    constant fit: measured 1.03 sigma at the default 1e-6 per cycle; docs/online.md.)"""
+    from fgcal.calibration.config import load_config
+    from fgcal.calibration.run import calibrate_dataset
+
+    config_path = tmp_path / "calibration.yaml"  # what fgcal simulate suggests, nothing held out
+    config_path.write_text(
+        f"dataset: {tracker300}\nformulation: tracker\nmodel: DH,s,e\ncompliant_joints: [1, 2, 3]\n"
+        "units: {length: m, angle: rad}\nnoise: {tracker_sigma: 1.5e-05}\nvalidation: {holdout: 0.0}\n"
+    )
+    dataset = load_dataset(tracker300)
+    batch = calibrate_dataset(dataset, load_config(config_path))
+    calibrator = FormulationCalibrator(dataset, "tracker", TRACKER_SETTINGS)
+    fold_all(calibrator, dataset_measurements(tracker300))
+    assert sorted(batch.released) == sorted(calibrator.released)
+    batch_params = dict(zip(batch.problem.robot.parameter_names, batch.state.params, strict=True))
+    online = dict(zip(calibrator.robot.parameter_names, calibrator.current_params(), strict=True))
+    distance = {
+        n: abs(online[n] - batch_params[n]) / s for n, s in zip(calibrator.released, calibrator.sigmas, strict=True)
+    }
+    assert max(distance.values()) < 0.1, max(distance.items(), key=lambda item: item[1])
+
+
 def test_lost_motion_online_fits_dh_s_e_h_with_the_approaches_in_the_files(tmp_path_factory):
     """Acceptance: the lost-motion cell, the approaches (before_joints) in the measurement
     files, model DH,s,e,h online ends where the batch solve of the same graph does."""
@@ -107,7 +134,13 @@ def drifted(tmp_path_factory):
     return simulated(tmp_path_factory, "irb120_tracker", 300, Drift("a2", 2e-4, 150))
 
 
-@pytest.mark.parametrize("cycle_size", [None, 10], ids=["change_points", "random_walk_cycles"])
+# Without cycles (change points only) it is a study (-m study): the same code as with cycles,
+# 8 s more of the suite; measured: alarm at measurement 150, a2 1.1 sigma from the new truth.
+@pytest.mark.parametrize(
+    "cycle_size",
+    [pytest.param(None, marks=pytest.mark.study), 10],
+    ids=["change_points", "random_walk_cycles"],
+)
 def test_a_link_length_change_is_flagged_and_tracked_on_tracker_data(drifted, cycle_size):
     """Drift on tracker data: a2 + 0.2 mm from configuration 150 on."""
     data = drifted

@@ -569,9 +569,11 @@ class OnlineService:
             "skipped": self.skipped,
             "quarantined": [{"name": n, "reason": why} for n, why in self.quarantined.items()],
             "problems": self.problems,
-            "identifiability": "structural: 300 configurations uniform in the joint limits, seed 0"
-            if "released" not in self.config
-            else "released list from the setup file",
+            "identifiability": "released list from the setup file"
+            if "released" in self.config
+            else "batch analysis of the reference dataset's measurements at the starting model"
+            if "formulation" in self.config
+            else "structural: 300 configurations uniform in the joint limits, seed 0",
             "latency_ms": {
                 "n_updates": len(latency),
                 "median": float(np.median(latency)) if len(latency) else None,
