@@ -152,6 +152,10 @@ def test_a_link_length_change_is_flagged_and_tracked_on_tracker_data(drifted, cy
     i = calibrator.released.index("a2")
     error = calibrator.current_params()[calibrator.model.index][i] - (truth["a2"] + 2e-4)
     assert abs(error) < 3.0 * calibrator.sigmas[i], (error, calibrator.sigmas[i])
+    # Bounded memory: the window's measurements and their factors only (measured 25 and 28).
+    settings = calibrator.settings
+    assert len(calibrator.model.q) <= settings.window_images + settings.marginalise_every
+    assert calibrator.smoother.getFactors().nrFactors() <= 40
 
 
 # The smoke matrix: each formulation the batch calibration has, on a bundled cell, through the
