@@ -215,3 +215,14 @@ def test_a_reflector_the_run_did_not_start_with_is_skipped_not_guessed(tracker30
     assert np.array_equal(calibrator.current_params(), before) and calibrator.n_images == 12
     calibrator.fold(measurements[12])  # and the next one folds in as usual
     assert calibrator.n_images == 13
+
+
+def test_a_measurement_without_the_formulations_table_is_skipped(tracker300):
+    calibrator = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS)
+    measurements = dataset_measurements(tracker300)
+    fold_all(calibrator, measurements[:10])
+    empty = measurements[10].__class__("y.json", measurements[10].q, (), None, (("touch_points", {"point": ("s1",)},
+                                                                                 np.zeros((1, 0))),))  # fmt: skip
+    with pytest.raises(InputError, match="tracker"):
+        calibrator.fold(empty)
+    assert calibrator.n_images == 10

@@ -271,6 +271,8 @@ class FormulationCalibrator:
             observations = self.formulation.online_observations(
                 dataset, self.measurement_settings, np.arange(1), self.like
             )
+            if not observations.n_residuals:
+                raise InputError(None, "observations", f"none that the {self.formulation.name} formulation reads")
             problem = self._problem(dataset, np.arange(1), observations)
             kinematics = problem.kinematics(self.state, self.released, observations)
             keys = Keys(P, self.keys)
