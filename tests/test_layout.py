@@ -152,7 +152,7 @@ def test_the_layout_test_fails_on_a_module_outside_the_packages(tmp_path):
 
 # Packages that reach formulations only through their protocol (Formulation, Planning): no
 # module in them names a registered formulation, its class, an instrument or a Planning kind.
-PROTOCOL_ONLY = ("planning",)
+PROTOCOL_ONLY = ("planning", "online")
 
 
 def _formulation_words() -> tuple[set[str], set[str]]:
@@ -194,8 +194,9 @@ def _branches_on_a_formulation(source: str) -> list[str]:
 
 def test_planning_asks_the_formulation():
     """Planning reads what a formulation measures through ``Formulation.planning`` (docs/
-    architecture.md): no module of fgcal/planning branches on a formulation's name or
-    instrument, or picks a formulation's or a Planning's class."""
+    architecture.md), online recalibration through ``online_observations`` and
+    ``measurement_sets`` (issue 41): no module of fgcal/planning or fgcal/online branches on a
+    formulation's name or instrument, or picks a formulation's or a Planning's class."""
     found = []
     for package in PROTOCOL_ONLY:
         for path in sorted((REPO / "fgcal" / package).rglob("*.py")):

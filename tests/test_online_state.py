@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,6 +60,18 @@ def small_case(tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope="module")
+def tracker_case(tmp_path_factory):
+    """The bundled laser-tracker cell, 40 configurations, online through its formulation."""
+    root = tmp_path_factory.mktemp("crash_tracker")
+    cell = Path(__file__).resolve().parents[1] / "datasets" / "cells" / "irb120_tracker.yaml"
+    simulate(cell, root / "data", seed=4, design="space_filling", n_configurations=40)
+    (root / "setup.yaml").write_text(
+        "dataset: data\nformulation: tracker\nsettings: {prior_sigma_compliance: 1.0e-4}\n"
+    )
+    return root
+
+
 def _estimate(state) -> tuple[np.ndarray, np.ndarray]:
     """Released estimates and sigmas of a state's report."""
     report = json.loads((state / "report.json").read_text())
@@ -67,7 +80,9 @@ def _estimate(state) -> tuple[np.ndarray, np.ndarray]:
     return np.array([e["estimate"] for e in entries]), np.array([e["sigma"] for e in entries])
 
 
-def test_sigkill_at_random_points_loses_nothing(small_case, tmp_path):
+@pytest.mark.parametrize("case", ["small_case", "tracker_case"], ids=["camera", "tracker"])
+def test_sigkill_at_random_points_loses_nothing(case, request, tmp_path):
+    small_case = request.getfixturevalue(case)
     # The uninterrupted run.
     reference_inbox = tmp_path / "inbox_ref"
     n = feed_dataset(small_case / "data", reference_inbox, cycle_size=10)
@@ -416,3 +431,50 @@ def test_a_measurement_whose_fold_fails_is_quarantined_and_never_blocks_a_replay
     service = _service(small_case, state, inbox)
     assert service.calibrator.n_images == 11 and list(service.quarantined) == [names[6]]
     service.close()
+
+
+@pytest.mark.parametrize(
+    ("case", "stop"),
+    [("small_case", signal.SIGTERM), ("small_case", signal.SIGINT), ("tracker_case", signal.SIGTERM)],
+    ids=["camera-sigterm", "camera-sigint", "tracker-sigterm"],
+)
+def test_a_stop_signal_finishes_the_measurement_writes_the_report_and_exits_0(case, request, tmp_path, stop):
+    """Issue 41: SIGTERM (systemd, docker stop) and SIGINT stop the service cleanly in the
+    middle of a run: the measurement under way is finished, report.md and report.json are
+    written, the exit status is 0, and every acknowledged measurement is in the log, folded
+    in and moved aside; the rest wait in the inbox (which the command created)."""
+    small_case = request.getfixturevalue(case)
+    inbox, state = tmp_path / "new" / "inbox", tmp_path / "state"
+    n = feed_dataset(small_case / "data", tmp_path / "staging", cycle_size=10)
+    command = [sys.executable, "-m", "fgcal", "online", "--state", str(state), "--inbox", str(inbox)]
+    command += ["--setup", str(small_case / "setup.yaml"), "--poll", "0.05"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    log = state / LOG
+    deadline = time.monotonic() + 120
+    while not inbox.is_dir() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert inbox.is_dir() and process.poll() is None
+    # Measurements arrive one by one while the service runs; the stop comes after 12 are logged.
+    staged = sorted((tmp_path / "staging").glob("*.json"))
+    for path in staged:
+        os.replace(path, inbox / path.name)
+        time.sleep(0.01)
+        if log.exists() and log.read_bytes().count(b"\n") >= 12:
+            break
+    while (not log.exists() or log.read_bytes().count(b"\n") < 12) and time.monotonic() < deadline:
+        time.sleep(0.005)
+    process.send_signal(stop)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert f"{stop.name}: finishing the current measurement" in out, out
+    with StateDir(state) as locked:
+        logged = [r["name"] for r in locked.read_log().records]
+    processed = sorted(p.name for p in (state / "processed").iterdir())
+    waiting = sorted(p.name for p in inbox.glob("*.json"))
+    assert len(logged) >= 12 and sorted(logged) == processed  # acknowledged: logged and moved aside
+    assert sorted(processed + waiting + [p.name for p in staged if (tmp_path / "staging" / p.name).exists()]) == \
+        sorted(p.name for p in staged) and len(staged) == n  # fmt: skip
+    report = json.loads((state / "report.json").read_text())
+    assert report["n_images"] == report["n_logged"] == len(logged)  # each one folded in
+    assert f"measurements folded in: {len(logged)}" in (state / "report.md").read_text()
+    assert f"{len(logged)} measurements; predicted RMS flange sigma" in out and f"(stopped by {stop.name})" in out

@@ -273,6 +273,8 @@ class Formulation(ABC):
     # instrument, the first registered formulation that reads it; fgcal plan, the first planned
     # one (:meth:`planning`).
     instrument: ClassVar[str]
+    # Why online recalibration (fgcal.online) cannot take it one configuration at a time; None: it can.
+    not_incremental: ClassVar[str | None] = None
 
     # -- what the setup measures --------------------------------------------------------
 
@@ -284,6 +286,17 @@ class Formulation(ABC):
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         """The observations of the fitting configurations; InputError when they cannot
         calibrate (missing table, too few)."""
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """The observations of ``subset`` (one configuration, or a work cycle's) for online
+        recalibration (fgcal.online), labelled as ``like`` (the observations the online
+        calibration started from: their names index its auxiliary unknowns), without the check
+        that they alone could calibrate; InputError for what ``like`` does not know. The
+        default, :meth:`fit_observations`, suits a formulation whose observations carry no
+        labels of auxiliary unknowns and no such check."""
+        return self.fit_observations(dataset, settings, subset)
 
     @abstractmethod
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:

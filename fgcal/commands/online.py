@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 
 from ..core.console import say
 from .options import real
@@ -11,21 +12,34 @@ from .options import real
 def cmd_online(args: argparse.Namespace) -> int:
     from ..online.service import OnlineService
 
-    service = OnlineService(args.state, args.inbox, args.setup, say=say)
+    # SIGTERM (systemd, docker stop) and SIGINT (Ctrl-C) alike: the current measurement is
+    # finished, the report written, and the command exits 0.
+    stop: list[str] = []
+
+    def request_stop(signum, _frame) -> None:
+        if not stop:
+            say(f"{signal.Signals(signum).name}: finishing the current measurement, then writing the report")
+        stop.append(signal.Signals(signum).name)
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        service.run(once=args.once, poll_s=args.poll)
-    except KeyboardInterrupt:
-        service.write_final()
+        service = OnlineService(args.state, args.inbox, args.setup, say=say, stop=lambda: bool(stop))
+        try:
+            service.run(once=args.once, poll_s=args.poll)
+        finally:
+            service.close()
     finally:
-        service.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     report = service.report()
     if not report["n_images"]:
-        say(f"no image folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
+        say(f"no measurement folded in yet ({report['n_logged']} logged); nothing written to {args.state}")
         return 0
     accuracy = report["predicted_accuracy"]
     say(
-        f"{report['n_images']} images; predicted RMS flange sigma {accuracy['rms_m'] * 1e3:#.4g} mm; "
+        f"{report['n_images']} measurements; predicted RMS flange sigma {accuracy['rms_m'] * 1e3:#.4g} mm; "
         f"{len(report['alarms'])} drift alarms; wrote {args.state}/report.json, report.md, calibrated_robot.yaml"
+        + (f" (stopped by {stop[0]})" if stop else "")
     )
     return 0
 

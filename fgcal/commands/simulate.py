@@ -73,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--render", action="store_true", help="also render the camera images (ChArUco boards)")
     p.add_argument(
-        "--drift", help="step change of one true parameter for the camera measurements, NAME=CHANGE@CONFIG (SI)"
+        "--drift", help="step change of a true parameter under the camera or tracker readings, NAME=CHANGE@CONFIG (SI)"
     )
     p.add_argument("--json", action="store_true", help=JSON_HELP)
     p.set_defaults(func=cmd_simulate)

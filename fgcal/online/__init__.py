@@ -1,5 +1,6 @@
-"""Online recalibration with iSAM2 (issue: online recalibration)."""
+"""Online recalibration with iSAM2 (issue: online recalibration; issue 41: any formulation)."""
 
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
+from .protocol import FormulationCalibrator, Reading
 
-__all__ = ["OnlineCalibrator", "OnlineSettings", "OnlineUpdate"]
+__all__ = ["FormulationCalibrator", "OnlineCalibrator", "OnlineSettings", "OnlineUpdate", "Reading"]

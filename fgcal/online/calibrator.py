@@ -62,6 +62,9 @@ class OnlineSettings:
     alarm_lag_images: int = 5
     alarm_false_rate: float = 1e-3  # per image, over all parameters
     outlier_gate_px: float = 3.0
+    # Measurements held back and folded in together before the first update (formulations
+    # other than the camera's, fgcal.online.protocol): they start the auxiliary unknowns.
+    start_measurements: int = 10
     compliant_joints: tuple[int, ...] | None = None  # None: the seed's 1-3 that the robot has
     # Relinearise p_c when it moved by this fraction of its prior sigma, a pose by this (rad, m).
     relinearize_fraction: float = 0.1
@@ -453,6 +456,25 @@ class OnlineCalibrator:
             return None
         T_W_C = self.robot.fk_tool(q[None, :], self.robot.parameter_dict(self.current_params()))[0]
         return T_W_C @ T_C_F
+
+    # -- the service's measurements (fgcal.online.measurement) ----------------------------
+
+    def check(self, measurement, source) -> None:
+        """InputError for a measurement file this calibrator cannot take (before it is logged)."""
+        if not measurement.pixels:
+            raise InputError(source, "pixels", "a flange camera's image needs pixels")
+        unknown = [n for n, _ in measurement.pixels if n not in self.points_F]
+        if unknown:
+            raise InputError(source, f"pixels.{unknown[0]}", "unknown calibration point")
+
+    def fold(self, measurement) -> OnlineUpdate:
+        """:meth:`add` of a measurement file's image (its other tables are not read)."""
+        return self.add(measurement.q, list(measurement.pixels), measurement.cycle)
+
+    def window_q(self) -> np.ndarray:
+        """The configurations of the images in the window (rad)."""
+        rows = sorted(self.model.q)[-self.settings.window_images :]
+        return np.array([self.model.q[r] for r in rows]).reshape(-1, self.robot.n_joints)
 
     # -- the estimate ---------------------------------------------------------------------
 

@@ -1,8 +1,10 @@
-"""Turn a dataset's images into inbox measurement files (for demos, tests and replays)."""
+"""Turn a dataset's configurations into inbox measurement files (for demos, tests and replays)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import numpy as np
 
 from ..core.errors import InputError
 from ..data.dataset import load_dataset
@@ -10,24 +12,50 @@ from .measurement import Measurement, write_measurement
 
 
 def dataset_measurements(dataset_dir: str | Path, cycle_size: int | None = None) -> list[Measurement]:
-    """One measurement per configuration of the dataset, from its pixels table."""
+    """One measurement per configuration of the dataset with observations: every table of
+    the dataset indexed by configuration (a pixels table as ``pixels``), and how the
+    configuration was reached when the dataset says (its motion history)."""
     dataset = load_dataset(dataset_dir)
-    if "pixels" not in dataset.tables:
-        raise InputError(dataset_dir, "pixels", "the dataset has no pixels table")
-    pixels = dataset.tables["pixels"]
-    by_config: dict[str, list] = {}
-    for config, point, uv in zip(pixels.ids["config"], pixels.ids["point"], pixels.values, strict=True):
-        by_config.setdefault(config, []).append((point, uv))
-    return [
-        Measurement(
-            f"{j:06d}_{config}.json",
-            dataset.q[j],
-            tuple(by_config[config]),
-            None if cycle_size is None else j // cycle_size,
+    measured = {name: table for name, table in dataset.tables.items() if "config" in table.ids}
+    if not measured:
+        raise InputError(
+            dataset_dir, "measured", "the dataset has no table of one configuration's measurements (readings between "
+            "two configurations, such as tool_distances, are no one configuration's: online recalibration cannot "
+            "take them)",
+        )  # fmt: skip
+    rows: dict[str, dict[str, np.ndarray]] = {name: {} for name in measured}
+    for name, table in measured.items():
+        configs = np.asarray(table.ids["config"])
+        for config in dict.fromkeys(configs.tolist()):
+            rows[name][config] = np.flatnonzero(configs == config)
+    history = dataset.motion_history
+    known = history.known()
+    out = []
+    for j, config in enumerate(dataset.configs):
+        pixels, observations = (), []
+        for name, table in measured.items():
+            mine = rows[name].get(config)
+            if mine is None:
+                continue
+            if name == "pixels":  # the short form of the camera's table
+                pixels = tuple(zip(table.ids["point"][mine].tolist(), table.values[mine], strict=True))
+                continue
+            ids = {k: tuple(str(v) for v in column[mine]) for k, column in table.ids.items() if k != "config"}
+            observations.append((name, ids, table.values[mine]))
+        if not pixels and not observations:
+            continue
+        out.append(
+            Measurement(
+                f"{j:06d}_{config}.json",
+                dataset.q[j],
+                pixels,
+                None if cycle_size is None else j // cycle_size,
+                tuple(observations),
+                history.before[j] if known[j] else None,
+                float(history.speed[j]) if dataset.history is not None else None,
+            )
         )
-        for j, config in enumerate(dataset.configs)
-        if config in by_config
-    ]
+    return out
 
 
 def feed_dataset(

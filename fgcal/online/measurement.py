@@ -7,6 +7,19 @@ Inbox files are JSON (``*.json``)::
      "pixels": {"X+x_r00c00": [812.4, 533.1], "X+x_r00c01": [901.7, 530.2]}}
 
 ``cycle`` (optional, integer, non-decreasing) is the work cycle the image was taken in.
+
+Any formulation's observations of one configuration go in ``observations``, by table, one
+entry per row (its id columns other than the configuration, and its values in SI: m, rad,
+px)::
+
+    {"format": "fgcal-measurement/1", "cycle": 3, "units": {"angle": "deg"},
+     "joints": [10.0, -45.0, 80.0, 0.0, 30.0, 0.0],
+     "before_joints": [12.0, -40.0, 75.0, 0.0, 25.0, 0.0], "speed": 1.0,
+     "observations": {"tracker_points": [{"target": "t1", "value": [2.2833, 0.4800, 0.4869]}]}}
+
+``pixels`` is the short form of the ``pixels`` table (its id column ``point``).
+``before_joints`` (same units as ``joints``) and ``speed`` (the move's speed factor, default
+1) say how the configuration was reached: the motion history a model DH,s,e,h fits.
 Writers write a temporary file whose name does not end in ``.json`` (``write_measurement``
 uses ``.NAME.tmp``) in the inbox and rename it to ``NAME.json`` when complete: rename is atomic
 on one filesystem, so fgcal never reads a half-written file. Names must be unique.
@@ -26,8 +39,10 @@ from ..core.fields import Fields
 from ..core.outputs import output_dir, write_text
 from ..core.units import parse_units
 from .inbox import read_regular
+from .protocol import Reading
 
 FORMAT = "fgcal-measurement/1"
+KEYS = ["format", "name", "cycle", "units", "joints", "pixels", "observations", "before_joints", "speed"]
 
 
 @dataclass(frozen=True)
@@ -36,16 +51,43 @@ class Measurement:
     q: np.ndarray  # rad
     pixels: tuple[tuple[str, np.ndarray], ...]  # (point, (u, v) px)
     cycle: int | None = None
+    # Other tables: (table, {id column: names}, values (rows, k) SI), in the file's order.
+    observations: tuple[tuple[str, dict[str, tuple[str, ...]], np.ndarray], ...] = ()
+    before: np.ndarray | None = None  # joints before the last move (rad); None: not given
+    speed: float | None = None  # the move's speed factor; None: not given (1)
+
+    @property
+    def n_observations(self) -> int:
+        return len(self.pixels) + sum(len(values) for _, _, values in self.observations)
+
+    def reading(self) -> Reading:
+        """What fgcal.online.protocol folds in: the tables (pixels as the pixels table)."""
+        tables = {name: ({k: list(v) for k, v in ids.items()}, values) for name, ids, values in self.observations}
+        if self.pixels:
+            tables["pixels"] = ({"point": [n for n, _ in self.pixels]}, np.array([uv for _, uv in self.pixels]))
+        return Reading(self.q, tables, self.before, 1.0 if self.speed is None else self.speed)
 
     def to_record(self) -> dict:
         """JSON-ready, SI units (what the state log stores)."""
-        return {
+        record = {
             "format": FORMAT,
             "name": self.name,
             "cycle": self.cycle,
             "joints": [float(v) for v in self.q],
-            "pixels": {n: [float(u), float(v)] for n, (u, v) in self.pixels},
         }
+        if self.pixels or not self.observations:  # a camera's image: as the log always held it
+            record["pixels"] = {n: [float(u), float(v)] for n, (u, v) in self.pixels}
+        if self.observations:
+            record["observations"] = {
+                table: [{**{k: v[i] for k, v in ids.items()}, "value": [float(x) for x in values[i]]}
+                        for i in range(len(values))]
+                for table, ids, values in self.observations
+            }  # fmt: skip
+        if self.before is not None:
+            record["before_joints"] = [float(v) for v in self.before]
+        if self.speed is not None:
+            record["speed"] = float(self.speed)
+        return record
 
 
 def parse_measurement(
@@ -54,7 +96,7 @@ def parse_measurement(
     """A measurement document; JSON numbers only (a number in quotes is refused), and with
     ``limits`` (n, 2; rad or m) joint values within them."""
     fields = Fields(data, source)
-    fields.check_keys(["format", "name", "cycle", "units", "joints", "pixels"])
+    fields.check_keys(KEYS)
     if fields.string("format", FORMAT) != FORMAT:
         raise fields.error("format", f"expected {FORMAT!r}, got {fields.raw('format')!r}")
     units = parse_units(fields.raw("units", None), source)
@@ -71,13 +113,46 @@ def parse_measurement(
             raise fields.error(
                 f"joints[{i}]", f"{q[i]:.6g} rad is outside the joint's limits [{limits[i, 0]:.4g}, {limits[i, 1]:.4g}]"
             )
-    raw_pixels = fields.sub("pixels")
+    raw_pixels = fields.sub("pixels", {})
     pixels = tuple((str(point), raw_pixels.vector(str(point), 2)) for point in raw_pixels.data)
-    if not pixels:
-        raise fields.error("pixels", "an image needs at least one observed point")
+    observations = _observations(fields.sub("observations", {}))
+    if not pixels and not observations:
+        raise fields.error(
+            "pixels" if fields.has("pixels") or not fields.has("observations") else "observations",
+            "a measurement needs at least one observation",
+        )
+    before = None
+    if fields.has("before_joints"):
+        before = fields.vector("before_joints", n_joints, scale=units.to_rad)
+    speed = fields.number("speed", positive=True) if fields.has("speed") else None
     # null: no cycle (what a measurement taken outside the cycles, and the feed, writes)
     cycle = fields.integer("cycle", minimum=0) if fields.raw("cycle", None, nullable=True) is not None else None
-    return Measurement(name, q, pixels, cycle)
+    return Measurement(name, q, pixels, cycle, observations, before, speed)
+
+
+def _observations(tables: Fields) -> tuple:
+    """The ``observations`` mapping: per table, rows of id strings and a ``value`` list."""
+    out = []
+    for table in tables.data:
+        rows = tables.sub_list(str(table))
+        if not rows:
+            raise tables.error(str(table), "expected at least one row")
+        keys = sorted(k for k in rows[0].data if k != "value")
+        ids: dict[str, list[str]] = {k: [] for k in keys}
+        values = []
+        for row in rows:
+            row.check_keys([*keys, "value"])
+            for key in keys:
+                ids[key].append(row.string(key))
+            value = row.raw("value")
+            width = len(value) if isinstance(value, list) else 0
+            if values and width != len(values[0]):
+                raise row.error("value", f"expected {len(values[0])} numbers as the rows before, got {value!r}")
+            if not isinstance(value, list) or width > 16:  # a touch has none
+                raise row.error("value", f"expected a list of numbers, got {value!r}")
+            values.append(row.vector("value", width))
+        out.append((str(table), {k: tuple(v) for k, v in ids.items()}, np.array(values).reshape(len(rows), -1)))
+    return tuple(out)
 
 
 MAX_BYTES = 1 << 20  # an image's joints and pixels take a few kB

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.outputs import save_figure, write_text
+from ..model.parameters import unit_of
 
 
 def read_history(state: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
@@ -60,14 +61,15 @@ def write_final_report(state: Path, report: dict) -> None:
     lines = [
         f"# Online calibration of {report['robot']}",
         "",
-        f"- images folded in: {report['n_images']} (logged {report['n_logged']}, skipped {len(report['skipped'])})",
+        f"- measurements folded in: {report['n_images']} (logged {report['n_logged']}, "
+        f"skipped {len(report['skipped'])})",
         f"- predicted flange position sigma over the window: RMS {accuracy['rms_m'] * 1e3:#.4g} mm, "
         f"max {accuracy['max_m'] * 1e3:#.4g} mm ({accuracy['n_configurations']} configurations)",
         f"- stopping rule ({rule['rule']}, target {rule['target_m'] * 1e3:#.3g} mm): "
-        + (f"met at image {rule['met_at_image']}" if rule["met"] else "not met yet"),
-        f"- drift alarms (images that raised one): {len(report['alarms'])} (test: false-alarm rate "
-        f"{report['alarm_test']['false_alarm_rate_per_image']:g} per image, |z| > "
-        f"{report['alarm_test']['threshold_z']:.2f}, lag {report['alarm_test']['lag_images']} images)",
+        + (f"met at measurement {rule['met_at_image']}" if rule["met"] else "not met yet"),
+        f"- drift alarms (measurements that raised one): {len(report['alarms'])} (test: false-alarm rate "
+        f"{report['alarm_test']['false_alarm_rate_per_image']:g} per measurement, |z| > "
+        f"{report['alarm_test']['threshold_z']:.2f}, lag {report['alarm_test']['lag_images']} measurements)",
     ]
     if report["latency_ms"]["n_updates"]:
         latency = report["latency_ms"]
@@ -79,20 +81,47 @@ def write_final_report(state: Path, report: dict) -> None:
         lines.append(f"- still dominated by their priors (sigma > prior/2): {', '.join(report['prior_dominated'])}")
     for problem in report["problems"]:
         lines.append(f"- problem: {problem}")
-    lines += ["", "| parameter | unit | estimate | sigma | sigma / prior |", "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Lengths in mm, angles in deg (changes and sigmas in mdeg), compliances in urad/(N m); report.json "
+        "holds the same in SI.",
+        "",
+        "| parameter | estimate | change from the start | sigma | sigma / prior |",
+        "|---|---|---|---|---|",
+    ]
     for name, entry in report["parameters"].items():
         if entry["status"] == "released":
+            scale, label = human_unit(entry["unit"])
+            value = (
+                f"{np.degrees(entry['estimate']):.5f} deg"
+                if entry["unit"] == "rad"
+                else f"{entry['estimate'] * scale:.4f} {label}".rstrip()
+            )
             lines.append(
-                f"| {name} | {entry['unit']} | {entry['estimate']:.6g} | {entry['sigma']:.3e} | "
-                f"{entry['sigma'] / entry['prior_sigma']:.3g} |"
+                f"| {name} | {value} | {human(name, entry['estimate'] - entry['start'])} | "
+                f"{entry['sigma'] * scale:.3g} {label} | {entry['sigma'] / entry['prior_sigma']:.3g} |"
             )
     if report["alarms"]:
         lines += ["", "## Drift alarms", "", "| image | file | parameters (z, change) |", "|---|---|---|"]
         for alarm in report["alarms"]:
             shown = alarm["parameters"][:6]
-            flagged = "; ".join(f"{p['parameter']} ({p['z']:+.1f}, {p['change']:+.2e} {p['unit']})" for p in shown)
+            flagged = "; ".join(
+                f"{p['parameter']} ({p['z']:+.1f}, {human(p['parameter'], p['change'])})" for p in shown
+            )
             more = len(alarm["parameters"]) - len(shown)
             lines.append(f"| {alarm['image']} | {alarm['name']} | {flagged}{f'; {more} more' if more else ''} |")
     if plot is not None:
         lines += ["", f"![sigmas]({plot.name})"]
     write_text(state / "report.md", "\n".join(lines) + "\n")
+
+
+def human_unit(unit: str) -> tuple[float, str]:
+    """(scale, label) of a change or a sigma in the units an engineer reads, as the batch
+    report: mm, mdeg, urad/(N m)."""
+    return {"m": (1e3, "mm"), "rad": (180e3 / np.pi, "mdeg"), "rad/(N m)": (1e6, "urad/(N m)")}.get(unit, (1.0, unit))
+
+
+def human(name: str, change: float) -> str:
+    """A change of parameter ``name`` (SI) in mm, mdeg or urad/(N m), with its sign."""
+    scale, label = human_unit(unit_of(name))
+    return f"{change * scale:+.4g} {label}".rstrip()

@@ -3,9 +3,13 @@ validates a setup here first, then resolves its paths and checks its parameter n
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
+from ..calibration.formulations import NAMES
 from ..core.schema import Number, Schema
+from ..model.robot import MODELS
 from ..model.schema import RobotReference
 
 
@@ -25,6 +29,8 @@ class Settings(Schema):
     alarm_lag_images: int = Field(None, ge=1, description="default 5")
     alarm_false_rate: Number = Field(None, gt=0, description="per image, over all parameters (default 1e-3)")
     outlier_gate_px: Number = Field(None, gt=0, description="px (default 3)")
+    start_measurements: int = Field(None, ge=1, description="measurements held back and folded in together before "
+                                    "the first update, a formulation's (default 10)")  # fmt: skip
     compliant_joints: list[int] = Field(None, description="1-based joints with a compliance (default 1-3)")
     relinearize_fraction: Number = Field(None, gt=0, description="of a prior sigma (default 0.1)")
     relinearize_pose: Number = Field(None, gt=0, description="rad, m (default 1e-4)")
@@ -34,6 +40,10 @@ class OnlineSetup(Schema):
     """An online setup (fgcal online --setup)."""
 
     dataset: str = Field(description="the calibration's dataset folder, relative to the setup")
+    formulation: Literal[NAMES] = Field(None, description="what the inbox's files measure, any registered "
+                                         "formulation's (fgcal.online.protocol); absent: a flange camera's images")
+    model: Literal[MODELS] = Field(None, description="the model refined online, with formulation (default: the "
+                                   "dataset's robot's)")
     robot: RobotReference = None
     released: list[str] = Field(None, description="the parameters recalibrated online (default: the calibration's)")
     settings: Settings = None

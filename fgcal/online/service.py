@@ -23,10 +23,13 @@ import numpy as np
 import yaml
 
 from ..calibration.covariance import position_covariance
+from ..calibration.formulations import NAMES
 from ..core import strict_json
+from ..core.console import detail
+from ..core.console import say as log_info
 from ..core.errors import InputError
 from ..core.fields import read_yaml
-from ..core.outputs import subfolder, write_bytes, write_text
+from ..core.outputs import output_dir, subfolder, write_bytes, write_text
 from ..core.schema import validate
 from ..data.dataset import load_dataset
 from ..model.parameters import unit_of
@@ -35,7 +38,8 @@ from ..model.robot_io import load_referenced, robot_reference, save_robot
 from .calibrator import OnlineCalibrator, OnlineSettings, OnlineUpdate
 from .inbox import Entry, claim, entries, recover_claims, safe_name
 from .measurement import Measurement, parse_measurement, read_measurement
-from .report import write_final_report
+from .protocol import FormulationCalibrator
+from .report import human, write_final_report
 from .schema import OnlineSetup
 from .state import StateDir, encode_record, open_for_writing, write_atomic
 
@@ -55,6 +59,12 @@ def load_config(path: Path) -> dict:
     absolute and the settings it states (as the schema read them)."""
     setup = validate(read_yaml(path), OnlineSetup, path)
     config: dict = {"dataset": str((path.parent / setup.dataset).resolve())}
+    if setup.formulation is not None:
+        config["formulation"] = setup.formulation
+    if setup.model is not None:
+        if setup.formulation is None:
+            raise InputError(path, "model", "a model is chosen with a formulation (formulation: NAME)")
+        config["model"] = setup.model
     if setup.robot is not None:
         config["robot"] = robot_reference(path.parent, setup.robot, path, "robot")
     if setup.released is not None:
@@ -85,8 +95,13 @@ class OnlineService:
         inbox: str | Path,
         setup: str | Path | None = None,
         say: Callable[[str], None] | None = None,
+        stop: Callable[[], bool] | None = None,
     ) -> None:
-        self.say = say or (lambda _msg: None)
+        # Lines go through the fgcal logger by default (fgcal -q keeps the warnings only).
+        self.say = say or log_info
+        # Asked between measurements: True once a stop was requested (SIGTERM or SIGINT in
+        # fgcal online); the current measurement is finished first.
+        self.stop_requested = stop or (lambda: False)
         self.state = StateDir(state_dir)
         self.state.lock()
         try:
@@ -96,9 +111,7 @@ class OnlineService:
             raise
 
     def _start(self, inbox: Path, setup: str | Path | None) -> None:
-        self.inbox = inbox
-        if not self.inbox.is_dir():
-            raise InputError(self.inbox, None, "inbox directory does not exist")
+        self.inbox = output_dir(inbox, "--inbox")  # created, as fgcal online-feed creates it
         state, box = self.state.path.resolve(), self.inbox.resolve()
         if box == state or box.is_relative_to(state):
             raise InputError(self.inbox, "--inbox", f"is the state directory or inside it ({self.state.path}): "
@@ -114,35 +127,24 @@ class OnlineService:
         else:
             raise InputError(self.state.path, None, "no config.yaml: set the state directory up with --setup FILE")
         dataset = load_dataset(self.config["dataset"])
-        if dataset.camera is None or "points" not in dataset.tables:
-            raise InputError(self.config["dataset"], "camera", "online calibration needs the camera and the points")
-        if dataset.camera_mounting is None:
-            raise InputError(
-                Path(self.config["dataset"]) / "dataset.yaml", "camera.mounting", "online calibration takes a camera "
-                "on the flange, and this dataset's camera has no mounting (a camera fixed in the cell?)",
-            )  # fmt: skip
-        robot = dataset.robot
-        if "robot" in self.config:
-            robot = load_referenced(self.config["robot"])
-            gap = robot.flange_gap_m(dataset.robot)
-            if gap > SAME_ROBOT_M:
-                raise InputError(
-                    setup or config_path, "robot", f"{robot.name} is not the dataset's {dataset.robot.name}: their "
-                    + (f"flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap) else "joint counts differ"),
-                )  # fmt: skip
-        points = dataset.points_F()
+        robot = self._robot(dataset, setup or config_path)
         settings = _settings(self.config)
+        if "formulation" in self.config:  # any registered formulation, through its protocol
 
-        def new_calibrator() -> OnlineCalibrator:
-            return OnlineCalibrator(robot, dataset.camera, points, settings, self.config.get("released"))
-
+            def new_calibrator():
+                return FormulationCalibrator(
+                    dataset, self.config["formulation"], settings, self.config.get("released"), robot,
+                    self.config.get("model"),
+                )  # fmt: skip
+        else:  # a flange camera's images (fgcal.online.calibrator)
+            new_calibrator = self._camera(dataset, robot, settings)
         self._new_calibrator = new_calibrator
         try:
             self.calibrator = new_calibrator()
         except InputError as error:
             if error.source is not None:
                 raise
-            field_ = error.field if error.field == "released" else f"settings.{error.field}"
+            field_ = error.field if error.field in ("released", "formulation") else f"settings.{error.field}"
             raise InputError(setup or config_path, field_, error.message) from None
         if not config_path.exists():  # written once the setup has proved usable
             write_atomic(config_path, yaml.safe_dump(self.config, sort_keys=False).encode("utf-8"))
@@ -156,6 +158,39 @@ class OnlineService:
         for name in recover_claims(self.inbox):
             self.say(f"took back {name}: claimed by a process that stopped before it was logged")
 
+    def _robot(self, dataset, setup: Path):
+        """The starting model: the setup's robot file, or the dataset's robot."""
+        if "robot" not in self.config:
+            return dataset.robot
+        robot = load_referenced(self.config["robot"])
+        gap = robot.flange_gap_m(dataset.robot)
+        if gap > SAME_ROBOT_M:
+            raise InputError(
+                setup, "robot", f"{robot.name} is not the dataset's {dataset.robot.name}: their "
+                + (f"flanges are up to {gap * 1e3:.0f} mm apart" if np.isfinite(gap) else "joint counts differ"),
+            )  # fmt: skip
+        return robot
+
+    def _camera(self, dataset, robot, settings: OnlineSettings):
+        """The calibrator of a flange camera's images, checked against the dataset."""
+        if dataset.camera is None or "points" not in dataset.tables:
+            raise InputError(
+                self.config["dataset"], None, "has no camera with calibration points: without a formulation, online "
+                "calibration takes a flange camera's images; for another instrument name its formulation in the setup "
+                f"(formulation: one of {', '.join(NAMES)})",
+            )  # fmt: skip
+        if dataset.camera_mounting is None:
+            raise InputError(
+                Path(self.config["dataset"]) / "dataset.yaml", "camera.mounting", "online calibration takes a camera "
+                "on the flange, and this dataset's camera has no mounting (a camera fixed in the cell?)",
+            )  # fmt: skip
+        points = dataset.points_F()
+
+        def new_calibrator() -> OnlineCalibrator:
+            return OnlineCalibrator(robot, dataset.camera, points, settings, self.config.get("released"))
+
+        return new_calibrator
+
     def _begin(self) -> None:
         """Everything a replay rebuilds: the estimate's companions and history.csv."""
         self.alarms: list[dict] = []
@@ -164,6 +199,9 @@ class OnlineService:
         self.predicted: dict | None = None  # after the last image folded in
         self._final_at = -1  # n_images when report.md was last written
         self.logged: dict[str, bytes] = {}  # name -> digest of the logged record
+        cal = self.calibrator
+        self._previous = cal.current_params()[cal.model.index].copy()  # before the last measurement
+        self._cycle: dict = {"label": None, "n": 0, "start": self._previous.copy()}
         self.quarantined: dict[str, str] = {}  # name -> why folding it in failed
         if self._history_handle is not None:
             self._history_handle.close()
@@ -260,8 +298,10 @@ class OnlineService:
     # -- one measurement --------------------------------------------------------------------
 
     def _fold(self, measurement: Measurement, replaying: bool = False) -> OnlineUpdate | None:
+        if measurement.cycle != self._cycle["label"]:  # the cycle in progress has ended
+            self._log_cycle(detail if replaying else None)
         try:
-            update = self.calibrator.add(measurement.q, list(measurement.pixels), measurement.cycle)
+            update = self.calibrator.fold(measurement)
         except InputError as error:
             self.skipped.append({"name": measurement.name, "reason": error.message})
             self.say(f"skipped {measurement.name}: {error.message}")
@@ -274,6 +314,7 @@ class OnlineService:
         if not replaying:
             self.latencies.append(update.update_s)
         predicted = self.predicted = self.predicted_accuracy()
+        self._log_measurement(measurement, update, predicted, replaying)
         if self.met_at is None and predicted["rms_m"] <= self.target_m:
             self.met_at = update.n_images
         if update.alarms:
@@ -299,6 +340,51 @@ class OnlineService:
         self._history_handle.flush()
         return update
 
+    def _log_measurement(
+        self, measurement: Measurement, update: OnlineUpdate, predicted: dict, replaying: bool
+    ) -> None:
+        """One line per measurement, and one per work cycle when the next cycle starts (mm and
+        mdeg); a replay's lines are details (fgcal -v)."""
+        line = detail if replaying else self.say
+        cal = self.calibrator
+        if measurement.cycle != self._cycle["label"] or not self._cycle["n"]:
+            self._cycle = {"label": measurement.cycle, "n": 0, "start": self._previous.copy()}
+        self._cycle["n"] += 1
+        if "pending_images" in update.extra:  # held back until the unknowns can be started
+            line(f"{measurement.name}: held back ({update.extra['pending_images']} so far; the first ones start the "
+                 "instrument's unknowns together)")  # fmt: skip
+            return
+        estimate = cal.current_params()[cal.model.index]
+        step = (estimate - self._previous) / cal.sigmas
+        i = int(np.argmax(np.abs(step)))
+        name = cal.released[i]
+        cycle = "-" if measurement.cycle is None else measurement.cycle
+        line(
+            f"{measurement.name}: measurement {update.n_images}, cycle {cycle}, "
+            f"{measurement.n_observations} observations, {update.update_s * 1e3:.1f} ms; predicted RMS flange sigma "
+            f"{predicted['rms_m'] * 1e3:#.3g} mm; largest step {name} {human(name, estimate[i] - self._previous[i])} "
+            f"({step[i]:+.2f} sigma)"
+            + (f"; {len(update.rejected_points)} points gated" if update.rejected_points else "")
+        )
+        self._previous = estimate
+
+    def _log_cycle(self, line: Callable[[str], None] | None = None) -> None:
+        """The line of the work cycle in progress: its measurements and its largest change."""
+        cycle = self._cycle
+        if not cycle["n"]:
+            return
+        cal = self.calibrator
+        change = cal.current_params()[cal.model.index] - cycle["start"]
+        i = int(np.argmax(np.abs(change) / cal.sigmas))
+        name = cal.released[i]
+        label = cycle["label"] if cycle["label"] is not None else "-"
+        (line or self.say)(
+            f"cycle {label}: {cycle['n']} measurements; predicted RMS flange sigma "
+            f"{self.predicted['rms_m'] * 1e3:#.3g} mm; largest change {name} {human(name, change[i])} "
+            f"({change[i] / cal.sigmas[i]:+.2f} sigma); {len(self.alarms)} drift alarms so far"
+        )
+        cycle["n"] = 0
+
     def _quarantine(self, measurement: Measurement, error: Exception) -> None:
         """Mark a logged measurement whose folding-in failed, durably (a marker record in the
         log, which replays honour), and rebuild the estimate from the log without it: the
@@ -312,10 +398,9 @@ class OnlineService:
     def predicted_accuracy(self) -> dict:
         """Predicted flange position sigma (m) at the configurations in the window."""
         cal = self.calibrator
-        rows = sorted(cal.model.q)[-cal.settings.window_images :]
-        if not rows:
+        q = cal.window_q()
+        if not len(q):
             return {"rms_m": float("nan"), "max_m": float("nan"), "n_configurations": 0}
-        q = np.array([cal.model.q[r] for r in rows])
         cov = position_covariance(
             cal.robot, cal.current_params(), cal.released, cal.covariance, q, "flange", np.zeros(3)
         )
@@ -327,6 +412,8 @@ class OnlineService:
         returns how many were new."""
         count = 0
         for entry in entries(self.inbox):
+            if self.stop_requested():
+                break
             if entry.problem is not None:
                 self._reject_entry(entry)
                 continue
@@ -337,9 +424,7 @@ class OnlineService:
             try:
                 robot = self.calibrator.robot
                 measurement = read_measurement(claimed, robot.n_joints, entry.name, source, robot.limits)
-                unknown = [n for n, _ in measurement.pixels if n not in self.calibrator.points_F]
-                if unknown:
-                    raise InputError(source, f"pixels.{unknown[0]}", "unknown calibration point")
+                self.calibrator.check(measurement, source)
                 if entry.name in self.logged:
                     if _digest(measurement.to_record()) == self.logged[entry.name]:
                         # Acknowledged just before a crash, not yet moved aside.
@@ -407,15 +492,20 @@ class OnlineService:
         )
 
     def run(self, once: bool, poll_s: float = 1.0, max_idle_s: float | None = None) -> None:
-        """Process the inbox; with ``once`` until it is empty, otherwise until interrupted."""
+        """Process the inbox; with ``once`` until it is empty, otherwise until a stop is
+        requested (then the current measurement is finished first) or ``max_idle_s`` passed."""
         idle_since = time.monotonic()
-        while True:
+        while not self.stop_requested():
             if self.process_inbox():
                 idle_since = time.monotonic()
                 self.write_final()
             if once or (max_idle_s is not None and time.monotonic() - idle_since > max_idle_s):
                 break
-            time.sleep(poll_s)
+            waited = 0.0
+            while waited < poll_s and not self.stop_requested():  # a stop is seen within 0.1 s
+                time.sleep(min(0.1, poll_s - waited))
+                waited += 0.1
+        self._log_cycle()
         self.write_final()
 
     # -- outputs ----------------------------------------------------------------------------
@@ -461,9 +551,11 @@ class OnlineService:
             "skipped": self.skipped,
             "quarantined": [{"name": n, "reason": why} for n, why in self.quarantined.items()],
             "problems": self.problems,
-            "identifiability": "structural: 300 configurations uniform in the joint limits, seed 0"
-            if "released" not in self.config
-            else "released list from the setup file",
+            "identifiability": "released list from the setup file"
+            if "released" in self.config
+            else "batch analysis of the reference dataset's measurements at the starting model"
+            if "formulation" in self.config
+            else "structural: 300 configurations uniform in the joint limits, seed 0",
             "latency_ms": {
                 "n_updates": len(latency),
                 "median": float(np.median(latency)) if len(latency) else None,

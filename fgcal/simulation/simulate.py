@@ -114,10 +114,10 @@ def simulate(
         raise InputError(cell.source, "static_camera", "a static-camera cell draws its own design: no file or drift")
     if cell.camera is None and cell.design.kind == "seed":
         raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
-    if drift is not None and cell.camera is None:
+    if drift is not None and cell.camera is None and not cell.has_tracker:
         raise InputError(
-            None, "--drift", "the drift steps a true parameter under the camera's measurements, and this cell has no "
-            "camera",
+            None, "--drift", "the drift steps a true parameter under the camera's or the tracker's measurements, and "
+            "this cell has neither",
         )  # fmt: skip
     if render and cell.camera is None:
         raise InputError(cell.source, "camera", "--render needs a camera: this is a tracker cell")
@@ -273,8 +273,8 @@ def _write_measurements(
     ``motion``; None: the robot has no motion terms)."""
     robot = cell.robot
     _write_configurations(out, cell, q, config_ids, history)
-    if cell.camera is None:  # a tracker cell
-        return _write_tracker_points(out, cell, q, config_ids, true_params, rng, motion)
+    if cell.camera is None:  # a tracker cell: the drift steps under its measurements
+        return _write_tracker_points(out, cell, q, config_ids, true_params, rng, motion, drift)
     write_csv(
         out / "points.csv",
         ["point", "object", "side", "x", "y", "z"],
@@ -336,10 +336,20 @@ def _write_tracker_points(
     true_params: dict[str, float],
     rng,
     motion: np.ndarray | None = None,
+    drift: Drift | None = None,
 ) -> dict[str, int]:
-    T_T_n = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion, tip=cell.tip)  # the probe's tip
+    def fk(tip: str) -> np.ndarray:
+        """T_T_tip at every configuration, the drifted parameter from its start on."""
+        T = inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion, tip=tip)
+        if drift is not None:
+            drifted = {**true_params, drift.parameter: true_params[drift.parameter] + drift.change}
+            later = None if motion is None else motion[drift.start :]
+            T[drift.start :] = inverse(cell.tracker_pose) @ cell.robot.fk(q[drift.start :], drifted, later, tip=tip)
+        return T
+
+    T_T_n = fk(cell.tip)  # the probe's tip
     tips = cell.tracker_target_tips or (cell.robot.flange_name,) * len(cell.tracker_targets)
-    T_T_tip = {tip: inverse(cell.tracker_pose) @ cell.robot.fk(q, true_params, motion, tip=tip) for tip in set(tips)}
+    T_T_tip = {tip: fk(tip) for tip in set(tips)}
     trk_rows, trk_noise = [], []
     for j, cid in enumerate(config_ids):
         for i, target in enumerate(cell.tracker_targets):

@@ -91,6 +91,21 @@ class DistanceReadings(Formulation):
             )
         return observations
 
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's readings to the pivots the run started with (a reading between two
+        configurations, tool_distances, is no one configuration's: not taken online)."""
+        table = dataset.tables.get("distances")
+        seen = {name for _, name, _ in rows_of(dataset, table, "pivot", subset)} if table else set()
+        unknown = sorted(seen - set(like.names))
+        if unknown:
+            raise InputError(
+                dataset.path / "distances.csv", "pivot", f"pivot {unknown[0]!r} is not one the online calibration "
+                f"started with ({', '.join(like.names)}): its position is not estimated",
+            )  # fmt: skip
+        return _observations(dataset, subset, None, like.names)
+
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         # A reading between configurations is held out when either end is; the other end may
         # be a fitting configuration, so the observations span both sets (held-out ones first).

@@ -100,6 +100,10 @@ class Pairs(Formulation):
         "or fixture pose, or joint angles in other units than units: declares"
     )
     instrument = "camera"
+    not_incremental = (
+        "its measurements are relative motions between the images of a group (several configurations at once), "
+        "not one configuration's observations; refine a flange camera online with the projection formulation"
+    )
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.camera_point_m

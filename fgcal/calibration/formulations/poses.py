@@ -76,6 +76,11 @@ class MeasuredPoses(Formulation):
             )  # fmt: skip
         return observations
 
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        return _observations(dataset, subset)
+
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = _observations(problem.dataset, problem.test)
         return (observations if len(observations.configs) else None), []

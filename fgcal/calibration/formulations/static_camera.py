@@ -28,6 +28,7 @@ from .common import (
     pixel_errors,
     pixel_observations,
     pnp_per_image,
+    require_pixels,
 )
 
 
@@ -58,6 +59,12 @@ class StaticCamera(Formulation):
                 f"{self.name} formulation is for a camera fixed in the cell watching a board on the flange",
             )  # fmt: skip
         return fit_pixels(dataset, fit, self.name)
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        require_pixels(dataset, f"the {self.name} formulation needs")
+        return pixel_observations(dataset, subset)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = pixel_observations(problem.dataset, problem.test)

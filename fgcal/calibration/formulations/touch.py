@@ -96,6 +96,21 @@ class Touch(Formulation):
                 )
         return observations
 
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's touches of the points the run started with; the known spacings
+        between points (point_distances) are no configuration's and are not taken online."""
+        seen = {name for _, name, _ in rows_of(dataset, measured_table(dataset, "touch_points", self.name), "point",
+                                                 subset)}  # fmt: skip
+        unknown = sorted(seen - set(like.names))
+        if unknown:
+            raise InputError(
+                dataset.path / "touch_points.csv", "point", f"point {unknown[0]!r} is not one the online calibration "
+                f"started with ({', '.join(like.names)}): its position is not estimated",
+            )  # fmt: skip
+        return _observations(dataset, subset, like.names, spacings=False)
+
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         dataset, names = problem.dataset, problem.observations.names
         observations = _observations(dataset, problem.test, names, spacings=False)

@@ -117,6 +117,18 @@ class Tracker(Formulation):
             )
         return observations
 
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        rows = list(rows_of(dataset, measured_table(dataset, "tracker_points", self.name), "target", subset))
+        unknown = sorted({name for _, name, _ in rows} - set(like.names))
+        if unknown:
+            raise InputError(
+                dataset.path / "tracker_points.csv", "target", f"reflector {unknown[0]!r} is not one the online "
+                f"calibration started with ({', '.join(like.names)}): its position on the flange is not estimated",
+            )  # fmt: skip
+        return _observations(dataset, subset, rows, like.names)
+
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         dataset = problem.dataset
         rows = list(rows_of(dataset, dataset.tables["tracker_points"], "target", problem.test))

@@ -1,0 +1,502 @@
+"""``FormulationCalibrator``: online recalibration of any registered formulation with iSAM2.
+
+What a measurement is and which factors it gives are the formulation's
+(fgcal.calibration.problem.Formulation): each measurement (one configuration's observations,
+in the formulation's tables) becomes a one-configuration dataset, the formulation reads its
+observations (``online_observations``) and gives its measurement sets on the graph's keys
+(``measurement_sets``). Nothing here knows a formulation by name.
+
+Graph, as the camera's (fgcal.online.calibrator): a parameter vector ``p_c`` per work cycle,
+tied by a random walk, a prior on ``p_0`` around the starting model, and the formulation's
+auxiliary unknowns (a tracker's pose, the reflectors on the flange, ...), constant. The first
+``start_measurements`` measurements are held back: together they are a small batch problem
+whose ``initial_state`` starts the auxiliary unknowns (as a batch calibration starts them,
+from the data at the nominal model), and they enter iSAM2 in one update, where they determine
+the auxiliary unknowns; later measurements enter one at a time. Measurements older than the
+window are frozen into linear factors (what marginalising leaves), so memory stays bounded.
+A motion history travels with a measurement (the joints before its last move and the move's
+speed), so that a model with the history's terms (DH,s,e,h) is refined online.
+
+Released parameters: the setup's list, or the batch identifiability analysis
+(fgcal.calibration.identifiability.analyse) of the formulation's graph over the reference
+dataset's own measurements (the calibration the online run refines), at the starting model.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import gtsam
+import numpy as np
+
+from ..calibration.formulations import formulation as registered
+from ..calibration.graph import build_graph
+from ..calibration.identifiability import analyse
+from ..calibration.priors import Priors
+from ..calibration.problem import Keys, Observations, Problem, candidate_parameters
+from ..calibration.settings import MeasurementSettings, Noise
+from ..calibration.state import State
+from ..core.errors import InputError
+from ..data.dataset import Dataset, Table
+from ..factors import RandomWalkFactor, gaussian
+from ..model.motion import MotionHistory
+from ..model.parameters import unit_of
+from ..model.robot import Robot
+from .calibrator import MERGE_MARGINALS_ABOVE, OnlineSettings, OnlineUpdate, params_key
+from .drift import DriftTest
+from .growing import GrowingKinematics
+
+# Units of the parameters the online graph releases (a mass scale needs many configurations'
+# gravity moments at once: it is left at its starting value).
+RELEASABLE_UNITS = ("m", "rad", "rad/(N m)")
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One measurement: a configuration (rad), its observations in the formulation's tables
+    (per table, the id columns other than ``config`` and the values, SI), and how it was
+    reached (the joints before its last move, rad, and the move's speed factor; None: not
+    given)."""
+
+    q: np.ndarray
+    tables: dict[str, tuple[dict[str, list[str]], np.ndarray]]
+    before: np.ndarray | None = None
+    speed: float = 1.0
+
+    @property
+    def n_observations(self) -> int:
+        return sum(len(values) for _, values in self.tables.values())
+
+
+def aux_key(i: int) -> int:
+    """Key of the i-th auxiliary unknown: its own symbol letter (A, B, ...), so that each has
+    its relinearisation threshold of its own dimension."""
+    return gtsam.symbol(chr(ord("A") + i), 0)
+
+
+class FormulationCalibrator:
+    """Incremental calibration of ``formulation`` (a registered name) from measurements.
+
+    ``reference`` is a dataset of the cell (its robot, the instrument's stated noise, its
+    static tables such as a camera's calibration points); with the formulation's measurements
+    it also decides the released parameters. ``robot`` (default the reference's) is the
+    starting model, ``model`` (default the robot's) the model fitted.
+    """
+
+    def __init__(
+        self,
+        reference: Dataset,
+        formulation: str,
+        settings: OnlineSettings | None = None,
+        released: list[str] | None = None,
+        robot: Robot | None = None,
+        model: str | None = None,
+        keep_graph: bool = False,
+    ) -> None:
+        self.settings = s = settings or OnlineSettings()
+        if s.marginalise_every < 1 or s.window_images < 2 * s.marginalise_every:
+            raise InputError(
+                None,
+                "window_images",
+                f"must be at least twice marginalise_every ({s.marginalise_every}), got {s.window_images}",
+            )
+        self.formulation = registered(formulation)
+        if self.formulation.not_incremental:
+            raise InputError(
+                None, "formulation", f"the {formulation} formulation cannot be refined online: "
+                f"{self.formulation.not_incremental}",
+            )  # fmt: skip
+        robot = robot or reference.robot
+        self.robot = robot.with_model(model or robot.model)
+        self.measurement_settings = replace(MeasurementSettings(), noise=Noise.stated(reference.noise))
+        # The measurements' tables come from the inbox; the rest (calibration points) stays.
+        static = {name: t for name, t in reference.tables.items() if "config" not in t.ids}
+        self.measured = sorted(name for name, t in reference.tables.items() if "config" in t.ids)
+        self.template = replace(
+            reference, robot=self.robot, configs=np.zeros(0, dtype=object), q=np.zeros((0, robot.n_joints)),
+            tables=static, history=None,
+        )  # fmt: skip
+        self.start = self.robot.parameter_vector()
+        if released is None:
+            released = self._identifiable(reference)
+        unknown = [n for n in released if n not in self.robot.parameter_names]
+        if unknown:
+            raise InputError(None, "released", f"unknown parameter {unknown[0]!r} for {self.robot.name}")
+        if not released:
+            raise InputError(None, "released", "no parameter to estimate")
+        self.released = list(released)
+        self.model = GrowingKinematics(self.robot, self.start, self.released, "flange")  # bookkeeping of q
+        self.prior_sigmas = np.array([s.by_kind(n, "prior") for n in self.released])
+        self.drift_sigmas = np.array([s.by_kind(n, "drift") for n in self.released])
+        self.drift = DriftTest(self.released, self.drift_sigmas**2, s.alarm_lag_images, s.alarm_false_rate)
+        self.smoother: gtsam.IncrementalFixedLagSmoother | None = None
+        self.n_images = 0  # measurements folded in
+        self.cycle = 0
+        self.drift_time = 0.0
+        self._cycle_label: int | None = None
+        self._jump: set[int] = set()
+        self._p = self.start[self.model.index].copy()
+        self._sigmas = self.prior_sigmas.copy()
+        self._covariance = np.diag(self.prior_sigmas**2)
+        self._pending: list[tuple[Reading, int | None]] = []
+        self.state: State | None = None  # the auxiliary unknowns' starting values, once started
+        self.like: Observations | None = None
+        self.keys: dict[str, int] = {}
+        self._slots: dict[int, list[int]] = {}  # row -> smoother slots of its live factors
+        self._scanned = 0
+        self._marginals: list[int] = []
+        self.keep_graph = keep_graph
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.initial = gtsam.Values()
+
+    # -- the released set ---------------------------------------------------------------------
+
+    def _candidates(self) -> list[str]:
+        names = candidate_parameters(self.robot, self.robot.model, self.settings.compliant_joints)
+        return [n for n in names if unit_of(n) in RELEASABLE_UNITS]
+
+    def _identifiable(self, reference: Dataset) -> list[str]:
+        """The batch analysis on the reference dataset's measurements at the starting model."""
+        fit = np.arange(len(reference.configs))
+        try:
+            problem = self._problem(replace(reference, robot=self.robot), fit)
+        except InputError as error:
+            raise InputError(
+                reference.path, "released", f"{error.message}: give the released parameters in the setup, or a "
+                f"dataset with the {self.formulation.kind} of a calibration to analyse",
+            ) from None  # fmt: skip
+        state = self.formulation.initial_state(problem)
+        state = state.with_params(self.start)
+        stage = build_graph(problem, self._candidates(), state)
+        return analyse(stage).identifiable
+
+    def _problem(self, dataset: Dataset, fit: np.ndarray, observations: Observations | None = None) -> Problem:
+        if observations is None:
+            observations = self.formulation.fit_observations(dataset, self.measurement_settings, fit)
+        return Problem(
+            formulation=self.formulation,
+            settings=self.measurement_settings,
+            dataset=dataset,
+            robot=self.robot,
+            fit=fit,
+            test=np.zeros(0, dtype=int),
+            candidates=tuple(self._candidates()),
+            observations=observations,
+            priors=Priors(),
+            max_iterations=100,
+        )
+
+    def _dataset(self, readings: list[Reading], first: int) -> Dataset:
+        """The readings as a dataset of their configurations (ids m<row>)."""
+        ids = np.array([f"m{first + i}" for i in range(len(readings))], dtype=object)
+        tables: dict[str, Table] = dict(self.template.tables)
+        for name in sorted({t for r in readings for t in r.tables}):
+            columns: dict[str, list] = {"config": []}
+            values = []
+            for config, reading in zip(ids, readings, strict=True):
+                if name not in reading.tables:
+                    continue
+                row_ids, row_values = reading.tables[name]
+                columns["config"] += [config] * len(row_values)
+                for key, entries in row_ids.items():
+                    columns.setdefault(key, []).extend(entries)
+                values.append(np.asarray(row_values, dtype=float))
+            tables[name] = Table({k: np.array(v, dtype=object) for k, v in columns.items()}, np.vstack(values))
+        q = np.array([r.q for r in readings])
+        n = self.robot.n_joints
+        before = np.array([r.before if r.before is not None else np.full(n, np.nan) for r in readings])
+        history = MotionHistory(before, np.array([r.speed for r in readings]))
+        return replace(self.template, configs=ids, q=q, tables=tables, history=history)
+
+    # -- one measurement ------------------------------------------------------------------------
+
+    def add(self, reading: Reading, cycle: int | None = None) -> OnlineUpdate:
+        """Fold one measurement in (the first ``start_measurements`` are held back and folded in
+        together, into the last one's work cycle)."""
+        started = time.perf_counter()
+        q = self.robot.check_q(reading.q)[0]
+        reading = replace(reading, q=q)
+        if not reading.n_observations:
+            raise InputError(None, "observations", "a measurement needs at least one observation")
+        latest = next((c for _, c in reversed(self._pending) if c is not None), self._cycle_label)
+        if cycle is not None and latest is not None and cycle < latest:
+            raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {latest}")
+        if self.state is None:
+            self._pending.append((reading, cycle))
+            if not self._start():
+                return self._update(started, [], {"pending_images": len(self._pending)})
+            pending, self._pending = self._pending, []
+            return self._fold([r for r, _ in pending], pending[-1][1], started)
+        return self._fold([reading], cycle, started)
+
+    def _start(self) -> bool:
+        """With enough measurements held back, the auxiliary unknowns' starting values and the
+        labels of the observations (True); False while they cannot calibrate yet."""
+        if len(self._pending) < self.settings.start_measurements:
+            return False
+        readings = [r for r, _ in self._pending]
+        dataset = self._dataset(readings, 0)
+        try:
+            problem = self._problem(dataset, np.arange(len(readings)))
+        except InputError:
+            return False
+        state = self.formulation.initial_state(problem)
+        self.state = state.with_params(self.start)
+        self.like = problem.observations
+        self.keys = {name: aux_key(i) for i, name in enumerate(self.state.aux)}
+        self.smoother = gtsam.IncrementalFixedLagSmoother(
+            float(self.settings.window_images // self.settings.marginalise_every), self._isam_params()
+        )
+        return True
+
+    def _isam_params(self) -> gtsam.ISAM2Params:
+        s = self.settings
+        params = gtsam.ISAM2Params()
+        params.setFactorization("QR")
+        thresholds = gtsam.ISAM2ThresholdMap()
+        thresholds.insert(("p", s.relinearize_fraction * self.prior_sigmas))
+        for i, aux in enumerate(self.state.aux.values()):
+            thresholds.insert((chr(ord("A") + i), np.full(aux.dim, s.relinearize_pose)))
+        params.setRelinearizeThreshold(thresholds)
+        params.relinearizeSkip = 1
+        params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(0.0))
+        return params
+
+    def factors(self, readings: list[Reading], first_row: int, P: int) -> list[gtsam.NonlinearFactorGraph]:
+        """Per reading, its formulation's factors on (P, the auxiliary unknowns)."""
+        out = []
+        for i, reading in enumerate(readings):
+            dataset = self._dataset([reading], first_row + i)
+            observations = self.formulation.online_observations(
+                dataset, self.measurement_settings, np.arange(1), self.like
+            )
+            if not observations.n_residuals:
+                raise InputError(None, "observations", f"none that the {self.formulation.name} formulation reads")
+            problem = self._problem(dataset, np.arange(1), observations)
+            kinematics = problem.kinematics(self.state, self.released, observations)
+            keys = Keys(P, self.keys)
+            graph = gtsam.NonlinearFactorGraph()
+            for measurements in self.formulation.measurement_sets(
+                problem, observations, kinematics, keys, self.state, None
+            ):
+                graph.add(measurements.factor().factor)
+            out.append(graph)
+        return out
+
+    def _fold(self, readings: list[Reading], cycle: int | None, started: float) -> OnlineUpdate:
+        new_cycle = self.n_images > 0 and (bool(self._jump) or (cycle is not None and cycle != self._cycle_label))
+        P = params_key(self.cycle + (1 if new_cycle else 0))
+        first_row = self.model._next
+        per_reading = self.factors(readings, first_row, P)  # an InputError here changes nothing
+        rows = [self.model.add(r.q, self.cycle + (1 if new_cycle else 0)) for r in readings]
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if self.n_images == 0:
+            graph.add(gtsam.PriorFactorVector(P, self._p, gaussian(self.prior_sigmas)))
+            values.insert(P, self._p)
+            for name, aux in self.state.aux.items():
+                values.insert(self.keys[name], aux.to_gtsam())
+            self._cycle_label = cycle
+        elif new_cycle:
+            elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
+            sigmas = self.drift_sigmas * np.sqrt(elapsed)
+            jumped = sorted(self._jump)
+            sigmas[jumped] = self.prior_sigmas[jumped]
+            self.cycle += 1
+            self.drift_time += elapsed
+            graph.add(RandomWalkFactor(params_key(self.cycle - 1), P, sigmas).factor)
+            values.insert(P, self._p)
+            self._jump = set()
+            if cycle is not None:
+                self._cycle_label = cycle
+        first_measurement = graph.size()
+        for g in per_reading:
+            graph.push_back(g)
+        frozen, removed = self._freeze(rows[-1])
+        update = gtsam.NonlinearFactorGraph(graph)
+        update.push_back(frozen)
+        stamp = float(rows[-1] // self.settings.marginalise_every)
+        first_slot = self.smoother.getFactors().size()
+        stamps = {P: stamp, **{key: stamp for key in self.keys.values()}}
+        self.smoother.update(update, values, stamps, removed)
+        slot = first_slot + first_measurement
+        for row, g in zip(rows, per_reading, strict=True):
+            self._slots[row] = list(range(slot, slot + g.size()))
+            slot += g.size()
+        self._merge_marginals()
+        if not self.keep_graph:
+            self.model.forget_before(min(self._slots, default=rows[-1]))
+        else:
+            self.graph.push_back(graph)
+            self.initial.insert(values)
+        self._p = self.smoother.calculateEstimateVector(P)
+        covariance = self.smoother.marginalCovariance(P)
+        self._sigmas = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        self._covariance = covariance
+        self.n_images += len(readings)
+        alarms = self.drift.check(self.n_images - 1, self.drift_time, self._p, self._sigmas)
+        if alarms:
+            self._jump = {self.released.index(a.parameter) for a in alarms}
+            self.drift.reset()
+        return self._update(started, alarms)
+
+    def _update(self, started: float, alarms: list, extra: dict | None = None) -> OnlineUpdate:
+        return OnlineUpdate(
+            self.n_images,
+            self.cycle,
+            self.robot.parameter_dict(self.current_params()),
+            dict(zip(self.released, self._sigmas.tolist(), strict=True)),
+            None,
+            alarms,
+            [],
+            time.perf_counter() - started,
+            extra or {},
+        )
+
+    # -- the service's measurements (fgcal.online.measurement) ------------------------------------
+
+    def check(self, measurement, source) -> None:
+        """InputError for a measurement file without a table the reference dataset measures
+        (before it is logged); what the formulation reads of it is checked as it is folded in."""
+        tables = {"pixels"} if measurement.pixels else set()
+        tables |= {name for name, _, _ in measurement.observations}
+        if self.formulation.kind not in tables and not tables & set(self.measured):
+            raise InputError(
+                source, "observations", f"no table the {self.formulation.name} formulation reads (the reference "
+                f"dataset measures {', '.join(sorted(self.measured)) or 'none'}; got {', '.join(sorted(tables))})",
+            )  # fmt: skip
+
+    def fold(self, measurement) -> OnlineUpdate:
+        return self.add(measurement.reading(), measurement.cycle)
+
+    # -- bounded memory -------------------------------------------------------------------------
+
+    def _freeze(self, row: int) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
+        """Linear factors (at the current linearisation point) replacing the factors of the
+        measurements that leave the window with this one, and the slots to remove."""
+        every = self.settings.marginalise_every
+        cutoff = (row // every - self.settings.window_images // every) * every
+        leaving = [r for r in self._slots if r < cutoff]
+        out = gtsam.NonlinearFactorGraph()
+        if not leaving:
+            return out, []
+        factors = self.smoother.getFactors()
+        point = self.smoother.getLinearizationPoint()
+        removed = []
+        for r in leaving:
+            for slot in self._slots.pop(r):
+                factor = factors.at(slot)
+                if factor is None:  # marginalised with its cycle's parameter vector
+                    continue
+                out.add(gtsam.LinearContainerFactor(factor.linearize(point), _subset(point, factor.keys())))
+                removed.append(slot)
+        return out, removed
+
+    def _merge_marginals(self) -> None:
+        """Merge the linear factors on the same variables (stacked and compressed by QR), as
+        the camera's calibrator does; GTSAM's Python JacobianFactor takes up to 3 keys."""
+        factors = self.smoother.getFactors()
+        for i in range(self._scanned, factors.size()):
+            if isinstance(factors.at(i), gtsam.LinearContainerFactor):
+                self._marginals.append(i)
+        self._scanned = factors.size()
+        self._marginals = [i for i in self._marginals if factors.at(i) is not None]
+        if len(self._marginals) <= MERGE_MARGINALS_ABOVE:
+            return
+        by_keys: dict[tuple[int, ...], list[int]] = {}
+        for i in self._marginals:
+            by_keys.setdefault(tuple(sorted(factors.at(i).keys())), []).append(i)
+        point = self.smoother.getLinearizationPoint()
+        merged, removed, kept = gtsam.NonlinearFactorGraph(), [], []
+        for keys, slots in by_keys.items():
+            if len(slots) < 2 or len(keys) > 3:
+                kept += slots
+                continue
+            merged.add(_merged_factor(keys, [factors.at(i) for i in slots], point))
+            removed += slots
+        if removed:
+            self.smoother.update(merged, gtsam.Values(), {}, removed)
+        self._marginals = kept
+
+    # -- the estimate ---------------------------------------------------------------------------
+
+    def batch_initial(self) -> gtsam.Values:
+        """Where a batch solve of ``graph`` (``keep_graph``) starts, as a batch calibration
+        would: every parameter vector at the starting model, the auxiliary unknowns at the
+        formulation's starting values."""
+        if not self.keep_graph:
+            raise RuntimeError("batch_initial needs keep_graph=True")
+        initial = gtsam.Values()
+        for cycle in range(self.cycle + 1):
+            initial.insert(params_key(cycle), self.start[self.model.index])
+        for name, aux in self.state.aux.items():
+            initial.insert(self.keys[name], aux.to_gtsam())
+        return initial
+
+    def current_params(self) -> np.ndarray:
+        return self.model.full(self._p)
+
+    def aux_estimate(self) -> State | None:
+        """The auxiliary unknowns at their current estimate (None before the start)."""
+        if self.state is None or self.smoother is None or not self.n_images:
+            return self.state
+        estimate = self.smoother.calculateEstimate()
+        aux = {name: a.from_values(estimate, self.keys[name]) for name, a in self.state.aux.items()}
+        return State(self.current_params(), aux)
+
+    def window_q(self) -> np.ndarray:
+        rows = sorted(self.model.q)[-self.settings.window_images :]
+        return np.array([self.model.q[r] for r in rows]).reshape(-1, self.robot.n_joints)
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        return self._sigmas.copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self._covariance.copy()
+
+
+def _subset(values: gtsam.Values, keys) -> gtsam.Values:
+    out = gtsam.Values()
+    for key in keys:
+        _copy(out, values, key)
+    return out
+
+
+def _copy(out: gtsam.Values, values: gtsam.Values, key: int) -> int:
+    """One value of ``values`` into ``out``, whatever its type (a Pose3, a Rot3 or a vector);
+    returns its tangent dimension."""
+    for read, dim in ((values.atPose3, 6), (values.atRot3, 3), (values.atVector, None)):
+        try:
+            value = read(key)
+        except Exception:  # GTSAM's wrong-type error
+            continue
+        out.insert(key, value)
+        return dim if dim is not None else len(value)
+    raise TypeError(f"unsupported value type at key {gtsam.DefaultKeyFormatter(key)}")
+
+
+def _merged_factor(keys: tuple[int, ...], marginals: list, point: gtsam.Values):
+    """One QR-compressed linear factor for linear factors on ``keys`` (at ``point``)."""
+    subset = gtsam.Values()
+    dims = {key: _copy(subset, point, key) for key in keys}
+    offsets = dict(zip(keys, np.cumsum([0, *[dims[k] for k in keys]])[:-1].tolist(), strict=True))
+    width = sum(dims.values())
+    blocks = []
+    for marginal in marginals:
+        linear = marginal.linearize(subset)
+        A, b = linear.jacobian()
+        stacked = np.zeros((A.shape[0], width + 1))
+        column = 0
+        for key in linear.keys():  # noqa: SIM118 (a GaussianFactor, not a dict)
+            stacked[:, offsets[key] : offsets[key] + dims[key]] = A[:, column : column + dims[key]]
+            column += dims[key]
+        stacked[:, width] = b
+        blocks.append(stacked)
+    R = np.linalg.qr(np.vstack(blocks), mode="r")
+    arguments = []
+    for key in keys:
+        arguments += [key, R[:, offsets[key] : offsets[key] + dims[key]]]
+    unit = gtsam.noiseModel.Unit.Create(R.shape[0])
+    return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), subset)

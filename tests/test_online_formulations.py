@@ -1,0 +1,228 @@
+"""Online recalibration on the formulation protocol (issue 41): a laser tracker's points, the
+lost-motion robot with its approaches, drift on tracker data, and every formulation the batch
+calibration has through the service (the smoke matrix)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+import yaml
+from conftest import REPO
+
+from fgcal.calibration.formulations import REGISTRY
+from fgcal.core.errors import InputError
+from fgcal.data.dataset import load_dataset
+from fgcal.online import OnlineSettings
+from fgcal.online.calibrator import params_key
+from fgcal.online.feed import dataset_measurements, feed_dataset
+from fgcal.online.protocol import FormulationCalibrator
+from fgcal.online.service import OnlineService
+from fgcal.simulation.simulate import Drift, simulate
+
+CELLS = REPO / "datasets" / "cells"
+# The IRB 120 cells' compliances are 1e-5 to 5e-5 rad/(N m) (a light arm): the online prior
+# around the nominal zero must be wider than the KR 125's default 1e-6.
+TRACKER_SETTINGS = OnlineSettings(prior_sigma_compliance=1e-4)
+
+
+def simulated(tmp_path_factory, cell: str, n: int, drift: Drift | None = None) -> Path:
+    out = tmp_path_factory.mktemp(cell)
+    simulate(CELLS / f"{cell}.yaml", out, seed=1, design="space_filling", n_configurations=n, drift=drift)
+    return out
+
+
+def fold_all(calibrator, measurements) -> list[int]:
+    """Fold every measurement in; returns the measurements (0-based) that raised an alarm."""
+    alarmed = []
+    for i, m in enumerate(measurements):
+        if calibrator.fold(m).alarms:
+            alarmed.append(i)
+    return alarmed
+
+
+def batch_distance(calibrator: FormulationCalibrator) -> tuple[np.ndarray, np.ndarray]:
+    """|online - batch| / online sigma per released parameter, and online / batch sigma, the
+    batch being LM on the same graph from where a batch calibration starts (as the camera's
+    test_online_equals_batch_and_keeps_its_alarm_rate)."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setLinearSolverType("MULTIFRONTAL_QR")
+    params.setDiagonalDamping(True)
+    batch = gtsam.LevenbergMarquardtOptimizer(calibrator.graph, calibrator.batch_initial(), params).optimize()
+    P = params_key(calibrator.cycle)
+    online = calibrator.current_params()[calibrator.model.index]
+    distance = np.abs(online - batch.atVector(P)) / calibrator.sigmas
+    batch_sigma = np.sqrt(np.diag(gtsam.Marginals(calibrator.graph, batch).marginalCovariance(P)))
+    return distance, calibrator.sigmas / batch_sigma
+
+
+@pytest.fixture(scope="module")
+def tracker300(tmp_path_factory):
+    return simulated(tmp_path_factory, "irb120_tracker", 300)
+
+
+def test_tracker_online_in_cycles_of_10_equals_batch(tracker300):
+    """Acceptance: the bundled tracker cell, 300 configurations fed in cycles of 10."""
+    dataset = load_dataset(tracker300)
+    calibrator = FormulationCalibrator(dataset, "tracker", TRACKER_SETTINGS, keep_graph=True)
+    measurements = dataset_measurements(tracker300, cycle_size=10)
+    alarmed = fold_all(calibrator, measurements)
+    assert calibrator.n_images == 300 and calibrator.cycle >= 29
+    distance, sigma_ratio = batch_distance(calibrator)
+    assert distance.max() < 0.1, calibrator.released[int(np.argmax(distance))]
+    np.testing.assert_allclose(sigma_ratio, 1.0, rtol=0.05)
+    # The measurements did their work where they can: far below the priors.
+    ratio = dict(zip(calibrator.released, calibrator.sigmas / calibrator.prior_sigmas, strict=True))
+    assert all(ratio[name] < 0.01 for name in ("a1", "theta2", "a2", "alpha2", "d4")), ratio
+    # Scoring only: within 4 sigma of the simulation's truth (the estimate is of the same graph).
+    truth = yaml.safe_load((tracker300 / "truth" / "ground_truth.yaml").read_text())["parameters"]
+    i = calibrator.released.index("a2")
+    assert abs(calibrator.current_params()[calibrator.model.index][i] - truth["a2"]) < 4 * calibrator.sigmas[i]
+    assert len(alarmed) <= 2, alarmed  # no change in this stream
+
+
+def test_tracker_online_without_cycles_equals_fgcals_batch_calibration(tracker300, tmp_path):
+    """Against fgcal's own batch calibration of the same 300 configurations (nothing held out;
+    its stages, robust loss and rejection): with one parameter vector for the run (no cycles,
+    so no random walk) the online estimate ends within 0.1 sigma of it on every parameter both
+    release. (With cycles the random walk lets the last cycle's parameters differ from a
+    constant fit: measured 1.03 sigma at the default 1e-6 per cycle; docs/online.md.)"""
+    from fgcal.calibration.config import load_config
+    from fgcal.calibration.run import calibrate_dataset
+
+    config_path = tmp_path / "calibration.yaml"  # what fgcal simulate suggests, nothing held out
+    config_path.write_text(
+        f"dataset: {tracker300}\nformulation: tracker\nmodel: DH,s,e\ncompliant_joints: [1, 2, 3]\n"
+        "units: {length: m, angle: rad}\nnoise: {tracker_sigma: 1.5e-05}\nvalidation: {holdout: 0.0}\n"
+    )
+    dataset = load_dataset(tracker300)
+    batch = calibrate_dataset(dataset, load_config(config_path))
+    calibrator = FormulationCalibrator(dataset, "tracker", TRACKER_SETTINGS)
+    fold_all(calibrator, dataset_measurements(tracker300))
+    assert sorted(batch.released) == sorted(calibrator.released)
+    batch_params = dict(zip(batch.problem.robot.parameter_names, batch.state.params, strict=True))
+    online = dict(zip(calibrator.robot.parameter_names, calibrator.current_params(), strict=True))
+    distance = {
+        n: abs(online[n] - batch_params[n]) / s for n, s in zip(calibrator.released, calibrator.sigmas, strict=True)
+    }
+    assert max(distance.values()) < 0.1, max(distance.items(), key=lambda item: item[1])
+
+
+def test_lost_motion_online_fits_dh_s_e_h_with_the_approaches_in_the_files(tmp_path_factory):
+    """Acceptance: the lost-motion cell, the approaches (before_joints) in the measurement
+    files, model DH,s,e,h online ends where the batch solve of the same graph does."""
+    data = simulated(tmp_path_factory, "irb120_tracker_lost_motion", 300)
+    dataset = load_dataset(data)
+    measurements = dataset_measurements(data, cycle_size=10)
+    assert all(m.before is not None for m in measurements[1:])  # the history travels with them
+    calibrator = FormulationCalibrator(dataset, "tracker", TRACKER_SETTINGS, model="DH,s,e,h", keep_graph=True)
+    assert {f"lm{j}" for j in range(1, 7)} <= set(calibrator.released)
+    fold_all(calibrator, measurements)
+    distance, sigma_ratio = batch_distance(calibrator)
+    assert distance.max() < 0.1, calibrator.released[int(np.argmax(distance))]
+    np.testing.assert_allclose(sigma_ratio, 1.0, rtol=0.05)
+    # The lost motion is seen: lm2 (0.02 deg in the truth) is many sigmas from zero.
+    i = calibrator.released.index("lm2")
+    assert calibrator.current_params()[calibrator.model.index][i] > 5 * calibrator.sigmas[i]
+
+
+@pytest.fixture(scope="module")
+def drifted(tmp_path_factory):
+    return simulated(tmp_path_factory, "irb120_tracker", 300, Drift("a2", 2e-4, 150))
+
+
+# Without cycles (change points only) it is a study (-m study): the same code as with cycles,
+# 8 s more of the suite; measured: alarm at measurement 150, a2 1.1 sigma from the new truth.
+@pytest.mark.parametrize(
+    "cycle_size",
+    [pytest.param(None, marks=pytest.mark.study), 10],
+    ids=["change_points", "random_walk_cycles"],
+)
+def test_a_link_length_change_is_flagged_and_tracked_on_tracker_data(drifted, cycle_size):
+    """Drift on tracker data: a2 + 0.2 mm from configuration 150 on."""
+    data = drifted
+    calibrator = FormulationCalibrator(load_dataset(data), "tracker", TRACKER_SETTINGS)
+    alarmed = fold_all(calibrator, dataset_measurements(data, cycle_size))
+    assert alarmed and 150 <= alarmed[0] < 160, alarmed
+    assert all(a >= 150 for a in alarmed), alarmed  # no false alarm before the change
+    truth = yaml.safe_load((data / "truth" / "ground_truth.yaml").read_text())["parameters"]
+    i = calibrator.released.index("a2")
+    error = calibrator.current_params()[calibrator.model.index][i] - (truth["a2"] + 2e-4)
+    assert abs(error) < 3.0 * calibrator.sigmas[i], (error, calibrator.sigmas[i])
+    # Bounded memory: the window's measurements and their factors only (measured 25 and 28).
+    settings = calibrator.settings
+    assert len(calibrator.model.q) <= settings.window_images + settings.marginalise_every
+    assert calibrator.smoother.getFactors().nrFactors() <= 40
+
+
+# The smoke matrix: each formulation the batch calibration has, on a bundled cell, through the
+# service (30 configurations, cycles of 10); pairs cannot be incremental (docs/online.md).
+SMOKE = {
+    "tracker": "irb120_tracker",
+    "poses": "irb120_tracker6d",
+    "projection": "kr125_seed",
+    "touch": "seven_axis_touch",
+    "distances": "irb120_ballbar",
+    "static_camera": "irb120_static_camera",
+}
+
+
+def test_the_smoke_matrix_covers_every_formulation():
+    assert set(SMOKE) | {n for n, cls in REGISTRY.items() if cls.not_incremental} == set(REGISTRY)
+
+
+@pytest.mark.parametrize("formulation", sorted(SMOKE))
+def test_every_incremental_formulation_runs_online(formulation, bundled_sim, tmp_path):
+    data = bundled_sim(SMOKE[formulation])
+    fed = feed_dataset(data, tmp_path / "inbox", n=30, cycle_size=10)
+    setup = tmp_path / "setup.yaml"
+    setup.write_text(
+        yaml.safe_dump({"dataset": str(data), "formulation": formulation, "settings": {"prior_sigma_compliance": 1e-4}})
+    )
+    service = OnlineService(tmp_path / "state", tmp_path / "inbox", setup)
+    service.run(once=True)
+    service.close()
+    report = json.loads((tmp_path / "state" / "report.json").read_text())
+    assert report["n_images"] == report["n_logged"] == fed and not report["skipped"], report["skipped"]
+    released = [e for e in report["parameters"].values() if e["status"] == "released"]
+    assert released and all(np.isfinite(e["estimate"]) and e["sigma"] > 0 for e in released)
+    # The measurements informed the estimate: some parameter far below its prior.
+    assert min(e["sigma"] / e["prior_sigma"] for e in released) < 0.1
+    assert np.isfinite(report["predicted_accuracy"]["rms_m"])
+    assert "measurements folded in: " in (tmp_path / "state" / "report.md").read_text()
+
+
+def test_a_formulation_that_cannot_be_incremental_says_why(seed_sim):
+    with pytest.raises(InputError) as error:
+        FormulationCalibrator(load_dataset(seed_sim), "pairs")
+    assert error.value.field == "formulation" and "relative motions" in error.value.message
+
+
+def test_a_reflector_the_run_did_not_start_with_is_skipped_not_guessed(tracker300):
+    calibrator = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS)
+    measurements = dataset_measurements(tracker300)
+    fold_all(calibrator, measurements[:12])
+    table, ids, values = measurements[12].observations[0]
+    stranger = measurements[12].__class__(
+        "x.json", measurements[12].q, (), None, ((table, {"target": ("t9", *ids["target"][1:])}, values),)
+    )
+    before = calibrator.current_params().copy()
+    with pytest.raises(InputError, match="reflector 't9' is not one the online calibration started with"):
+        calibrator.fold(stranger)
+    assert np.array_equal(calibrator.current_params(), before) and calibrator.n_images == 12
+    calibrator.fold(measurements[12])  # and the next one folds in as usual
+    assert calibrator.n_images == 13
+
+
+def test_a_measurement_without_the_formulations_table_is_skipped(tracker300):
+    calibrator = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS)
+    measurements = dataset_measurements(tracker300)
+    fold_all(calibrator, measurements[:10])
+    empty = measurements[10].__class__("y.json", measurements[10].q, (), None, (("touch_points", {"point": ("s1",)},
+                                                                                 np.zeros((1, 0))),))  # fmt: skip
+    with pytest.raises(InputError, match="tracker"):
+        calibrator.fold(empty)
+    assert calibrator.n_images == 10
