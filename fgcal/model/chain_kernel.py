@@ -247,12 +247,25 @@ def forward(ints, reals, params, q, buffer):
     scale applied), the gravity moments, and, for a compliant model, the chain they deform.
     One call, where several would each pay the dispatch of their arrays (and returning an
     array costs its boxing)."""
-    tables, constants = int_table(ints, ELEMENTS), real_table(ints, reals, CONSTANTS)
-    body_frame, mass_param = int_row(ints, BODIES, 0), int_row(ints, BODIES, 1)
-    masses = real_row(ints, reals, MASSES, 0)
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left = evaluation(
         ints, buffer, q.shape[0]
     )
+    fill(
+        ints, reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
+        body_masses, rvec_left,
+    )  # fmt: skip
+
+
+@compiled(inline=True)
+def fill(
+    ints, reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses,
+    rvec_left,
+):  # fmt: skip
+    """:func:`forward`'s evaluation into the arrays of :func:`evaluation` (one implementation,
+    which fgcal.model.jacobian_kernel.forward_jacobian runs too)."""
+    tables, constants = int_table(ints, ELEMENTS), real_table(ints, reals, CONSTANTS)
+    body_frame, mass_param = int_row(ints, BODIES, 0), int_row(ints, BODIES, 1)
+    masses = real_row(ints, reals, MASSES, 0)
     kind, param, rvec_slot = tables[0], tables[1], tables[5]
     for k in range(kind.shape[0]):
         if kind[k] == 6:

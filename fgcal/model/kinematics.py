@@ -267,3 +267,68 @@ def _columns(data: KinematicsData, wrt: Sequence[str], frame: str | int, mode: i
         entries, scales, index, point, mode, out,
     )  # fmt: skip
     return out
+
+
+class Workspace:
+    """Pinocchio's Data for the repeated evaluation of one Jacobian: the buffers an evaluation
+    at ``n_conf`` configurations writes, and the Jacobian's constant arguments (its entries, the
+    frame's index, the point), made once by their caller and overwritten by every
+    :func:`forward_jacobian` on it. What a single configuration's FK and Jacobian cost, without a
+    Python layer or an allocation per call: an IK step, an online update (docs/model.md,
+    Performance). Nothing in it outlives a call but what the caller reads before the next:
+    ``jacobian``, ``frames`` and ``moments`` are the last call's."""
+
+    __slots__ = ("model", "wrt", "n_conf", "jacobian", "buffer", "_arguments", "_shapes")
+
+    def __init__(
+        self, robot: Robot, wrt: Sequence[str], frame: str | int = "flange", point: np.ndarray | None = None,
+        n_conf: int = 1,
+    ) -> None:  # fmt: skip
+        model = chain_model.of(robot)
+        index = model.frame_index(frame)
+        entries, scales = model.columns(wrt)
+        if point is None:
+            mode, point, rows = jacobian_kernel.BODY, np.zeros(3), 6
+        else:
+            point = np.array(point, dtype=float)
+            if point.shape != (3,) or not np.all(np.isfinite(point)):
+                raise InputError(None, "point", f"a finite point (3,) in the frame, m; got shape {point.shape}")
+            mode, rows = jacobian_kernel.POINT, 3
+        self.model, self.wrt, self.n_conf = model, tuple(wrt), int(n_conf)
+        self.jacobian = np.empty((self.n_conf, rows, len(self.wrt)))  # (N, 6, T) body twists or (N, 3, T)
+        self.buffer = np.empty(model.buffer_size(self.n_conf))
+        # jacobian_kernel.forward_jacobian's arguments after (params, q, motion), in its order.
+        self._arguments = (model.ints, model.reals, self.buffer, entries, scales, index, point, mode, self.jacobian)
+        self._shapes = ((len(model.parameter_index),), (self.n_conf, model.n_joints))
+
+    @property
+    def frames(self) -> np.ndarray:
+        """(K+1, N, 3, 4) the last call's deformed chain (views of the buffer)."""
+        return self.model.array(self.buffer, "frames", self.n_conf)
+
+    @property
+    def moments(self) -> np.ndarray:
+        """(N, 3L) the last call's gravity moments (a view of the buffer)."""
+        return self.model.array(self.buffer, "moments", self.n_conf)
+
+
+def forward_jacobian(work: Workspace, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None = None) -> np.ndarray:
+    """:func:`forward` and :func:`jacobian` of ``work``'s names, frame and point in one compiled
+    call, into ``work``'s buffers: its Jacobian ``work.jacobian`` (N, 6, T) or (N, 3, T), which
+    the next call overwrites. ``params`` (P,) and ``q`` (N, n) float arrays of its shapes;
+    ``motion`` (N, 2n) the motion-history features, as forward's."""
+    if params.shape != work._shapes[0] or q.shape != work._shapes[1]:
+        raise ValueError(
+            f"parameters of shape {params.shape} and joint values of shape {q.shape} for a workspace of "
+            f"{work._shapes[0]} and {work._shapes[1]}"
+        )
+    if motion is None or not work.model.history:
+        jacobian_kernel.forward_jacobian(params, q, _NO_MOTION, *work._arguments)
+        return work.jacobian
+    motion = np.ascontiguousarray(motion, dtype=float)
+    if motion.shape != (q.shape[0], 2 * work.model.n_joints):
+        raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
+    first, n = work.model.motion_first, work.model.n_joints
+    q = q + motion[:, :n] * params[first : first + n] + motion[:, n:] * params[first + n : first + 2 * n]
+    jacobian_kernel.forward_jacobian(params, q, motion, *work._arguments)
+    return work.jacobian
