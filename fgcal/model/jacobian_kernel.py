@@ -53,22 +53,44 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
     )  # fmt: skip
 
 
+# The tail of a workspace's integers (fgcal.model.kinematics.Workspace): where its arrays lie.
+WORK_TAIL = ("entries", "n_entries", "frame", "mode", "scales", "point", "buffer", "out", "n_conf", "n_targets",
+             "n_params", "n_joints")  # fmt: skip
+N_WORK_TAIL = len(WORK_TAIL)
+
+
 @compiled
-def forward_jacobian(params, q, motion, ints, reals, buffer, entries, scales, frame, point, mode, out):
-    """chain_kernel.forward into ``buffer`` at ``q``, then :func:`jacobian` into ``out``, in one
-    call: one dispatch of the arguments where two calls pay it twice (about 0.3 us of a single
-    configuration's 3), and the evaluation's arrays unpacked once. The arguments that change
-    between calls come first, the rest as fgcal.model.kinematics.Workspace holds them."""
+def forward_jacobian(params, q, motion, work_ints, work_reals):
+    """chain_kernel.forward at ``q``, then :func:`jacobian`, in one call, on a workspace's two
+    arrays (fgcal.model.kinematics.Workspace): ``work_ints`` the model's ``ints``, then the
+    Jacobian's entries, then :data:`WORK_TAIL`; ``work_reals`` the model's ``reals``, then the
+    scales, the point, the evaluation's buffer and the Jacobian ``out``, where the tail says.
+    Numba unboxes every array argument at every call (about 70 ns each): five arrays where two
+    calls took fifteen, about a third of a single configuration's cost. The shapes are checked
+    here, where it costs nothing (ValueError)."""
+    tail = work_ints[work_ints.shape[0] - N_WORK_TAIL :]
+    at, n_entries, frame, mode, n_conf, n_targets = tail[0], tail[1], tail[2], tail[3], tail[8], tail[9]
+    n_joints = tail[11]
+    if params.shape[0] != tail[10] or q.shape[0] != n_conf or q.shape[1] != n_joints:
+        raise ValueError("the parameters (P,) and joint values (N, n) are not of the workspace's shapes")
+    if motion.shape[1] > 0 and (motion.shape[0] != n_conf or motion.shape[1] != 2 * n_joints):
+        raise ValueError("the motion features (N, 2n) are not of the workspace's shape")
+    rows = 6 if mode == BODY else 3
+    entries = work_ints[at : at + 6 * n_entries].reshape((6, n_entries))
+    scales = work_reals[tail[4] : tail[4] + n_entries]
+    point = work_reals[tail[5] : tail[5] + 3]
+    buffer = work_reals[tail[6] : tail[7]]
+    out = work_reals[tail[7] : tail[7] + n_conf * rows * n_targets].reshape((n_conf, rows, n_targets))
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left = ck.evaluation(
-        ints, buffer, q.shape[0]
+        work_ints, buffer, q.shape[0]
     )
     ck.fill(
-        ints, reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses,
-        rvec_left,
+        work_ints, work_reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
+        masses, rvec_left,
     )  # fmt: skip
     _columns(
-        ints, reals, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left,
-        params, motion, entries, scales, frame, point, mode, out,
+        work_ints, work_reals, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses,
+        rvec_left, params, motion, entries, scales, frame, point, mode, out,
     )  # fmt: skip
 
 

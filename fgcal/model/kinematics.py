@@ -276,9 +276,13 @@ class Workspace:
     :func:`forward_jacobian` on it. What a single configuration's FK and Jacobian cost, without a
     Python layer or an allocation per call: an IK step, an online update (docs/model.md,
     Performance). Nothing in it outlives a call but what the caller reads before the next:
-    ``jacobian``, ``frames`` and ``moments`` are the last call's."""
+    ``jacobian``, ``frames`` and ``moments`` are the last call's.
 
-    __slots__ = ("model", "wrt", "n_conf", "jacobian", "buffer", "_arguments", "_shapes")
+    The kernel gets it as two arrays (jacobian_kernel.forward_jacobian): the model's integer
+    tables with the entries and where everything lies, and its real tables with the scales, the
+    point, the evaluation's buffer and the Jacobian; ``buffer`` and ``jacobian`` are views."""
+
+    __slots__ = ("buffer", "ints", "jacobian", "model", "n_conf", "reals", "wrt")
 
     def __init__(
         self, robot: Robot, wrt: Sequence[str], frame: str | int = "flange", point: np.ndarray | None = None,
@@ -290,16 +294,23 @@ class Workspace:
         if point is None:
             mode, point, rows = jacobian_kernel.BODY, np.zeros(3), 6
         else:
-            point = np.array(point, dtype=float)
+            point = np.asarray(point, dtype=float)
             if point.shape != (3,) or not np.all(np.isfinite(point)):
                 raise InputError(None, "point", f"a finite point (3,) in the frame, m; got shape {point.shape}")
             mode, rows = jacobian_kernel.POINT, 3
         self.model, self.wrt, self.n_conf = model, tuple(wrt), int(n_conf)
-        self.jacobian = np.empty((self.n_conf, rows, len(self.wrt)))  # (N, 6, T) body twists or (N, 3, T)
-        self.buffer = np.empty(model.buffer_size(self.n_conf))
-        # jacobian_kernel.forward_jacobian's arguments after (params, q, motion), in its order.
-        self._arguments = (model.ints, model.reals, self.buffer, entries, scales, index, point, mode, self.jacobian)
-        self._shapes = ((len(model.parameter_index),), (self.n_conf, model.n_joints))
+        n_reals, size, n_out = len(model.reals), model.buffer_size(self.n_conf), self.n_conf * rows * len(self.wrt)
+        at_buffer = n_reals + len(scales) + 3
+        self.reals = np.concatenate([model.reals, scales, point, np.zeros(size + n_out)])
+        tail = dict(
+            entries=len(model.ints), n_entries=entries.shape[1], frame=index, mode=mode, scales=n_reals,
+            point=n_reals + len(scales), buffer=at_buffer, out=at_buffer + size, n_conf=self.n_conf,
+            n_targets=len(self.wrt), n_params=len(model.parameter_index), n_joints=model.n_joints,
+        )  # fmt: skip
+        self.ints = np.concatenate([model.ints, entries.reshape(-1), [tail[key] for key in jacobian_kernel.WORK_TAIL]])
+        self.buffer = self.reals[at_buffer : at_buffer + size]
+        # (N, 6, T) body twists or (N, 3, T) a point's rates
+        self.jacobian = self.reals[at_buffer + size :].reshape(self.n_conf, rows, len(self.wrt))
 
     @property
     def frames(self) -> np.ndarray:
@@ -312,23 +323,24 @@ class Workspace:
         return self.model.array(self.buffer, "moments", self.n_conf)
 
 
-def forward_jacobian(work: Workspace, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None = None) -> np.ndarray:
+def forward_jacobian(
+    work: Workspace, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None = None
+) -> np.ndarray:  # fmt: skip
     """:func:`forward` and :func:`jacobian` of ``work``'s names, frame and point in one compiled
     call, into ``work``'s buffers: its Jacobian ``work.jacobian`` (N, 6, T) or (N, 3, T), which
-    the next call overwrites. ``params`` (P,) and ``q`` (N, n) float arrays of its shapes;
-    ``motion`` (N, 2n) the motion-history features, as forward's."""
-    if params.shape != work._shapes[0] or q.shape != work._shapes[1]:
-        raise ValueError(
-            f"parameters of shape {params.shape} and joint values of shape {q.shape} for a workspace of "
-            f"{work._shapes[0]} and {work._shapes[1]}"
-        )
+    the next call overwrites. ``params`` (P,) and ``q`` (N, n) float arrays of its shapes
+    (ValueError otherwise, from the kernel); ``motion`` (N, 2n) the motion-history features, as
+    forward's. Nothing else is done in Python: each line here costs tens of ns, of about 3 us."""
     if motion is None or not work.model.history:
-        jacobian_kernel.forward_jacobian(params, q, _NO_MOTION, *work._arguments)
+        _forward_jacobian(params, q, _NO_MOTION, work.ints, work.reals)
         return work.jacobian
     motion = np.ascontiguousarray(motion, dtype=float)
-    if motion.shape != (q.shape[0], 2 * work.model.n_joints):
-        raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
     first, n = work.model.motion_first, work.model.n_joints
+    if motion.shape != (q.shape[0], 2 * n):
+        raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
     q = q + motion[:, :n] * params[first : first + n] + motion[:, n:] * params[first + n : first + 2 * n]
-    jacobian_kernel.forward_jacobian(params, q, motion, *work._arguments)
+    _forward_jacobian(params, q, motion, work.ints, work.reals)
     return work.jacobian
+
+
+_forward_jacobian = jacobian_kernel.forward_jacobian
