@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.compiled import compiled
+from ..core.compiled import compiled, view
 from . import chain_kernel as ck
 
 # What the kernel writes: spatial twists (N, T, 6), body twists (N, 6, T), a point's rates (N, 3, T).
@@ -76,11 +76,11 @@ def forward_jacobian(params, q, motion, work_ints, work_reals):
     if motion.shape[1] > 0 and (motion.shape[0] != n_conf or motion.shape[1] != 2 * n_joints):
         raise ValueError("the motion features (N, 2n) are not of the workspace's shape")
     rows = 6 if mode == BODY else 3
-    entries = work_ints[at : at + 6 * n_entries].reshape((6, n_entries))
+    entries = view(work_ints[at : at + 6 * n_entries], (6, n_entries))
     scales = work_reals[tail[4] : tail[4] + n_entries]
     point = work_reals[tail[5] : tail[5] + 3]
     buffer = work_reals[tail[6] : tail[7]]
-    out = work_reals[tail[7] : tail[7] + n_conf * rows * n_targets].reshape((n_conf, rows, n_targets))
+    out = view(work_reals[tail[7] : tail[7] + n_conf * rows * n_targets], (n_conf, rows, n_targets))
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left = ck.evaluation(
         work_ints, buffer, q.shape[0]
     )
