@@ -22,9 +22,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
             f"fgcal: error: {faro}: no dataset.yaml (convert the FARO files with fgcal convert-faro)", file=sys.stderr
         )
         return 2
-    result = run_bench(
-        Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro, memory_n=args.memory_n
-    )
+    if args.kinematics:
+        from ..bench.kernel import kernel_bench
+
+        say("fgcal bench --kinematics: the chain's FK and Jacobians against Pinocchio, issue 37's targets")
+        result = kernel_bench(args.repeats, say)
+    else:
+        result = run_bench(
+            Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro,
+            memory_n=args.memory_n,
+        )  # fmt: skip
     if args.json:
         print(strict_json.dumps(result))
     return 0
@@ -58,5 +65,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=integer(20, 20000, "configurations"),
         default=3000,
         help="configurations of the seed cell whose calibrate command's peak RSS is measured (default 3000)",
+    )
+    p.add_argument(
+        "--kinematics",
+        action="store_true",
+        help="only the kinematics figures and issue 37's targets against Pinocchio (seconds, not minutes)",
     )
     p.set_defaults(func=cmd_bench)
