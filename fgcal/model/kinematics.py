@@ -2,7 +2,9 @@
 and analytic Jacobians (SPEC sections 2 and 3).
 
 ``forward(robot, params, q, motion)`` returns a :class:`KinematicsData`; the other functions
-take the robot and that data. The robot's constant tables are its compiled model
+take the robot and that data. For one configuration at a time, :func:`forward_jacobian` fills a
+:class:`Workspace` its caller made once (Pinocchio's Data): FK and one Jacobian in one compiled
+call. The robot's constant tables are its compiled model
 (fgcal.model.chain_model, built once per robot); nothing is kept between calls. ``motion`` are
 the motion-history features of the configurations (fgcal.model.motion): with model DH,s,e,h the
 chain sees the joint values ``q' = q + F_lm lm + F_lv lv`` (N, n), and every derivative goes
