@@ -160,3 +160,35 @@ def test_the_kernels_rotation_vectors_are_se3s(scale):
     chain_kernel.rotation_vector(r, 0, True, left)
     np.testing.assert_allclose(rotation, so3_exp(r), rtol=0, atol=1e-15)
     np.testing.assert_allclose(left, so3_left_jacobian(r), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("robot_name", "model", "frame", "point"),
+    [("abb_irb120", "DH,s", "flange", None), ("abb_irb120", "DH,s,e", "tool", [0.01, -0.02, 0.1]),
+     ("dual_arm_torso", "DH,s,e,h", None, None)],
+)  # fmt: skip
+def test_a_workspace_gives_what_forward_and_jacobian_give(robot_name, model, frame, point):
+    """kinematics.forward_jacobian (one compiled call into a caller's Workspace, issue 37's
+    single configuration) gives what forward() and jacobian() give, for every parameter and
+    joint, on a pose or a point, with the motion history; each call overwrites the last. The
+    same code compiled into another kernel: equal to rounding (contracted multiply-adds)."""
+    robot = fgcal.load_robot(robot_name).with_model(model)
+    frame = frame or robot.tip_names[1]
+    rng = np.random.default_rng(3)
+    vector = robot.parameter_vector(random_parameters(robot, rng))
+    wrt = [*robot.parameter_names, *(f"q{j + 1}" for j in range(robot.n_joints))]
+    work = kinematics.Workspace(robot, wrt, frame=frame, point=point, n_conf=2)
+    for _ in range(2):
+        q = rng.uniform(robot.limits[:, 0], robot.limits[:, 1], (2, robot.n_joints))
+        motion = rng.normal(size=(2, 2 * robot.n_joints)) if robot.history else None
+        data = kinematics.forward(robot, vector, q, motion)
+        expected = kinematics.jacobian(robot, data, wrt, frame=frame, point=point)
+        got = kinematics.forward_jacobian(work, vector, q, motion)
+        assert got is work.jacobian
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-14 * np.abs(expected).max())
+        np.testing.assert_allclose(work.frames, data.frames, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(work.moments, data.moments, rtol=1e-12, atol=1e-14 * np.abs(data.moments).max())
+    with pytest.raises(ValueError, match="workspace"):
+        kinematics.forward_jacobian(work, vector, q[:1])
+    with pytest.raises(ValueError, match="workspace"):
+        kinematics.forward_jacobian(work, vector[:-1], q)

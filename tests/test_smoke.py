@@ -91,6 +91,7 @@ RUNS = {
         ["simulate", "irb120_tracker", "--out", "{ws}/session", "--n", "30"],
         ["import-csv", "{ws}/mapping.yaml", "--out", "{ws}/imported"],
         ["convert-faro", str(FARO), "--out", "{ws}/faro"],
+        ["bench", "--kinematics", "--repeats", "1", "--json"],
         ["bench", "--out", "{ws}/bench", "--seed", "2", "--sizes", "20", "--repeats", "1", "--json",
          "--memory-n", "20", "--program-targets", "40", "--faro", "{ws}/faro"],
     ],
@@ -274,9 +275,14 @@ def test_import_convert_and_bench_as_documented(ws, capsys):
     (ws / "mapping.yaml").write_text(yaml.safe_dump(mapping))
     runs = RUNS["import"] if FARO.exists() else [a for a in RUNS["import"] if a[0] != "convert-faro"]
     for argv in runs:
-        if argv[0] == "bench" and not FARO.exists():
+        if argv[0] == "bench" and "--faro" in argv and not FARO.exists():
             argv = argv[: argv.index("--faro")]
         printed = _run(argv, ws, capsys)
+        if "--kinematics" in argv:  # the kinematics alone, issue 37's targets stated (skipped without Pinocchio)
+            targets = json.loads(printed)["kernel_targets"]
+            assert set(targets) == {"rigid_batched", "rigid_single", "param_single"}
+            pinocchio = importlib.util.find_spec("pinocchio") is not None
+            assert (targets["rigid_single"]["met"] is None) != pinocchio and targets["param_single"]["value"] > 0
     bench = json.loads(printed)
     assert bench["sizes"]["20"]["cpu_s"]["fgcal"] > 0 and (FARO.exists() == ("faro_cpu_s" in bench))
     assert bench["demo_cpu_s"] > 0 and bench["memory_peak_rss_mb"] > 0 and bench["memory_n_configurations"] == 20

@@ -1,21 +1,25 @@
 """``fgcal bench``'s kinematics figures: what one evaluation of the chain costs, the yardstick
-for a compiled kernel (issue 26).
+for a compiled kernel (issue 26), and issue 37's targets against Pinocchio.
 
 On the IRB 120 (6 axes, model DH,s,e, random compliances so that the gravity terms are
 exercised), CPU microseconds per configuration of
 
 - fgcal's FK plus the Jacobian with respect to every parameter (what calibration needs), and
   plus the Jacobian with respect to the joints (what IK needs), batched over ``n`` configurations
-  and for a single one;
-- the same FK plus joint Jacobian on the rigid model DH,s, which is what Pinocchio is given;
+  (``forward`` and ``jacobian``) and for a single one at a time (``forward_jacobian`` into a
+  ``Workspace`` made once, as Pinocchio's Data is);
+- the same FK plus joint Jacobian on the rigid model DH,s, which is what Pinocchio is given, and
+  for a single configuration through ``forward`` and ``jacobian`` too (a fresh evaluation per call);
 - Pinocchio's FK plus the joint Jacobian (``computeJointJacobians``) of that rigid model
   exported as URDF, one configuration per call, when Pinocchio is installed (``pip install
   '.[interop]'``). It has no derivatives with respect to the kinematic parameters or the
   compliances, and no gravity terms: a yardstick, not a drop-in.
 
-The first call of each case (which compiles or loads fgcal's kernel) is not timed.
-
-Interleaved rounds, the best of each kept, as the rest of the bench.
+The first call of each case (which compiles or loads fgcal's kernel) is not timed. The cases
+run in interleaved rounds (at least :data:`ROUNDS`: each takes milliseconds); each case's best
+is kept, and a ratio to Pinocchio is the median of the rounds' ratios (a round's cases share
+the machine's load). Issue 37's targets (:data:`TARGETS`) are stated met or not; those against
+Pinocchio are skipped without it.
 """
 
 from __future__ import annotations
@@ -31,14 +35,25 @@ import numpy as np
 from ..model import kinematics
 from ..model.robot_io import load_robot
 
+ROUNDS = 15
+# Issue 37's speed targets: (key, what, the case, its limit, against): a ratio to Pinocchio's
+# time at most the limit, or CPU us per configuration under it.
+TARGETS = (
+    ("rigid_batched", "rigid DH,s FK + joint Jacobian, batched", "rigid_joint_batched", 1.0, "pinocchio"),
+    ("rigid_single", "rigid DH,s FK + joint Jacobian, a single configuration", "rigid_joint_single", 3.0,
+     "pinocchio"),
+    ("param_single", "DH,s,e FK + all-parameter Jacobian, a single configuration", "param_single", 15.0, "us"),
+)  # fmt: skip
 
-def kernel_bench(repeats: int, say: Callable[[str], None], n: int = 1000, singles: int = 200) -> dict:
+
+def kernel_bench(repeats: int, say: Callable[[str], None], n: int = 1000) -> dict:
     compliant = load_robot("abb_irb120")
     rng = np.random.default_rng(0)
     params = compliant.parameter_vector({f"k{a}{j}": float(rng.uniform(1e-5, 5e-5)) for a in "xyz" for j in (1, 2, 3)})
     rigid = compliant.with_model("DH,s")  # the model Pinocchio is given
     rigid_params = rigid.parameter_vector({})
     q = rng.uniform(compliant.limits[:, 0], compliant.limits[:, 1], (n, compliant.n_joints))
+    rows = q[:, None]  # (n, 1, 6): each a single configuration, a view as Pinocchio's q[i] is
     joints = [f"q{i + 1}" for i in range(compliant.n_joints)]
 
     def batched(robot, values: np.ndarray, names: list[str]) -> float:
@@ -48,11 +63,17 @@ def kernel_bench(repeats: int, say: Callable[[str], None], n: int = 1000, single
         return (time.process_time() - started) / n * 1e6
 
     def single(robot, values: np.ndarray, names: list[str]) -> float:
+        work = kinematics.Workspace(robot, names)
         started = time.process_time()
-        for row in q[:singles]:
-            data = kinematics.forward(robot, values, row[None])
-            kinematics.jacobian(robot, data, names)
-        return (time.process_time() - started) / singles * 1e6
+        for row in rows:
+            kinematics.forward_jacobian(work, values, row)
+        return (time.process_time() - started) / n * 1e6
+
+    def single_calls(robot, values: np.ndarray, names: list[str]) -> float:
+        started = time.process_time()
+        for row in rows:
+            kinematics.jacobian(robot, kinematics.forward(robot, values, row), names)
+        return (time.process_time() - started) / n * 1e6
 
     cases = {
         "param_batched": lambda: batched(compliant, params, compliant.parameter_names),
@@ -61,43 +82,68 @@ def kernel_bench(repeats: int, say: Callable[[str], None], n: int = 1000, single
         "joint_single": lambda: single(compliant, params, joints),
         "rigid_joint_batched": lambda: batched(rigid, rigid_params, joints),
         "rigid_joint_single": lambda: single(rigid, rigid_params, joints),
+        "rigid_joint_single_calls": lambda: single_calls(rigid, rigid_params, joints),
     }
     pinocchio = _pinocchio(rigid)
     if pinocchio is not None:
         cases["pinocchio"] = lambda: pinocchio(q)
     for case in cases.values():  # the first call compiles or loads the kernel: not timed
         case()
-    best = dict.fromkeys(cases, np.inf)
-    for _ in range(repeats):
+    times: dict[str, list[float]] = {key: [] for key in cases}
+    for _ in range(max(repeats, ROUNDS)):
         for key, case in cases.items():
-            best[key] = min(best[key], case())
+            times[key].append(case())
+    best = {key: min(values) for key, values in times.items()}
+    ratio = {
+        key: float(np.median(np.array(times[key]) / np.array(times["pinocchio"]))) if pinocchio else None
+        for key in cases
+        if key != "pinocchio"
+    }
     result = {
         "kernel_robot": compliant.name,
         "kernel_n_configurations": n,
+        "kernel_rounds": len(times["param_batched"]),
         "kernel_fk_param_jacobian_batched_us": best["param_batched"],
         "kernel_fk_param_jacobian_single_us": best["param_single"],
         "kernel_fk_joint_jacobian_batched_us": best["joint_batched"],
         "kernel_fk_joint_jacobian_single_us": best["joint_single"],
         "kernel_rigid_fk_joint_jacobian_batched_us": best["rigid_joint_batched"],
         "kernel_rigid_fk_joint_jacobian_single_us": best["rigid_joint_single"],
+        "kernel_rigid_fk_joint_jacobian_single_calls_us": best["rigid_joint_single_calls"],
         "pinocchio_fk_joint_jacobian_us": best.get("pinocchio"),
+        "kernel_to_pinocchio": ratio if pinocchio else None,
+        "kernel_targets": {},
     }
     say(
-        f"  kinematics of the {compliant.name}, CPU us per configuration, batched ({n}) / single: model DH,s,e with "
-        f"compliances ({len(compliant.parameter_names)} parameters): FK + parameter Jacobian "
-        f"{best['param_batched']:.1f} / {best['param_single']:.1f}, FK + joint Jacobian {best['joint_batched']:.2f} / "
-        f"{best['joint_single']:.1f}; rigid DH,s: FK + joint Jacobian {best['rigid_joint_batched']:.2f} / "
-        f"{best['rigid_joint_single']:.1f}"
+        f"  kinematics of the {compliant.name}, CPU us per configuration, best of {result['kernel_rounds']} rounds, "
+        f"batched ({n}) / single (forward_jacobian into a Workspace): model DH,s,e with compliances "
+        f"({len(compliant.parameter_names)} parameters): FK + parameter Jacobian {best['param_batched']:.1f} / "
+        f"{best['param_single']:.1f}, FK + joint Jacobian {best['joint_batched']:.2f} / {best['joint_single']:.2f}; "
+        f"rigid DH,s: FK + joint Jacobian {best['rigid_joint_batched']:.2f} / {best['rigid_joint_single']:.2f} "
+        f"(single through forward and jacobian: {best['rigid_joint_single_calls']:.2f})"
     )
     if pinocchio is None:
-        say("  Pinocchio is not installed (pip install '.[interop]'): no yardstick")
+        say("  Pinocchio: skipped, pinocchio not installed (pip install '.[interop]')")
     else:
         say(
             f"  Pinocchio FK + joint Jacobian of the rigid DH,s model {best['pinocchio']:.2f} us per configuration "
-            f"(one per call): fgcal's on the same model is {best['rigid_joint_batched'] / best['pinocchio']:.1f}x "
-            f"batched, {best['rigid_joint_single'] / best['pinocchio']:.0f}x single; with the compliances, "
-            f"{best['joint_batched'] / best['pinocchio']:.1f}x batched"
+            f"(one per call); fgcal's on the same model, median ratio of the rounds: "
+            f"{ratio['rigid_joint_batched']:.2f}x batched, {ratio['rigid_joint_single']:.2f}x single "
+            f"({ratio['rigid_joint_single_calls']:.2f}x through forward and jacobian); with the compliances, "
+            f"{ratio['joint_batched']:.2f}x batched, {ratio['joint_single']:.2f}x single"
         )
+    say("  issue 37's targets:")
+    for key, what, case, limit, against in TARGETS:
+        if against == "us":
+            value, stated = best[case], f"under {limit:g} us"
+            shown = f"{value:.2f} us"
+        else:
+            value, stated = (None if ratio[case] is None else ratio[case]), f"within {limit:g}x Pinocchio"
+            shown = "skipped: pinocchio not installed" if value is None else f"{value:.2f}x"
+        met = None if value is None else bool(value <= limit if against != "us" else value < limit)
+        result["kernel_targets"][key] = {"what": what, "target": stated, "value": value, "met": met}
+        verdict = "" if met is None else (": met" if met else ": NOT met")
+        say(f"    {what}, {stated}: {shown}{verdict}")
     return result
 
 

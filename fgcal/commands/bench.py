@@ -22,10 +22,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
             f"fgcal: error: {faro}: no dataset.yaml (convert the FARO files with fgcal convert-faro)", file=sys.stderr
         )
         return 2
-    result = run_bench(
-        Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro, memory_n=args.memory_n,
-        program_targets=args.program_targets,
-    )
+    if args.kinematics:
+        from ..bench.kernel import kernel_bench
+
+        say("fgcal bench --kinematics: the chain's FK and Jacobians against Pinocchio, issue 37's targets")
+        result = kernel_bench(args.repeats, say)
+    else:
+        result = run_bench(
+            Path(args.out), seed=args.seed, sizes=sizes, repeats=args.repeats, say=say, faro=faro,
+            memory_n=args.memory_n, program_targets=args.program_targets,
+        )  # fmt: skip
     if args.json:
         print(strict_json.dumps(result))
     return 0
@@ -66,5 +72,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=4000,
         help="targets of the KRL program and CSV whose CPU per target fgcal compensate is timed on (default 4000; "
         "a twentieth of them is the start-up's baseline)",
+    )
+    p.add_argument(
+        "--kinematics",
+        action="store_true",
+        help="only the kinematics figures and issue 37's targets against Pinocchio (seconds, not minutes)",
     )
     p.set_defaults(func=cmd_bench)

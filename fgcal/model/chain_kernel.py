@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.compiled import compiled
+from ..core.compiled import compiled, view
 
 # The sections of a compiled model: each a C-ordered 2-D table; ``ints`` starts with a header of
 # three entries (offset, rows, columns) per section, the offsets of the real ones into ``reals``.
@@ -49,13 +49,12 @@ HEADER = 3 * N_SECTIONS
 def int_table(ints, which):
     """The integer section ``which`` of a compiled model, a view (rows, columns)."""
     offset, rows, columns = ints[3 * which], ints[3 * which + 1], ints[3 * which + 2]
-    return ints[offset : offset + rows * columns].reshape((rows, columns))
+    return view(ints[offset : offset + rows * columns], (rows, columns))
 
 
 @compiled(inline=True)
 def int_row(ints, which, row):
-    """Row ``row`` of the integer section ``which``, a view (columns,): no reshape, which costs
-    about 20 ns at every call."""
+    """Row ``row`` of the integer section ``which``, a view (columns,)."""
     offset, columns = ints[3 * which] + row * ints[3 * which + 2], ints[3 * which + 2]
     return ints[offset : offset + columns]
 
@@ -71,7 +70,7 @@ def real_row(ints, reals, which, row):
 def real_table(ints, reals, which):
     """The real section ``which`` of a compiled model, a view (rows, columns)."""
     offset, rows, columns = ints[3 * which], ints[3 * which + 1], ints[3 * which + 2]
-    return reals[offset : offset + rows * columns].reshape((rows, columns))
+    return view(reals[offset : offset + rows * columns], (rows, columns))
 
 
 @compiled(inline=True)
@@ -102,15 +101,15 @@ def evaluation(ints, buffer, n_conf):
     flags = int_row(ints, FLAGS, 0)
     offsets = evaluation_offsets(n_elements + 1, n_conf, n_links, n_bodies, flags[1], flags[0])
     frames, size = (n_elements + 1, n_conf, 3, 4), (n_elements + 1) * n_conf * 12
-    rigid = buffer[offsets[0] : offsets[0] + size].reshape(frames)
-    deformed = buffer[offsets[1] : offsets[1] + size].reshape(frames)
-    com_world = buffer[offsets[2] : offsets[3]].reshape((n_conf, n_bodies, 3))
-    weighted = buffer[offsets[3] : offsets[4]].reshape((n_conf, n_bodies, 3))
-    torque_world = buffer[offsets[4] : offsets[5]].reshape((n_conf, n_links, 3))
-    moments = buffer[offsets[5] : offsets[6]].reshape((n_conf, 3 * n_links))
+    rigid = view(buffer[offsets[0] : offsets[0] + size], frames)
+    deformed = view(buffer[offsets[1] : offsets[1] + size], frames)
+    com_world = view(buffer[offsets[2] : offsets[3]], (n_conf, n_bodies, 3))
+    weighted = view(buffer[offsets[3] : offsets[4]], (n_conf, n_bodies, 3))
+    torque_world = view(buffer[offsets[4] : offsets[5]], (n_conf, n_links, 3))
+    moments = view(buffer[offsets[5] : offsets[6]], (n_conf, 3 * n_links))
     carried_mass = buffer[offsets[6] : offsets[7]]
     body_masses = buffer[offsets[7] : offsets[8]]
-    rvec_left = buffer[offsets[8] : offsets[9]].reshape((flags[1], 3, 3))
+    rvec_left = view(buffer[offsets[8] : offsets[9]], (flags[1], 3, 3))
     return rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left
 
 
@@ -247,12 +246,25 @@ def forward(ints, reals, params, q, buffer):
     scale applied), the gravity moments, and, for a compliant model, the chain they deform.
     One call, where several would each pay the dispatch of their arrays (and returning an
     array costs its boxing)."""
-    tables, constants = int_table(ints, ELEMENTS), real_table(ints, reals, CONSTANTS)
-    body_frame, mass_param = int_row(ints, BODIES, 0), int_row(ints, BODIES, 1)
-    masses = real_row(ints, reals, MASSES, 0)
     rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses, rvec_left = evaluation(
         ints, buffer, q.shape[0]
     )
+    fill(
+        ints, reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
+        body_masses, rvec_left,
+    )  # fmt: skip
+
+
+@compiled(inline=True)
+def fill(
+    ints, reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, body_masses,
+    rvec_left,
+):  # fmt: skip
+    """:func:`forward`'s evaluation into the arrays of :func:`evaluation` (one implementation,
+    which fgcal.model.jacobian_kernel.forward_jacobian runs too)."""
+    tables, constants = int_table(ints, ELEMENTS), real_table(ints, reals, CONSTANTS)
+    body_frame, mass_param = int_row(ints, BODIES, 0), int_row(ints, BODIES, 1)
+    masses = real_row(ints, reals, MASSES, 0)
     kind, param, rvec_slot = tables[0], tables[1], tables[5]
     for k in range(kind.shape[0]):
         if kind[k] == 6:

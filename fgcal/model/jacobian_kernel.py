@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.compiled import compiled
+from ..core.compiled import compiled, view
 from . import chain_kernel as ck
 
 # What the kernel writes: spatial twists (N, T, 6), body twists (N, 6, T), a point's rates (N, 3, T).
@@ -44,6 +44,62 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
     feature that scales it (-1: none; ``motion`` (N, 2n) or (N, 0)), the moment that scales it
     (a compliance; -1: none), and for a mass scale its parameter; ``scales`` (E,) the joint
     signs and coupling coefficients. ``point`` (3,): the point of mode POINT, in the frame."""
+    rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left = ck.evaluation(
+        ints, buffer, out.shape[0]
+    )
+    _columns(
+        ints, reals, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left,
+        params, motion, entries, scales, frame, point, mode, out,
+    )  # fmt: skip
+
+
+# The tail of a workspace's integers (fgcal.model.kinematics.Workspace): where its arrays lie.
+WORK_TAIL = ("entries", "n_entries", "frame", "mode", "scales", "point", "buffer", "out", "n_conf", "n_targets",
+             "n_params", "n_joints")  # fmt: skip
+N_WORK_TAIL = len(WORK_TAIL)
+
+
+@compiled
+def forward_jacobian(params, q, motion, work_ints, work_reals):
+    """chain_kernel.forward at ``q``, then :func:`jacobian`, in one call, on a workspace's two
+    arrays (fgcal.model.kinematics.Workspace): ``work_ints`` the model's ``ints``, then the
+    Jacobian's entries, then :data:`WORK_TAIL`; ``work_reals`` the model's ``reals``, then the
+    scales, the point, the evaluation's buffer and the Jacobian ``out``, where the tail says.
+    Numba unboxes every array argument at every call (50-70 ns each): five arrays where the two
+    calls took fourteen. The shapes are checked here, where it costs nothing (ValueError)."""
+    tail = work_ints[work_ints.shape[0] - N_WORK_TAIL :]
+    at, n_entries, frame, mode, n_conf, n_targets = tail[0], tail[1], tail[2], tail[3], tail[8], tail[9]
+    n_joints = tail[11]
+    if params.shape[0] != tail[10] or q.shape[0] != n_conf or q.shape[1] != n_joints:
+        raise ValueError("the parameters (P,) and joint values (N, n) are not of the workspace's shapes")
+    if motion.shape[1] > 0 and (motion.shape[0] != n_conf or motion.shape[1] != 2 * n_joints):
+        raise ValueError("the motion features (N, 2n) are not of the workspace's shape")
+    rows = 6 if mode == BODY else 3
+    entries = view(work_ints[at : at + 6 * n_entries], (6, n_entries))
+    scales = work_reals[tail[4] : tail[4] + n_entries]
+    point = work_reals[tail[5] : tail[5] + 3]
+    buffer = work_reals[tail[6] : tail[7]]
+    out = view(work_reals[tail[7] : tail[7] + n_conf * rows * n_targets], (n_conf, rows, n_targets))
+    rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left = ck.evaluation(
+        work_ints, buffer, q.shape[0]
+    )
+    ck.fill(
+        work_ints, work_reals, params, q, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass,
+        masses, rvec_left,
+    )  # fmt: skip
+    _columns(
+        work_ints, work_reals, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses,
+        rvec_left, params, motion, entries, scales, frame, point, mode, out,
+    )  # fmt: skip
+
+
+@compiled(inline=True)
+def _columns(
+    ints, reals, rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left,
+    params, motion, entries, scales, frame, point, mode, out,
+):  # fmt: skip
+    """:func:`jacobian` on the evaluation's arrays (chain_kernel.evaluation): its one
+    implementation."""
     tables = ck.int_table(ints, ck.ELEMENTS)
     kind, param, moment, start, rvec_slot = tables[0], tables[1], tables[2], tables[4], tables[5]
     mass_param, bend = ck.int_row(ints, ck.BODIES, 1), ck.int_row(ints, ck.BENDS, 0)
@@ -51,9 +107,6 @@ def jacobian(ints, reals, buffer, params, motion, entries, scales, frame, point,
     set_bodies, moved_set = ck.int_table(ints, ck.BODY_SETS), ck.int_row(ints, ck.MOVED_SET, 0)
     nominal, g = ck.real_row(ints, reals, ck.MASSES, 0), ck.real_row(ints, reals, ck.GRAVITY, 0)
     n_conf = out.shape[0]
-    rigid, deformed, com_world, weighted, torque_world, moments, carried_mass, masses, rvec_left = ck.evaluation(
-        ints, buffer, n_conf
-    )
     targets, elements, columns, features, moment_of, mass_of = (
         entries[0], entries[1], entries[2], entries[3], entries[4], entries[5]
     )  # fmt: skip

@@ -2,7 +2,9 @@
 and analytic Jacobians (SPEC sections 2 and 3).
 
 ``forward(robot, params, q, motion)`` returns a :class:`KinematicsData`; the other functions
-take the robot and that data. The robot's constant tables are its compiled model
+take the robot and that data. For one configuration at a time, :func:`forward_jacobian` fills a
+:class:`Workspace` its caller made once (Pinocchio's Data): FK and one Jacobian in one compiled
+call. The robot's constant tables are its compiled model
 (fgcal.model.chain_model, built once per robot); nothing is kept between calls. ``motion`` are
 the motion-history features of the configurations (fgcal.model.motion): with model DH,s,e,h the
 chain sees the joint values ``q' = q + F_lm lm + F_lv lv`` (N, n), and every derivative goes
@@ -267,3 +269,80 @@ def _columns(data: KinematicsData, wrt: Sequence[str], frame: str | int, mode: i
         entries, scales, index, point, mode, out,
     )  # fmt: skip
     return out
+
+
+class Workspace:
+    """Pinocchio's Data for the repeated evaluation of one Jacobian: the buffers an evaluation
+    at ``n_conf`` configurations writes, and the Jacobian's constant arguments (its entries, the
+    frame's index, the point), made once by their caller and overwritten by every
+    :func:`forward_jacobian` on it. What a single configuration's FK and Jacobian cost, without a
+    Python layer or an allocation per call: an IK step, an online update (docs/model.md,
+    Performance). Nothing in it outlives a call but what the caller reads before the next:
+    ``jacobian``, ``frames`` and ``moments`` are the last call's.
+
+    The kernel gets it as two arrays (jacobian_kernel.forward_jacobian): the model's integer
+    tables with the entries and where everything lies, and its real tables with the scales, the
+    point, the evaluation's buffer and the Jacobian; ``buffer`` and ``jacobian`` are views."""
+
+    __slots__ = ("buffer", "ints", "jacobian", "model", "n_conf", "reals", "wrt")
+
+    def __init__(
+        self, robot: Robot, wrt: Sequence[str], frame: str | int = "flange", point: np.ndarray | None = None,
+        n_conf: int = 1,
+    ) -> None:  # fmt: skip
+        model = chain_model.of(robot)
+        index = model.frame_index(frame)
+        entries, scales = model.columns(wrt)
+        if point is None:
+            mode, point, rows = jacobian_kernel.BODY, np.zeros(3), 6
+        else:
+            point = np.asarray(point, dtype=float)
+            if point.shape != (3,) or not np.all(np.isfinite(point)):
+                raise InputError(None, "point", f"a finite point (3,) in the frame, m; got shape {point.shape}")
+            mode, rows = jacobian_kernel.POINT, 3
+        self.model, self.wrt, self.n_conf = model, tuple(wrt), int(n_conf)
+        n_reals, size, n_out = len(model.reals), model.buffer_size(self.n_conf), self.n_conf * rows * len(self.wrt)
+        at_buffer = n_reals + len(scales) + 3
+        self.reals = np.concatenate([model.reals, scales, point, np.zeros(size + n_out)])
+        tail = dict(
+            entries=len(model.ints), n_entries=entries.shape[1], frame=index, mode=mode, scales=n_reals,
+            point=n_reals + len(scales), buffer=at_buffer, out=at_buffer + size, n_conf=self.n_conf,
+            n_targets=len(self.wrt), n_params=len(model.parameter_index), n_joints=model.n_joints,
+        )  # fmt: skip
+        self.ints = np.concatenate([model.ints, entries.reshape(-1), [tail[key] for key in jacobian_kernel.WORK_TAIL]])
+        self.buffer = self.reals[at_buffer : at_buffer + size]
+        # (N, 6, T) body twists or (N, 3, T) a point's rates
+        self.jacobian = self.reals[at_buffer + size :].reshape(self.n_conf, rows, len(self.wrt))
+
+    @property
+    def frames(self) -> np.ndarray:
+        """(K+1, N, 3, 4) the last call's deformed chain (views of the buffer)."""
+        return self.model.array(self.buffer, "frames", self.n_conf)
+
+    @property
+    def moments(self) -> np.ndarray:
+        """(N, 3L) the last call's gravity moments (a view of the buffer)."""
+        return self.model.array(self.buffer, "moments", self.n_conf)
+
+
+def forward_jacobian(
+    work: Workspace, params: np.ndarray, q: np.ndarray, motion: np.ndarray | None = None
+) -> np.ndarray:  # fmt: skip
+    """:func:`forward` and :func:`jacobian` of ``work``'s names, frame and point in one compiled
+    call, into ``work``'s buffers: its Jacobian ``work.jacobian`` (N, 6, T) or (N, 3, T), which
+    the next call overwrites. ``params`` (P,) and ``q`` (N, n) float arrays of its shapes
+    (ValueError otherwise, from the kernel); ``motion`` (N, 2n) the motion-history features, as
+    forward's. Nothing else is done in Python: each line here costs tens of ns, of about 3 us."""
+    if motion is None or not work.model.history:
+        _forward_jacobian(params, q, _NO_MOTION, work.ints, work.reals)
+        return work.jacobian
+    motion = np.ascontiguousarray(motion, dtype=float)
+    first, n = work.model.motion_first, work.model.n_joints
+    if motion.shape != (q.shape[0], 2 * n):
+        raise ValueError(f"motion features of shape {motion.shape} for joint values of shape {q.shape}")
+    q = q + motion[:, :n] * params[first : first + n] + motion[:, n:] * params[first + n : first + 2 * n]
+    _forward_jacobian(params, q, motion, work.ints, work.reals)
+    return work.jacobian
+
+
+_forward_jacobian = jacobian_kernel.forward_jacobian
