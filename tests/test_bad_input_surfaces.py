@@ -650,6 +650,13 @@ CASES = [
      (root / "c.dat").write_text("TOOL_DATA[1]={X 0,Y 0,Z 1,A 0,B 0,C 0}\nLOAD_DATA[1]={M nan,CM {X 0},J {X 0}}\n"),
      (root / "p.dat").write_text("DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n")),
      ["compensate", "abb_irb120", "p.dat", "--out", "o.dat", "--declarations", "c.dat"]), "LOAD_DATA[1]", "M"),
+    ("declarations_tool_data_twice", _prepare_then(lambda root: (
+     (root / "c.dat").write_text("TOOL_DATA[1]={X 0,Y 0,Z 1,A 0,B 0,C 0}\nTOOL_DATA[1]={X 0,Y 0,Z 2,A 0,B 0,C 0}\n"),
+     (root / "p.dat").write_text("DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\nENDDAT\n")),
+     ["compensate", "abb_irb120", "p.dat", "--out", "o.dat", "--declarations", "c.dat"]), "line 2, TOOL_DATA[1]",
+     "given twice"),
+    ("krl_angle_beyond_a_turn", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 6e5,B 0,C 0}\nENDDAT\n",
+     out="o.dat"), "XP1", "beyond a turn"),
     ("declarations_on_a_csv", _argv("compensate", "robot.yaml", "targets.csv", "--out", "o.csv", "--declarations",
      "u.sys"), "--declarations", "RAPID"),
     ("krl_fdat_tool_undeclared", _program("p.dat", "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0}\n"

@@ -314,3 +314,72 @@ def test_payload_com_follows_the_length_unit(tmp_path, capsys):
     assert main([*base, str(tmp_path / "p.mod"), "--out", str(tmp_path / "o.mod"), "--payload-com", "0", "0",
                  "8"]) == 2  # fmt: skip
     assert "beyond the arm's reach" in capsys.readouterr().err
+
+
+def _module(targets, moves: list[str], declarations: str) -> str:
+    lines = ["MODULE M", declarations]
+    for name, T, c in targets:
+        position, quaternion = format_rapid_pose(T)
+        lines.append(f"  CONST robtarget {name}:=[{position},{quaternion},[{c['cf1']},{c['cf4']},{c['cf6']},"
+                     f"{c['cfx']}],[9E9,9E9,9E9,9E9,9E9,9E9]];")  # fmt: skip
+    return "\n".join([*lines, "  PROC main()", *[f"    {m}" for m in moves], "  ENDPROC", "ENDMODULE", ""])
+
+
+def test_each_target_takes_its_own_tools_load(tmp_path, capsys):
+    """Targets moved with tools of different loads each get their own tool's deflection (they
+    were refused, with advice to filter with one --tool that then applied to every target), a
+    RAPID \\TLoad replaces its tool's load (it was ignored: 0.9 mm on a 5 kg load), and a tool
+    with no load data (tool0; KUKA's M -1) takes the robot file's payload (it took another
+    tool's). Each target's corrections are those of the same target alone with its load stated."""
+    robot_file = _calibrated(tmp_path, "abb_irb120", {**COMPLIANT, "a2": 2e-4})
+    nominal = fgcal.load_robot("abb_irb120")
+    q, poses = _targets(nominal, n=3)
+    targets = [(f"p{k}", poses[k], c) for k, c in enumerate(configurations(nominal, "rapid", q))]
+    declarations = ("  PERS tooldata gun:=[TRUE,[[0,0,0],[1,0,0,0]],[2,[0,0,50],[1,0,0,0],0,0,0]];\n"
+                    "  PERS loaddata heavy:=[5,[0,0,100],[1,0,0,0],0,0,0];")  # fmt: skip
+    moves = ["MoveJ p0, v100, fine, gun;", "MoveJ p1, v100\\T:=5, fine, gun\\TLoad:=heavy;",
+             "MoveJ p2, v100, fine, tool0;"]
+    (tmp_path / "mixed.mod").write_text(_module(targets, moves, declarations))
+    assert main(["compensate", str(robot_file), str(tmp_path / "mixed.mod"), "--out", str(tmp_path / "m.mod")]) == 0
+    mixed = _table_figures(tmp_path / "m.corrections.csv")
+    header = " ".join(line[1:].strip() for line in (tmp_path / "m.mod").read_text().splitlines() if line[:1] == "!")
+    assert "each target's tool's load" in header and "loaddata heavy (\\TLoad) 5 kg" in header, header
+    alone = {"p0": ("2", ["0", "0", "0.05"]), "p1": ("5", ["0", "0", "0.1"]), "p2": ("0", ["0", "0", "0"])}
+    for k, (name, (mass, com)) in enumerate(alone.items()):
+        (tmp_path / f"{name}.mod").write_text(_module([targets[k]], [f"MoveJ {name}, v100, fine, tool0;"], ""))
+        argv = ["compensate", str(robot_file), str(tmp_path / f"{name}.mod"), "--out", str(tmp_path / f"a{k}.mod"),
+                "--payload-mass", mass, "--payload-com", *com]  # fmt: skip
+        assert main(argv) == 0
+        np.testing.assert_allclose(mixed[name], _table_figures(tmp_path / f"a{k}.corrections.csv")[name], atol=1e-3)
+    # The load matters: p1 with its tool's 2 kg rather than the \TLoad's 5 kg lands elsewhere.
+    argv = ["compensate", str(robot_file), str(tmp_path / "p1.mod"), "--out", str(tmp_path / "g.mod"),
+            "--payload-mass", "2", "--payload-com", "0", "0", "0.05"]  # fmt: skip
+    assert main(argv) == 0
+    assert np.abs(mixed["p1"] - _table_figures(tmp_path / "g.corrections.csv")["p1"]).max() > 0.005  # mm
+    capsys.readouterr()
+
+
+def test_a_kuka_tool_without_load_data_takes_the_robot_files_payload(tmp_path, capsys):
+    """$config.dat: TOOL_DATA[2] with LOAD_DATA[2] M -1 (KUKA's "no load data") beside a 50 kg
+    tool 1: XP2 is corrected at the robot file's payload (it took tool 1's 50 kg: 1.6 mm)."""
+    robot_file = _calibrated(tmp_path, "kuka_kr125_2", {**COMPLIANT, "a2": 5e-4})
+    nominal = fgcal.load_robot("kuka_kr125_2")
+    q, poses = _targets(nominal, n=2, seed=7)
+    krl = _krl([(f"XP{k + 1}", poses[k], c) for k, c in enumerate(configurations(nominal, "krl", q))])
+    fdat = "DECL FDAT FP1={TOOL_NO 1,BASE_NO 0}\nDECL FDAT FP2={TOOL_NO 2,BASE_NO 0}\nENDDAT"
+    (tmp_path / "p.dat").write_text(krl.replace("ENDDAT", fdat))
+    (tmp_path / "c.dat").write_text(
+        "TOOL_DATA[1]={X 0,Y 0,Z 0,A 0,B 0,C 0}\nTOOL_DATA[2]={X 0,Y 0,Z 0,A 0,B 0,C 0}\n"
+        "LOAD_DATA[1]={M 50,CM {X 0,Y 0,Z 250,A 0,B 0,C 0},J {X 0,Y 0,Z 0}}\n"
+        "LOAD_DATA[2]={M -1,CM {X 0,Y 0,Z 0,A 0,B 0,C 0},J {X 0,Y 0,Z 0}}\n"
+    )
+    argv = ["compensate", str(robot_file), str(tmp_path / "p.dat"), "--out", str(tmp_path / "o.dat"),
+            "--declarations", str(tmp_path / "c.dat")]  # fmt: skip
+    assert main(argv) == 0
+    both = _table_figures(tmp_path / "o.corrections.csv")
+    (tmp_path / "p2.dat").write_text(_krl([("XP2", poses[1], configurations(nominal, "krl", q)[1])]))
+    assert main(["compensate", str(robot_file), str(tmp_path / "p2.dat"), "--out", str(tmp_path / "o2.dat")]) == 0
+    np.testing.assert_allclose(both["XP2"], _table_figures(tmp_path / "o2.corrections.csv")["XP2"], atol=1e-3)
+    header = " ".join(line[1:].strip() for line in (tmp_path / "o.dat").read_text().splitlines() if line[:1] == ";")
+    assert "LOAD_DATA[1] 50 kg" in header and "the robot file's payload" in header, header
+    capsys.readouterr()

@@ -357,7 +357,8 @@ def test_declarations_in_another_module_give_the_corrections_of_declarations_in_
     assert _corrections(tmp_path / "bare_cal.corrections.csv") == _corrections(tmp_path / "own_cal.corrections.csv")
     lines = (tmp_path / "bare_cal.mod").read_text().splitlines()
     header = " ".join(line[1:].strip() for line in lines if line[0] == "!")
-    assert "tooldata torch's tload" in header and "declared in user.sys (--declarations)" in header
+    assert "tooldata torch's tload" in header
+    assert "declared by --declarations: torch in user.sys, table in user.sys" in header
     argv = ["compensate", robot, str(tmp_path / "own.mod"), "--out", str(tmp_path / "twice.mod"), "--declarations",
             str(tmp_path / "user.sys")]  # fmt: skip
     assert main(argv) == 2
@@ -402,4 +403,4 @@ def test_krl_tools_and_bases_come_from_the_config_dat_its_fdats_name(kr125, tmp_
     lines = (tmp_path / "config.dat").read_text().splitlines()
     header = " ".join(line[1:].strip() for line in lines if line[0] == ";")
     assert "TOOL_DATA[3]" in header and "BASE_DATA[2]" in header and "12.5 kg" in header
-    assert "declared in $config.dat (--declarations)" in header
+    assert "declared by --declarations: TOOL_DATA[3] in $config.dat, BASE_DATA[2] in $config.dat" in header

@@ -563,3 +563,14 @@ def test_krl_arrays_give_their_elements(tmp_path):
     with pytest.raises(InputError, match="outside the array's declared size") as info:
         _read(tmp_path, KRL_ARRAYS.replace("XPS[3]={", "XPS[4]={"), "bad.dat")
     assert info.value.field == "line 4, XPS[4]"
+
+
+def test_external_axes_are_noticed(tmp_path):
+    """A target with an external axis's value (a track: RAPID eax_a not 9E9, KRL E1 not 0) is
+    marked, so that the command says fgcal corrects it as if the base did not move."""
+    rapid = _read(tmp_path, _robtarget().replace(EXTAX, "[1500,9E9,9E9,9E9,9E9,9E9]"), "track.mod")
+    assert rapid.targets[0].external_axes
+    assert not _read(tmp_path, _robtarget(), "plain.mod").targets[0].external_axes
+    krl = _read(tmp_path, "DEFDAT P\nDECL E6POS XP1={X 1,Y 2,Z 3,A 0,B 0,C 0,E1 1000.0,E2 0.0}\n"
+                "DECL E6POS XP2={X 1,Y 2,Z 3,A 0,B 0,C 0,E1 0.0}\nENDDAT\n", "track.dat")  # fmt: skip
+    assert [t.external_axes for t in krl.targets] == [True, False]

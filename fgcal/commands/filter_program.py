@@ -21,7 +21,7 @@ def compensate_program(
     the tool's load's: --payload-mass/--payload-com, else the tooldata's tload, else the robot's."""
     from ..core.errors import InputError
     from ..core.outputs import distinct, output_file, write_bytes
-    from ..data.assumptions import payload_text
+    from ..data.assumptions import mixed_payload_text, payload_text
     from ..data.dataset import write_csv
     from ..data.program_filter import (
         UNCHANGED_M,
@@ -95,7 +95,10 @@ def compensate_program(
         for k, target in enumerate(program.targets)
         if written[k]
     }
-    payload = payload_text(result.payload_mass_kg, result.payload_com_m, frames.payload_source, robot.payload_mass)
+    if frames.loads is None:
+        payload = payload_text(result.payload_mass_kg, result.payload_com_m, frames.payload_source, robot.payload_mass)
+    else:
+        payload = mixed_payload_text(frames.loads, frames.load_sources, robot.payload_mass)
     assumptions = _assumptions(program, robot, nominal, frames, result.controller_in_W, payload, approach)
     text, shift = with_header(program, write_program(program, corrected, out), assumptions.commented(
         COMMENT[program.kind]))  # fmt: skip
@@ -108,8 +111,14 @@ def compensate_program(
         "status": counts,
         "correction_max_m": float(result.correction_m[written].max()) if written.any() else 0.0,
         "rotation_max_rad": float(result.correction_rad[written].max()) if written.any() else 0.0,
-        "controller_in_W": result.controller_in_W.tolist(), "payload_mass_kg": result.payload_mass_kg,
-        "payload_com_m": [float(v) for v in result.payload_com_m],
+        "controller_in_W": result.controller_in_W.tolist(),
+        # One load for every target; where the tools carry different ones, null and each under payloads.
+        "payload_mass_kg": result.payload_mass_kg if frames.loads is None else None,
+        "payload_com_m": [float(v) for v in result.payload_com_m] if frames.loads is None else None,
+        "payloads": None if frames.loads is None else [
+            {"source": whose, "mass_kg": float(row[0]), "com_m": [float(v) for v in row[1:]]}
+            for row, whose in dict(zip(map(tuple, frames.loads), frames.load_sources, strict=True)).items()
+        ],
     })  # fmt: skip
     if written.any():
         say(
@@ -139,9 +148,9 @@ def _assumptions(program, robot, nominal, frames, T_W_ctrl: np.ndarray, payload:
         )
 
     krl = program.kind == "krl"
-    used = {name.lower() for name in (*frames.tool_names, *frames.work_object_names)}
-    files = sorted({file for name, file in program.declared_in.items() if name in used})
-    from_files = f"; declared in {', '.join(files)} (--declarations)" if files else ""
+    used = {name.lower(): name for name in (*frames.tool_names, *frames.work_object_names)}
+    declared = [f"{used[name]} in {file}" for name, file in program.declared_in.items() if name in used]
+    from_files = f"; declared by --declarations: {', '.join(declared)}" if declared else ""
     return Assumptions(
         what=f"corrected by fgcal compensate for a controller running the nominal model of {nominal.name} "
         f"({robot.name} as calibrated; the table beside this file lists each target)",

@@ -74,6 +74,22 @@ def frame_text(frame: str, T_W_ctrl: np.ndarray) -> str:
            "the calibrated one over the calibrated region)"  # fmt: skip
 
 
+def mixed_payload_text(loads: np.ndarray, sources: tuple[str, ...], calibration_kg: float) -> str:
+    """Where the targets' tools carry different loads (rows [kg, centre of mass m]): each load,
+    whose it is and how many targets have it, and the payload the base frame was placed at."""
+    groups: dict[tuple, list] = {}
+    for row, whose in zip(map(tuple, loads), sources, strict=True):
+        groups.setdefault((row, whose), []).append(1)
+    listed = "; ".join(
+        f"{whose} {row[0]:g} kg, centre of mass {_vector(np.array(row[1:]), 1e3, 'mm')} ({len(n)} targets)"
+        for (row, whose), n in groups.items()
+    )
+    return (
+        f"deflection at each target's tool's load (in the flange frame): {listed}; the controller's base frame "
+        f"placed at the calibration's payload, {calibration_kg:g} kg"
+    )
+
+
 def payload_text(mass_kg: float, com_m: np.ndarray, source: str, calibration_kg: float) -> str:
     """The load the deflection was computed for, whose it is, and the payload the base frame was placed at."""
     return (

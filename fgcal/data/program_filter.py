@@ -53,6 +53,10 @@ class Frames:
     payload_source: str = "the robot file's: the calibration's payload"  # whose load it is, in words
     tool_names: tuple[str, ...] = ()  # per target: a tooldata's name, tool0 or the --tool numbers
     work_object_names: tuple[str, ...] = ()  # per target: a wobjdata's name, wobj0 or the --base numbers
+    # Where the targets' tools carry different loads: per target [mass kg, centre of mass m (3)]
+    # and whose load it is (payload_* then unused); None: one load for every target.
+    loads: np.ndarray | None = None
+    load_sources: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -359,8 +363,14 @@ def filter_targets(
     # The base frame is the robot's, whatever it carries: placed at the calibration's payload, so
     # that the sag of the tool's load is corrected, not absorbed into the frame.
     T_W_ctrl = controller_frame(robot, nominal)
-    if frames.payload_mass_kg is not None:
-        robot = robot.with_tool(robot.tool_pose, frames.payload_mass_kg, frames.payload_com_m)
+    if frames.loads is not None:  # each target's tool's own load: solved in groups of one load
+        groups, group_of = np.unique(frames.loads, axis=0, return_inverse=True)
+        loaded = [robot.with_tool(robot.tool_pose, float(g[0]), g[1:]) for g in groups]
+        robot = loaded[0]  # (no lost motion with mixed loads: program_frames refuses it)
+    else:
+        if frames.payload_mass_kg is not None:
+            robot = robot.with_tool(robot.tool_pose, frames.payload_mass_kg, frames.payload_com_m)
+        loaded, group_of = [robot], np.zeros(len(poses), dtype=int)
     flange = frames.work_objects @ poses @ inverse(frames.tools)  # in the controller's base frame
     # Beyond the arm's reach the controller's IK need not search (thousands of far targets would
     # take minutes); the calibrated IK then fails fast from the middle of the ranges.
@@ -374,14 +384,16 @@ def filter_targets(
         near = rows[within[rows]]
         if len(near):
             q_nominal[near], found[near] = controller_ik(nominal, flange[near], kind, [configs[k] for k in near])
-        parts.append(robot.ik(T_W_ctrl @ flange[rows], q_nominal[rows], frame="flange"))
+        for group, carrying in enumerate(loaded):
+            mine = rows[group_of[rows] == group]
+            if len(mine):
+                parts.append((mine, carrying.ik(T_W_ctrl @ flange[mine], q_nominal[mine], frame="flange")))
         chunk_done(progress, int(rows[-1]) + 1, len(poses), started)
-    solved = IKResult(
-        *(
-            np.concatenate([getattr(part, key) for part in parts])
-            for key in ("q", "status", "residual_m", "residual_rad")
-        )
-    )
+    solved = IKResult(q_nominal.copy(), np.empty(len(poses), dtype=object), np.zeros(len(poses)), np.zeros(len(poses)))
+    for mine, part in parts:
+        solved.q[mine], solved.status[mine] = part.q, part.status
+        solved.residual_m[mine], solved.residual_rad[mine] = part.residual_m, part.residual_rad
+    solved.status = solved.status.astype(str)
     solved.status[~within] = "unreachable"
     motion_offset = motion_unsolved = None
     if path is not None and robot.history:
@@ -552,7 +564,8 @@ def program_frames(
                          f"in the program: give {holder} with --declarations, or {option} X Y Z A B C "
                          "(mm, deg)")  # fmt: skip
 
-    tools, objects, loads, tool_names, object_names = [], [], {}, [], []
+    tools, objects, tool_names, object_names = [], [], [], []
+    carried: list[tuple[float, tuple[float, ...], str] | None] = []  # per target: its tool's load, None: unknown
     for target in program.targets:
         if target.fixed_tool:
             raise InputError(program.path, f"line {target.line}, {target.name}", "its FDAT's IPO_FRAME #TCP (an "
@@ -560,30 +573,52 @@ def program_frames(
         used = tool_given if tool_given is not None else target.tool
         tool_data, name = resolve(target, used, program.tools, "tool0", "tool", "--tool")
         tool_names.append(name)
+        load = None
         if isinstance(tool_data, np.ndarray):
             tools.append(tool_data)
         else:
             if not tool_data.robhold:
                 raise InputError(program.path, f"tooldata {used}", "a stationary tool (robhold FALSE) is not supported")
             tools.append(tool_data.tcp)
-            if tool_data.mass_kg > 0:
-                loads.setdefault((tool_data.mass_kg, tuple(tool_data.cog_m)), name)
+            if tool_data.mass_kg > 0:  # 0 (RAPID), M -1 (KUKA's "no load data"): not known
+                source = f"LOAD_DATA[{name[10:-1]}]" if name.startswith("TOOL_DATA[") else f"tooldata {name}'s tload"
+                load = (tool_data.mass_kg, tuple(tool_data.cog_m), source)
+        if target.tool_load is not None:  # RAPID \TLoad: the load the motion states, before the tool's
+            declared_load = _declared(target.tool_load, program.loads)
+            if declared_load is None:
+                raise InputError(program.path, f"line {target.line}, {target.name}", f"\\TLoad {target.tool_load!r} is "
+                                 "not declared: give the module that declares it with --declarations")  # fmt: skip
+            mass, cog = program.loads[declared_load]
+            load = (mass, tuple(cog), f"loaddata {declared_load} (\\TLoad)")
+        carried.append(load)
         used = base_given if base_given is not None else target.work_object
         frame, name = resolve(target, used, program.work_objects, "wobj0", "work object", "--base")
         objects.append(frame)
         object_names.append(name)
-    if len(loads) > 1 and (payload_mass is None or payload_com is None):
-        raise InputError(program.path, "tooldata", "the targets use tools of different loads: filter them one tool "
-                         "at a time (--tool NAME), or state one load (--payload-mass and --payload-com)")  # fmt: skip
-    if loads:
-        (mass, cog), name = next(iter(loads.items()))
-        source = f"tooldata {name}'s tload"
-    else:
-        mass, cog = None, None
-        source = Frames.payload_source + (
-            "; --payload-mass and --payload-com state the tool's load" if program.kind == "krl"
-            else "; a tooldata's tload, or --payload-mass and --payload-com, state the tool's load"
-        )  # fmt: skip
+    known = {load for load in carried if load is not None}
+    mixed = len({(m, c) for m, c, _ in known}) + (None in carried and bool(known)) > 1
+    loads = load_sources = None
+    mass, cog = None, None
+    source = Frames.payload_source + (
+        "; --payload-mass and --payload-com state the tool's load" if program.kind == "krl"
+        else "; a tooldata's tload, or --payload-mass and --payload-com, state the tool's load"
+    )  # fmt: skip
+    stated = payload_mass is not None or payload_com is not None
+    if mixed and stated and (payload_mass is None or payload_com is None):
+        raise InputError(program.path, "tooldata", "the targets' tools carry different loads: state both "
+                         "--payload-mass and --payload-com (one load for every target), or neither (each target its "
+                         "tool's)")  # fmt: skip
+    if mixed and not stated:
+        if robot.history:
+            raise InputError(program.path, "tooldata", "the targets' tools carry different loads, and with lost motion "
+                             "each target's allowance depends on the one before: state one load (--payload-mass and "
+                             "--payload-com), or split the program by tool")  # fmt: skip
+        own = (float(robot.payload_mass), tuple(float(v) for v in robot.payload_com), "the robot file's payload")
+        rows = [load or own for load in carried]
+        loads = np.array([[m, *c] for m, c, _ in rows], dtype=float)
+        load_sources = tuple(whose for _, _, whose in rows)
+    elif known:
+        mass, cog, source = next(iter(known))
     if payload_mass is not None or payload_com is not None:  # stated: before the tooldata's
         named = [option for option, value in (("--payload-mass", payload_mass), ("--payload-com", payload_com))
                  if value is not None]  # fmt: skip
@@ -596,7 +631,8 @@ def program_frames(
         source = " and ".join(named) + rest
     return Frames(
         np.array(objects).reshape(-1, 4, 4), np.array(tools).reshape(-1, 4, 4), mass,
-        None if cog is None else np.array(cog), source, tuple(tool_names), tuple(object_names),
+        None if cog is None else np.array(cog), source, tuple(tool_names), tuple(object_names), loads,
+        load_sources or (),
     )  # fmt: skip
 
 
@@ -639,6 +675,12 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
             f"{len(inline)} motions with a target written inline ([[x, y, z], ...]; lines {shown}) are not "
             "corrected: they have no name to correct them by; declare them as robtargets"
         )
+    moved = [t.name for t in program.targets if t.external_axes]
+    if moved:
+        named = ", ".join(moved[:5]) + (", ..." if len(moved) > 5 else "")
+        notes.append(f"{len(moved)} targets ({named}) give external axes' values (a track, a positioner): fgcal "
+                     "models the robot alone, and corrects them as if the robot's base did not move with those "
+                     "axes")  # fmt: skip
     source, lines = krl_inline_targets(program)
     if lines:
         shown = ", ".join(map(str, lines[:8])) + (", ..." if len(lines) > 8 else "")
@@ -649,9 +691,9 @@ def check_program(program, tool_given: bool, base_given: bool) -> list[str]:
                  (t.work_object is None and not base_given)]  # fmt: skip
         if plain:
             named = ", ".join(plain[:5]) + (", ..." if len(plain) > 5 else "")
-            notes.append(f"{len(plain)} KRL targets ({named}) name no TOOL_NO or BASE_NO in an FDAT: they are taken "
-                         "with $TOOL = the flange and $BASE = the robot's base frame where --tool and --base do not "
-                         "give them")  # fmt: skip
+            notes.append(f"{len(plain)} KRL targets ({named}) have TOOL_NO or BASE_NO 0, or no FDAT: they are "
+                         "taken with $TOOL = the flange or $BASE = the robot's base frame where --tool and --base do "
+                         "not give them")  # fmt: skip
     return notes
 
 

@@ -73,6 +73,8 @@ class ProgramTarget:
     moves: int = 0  # RAPID: how many motion instructions use it (Offs/RelTool of it too)
     approached_from: str | None = None  # RAPID: the target the robot comes from there (None: unknown)
     fixed_tool: bool = False  # KRL: its FDAT's IPO_FRAME #TCP (an external TCP: the part moves)
+    tool_load: str | None = None  # RAPID: the loaddata of that instruction's \TLoad (it replaces the tool's)
+    external_axes: bool = False  # an external axis's value given (RAPID: not 9E9; KRL: E1..E6 not 0)
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,7 @@ class Program:
     work_objects: dict[str, np.ndarray]  # RAPID wobjdata: uframe @ oframe; KRL: BASE_DATA[m]; (4, 4) m
     encoding: str = "utf-8"  # "latin-1" when the file is not UTF-8: write the new text back with it
     declared_in: dict[str, str] = field(default_factory=dict)  # lower-case name -> the file (--declarations)
+    loads: dict[str, tuple[float, np.ndarray]] = field(default_factory=dict)  # RAPID loaddata: kg, centre of mass m
 
 
 # ---------------------------------------------------------------------------------------------
@@ -130,10 +133,10 @@ def read_program(path: str | Path) -> Program:
     try:
         if suffix in KRL_SUFFIXES:
             return Program(path, "krl", text, _krl_targets(text, path), {}, {}, encoding)
-        targets, tools, work_objects = _read_rapid(text, path)
+        targets, tools, work_objects, loads = _read_rapid(text, path)
     except RecursionError:
         raise InputError(path, None, "brackets nested too deeply for a robot program") from None
-    return Program(path, "rapid", text, targets, tools, work_objects, encoding)
+    return Program(path, "rapid", text, targets, tools, work_objects, encoding, loads=loads)
 
 
 MAX_PROGRAM_BYTES = 32 * 10**6  # a 32 MB module holds some 200 000 targets
@@ -368,7 +371,7 @@ def _integers(values: list[float], leaves: list[_Leaf], what: str, ctx: _Context
 
 
 _STORAGE = ("const", "pers", "var")
-_DATA_TYPES = ("robtarget", "tooldata", "wobjdata")
+_DATA_TYPES = ("robtarget", "tooldata", "wobjdata", "loaddata")
 
 
 class _Declaration(NamedTuple):
@@ -447,32 +450,43 @@ def _robtarget(value: _Node, ctx: _Context) -> ProgramTarget:
     trans, trans_leaves = _numbers(trans_node, 3, "position [x,y,z]", ctx)
     quat, quat_leaves = _numbers(rot_node, 4, "orientation [q1,q2,q3,q4]", ctx)
     conf, conf_leaves = _numbers(conf_node, 4, "robconf [cf1,cf4,cf6,cfx]", ctx)
-    _numbers(extax_node, 6, "external axes", ctx)
+    extax, _ = _numbers(extax_node, 6, "external axes", ctx)
     q = _unit_quaternion(quat, quat_leaves[0].line, "orientation", ctx)
     config = dict(zip(_RAPID_CONF_KEYS, _integers(conf, conf_leaves, "robconf", ctx), strict=True))
     leaves = trans_leaves + quat_leaves + conf_leaves
     spans = {key: (leaf.start, leaf.end) for key, leaf in zip(_RAPID_POSE_KEYS + _RAPID_CONF_KEYS, leaves, strict=True)}
     pose = se3.pose(se3.quaternion_rotation(q), np.array(trans) * MM)
-    return ProgramTarget(ctx.name, ctx.line, pose, config, spans=spans)
+    moved = any(abs(v) < RAPID_UNUSED_AXIS for v in extax)  # 9E9: the axis is not used
+    return ProgramTarget(ctx.name, ctx.line, pose, config, spans=spans, external_axes=moved)
+
+
+RAPID_UNUSED_AXIS = 8.9e9  # RAPID's 9E9 (9E+09) marks an unused external axis
 
 
 def _tooldata(value: _Node, ctx: _Context) -> ToolData:
     """``[robhold, [[x,y,z],[q]], [mass, [cx,cy,cz], [aq1..aq4], ix, iy, iz]]`` (mm, kg)."""
     what = "tooldata [robhold, tframe, tload]"
     robhold, tframe, tload = _aggregate(value, 3, what, ctx)
-    mass_node, cog_node, aom_node, *inertia = _aggregate(tload, 6, "tload [mass, cog, aom, ix, iy, iz]", ctx)
-    cog, _ = _numbers(cog_node, 3, "tload cog", ctx)
-    _numbers(aom_node, 4, "tload aom", ctx)
-    for node in inertia:
-        _number(node, "tload inertia", ctx)
+    mass, cog = _load(tload, "tload [mass, cog, aom, ix, iy, iz]", ctx)
     tcp = _frame(tframe, "tframe", ctx)
-    mass = _number(mass_node, "tload mass", ctx)
+    return ToolData(tcp, mass, cog, _boolean(robhold, "robhold", ctx))
+
+
+def _load(node: _Node, what: str, ctx: _Context) -> tuple[float, np.ndarray]:
+    """A loaddata ``[mass, [cx, cy, cz], [aom q1..q4], ix, iy, iz]``: kg and the centre of mass (m)."""
+    name = what.split(" ")[0]
+    mass_node, cog_node, aom_node, *inertia = _aggregate(node, 6, what, ctx)
+    cog, _ = _numbers(cog_node, 3, f"{name} cog", ctx)
+    _numbers(aom_node, 4, f"{name} aom", ctx)
+    for item in inertia:
+        _number(item, f"{name} inertia", ctx)
+    mass = _number(mass_node, f"{name} mass", ctx)
     if not 0.0 <= mass <= MAX_LOAD_KG or np.abs(cog).max() > MAX_COG_MM:
         raise ctx.fail(
-            _first_line(tload, ctx), f"tload: a mass of 0 to {MAX_LOAD_KG:g} kg and a cog within {MAX_COG_MM:g} mm, "
+            _first_line(node, ctx), f"{name}: a mass of 0 to {MAX_LOAD_KG:g} kg and a cog within {MAX_COG_MM:g} mm, "
             f"got {mass:g} kg at {[float(v) for v in cog]}",
         )  # fmt: skip
-    return ToolData(tcp, mass, np.array(cog) * MM, _boolean(robhold, "robhold", ctx))
+    return mass, np.array(cog) * MM
 
 
 MAX_LOAD_KG, MAX_COG_MM = 10000.0, 10000.0
@@ -491,12 +505,13 @@ def _wobjdata(value: _Node, ctx: _Context) -> np.ndarray:
     return _frame(uframe, "uframe", ctx) @ _frame(oframe, "oframe", ctx)
 
 
-def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[str, ToolData], dict[str, np.ndarray]]:
-    """A RAPID module's targets, tools and work objects."""
+def _read_rapid(text: str, path: Path):
+    """A RAPID module's targets, tools, work objects and loads (loaddata)."""
     tokens = _rapid_tokens(text)
     targets: list[ProgramTarget] = []
     tools: dict[str, ToolData] = {}
     work_objects: dict[str, np.ndarray] = {}
+    loads: dict[str, tuple[float, np.ndarray]] = {}
     seen: dict[str, int] = {}
     for declaration in _rapid_declarations(text, tokens, path):
         ctx = declaration.ctx
@@ -507,12 +522,14 @@ def _read_rapid(text: str, path: Path) -> tuple[tuple[ProgramTarget, ...], dict[
             targets.append(_robtarget(declaration.value, ctx))
         elif declaration.data_type == "tooldata":
             tools[ctx.name] = _tooldata(declaration.value, ctx)
+        elif declaration.data_type == "loaddata":
+            loads[ctx.name] = _load(declaration.value, "loaddata [mass, cog, aom, ix, iy, iz]", ctx)
         else:
             work_objects[ctx.name] = _wobjdata(declaration.value, ctx)
     uses = _motion_uses(tokens)
     # An array's element goes by its own use (pts{2}), else by a loop's over the array (pts{i}).
     targets = [_with_use(target, _use_of(target.name, uses)) for target in targets]
-    return tuple(targets), tools, work_objects
+    return tuple(targets), tools, work_objects, loads
 
 
 def joint_path(program: Program) -> list[JointTarget]:
@@ -569,7 +586,7 @@ def _with_use(target: ProgramTarget, use: _Use | None) -> ProgramTarget:
         return target
     return replace(
         target, tool=use.tool, work_object=use.work_object, first_move=use.first_plain, moves=use.count,
-        approached_from=use.approached_from,
+        approached_from=use.approached_from, tool_load=use.tool_load,
     )  # fmt: skip
 
 
@@ -602,6 +619,7 @@ class _Use:
     tool: str | None
     work_object: str | None
     count: int = 1
+    tool_load: str | None = None  # the instruction's \TLoad
     first_plain: int | None = None
     approached_from: str | None = None
 
@@ -616,6 +634,7 @@ def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
         if spec is None or (i > 0 and tokens[i - 1].text.lower() == "proc"):
             continue
         arguments, wobj = _instruction_arguments(tokens, i + 1)
+        tload = _optional_name(tokens, i + 1, "tload")
         n_targets, tool_index = spec
         tool = _single_name(arguments[tool_index]) if len(arguments) > tool_index else None
         for argument in arguments[:n_targets]:
@@ -623,7 +642,7 @@ def _motion_uses(tokens: list[_Token]) -> dict[str, _Use]:
             plain = _single_name(argument)
             if name is not None:
                 name = _array_key(name) or name
-                use = uses.setdefault(name.lower(), _Use(tool, wobj, count=0))
+                use = uses.setdefault(name.lower(), _Use(tool, wobj, count=0, tool_load=tload))
                 use.count += 1
                 if plain is not None and use.first_plain is None:
                     use.first_plain, use.approached_from = ordinal, previous
@@ -654,6 +673,17 @@ def _instruction_arguments(tokens: list[_Token], i: int) -> tuple[list[list[_Tok
     if current:
         arguments.append(current)
     return arguments, wobj
+
+
+def _optional_name(tokens: list[_Token], i: int, argument: str) -> str | None:
+    """The name an instruction starting at token ``i`` gives its optional ``\\Argument :=``."""
+    while i < len(tokens) and tokens[i].text != ";":
+        window = tokens[i : i + 4]
+        if len(window) == 4 and window[0].text == "\\" and window[1].text.lower() == argument and \
+                window[2].kind == "assign":  # fmt: skip
+            return window[3].text if window[3].kind == "name" else None
+        i += 1
+    return None
 
 
 def _wobj_at(tokens: list[_Token], i: int) -> str | None:
@@ -862,9 +892,16 @@ def _krl_from_components(
     values = {key: _krl_real(key, components[key][0], fail) for key in _KRL_POSE_KEYS}
     config = {key: _krl_integer(key, components[key][0], fail) for key in _KRL_CONF_KEYS if key in components}
     spans = {key: components[key][1:] for key in _KRL_POSE_KEYS + _KRL_CONF_KEYS if key in components}
+    for key in "ABC":
+        if abs(values[key]) > 360.0:  # KRL writes -180..180: beyond a turn is a typo (A 6e5)
+            raise fail(f"{key}: {values[key]:g} deg is beyond a turn")
     xyz_m = np.array([values["X"], values["Y"], values["Z"]]) * MM
     rpy_rad = np.radians([values["C"], values["B"], values["A"]])
-    return ProgramTarget(name, line, se3.pose_from_xyz_rpy(xyz_m, rpy_rad), config, spans=spans)
+    moved = any(key in components and _krl_real(key, components[key][0], fail) != 0.0 for key in _KRL_EXTERNAL_KEYS)
+    return ProgramTarget(name, line, se3.pose_from_xyz_rpy(xyz_m, rpy_rad), config, spans=spans, external_axes=moved)
+
+
+_KRL_EXTERNAL_KEYS = ("E1", "E2", "E3", "E4", "E5", "E6")
 
 
 def _krl_real(key: str, text: str, fail: _Fail) -> float:
@@ -900,8 +937,8 @@ def with_declarations(program: Program, paths: list[str | Path]) -> Program:
     (``user.sys``: their tooldata and wobjdata), KUKA's ``$config.dat`` (``TOOL_DATA[n]``,
     ``BASE_DATA[m]``, and ``LOAD_DATA[n]`` as tool n's load). A name declared twice, in the
     program and a file or in two files, is refused naming both."""
-    tools, objects = dict(program.tools), dict(program.work_objects)
-    where = {name.lower(): program.path for name in [*tools, *objects]}
+    tools, objects, found_loads = dict(program.tools), dict(program.work_objects), dict(program.loads)
+    where = {name.lower(): program.path for name in [*tools, *objects, *found_loads]}
     for path in map(Path, paths):
         if program.kind == "rapid":
             other = read_program(path)
@@ -909,13 +946,18 @@ def with_declarations(program: Program, paths: list[str | Path]) -> Program:
                 accepted = ", ".join(RAPID_SUFFIXES)
                 raise InputError(path, "--declarations", f"a RAPID program takes RAPID modules ({accepted})")
             found_tools, found_objects = other.tools, other.work_objects
+            for name in other.loads:
+                if name.lower() in where:
+                    raise InputError(path, name, f"declared in {where[name.lower()]} too: give one file")
+                where[name.lower()] = path
+            found_loads.update(other.loads)
         else:
             if path.suffix.lower() not in KRL_SUFFIXES:
                 raise InputError(path, "--declarations", "a KRL program takes KUKA's $config.dat (TOOL_DATA...)")
             found_tools, found_objects = _krl_system_data(path)
-        if not found_tools and not found_objects:
-            raise InputError(path, "--declarations", "declares no tool or work object (tooldata, wobjdata; TOOL_DATA, "
-                             "BASE_DATA)")  # fmt: skip
+        if not found_tools and not found_objects and not (program.kind == "rapid" and other.loads):
+            raise InputError(path, "--declarations", "declares no tool, work object or load (tooldata, wobjdata, "
+                             "loaddata; TOOL_DATA, BASE_DATA)")  # fmt: skip
         for name in [*found_tools, *found_objects]:
             if name.lower() in where:
                 raise InputError(path, name, f"declared in {where[name.lower()]} too: which one the controller uses "
@@ -924,7 +966,7 @@ def with_declarations(program: Program, paths: list[str | Path]) -> Program:
         tools.update(found_tools)
         objects.update(found_objects)
     files = {name: path.name for name, path in where.items() if path != program.path}
-    return replace(program, tools=tools, work_objects=objects, declared_in=files)
+    return replace(program, tools=tools, work_objects=objects, declared_in=files, loads=found_loads)
 
 
 def _krl_system_data(path: Path) -> tuple[dict[str, ToolData], dict[str, np.ndarray]]:
@@ -933,6 +975,7 @@ def _krl_system_data(path: Path) -> tuple[dict[str, ToolData], dict[str, np.ndar
     text, _ = _read_text(path)
     frames: dict[str, np.ndarray] = {}
     loads: dict[int, tuple[float, np.ndarray]] = {}
+    seen: dict[str, int] = {}
     for number, start in enumerate(_line_starts(text), 1):
         code = _KRL_CODE.match(text, start).group()
         match = _KRL_SYSTEM.match(code)
@@ -941,6 +984,9 @@ def _krl_system_data(path: Path) -> tuple[dict[str, ToolData], dict[str, np.ndar
         kind, index, body = match.group(1).upper(), int(match.group(2)), match.group(3)
         name = f"{kind}[{index}]"
         fail = partial(InputError, path, f"line {number}, {name}")
+        if name in seen:
+            raise fail(f"given twice (first on line {seen[name]}): which one the controller holds is not clear")
+        seen[name] = number
         if kind == "LOAD_DATA":
             load = _KRL_LOAD.match(body)
             if load is None:
