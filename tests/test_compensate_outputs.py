@@ -383,3 +383,14 @@ def test_a_kuka_tool_without_load_data_takes_the_robot_files_payload(tmp_path, c
     header = " ".join(line[1:].strip() for line in (tmp_path / "o.dat").read_text().splitlines() if line[:1] == ";")
     assert "LOAD_DATA[1] 50 kg" in header and "the robot file's payload" in header, header
     capsys.readouterr()
+
+
+def test_a_program_of_another_robot_is_said(tmp_path, capsys):
+    """An IRB 120 module compensated with the KR 125: no target is reached on its configuration,
+    and the command says so rather than only counting statuses."""
+    nominal = fgcal.load_robot("abb_irb120")
+    q, poses = _targets(nominal, n=2)
+    (tmp_path / "p.mod").write_text(_rapid([(f"p{k}", poses[k], c) for k, c in
+                                            enumerate(configurations(nominal, "rapid", q))]))  # fmt: skip
+    assert main(["compensate", "kuka_kr125_2", str(tmp_path / "p.mod"), "--out", str(tmp_path / "o.mod")]) == 0
+    assert "none of the 2 targets was corrected" in "".join(capsys.readouterr())

@@ -171,7 +171,10 @@ def _said(result, written: np.ndarray, moved: np.ndarray, kind: str, table: str)
     solved = np.isin(result.status, WRITTEN)
     if (solved & ~moved).any():
         say(f"  {count(int((solved & ~moved).sum()), 'target')} need no correction (below 0.5 um and 0.01 urad): kept")
-    if (~solved).any():
+    if not solved.any():
+        warn(f"none of the {count(len(solved), 'target')} was corrected (see their status in {table}): is the "
+             "calibrated robot the program's, and are its tool and work objects right?")  # fmt: skip
+    elif (~solved).any():
         say(f"  {count(int((~solved).sum()), 'target')} left as they were: see their status in {table}")
     if result.in_region is not None and (solved & ~result.in_region).any():
         warn(
