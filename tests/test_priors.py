@@ -71,3 +71,46 @@ def test_a_stated_prior_holds_a_parameter_and_determines_a_weak_direction(tmp_pa
     entry = report_dict(held)["parameters"]
     assert entry["theta2"]["prior"] == "stated" and entry["theta2"]["prior_sigma"] == pytest.approx(1e-9)
     assert entry["d4"]["prior"] == "soft bound" and entry["d4"]["prior_sigma"] == 0.01
+
+
+def test_a_prior_keeps_its_sigma_when_the_noise_is_scaled(tmp_path, capsys):
+    """When chi2/dof scales the measurements' noise, a parameter only its stated prior
+    determines keeps the prior's sigma (the whole covariance was scaled: base.tz read 3.6 mm
+    under a 0.5 mm prior); one the data determine is scaled by sqrt(chi2/dof)."""
+    import json
+
+    from fgcal.commands.cli import main
+
+    assert main(["simulate", "dual_arm_tracker", "--out", str(tmp_path / "sim"), "--n", "120", "--seed", "1"]) == 0
+    (tmp_path / "u.yaml").write_text("dataset: sim\nformulation: tracker\nunits: {length: mm, angle: deg}\n"
+                                     "bounds: {base.tz: 0.5, d2: 0.2, alpha: 0.01}\n")  # fmt: skip
+    assert main(["calibrate", str(tmp_path / "u.yaml"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    capsys.readouterr()
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    factor = report["goodness_of_fit"]["variance_factor"]
+    assert factor > 10  # the bounds hold the truth's deviations off: the noise does not explain the fit
+    p = report["parameters"]
+    assert abs(p["base.tz"]["sigma"] / 5e-4 - 1) < 1e-6  # nothing but the prior determines base.tz
+    assert p["alpha2"]["sigma"] <= p["alpha2"]["prior_sigma"] * (1 + 1e-6)
+    a2 = p["a2"]  # well determined by the data: its sigma scales with the noise
+    assert abs(a2["sigma"] / (a2["sigma_declared_noise"] * factor**0.5) - 1) < 0.05
+
+
+def test_parameters_held_from_an_earlier_stage_are_said(tmp_path, capsys):
+    """stages: [[theta], [a]]: the thetas move in the first stage and the last holds them. They
+    read "fixed", with no sigma and no reason, and the prediction left their uncertainty out;
+    now their status names the stage, and the headline warns."""
+    import json
+
+    from fgcal.commands.cli import main
+
+    assert main(["simulate", "irb120_tracker", "--out", str(tmp_path / "sim"), "--n", "60", "--seed", "1"]) == 0
+    (tmp_path / "s.yaml").write_text("dataset: sim\nformulation: tracker\nstages: [[theta], [a]]\n")
+    assert main(["calibrate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    capsys.readouterr()
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    p = report["parameters"]
+    held = [n for n, e in p.items() if e["status"].startswith("held at stage")]
+    assert "theta2" in held and all(p[n]["sigma"] is None and n.startswith("theta") for n in held)
+    assert p["a2"]["status"] == "estimated"
+    assert any("estimated in an earlier stage and held there" in w for w in report["warnings"])

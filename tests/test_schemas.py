@@ -187,7 +187,7 @@ BAD = [
      ["calibrate", "FILE", "--out", "o"], "stages[0]"),
     ("cell_unknown_key", "cell", "cell.yaml", CELL + "\ntracker_noise: 3\n", ["simulate", "FILE", "--out", "o"],
      "tracker_noise"),
-    ("cell_design_count_text", "cell", "cell.yaml", CELL + "\ndesign: {n_configurations: many}\n",
+    ("cell_design_count_text", "cell", "cell.yaml", CELL.replace("n_configurations: 100", "n_configurations: many"),
      ["simulate", "FILE", "--out", "o"], "design.n_configurations"),
     ("robot_mass_negative", "robot", "robot.yaml", ROBOT.replace("mass: 3.067", "mass: -3.067"),
      ["fk", "FILE", "0", "0", "0", "0", "0", "0"], "joints[0].mass"),

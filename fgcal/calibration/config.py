@@ -87,7 +87,13 @@ def _stages(config: ConfigSchema, source: Path) -> tuple[str, tuple[tuple[str, .
         if config.schedule == "custom":
             raise InputError(source, "stages", "schedule 'custom' needs a stages list")
         return config.schedule, SEED_STAGES if config.schedule == "staged" else ONE_SHOT
-    return "custom", tuple(tuple(stage) for stage in config.stages)
+    stages = tuple(tuple(stage) for stage in config.stages)
+    if "schedule" in config.model_fields_set and config.schedule != "custom":
+        own = SEED_STAGES if config.schedule == "staged" else ONE_SHOT
+        if stages != tuple(tuple(stage) for stage in own):  # a schedule the stages overrule: say which one runs
+            raise InputError(source, "schedule", f"{config.schedule!r} with a stages list that is not its own steps: "
+                             "the stages run; write schedule: custom (or leave schedule: out)")  # fmt: skip
+    return "custom", stages
 
 
 def _validation_datasets(raw: str | list[str] | None, base: Path, source: Path) -> tuple[Path, ...]:

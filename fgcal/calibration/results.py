@@ -201,6 +201,19 @@ class CalibrationResult:
         return self.problem.formulation
 
     @property
+    def held_from_earlier_stages(self) -> dict[str, int]:
+        """Parameters a stage before the last moved and the last did not release -> the last
+        stage (1-based) that estimated them: held at that value, their uncertainty in no sigma
+        and no prediction."""
+        final = set(self.released)
+        out: dict[str, int] = {}
+        for k, stage in enumerate(self.stages[:-1], 1):
+            for name in stage.released:
+                if name not in final:
+                    out[name] = k
+        return out
+
+    @property
     def sigmas(self) -> dict[str, float]:
         """Sigma of each released parameter (SI), scaled by the fit's variance factor."""
         if self.covariance is None:

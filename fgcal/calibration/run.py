@@ -273,7 +273,8 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     factor = fit.variance_factor if fit is not None else 1.0
     if fit is not None and not fit.consistent:
         say(f"  {fit.sentence()}")
-    covariance = declared.scaled(factor) if declared is not None else None
+    # The measurements' noise scaled by the fit's variance factor, the stated priors as stated.
+    covariance = joint_covariance(last_stage, last_values, factor) if declared is not None else None
     evidence: dict[str, float] = {}
     fixed = [name for name in released_by_stages if name in final_ident.unidentifiable]
     if last_stage is not None and fixed:

@@ -42,12 +42,35 @@ def read_file_text(path: str | Path, encoding: str = "utf-8", limit: int = MAX_F
         raise InputError(path, None, f"cannot read file: {exc}") from None
 
 
+class _DuplicateKey(yaml.MarkedYAMLError):
+    pass
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a key given twice in one mapping: PyYAML keeps the last one
+    silently, and a config with validation: typed twice ran on the second."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                first = seen.get(key)
+            except TypeError:  # an unhashable key: the base class says so
+                break
+            if first is not None:
+                raise _DuplicateKey(None, None, f"key {key!r} given twice (first on line {first})", key_node.start_mark)
+            seen[key] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep)
+
+
 def read_yaml(path: str | Path) -> Any:
-    """``yaml.safe_load`` a file; unreadable or malformed files raise :class:`InputError`."""
+    """Safely load a YAML file (yaml.SafeLoader, refusing a key given twice); unreadable or
+    malformed files raise :class:`InputError`."""
     path = Path(path)
     text = read_file_text(path)
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""

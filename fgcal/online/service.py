@@ -129,6 +129,10 @@ class OnlineService:
         dataset = load_dataset(self.config["dataset"])
         robot = self._robot(dataset, setup or config_path)
         settings = _settings(self.config)
+        missing = [j for j in settings.compliant_joints or () if not 1 <= j <= robot.n_joints]
+        if missing:  # it read as no compliance at all (the batch calibration refuses it too)
+            raise InputError(setup or config_path, "settings.compliant_joints", f"joint {missing[0]} does not exist: "
+                             f"{robot.name} has joints 1 to {robot.n_joints}")  # fmt: skip
         if "formulation" in self.config:  # any registered formulation, through its protocol
 
             def new_calibrator():

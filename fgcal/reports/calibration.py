@@ -45,6 +45,7 @@ def report_dict(result: CalibrationResult) -> dict:
     deflections, angles = compliance_effects(result)
     parameters = {}
     released_by_stages = set(releasable(problem.candidates, config.stages))
+    held = result.held_from_earlier_stages
     for name in problem.candidates:
         entry = {
             "unit": unit_of(name),
@@ -53,7 +54,8 @@ def report_dict(result: CalibrationResult) -> dict:
             "difference_from_nominal": estimate[name] - nominal[name],
             "sigma": sigmas.get(name),
             "sigma_declared_noise": declared.get(name),
-            "status": "estimated" if name in sigmas else "fixed" if name in released_by_stages else "not released",
+            "status": "estimated" if name in sigmas else f"held at stage {held[name]}'s estimate" if name in held
+            else "fixed" if name in released_by_stages else "not released",
         }
         if name in absorbs:
             entry["effective_value_absorbs"] = sorted(absorbs[name])

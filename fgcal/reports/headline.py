@@ -100,6 +100,15 @@ def warnings(result: CalibrationResult) -> list[str]:
         ),
         key=lambda item: -item[1],
     )  # fmt: skip
+    held = result.held_from_earlier_stages
+    if held:
+        listed = ", ".join(f"{name} (stage {k})" for name, k in list(held.items())[:6])
+        more = f" and {len(held) - 6} more" if len(held) > 6 else ""
+        out.append(
+            f"{len(held)} parameters were estimated in an earlier stage and held there by the last one, which does "
+            f"not release them: {listed}{more}; their uncertainty is in no sigma and no predicted accuracy of this "
+            "report (release them in the last stage)"
+        )
     if against:
         listed = ", ".join(f"{name} ({sigmas:.3g} sigma)" for name, sigmas in against[:6])
         more = f" and {len(against) - 6} more" if len(against) > 6 else ""
