@@ -70,6 +70,9 @@ class CalibrationConfig:
     units: Units = field(default_factory=Units)
     units_source: str = "SI: neither the config nor the dataset states units"
     formulation_source: str = "the config"
+    # The formulation-specific settings the config states (dotted: pairs, noise.tracker_sigma,
+    # robust.pixels, ...): one the formulation does not read is said (reports.headline.warnings).
+    stated_options: frozenset[str] = frozenset()
 
     @property
     def noise(self):
@@ -195,7 +198,11 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         intrinsics_prior_sigmas=_intrinsics(config.intrinsics),
         validation_tool_points=validation_tool_points,
     )
+    given = {key for key in ("pairs", "fixture_orientation", "intrinsics") if key in config.model_fields_set}
+    given |= {f"noise.{key}" for key in (config.noise.model_fields_set if config.noise else ())}
+    given |= {f"robust.{key}" for key in (config.robust.model_fields_set if config.robust else ())}
     return CalibrationConfig(
+        stated_options=frozenset(given),
         path=source,
         dataset=(base / config.dataset),
         formulation=formulation,

@@ -261,6 +261,9 @@ class Formulation(ABC):
     frame: ClassVar[str]  # what the kinematics give the measurements: flange or tool
     unit: ClassVar[str] = "m"  # of the residuals (m or px), in stage reports
     kind: ClassVar[str]  # the measurement table, and its robust.* entry
+    # The formulation-specific config settings it reads (noise.<key>, pairs, intrinsics, ...;
+    # robust.<kind> always): a config stating another has it said, not silently ignored.
+    settings_read: ClassVar[tuple[str, ...]] = ()
     rejection_name: ClassVar[str] = "point"  # report.json's key of a rejected measurement's name
     score: ClassVar[str] = "tool_point"  # the held-out score against measurements
     score_width: ClassVar[int] = 3  # rows of the main set's residual per scored measurement

@@ -32,16 +32,24 @@ def _units(dataset: Dataset) -> Units:
     return parse_units(dataset.header.get("units"), Path(dataset.path) / "dataset.yaml")
 
 
+def _read_noise(formulation: str, noise: dict) -> dict:
+    """The noise entries the formulation reads (a cell's other instruments' stay in the dataset:
+    stated in the config they would be said to have no effect)."""
+    read = REGISTRY[formulation].settings_read
+    return {key: value for key, value in noise.items() if f"noise.{key}" in read}
+
+
 def suggested_config(cell: Cell, dataset: Dataset) -> dict:
     joints = [j for j in cell.perturbation.compliant_joints if j <= dataset.robot.n_links]
     units = _units(dataset)
+    formulation = suggested_formulation(cell)
     return {
         "dataset": ".",
-        "formulation": suggested_formulation(cell),
+        "formulation": formulation,
         "model": "DH,s,e,h" if cell.motion is not None else "DH,s,e",
         "compliant_joints": joints,
         "units": {"length": units.length, "angle": units.angle},
-        "noise": noise_document(dataset.noise, units),
+        "noise": _read_noise(formulation, noise_document(dataset.noise, units)),
     }
 
 
@@ -55,8 +63,9 @@ def dataset_config(dataset: Dataset) -> dict:
         raise InputError(dataset.path, "measured", "no measured table a formulation reads")
     config = {"dataset": ".", "formulation": readers[0], "model": "DH,s,e",
               "units": {"length": units.length, "angle": units.angle}}  # fmt: skip
-    if dataset.noise:
-        config["noise"] = noise_document(dataset.noise, units)
+    noise = _read_noise(readers[0], noise_document(dataset.noise, units)) if dataset.noise else {}
+    if noise:
+        config["noise"] = noise
     return config
 
 

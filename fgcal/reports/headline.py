@@ -100,6 +100,13 @@ def warnings(result: CalibrationResult) -> list[str]:
         ),
         key=lambda item: -item[1],
     )  # fmt: skip
+    formulation = problem.formulation
+    unread = sorted(config.stated_options - set(formulation.settings_read) - {f"robust.{formulation.kind}"})
+    if unread:
+        out.append(
+            f"the config states settings the {formulation.name} formulation does not read: {', '.join(unread)}; "
+            "they have no effect on this calibration (another formulation's, or a typo of one)"
+        )
     held = result.held_from_earlier_stages
     if held:
         listed = ", ".join(f"{name} (stage {k})" for name, k in list(held.items())[:6])

@@ -101,6 +101,11 @@ def simulate(
                 n_configurations=n_configurations or cell.design.n_configurations,
             ),
         )
+    sized = cell.touch is None and cell.ballbar is None and (cell.camera is None or cell.design.kind == "space_filling")
+    if n_configurations is not None and configurations is None and not sized:  # it was read and ignored
+        what = ("a touch or ballbar cell's configurations are its readings" if cell.camera is None
+                else "the cell's seed design has its own viewpoints: add --design space_filling")  # fmt: skip
+        raise InputError(None, "--n", f"sets the size of a space-filling design; {what}")
     if configurations is not None:
         if design is not None or n_configurations is not None:
             raise InputError(None, "--configurations", "takes the place of --design and --n")

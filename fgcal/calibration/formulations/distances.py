@@ -50,6 +50,7 @@ class DistanceReadings(Formulation):
     name = "distances"
     frame = "flange"
     kind = "distances"
+    settings_read = ("noise.distance_sigma",)
     score = "distance"
     score_width = 1
     score_vectors = False

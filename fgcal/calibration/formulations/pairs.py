@@ -93,6 +93,7 @@ class Pairs(Formulation):
     name = "pairs"
     frame = "tool"
     kind = "camera_points"
+    settings_read = ("pairs", "fixture_orientation", "noise.camera_point_sigma")
     score = "point_pair"
     score_vectors = False
     likely_causes = (

@@ -54,6 +54,7 @@ class MeasuredPoses(Formulation):
     name = "poses"
     frame = "flange"
     kind = "tracker_poses"
+    settings_read = ("noise.pose_sigma", "noise.pose_angle_sigma")
     score_width = 6
     score_rows = slice(3, 6)  # the position rows of each pose's Log
     likely_causes = (

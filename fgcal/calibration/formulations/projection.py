@@ -36,6 +36,7 @@ class Projection(Formulation):
     frame = "tool"
     unit = "px"
     kind = "pixels"
+    settings_read = ("noise.pixel_sigma_px", "intrinsics")
     score = "reprojection"
     score_width = 2
     score_vectors = False

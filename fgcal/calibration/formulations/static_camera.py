@@ -37,6 +37,7 @@ class StaticCamera(Formulation):
     frame = "flange"
     unit = "px"
     kind = "pixels"
+    settings_read = ("noise.pixel_sigma_px", "intrinsics")
     score = "reprojection"
     score_width = 2
     score_vectors = False

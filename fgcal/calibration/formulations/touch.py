@@ -65,6 +65,7 @@ class Touch(Formulation):
     name = "touch"
     frame = "flange"
     kind = "touch_points"
+    settings_read = ("noise.touch_sigma", "noise.spacing_sigma")
     likely_causes = (
         "touch rows naming the wrong point, joint angles in other units than units: declares, or another robot than "
         "the one that moved"

@@ -79,6 +79,7 @@ class Tracker(Formulation):
     name = "tracker"
     frame = "flange"
     kind = "tracker_points"
+    settings_read = ("noise.tracker_sigma",)
     rejection_name = "target"
     likely_causes = (
         "the tracker points do not belong to their configurations (rows shifted, configuration ids mismatched), "
