@@ -208,10 +208,11 @@ Units = checked(
     _units,
     {
         "type": "object",
-        "description": "The units of the file's lengths and angles (default m and rad); masses are in kg.",
+        "description": "The units of the file's lengths and angles; masses are in kg. Left out: m and rad, "
+        "except in a calibration config, whose units are then the dataset's.",
         "properties": {
-            "length": {"enum": list(LENGTH_UNITS), "default": "m"},
-            "angle": {"enum": list(ANGLE_UNITS), "default": "rad"},
+            "length": {"enum": list(LENGTH_UNITS)},
+            "angle": {"enum": list(ANGLE_UNITS)},
             "mass": {"enum": ["kg"], "default": "kg"},
         },
         "additionalProperties": False,

@@ -686,8 +686,8 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                     else "."
                 ),
             ]
-            if "warning" in p:
-                lines += ["", f"**Warning:** {p['warning']}."]
+            if "warning" in p:  # (the headline's warnings say it first)
+                lines += ["", "Measured above the prediction: see the warnings at the top."]
         if val.get("by_tip"):
             lines += ["", "Held out per tip (each chain on its own; RMS, mm):", "",
                       "| tip | errors | before | after | predicted |", "|---|---|---|---|---|"]  # fmt: skip

@@ -100,6 +100,11 @@ def warnings(result: CalibrationResult) -> list[str]:
         ),
         key=lambda item: -item[1],
     )  # fmt: skip
+    from .calibration import predicted_sigma  # (reports.calibration imports this module)
+
+    predicted = predicted_sigma(result)
+    if predicted is not None and "warning" in predicted:  # an accuracy not to sign as predicted
+        out.append(predicted["warning"])
     formulation = problem.formulation
     unread = sorted(config.stated_options - set(formulation.settings_read) - {f"robust.{formulation.kind}"})
     if unread:
