@@ -279,13 +279,13 @@ def test_inline_targets_of_the_src_beside_a_dat_are_listed(tmp_path, capsys):
     nominal = fgcal.load_robot("kuka_kr125_2")
     q = np.radians([[10, -80, 100, 5, 40, 20]])
     (tmp_path / "P.dat").write_text(_krl([("XP1", nominal.fk(q)[0], configurations(nominal, "krl", q)[0])]))
-    (tmp_path / "P.src").write_text(
+    (tmp_path / "p.src").write_text(  # KUKA's names are not case-sensitive: P.dat goes with p.src
         "DEF P()\nPTP {A1 0,A2 -90,A3 90,A4 0,A5 0,A6 0}\nPTP XP1\nLIN {X 1500,Y 0,Z 1500,A 0,B 90,C 0} C_DIS\n"
         "; LIN {X 1,Y 2,Z 3} a comment\nSLIN {E6POS: X 1400,Y 10,Z 1500,A 0,B 90,C 0}\nEND\n"
     )
     assert main(["compensate", str(robot_file), str(tmp_path / "P.dat"), "--out", str(tmp_path / "o.dat")]) == 0
     printed = "".join(capsys.readouterr())
-    assert "P.src beside it has 2 motions with a target written inline ({X ...}; lines 4, 6)" in printed, printed
+    assert "p.src beside it has 2 motions with a target written inline ({X ...}; lines 4, 6)" in printed, printed
 
 
 def test_payload_com_follows_the_length_unit(tmp_path, capsys):

@@ -152,13 +152,24 @@ _INLINE = re.compile(
 _KRL_INLINE = re.compile(r"^\s*(?:S?PTP|S?LIN|S?CIRC)\b[^;]*\{\s*(?:[A-Za-z_]\w*\s*:\s*)?[XYZ]\s", re.IGNORECASE)
 
 
+def src_beside(dat: Path) -> Path | None:
+    """The KRL ``.src`` of the same name beside a ``.dat`` (KUKA's file names are not case-sensitive:
+    PALLET.dat goes with pallet.src)."""
+    try:
+        entries = list(dat.parent.iterdir())
+    except OSError:
+        return None
+    return next((p for p in sorted(entries) if p.stem.lower() == dat.stem.lower() and p.suffix.lower() == ".src"
+                 and p.is_file()), None)  # fmt: skip
+
+
 def krl_inline_targets(program: Program) -> tuple[Path | None, list[int]]:
     """The ``.src`` beside a KRL ``.dat`` (the same name) and the lines of its motions whose
     Cartesian target is written inline (``LIN {X 1000, ...}``): they are not in the .dat, so
     they are listed rather than silently kept. (None, []) without a .src or for RAPID."""
     if program.kind != "krl":
         return None, []
-    source = next((p for p in program.path.parent.glob(program.path.stem + ".*") if p.suffix.lower() == ".src"), None)
+    source = src_beside(program.path)
     if source is None:
         return None, []
     try:
@@ -551,8 +562,7 @@ def joint_path(program: Program) -> list[JointTarget]:
                     moves.append(name)
     else:
         declared = list(_krl_joint_targets(program.text, program.path))
-        source = next((p for p in program.path.parent.glob(program.path.stem + ".*") if p.suffix.lower() == ".src"),
-                      None)  # fmt: skip
+        source = src_beside(program.path)
         moves = list(krl_joint_moves(source)) if source is not None else []
     by_name = {target.name.lower(): target for target in declared}
     if not moves:
