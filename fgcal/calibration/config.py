@@ -73,6 +73,10 @@ class CalibrationConfig:
     # The formulation-specific settings the config states (dotted: pairs, noise.tracker_sigma,
     # robust.pixels, ...): one the formulation does not read is said (reports.headline.warnings).
     stated_options: frozenset[str] = frozenset()
+    # k-fold cross-validation (validation.folds): with ``fold`` that fold alone is held out; without,
+    # the calibrate command runs every fold and the fit on all (calibration.cross_validation).
+    folds: int | None = None
+    fold: int | None = None
 
     @property
     def noise(self):
@@ -185,7 +189,19 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     validation_tool_points = {
         str(name): tuple(np.array(xyz) * units.to_m) for name, xyz in (validation.tool_points or {}).items()
     }
-    holdout = validation.holdout if validation.holdout is not None else 0.0 if validation_datasets else 0.25
+    if validation.folds is not None:
+        clash = next((key for key, given in (("holdout", validation.holdout is not None),
+                                             ("complement", validation.complement),
+                                             ("dataset", bool(validation_datasets))) if given), None)  # fmt: skip
+        if clash is not None:
+            raise InputError(source, f"validation.{clash}", "folds choose the held-out configurations themselves")
+        if validation.fold is not None and validation.fold > validation.folds:
+            raise InputError(source, "validation.fold", f"{validation.fold}: there are {validation.folds} folds")
+    elif validation.fold is not None:
+        raise InputError(source, "validation.fold", "a fold of what: give folds too")
+    holdout = validation.holdout if validation.holdout is not None else (
+        0.0 if validation_datasets or validation.folds else 0.25
+    )  # fmt: skip
     noise = stated_noise(config.noise.model_dump(exclude_unset=True) if config.noise else None, units, source)
     pairs = config.pairs or Pairs()
     measurement = MeasurementSettings(
@@ -218,6 +234,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         split_seed=validation.seed,
         complement=validation.complement,
         split=validation.split,
+        folds=validation.folds,
+        fold=validation.fold,
         min_information=(config.identifiability or Identifiability()).min_information,
         max_iterations=(config.solver or Solver()).max_iterations,
         pixels_from=config.pixels_from,

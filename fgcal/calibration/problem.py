@@ -580,6 +580,15 @@ def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | Non
     return names
 
 
+def fold_split(n: int, folds: int, fold: int, order: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fitting and held-out indices of fold ``fold`` (1-based) of ``folds``: consecutive parts of
+    a seeded permutation (``order`` random) or of the run's order (ordered)."""
+    sequence = np.arange(n) if order == "ordered" else np.random.default_rng(seed).permutation(n)
+    parts = np.array_split(sequence, folds)
+    test = parts[fold - 1]
+    return np.sort(np.concatenate([p for k, p in enumerate(parts) if k != fold - 1])), np.sort(test)
+
+
 def split(n: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Seeded random split of n configurations into fitting and held-out indices."""
     order = np.random.default_rng(seed).permutation(n)

@@ -23,7 +23,15 @@ from .formulations import formulation as registered
 from .graph import StageGraph, build_graph, robust_scale
 from .identifiability import Identifiability, analyse, evidence_against_fixing, motion_warning
 from .models import compare_models
-from .problem import Detection, Observations, Problem, candidate_parameters, compliant_joints, split
+from .problem import (
+    Detection,
+    Observations,
+    Problem,
+    candidate_parameters,
+    compliant_joints,
+    fold_split,
+    split,
+)
 from .references import reference_check
 from .residual_model import check_residual_model, fit_residual_model
 from .results import SCORES, CalibrationResult, StageReport, primary_score, stats
@@ -63,7 +71,9 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     settings = dataclasses.replace(
         config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
     )
-    if config.split == "ordered":  # the rows are the measurement order: the run's last part held out
+    if config.folds is not None and config.fold is not None:  # one fold held out of a fit on the others
+        fit, test = fold_split(len(dataset.configs), config.folds, config.fold, config.split, config.split_seed)
+    elif config.split == "ordered":  # the rows are the measurement order: the run's last part held out
         n_test = round(config.holdout * len(dataset.configs))
         fit, test = (
             np.arange(len(dataset.configs) - n_test),

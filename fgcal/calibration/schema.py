@@ -122,6 +122,11 @@ class Validation(Schema):
                                                           "minItems": 1}]},
     ) = None  # fmt: skip
     tool_points: dict[str, vector(3)] = Field(None, description=f"points only a validation set measures, {LENGTH}")
+    folds: int = Field(None, ge=2, le=50, description="k-fold cross-validation: each of k folds (seeded, or the "
+                       "run's order with split: ordered) held out of a fit on the others, the errors pooled; the "
+                       "calibration reported is the fit on all configurations")  # fmt: skip
+    fold: int = Field(None, ge=1, description="with folds: run this fold alone (1-based), held out of a fit on the "
+                      "others")
 
 
 class Identifiability(Schema):

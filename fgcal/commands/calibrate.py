@@ -57,7 +57,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     # (--out the dataset's own folder, with its robot: calibrated_robot.yaml) would destroy it.
     distinct({f"--out ({name})": Path(args.out) / name for name in REPORT_FILES}, _inputs(config))
 
-    result = score(calibrate(config, progress=Reporter()))
+    if config.folds is not None and config.fold is None:  # every fold, then the fit on all
+        from ..calibration.cross_validation import cross_validate
+
+        result = cross_validate(config, lambda one: score(calibrate(one, progress=Reporter())), say)
+        cv = result.cross_validation
+        predicted = f" (predicted {cv['pooled_predicted_rms_m'] * 1e3:.4g} mm)" if cv["pooled_predicted_rms_m"] else ""
+        say(f"  {cv['folds']}-fold cross-validation, {cv['n_held_out']} configurations held out in all: "
+            f"{cv['pooled_after_rms_m'] * 1e3:.4g} mm RMS pooled{predicted}")  # fmt: skip
+    else:
+        result = score(calibrate(config, progress=Reporter()))
     started = time.perf_counter()
     doc = write_report(result, args.out, plots=not args.no_plots)
     say(

@@ -24,7 +24,7 @@ from ..model.robot import Robot
 from ..model.robot_io import save_robot
 from .diagnostics import motion_terms, plot_residual_diagnostics
 from .estimates import write_estimates
-from .headline import figure, headline, iso9283, validation_protocol, warnings, worst_configurations
+from .headline import figure, headline, iso9283, predicted_sigma, validation_protocol, warnings, worst_configurations
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -102,6 +102,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "headline": headline(result),
         "warnings": warnings(result),
         "validation_protocol": validation_protocol(result),
+        "cross_validation": None if result.cross_validation is None else dict(result.cross_validation),
         "model": config.model,
         "formulation": formulation.name,
         "formulation_source": config.formulation_source,
@@ -316,26 +317,6 @@ def compliance_deflections(result: CalibrationResult, names: list[str], data) ->
     return out
 
 
-def predicted_sigma(result: CalibrationResult) -> dict | None:
-    """The predicted RMS of what the held-out score measures, and a warning when the measured
-    score exceeds it by more than PREDICTION_TOLERANCE."""
-    if result.prediction is None:
-        return None
-    predicted = result.prediction.as_dict()
-    scored = primary_score(result.validation, "after")
-    after = scored[1] if scored is not None else None
-    if after is not None:
-        predicted["measured_over_predicted"] = after.rms / predicted["rms"]
-        if after.rms > PREDICTION_TOLERANCE * predicted["rms"]:
-            predicted["warning"] = (
-                f"the measured held-out error ({after.rms * 1e3:.4g} mm RMS) exceeds the predicted "
-                f"({predicted['rms'] * 1e3:.4g} mm) by {after.rms / predicted['rms']:.2g}x: the model or the noise "
-                "model does not describe the held-out data"
-            )
-    return predicted
-
-
-PREDICTION_TOLERANCE = 1.5
 
 
 def write_report(result: CalibrationResult, out: str | Path, plots: bool = True) -> dict:

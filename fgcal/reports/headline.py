@@ -36,11 +36,27 @@ def validation_protocol(result: CalibrationResult) -> dict:
     run's last part (``split: ordered``), the complement of a split, separate validation sets, or
     none; with the number of held-out configurations and a phrase for the headline."""
     config, problem = result.config, result.problem
+    cv = result.cross_validation
+    if cv is not None:
+        return {
+            "kind": f"{cv['folds']}-fold cross-validation",
+            "holdout_fraction": None,
+            "seed": config.split_seed if config.split != "ordered" else None,
+            "validation_datasets": [],
+            "n_held_out": cv["n_held_out"],
+            "text": f"{cv['n_held_out']} in {cv['folds']} folds ({cv['order']}), each held out of a fit on the "
+            "others, the errors pooled; the calibration reported is the fit on all configurations",
+        }
     n_sets = sum(len(indices) for _, indices in problem.validation_sets)
     own = len(problem.test) - n_sets
     parts, kinds = [], []
     if own:
-        if config.complement:  # the split's two parts swapped: fitted on the part it holds out
+        if config.folds is not None and config.fold is not None:
+            order = "the run's order" if config.split == "ordered" else f"random, seed {config.split_seed}"
+            kind, words = f"fold {config.fold} of {config.folds}", (
+                f"{own}: fold {config.fold} of {config.folds} ({order}), held out of a fit on the others"
+            )  # fmt: skip
+        elif config.complement:  # the split's two parts swapped: fitted on the part it holds out
             kind = f"{config.split} complement"
             part = (
                 f"the run's last {config.holdout:.0%}" if config.split == "ordered"
@@ -100,8 +116,6 @@ def warnings(result: CalibrationResult) -> list[str]:
         ),
         key=lambda item: -item[1],
     )  # fmt: skip
-    from .calibration import predicted_sigma  # (reports.calibration imports this module)
-
     predicted = predicted_sigma(result)
     if predicted is not None and "warning" in predicted:  # an accuracy not to sign as predicted
         out.append(predicted["warning"])
@@ -143,7 +157,7 @@ def headline(result: CalibrationResult) -> dict | None:
     out = {
         "score": SCORES[key],
         "reference": "ground truth" if result.truth is not None else "held-out measurements",
-        "n_configurations": len(result.problem.test),
+        "n_configurations": validation_protocol(result)["n_held_out"],
         "validation_protocol": validation_protocol(result),
         "warnings": warnings(result),
         "after_m": _triple(stat),
@@ -249,3 +263,25 @@ def iso9283(result: CalibrationResult) -> dict | None:
         "rp_mean_m": float(np.mean(rp)) if rp else None,
         "rp_max_m": float(np.max(rp)) if rp else None,
     }
+
+
+def predicted_sigma(result: CalibrationResult) -> dict | None:
+    """The predicted RMS of what the held-out score measures, and a warning when the measured
+    score exceeds it by more than PREDICTION_TOLERANCE."""
+    if result.prediction is None:
+        return None
+    predicted = result.prediction.as_dict()
+    scored = primary_score(result.validation, "after")
+    after = scored[1] if scored is not None else None
+    if after is not None:
+        predicted["measured_over_predicted"] = after.rms / predicted["rms"]
+        if after.rms > PREDICTION_TOLERANCE * predicted["rms"]:
+            predicted["warning"] = (
+                f"the measured held-out error ({after.rms * 1e3:.4g} mm RMS) exceeds the predicted "
+                f"({predicted['rms'] * 1e3:.4g} mm) by {after.rms / predicted['rms']:.2g}x: the model or the noise "
+                "model does not describe the held-out data"
+            )
+    return predicted
+
+
+PREDICTION_TOLERANCE = 1.5
