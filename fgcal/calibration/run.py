@@ -15,6 +15,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.dataset import Dataset, load_dataset
 from ..factors import OutsideModelError
+from ..model.parameters import kind_label
 from ..model.robot import MODELS
 from .by_tip import measured_by_tip
 from .config import CalibrationConfig
@@ -35,6 +36,7 @@ from .problem import (
 from .references import reference_check
 from .residual_model import check_residual_model, fit_residual_model
 from .results import SCORES, CalibrationResult, StageReport, primary_score, stats
+from .schema import KINDS as STAGE_KINDS
 from .settings import Noise
 from .solve import releasable, solve_stage, stage_parameters
 from .state import State
@@ -87,6 +89,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         fit, test = test, fit
     dataset, validation_sets = with_validation_sets(dataset, config)
     config.priors.check_names(robot.parameter_names, robot.name)
+    _check_stage_names(config, robot)
     test = np.concatenate([test, *(indices for _, indices in validation_sets)]).astype(int)
     return Problem(
         formulation=formulation,
@@ -400,6 +403,21 @@ def _identifiable_at_solution(
         absorbed_by,
     )
     return state, stage, values, final
+
+
+def _check_stage_names(config: CalibrationConfig, robot) -> None:
+    """A parameter a stage names (alpha3, d6, a {kind, joints} entry's, a fixed one) is the
+    robot's, and a fixed one is one the stage releases."""
+    names = set(robot.parameter_names)
+    for i, stage in enumerate(config.stages):
+        for item in stage:
+            name = item.removeprefix("!")
+            if name in STAGE_KINDS:
+                continue
+            if name not in names:
+                raise InputError(config.path, f"stages[{i}]", f"{robot.name} has no parameter {name!r}")
+            if item.startswith("!") and not any(kind_label(name) == k or name == k for k in stage):
+                raise InputError(config.path, f"stages[{i}].fix", f"{name}: the stage does not release it")
 
 
 def held_out_summary(result: CalibrationResult) -> str | None:

@@ -4,6 +4,7 @@ in the config's units: its own ``units:``, else the dataset's, else SI."""
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, create_model
@@ -80,25 +81,95 @@ class Intrinsics(Schema):
     prior_sigma: PriorSigma = None
 
 
+_PARAMETER = (
+    r"^((theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz|lm|lv)[1-9][0-9]*|(base|tool)\.(tx|ty|tz|rx|ry|rz)"
+    r"|mass\.[A-Za-z_][A-Za-z0-9_]*)$"
+)
+_JOINTS = r"^[1-9][0-9]*(-[1-9][0-9]*)?$"
+
+
+def _joint_numbers(spec: Any, where: str) -> list[int]:
+    """``[1-5, 8, "10-12"]`` -> the joints (1-based)."""
+    if not isinstance(spec, list) or not spec:
+        raise refuse("expected a non-empty list of joints (3, or a range 1-5)", where)
+    out = []
+    for item in spec:
+        text = str(item) if isinstance(item, int) and not isinstance(item, bool) else item
+        if not isinstance(text, str) or re.fullmatch(_JOINTS, text.replace(" ", "")) is None:
+            raise refuse(f"{item!r} is not a joint (3) or a range of joints (1-5)", where)
+        first, _, last = text.replace(" ", "").partition("-")
+        low, high = int(first), int(last or first)
+        if high < low:
+            raise refuse(f"{item!r}: a range from low to high", where)
+        out += list(range(low, high + 1))
+    return out
+
+
+def _release_items(items: Any, where: str) -> list[str]:
+    """A stage's release list as strings: a kind (every joint's), a parameter's name, or
+    ``{kind, joints}`` expanded to the names (alpha1..alpha5)."""
+    if not isinstance(items, list) or not items:
+        raise refuse("a non-empty list of parameter kinds, names or {kind, joints}", where)
+    out = []
+    for j, item in enumerate(items):
+        here = f"{where}[{j}]"
+        if isinstance(item, dict):
+            if set(item) != {"kind", "joints"}:
+                raise refuse("expected {kind: KIND, joints: [...]}", here)
+            if item["kind"] not in JOINT_KINDS_OF_STAGES:
+                kinds = ", ".join(JOINT_KINDS_OF_STAGES)
+                raise refuse(f"{item['kind']!r} is not a kind of a joint's parameters ({kinds})", here)
+            out += [f"{item['kind']}{joint}" for joint in _joint_numbers(item["joints"], f"{here}.joints")]
+        elif isinstance(item, str) and (item in KINDS or re.fullmatch(_PARAMETER, item)):
+            out.append(item)
+        else:
+            kinds = ", ".join(KINDS)
+            raise refuse(f"unknown parameter kind or name {item!r} (kinds: {kinds}; a name: d6, base.tz)", here)
+    return out
+
+
 def _stages(value: Any) -> Any:
+    """Each stage: a list of kinds, parameter names and {kind, joints}, or {release: [...], fix:
+    [names]}. Returned as lists of strings, a fixed parameter as "!name" (calibration.solve.selects)."""
     if not isinstance(value, list):
         raise refuse(f"expected a list, got {type(value).__name__}")
     if not value:
         raise refuse("at least one stage: with none, nothing is estimated")
+    out = []
     for i, stage in enumerate(value):
-        if not isinstance(stage, list) or not stage:
-            raise refuse("each stage is a non-empty list of parameter kinds", f"[{i}]")
-        for kind in stage:
-            if kind not in KINDS:
-                raise refuse(f"unknown parameter kind {kind!r} (known: {', '.join(KINDS)})", f"[{i}]")
-    return value
+        if isinstance(stage, dict):
+            if not set(stage) <= {"release", "fix"} or "release" not in stage:
+                raise refuse("expected {release: [...], fix: [parameter names]}", f"[{i}]")
+            released = _release_items(stage["release"], f"[{i}].release")
+            fixed = stage.get("fix") or []
+            names = isinstance(fixed, list) and all(isinstance(n, str) and re.fullmatch(_PARAMETER, n) for n in fixed)
+            if not names:
+                raise refuse("a list of parameter names (d6, base.tz)", f"[{i}].fix")
+            out.append(released + [f"!{name}" for name in fixed])
+        else:
+            out.append(_release_items(stage, f"[{i}]"))
+    return out
+
+
+JOINT_KINDS_OF_STAGES = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS)
+_RELEASE_JSON = {"type": "array", "minItems": 1, "items": {"anyOf": [
+    {"enum": list(KINDS)}, {"type": "string", "pattern": _PARAMETER},
+    {"type": "object", "required": ["kind", "joints"], "additionalProperties": False, "properties": {
+        "kind": {"enum": list(JOINT_KINDS_OF_STAGES)},
+        "joints": {"type": "array", "minItems": 1, "items": {"anyOf": [
+            {"type": "integer", "minimum": 1}, {"type": "string", "pattern": _JOINTS}]}}}}]}}  # fmt: skip
 
 
 Stages = checked(
     _stages,
-    {"type": "array", "minItems": 1, "items": {"type": "array", "minItems": 1, "items": {"enum": list(KINDS)}},
-     "description": "the parameter kinds each stage releases (schedule custom; a list gives it)"},
-)
+    {"type": "array", "minItems": 1, "items": {"anyOf": [
+        _RELEASE_JSON,
+        {"type": "object", "required": ["release"], "additionalProperties": False,
+         "properties": {"release": _RELEASE_JSON, "fix": {"type": "array", "items": {"type": "string",
+                                                                                    "pattern": _PARAMETER}}}}]},
+     "description": "each stage: the parameter kinds it releases (every joint's), parameters by name (d6, "
+     "base.tz), {kind, joints: [1-5, 8]}, or {release: [...], fix: [names]} (schedule custom; a list gives it)"},
+)  # fmt: skip
 
 
 def _datasets(value: Any) -> Any:

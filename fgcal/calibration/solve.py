@@ -19,17 +19,22 @@ from .state import State
 RELATIVE_TOLERANCE, ABSOLUTE_TOLERANCE = 1e-8, 1e-14
 
 
+def selects(stage: Sequence[str], name: str) -> bool:
+    """Whether a stage releases the parameter ``name``: its kind or its name is listed (a
+    ``{kind, joints}`` entry is listed as the names), and no ``"!name"`` holds it fixed."""
+    return (kind_label(name) in stage or name in stage) and f"!{name}" not in stage
+
+
 def stage_parameters(kinds: Sequence[str], identifiable: Sequence[str]) -> list[str]:
-    """The identifiable parameters whose kind is released in a stage."""
-    return [name for name in identifiable if kind_label(name) in kinds]
+    """The identifiable parameters a stage releases (selects)."""
+    return [name for name in identifiable if selects(kinds, name)]
 
 
 def releasable(candidates: Sequence[str], stages: Sequence[Sequence[str]]) -> list[str]:
     """The candidates that some stage releases. Only these are judged for identifiability: a
     parameter no stage releases stays at its nominal value whatever the analysis says, so it
     must not win a pivoted selection and fix a released parameter as "a combination of" it."""
-    kinds = {kind for stage in stages for kind in stage}
-    return [name for name in candidates if kind_label(name) in kinds]
+    return [name for name in candidates if any(selects(stage, name) for stage in stages)]
 
 
 def optimise(stage: StageGraph, max_iterations: int) -> tuple[gtsam.Values, int]:

@@ -1,0 +1,50 @@
+"""Release per parameter in a stage (issue 40, item 5): {kind, joints} entries, names, and
+{release, fix}; listing every joint reproduces the stage of whole kinds exactly."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fgcal.commands.cli import main
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("stages")
+    assert main(["simulate", "irb120_tracker", "--out", str(root / "sim"), "--n", "60", "--seed", "2", "-q"]) == 0
+    return root
+
+
+def _estimates(session, name: str, stages: str) -> dict:
+    (session / f"{name}.yaml").write_text(f"dataset: sim\nformulation: tracker\nstages: {stages}\n")
+    assert main(["calibrate", str(session / f"{name}.yaml"), "--out", str(session / name), "--no-plots", "-q"]) == 0
+    report = json.loads((session / name / "report.json").read_text())
+    return {n: (p["status"], p["estimate"], p["sigma"]) for n, p in report["parameters"].items()}
+
+
+def test_every_joint_listed_is_the_whole_kind(session):
+    whole = _estimates(session, "whole", "[[theta], [theta, alpha, a]]")
+    listed = _estimates(session, "listed", "[[theta], [theta, {kind: alpha, joints: [1-3, 4, '5-6']}, a]]")
+    assert listed == whole
+
+
+def test_some_joints_and_a_fixed_parameter(session):
+    some = _estimates(session, "some", "[[theta], {release: [theta, {kind: alpha, joints: [2-3]}, a], fix: [a2]}]")
+    released = {n for n, (status, _, _) in some.items() if status == "estimated"}
+    assert {"alpha2", "alpha3"} <= released and not {"alpha1", "alpha4", "alpha5", "a2"} & released
+    assert "a3" in released
+
+
+@pytest.mark.parametrize(("stages", "message"), [
+    ("[[theta, d60]]", "stages[0]: ABB IRB 120 has no parameter 'd60'"),
+    ("[{release: [theta], fix: [a2]}]", "stages[0].fix: a2: the stage does not release it"),
+    ("[[theta, {kind: base, joints: [1]}]]", "stages[0][1]"),
+    ("[[theta, {kind: alpha, joints: [3-1]}]]", "stages[0][1].joints"),
+    ("[{release: [theta], keep: [a2]}]", "stages[0]"),
+])  # fmt: skip
+def test_stages_that_cannot_be_are_refused(session, stages, message, capsys):
+    (session / "bad.yaml").write_text(f"dataset: sim\nformulation: tracker\nstages: {stages}\n")
+    assert main(["calibrate", str(session / "bad.yaml"), "--out", str(session / "bad"), "--no-plots"]) == 2
+    assert message in capsys.readouterr().err
