@@ -48,3 +48,15 @@ def test_stages_that_cannot_be_are_refused(session, stages, message, capsys):
     (session / "bad.yaml").write_text(f"dataset: sim\nformulation: tracker\nstages: {stages}\n")
     assert main(["calibrate", str(session / "bad.yaml"), "--out", str(session / "bad"), "--no-plots"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_trees_default_compliances_are_every_loaded_joint():
+    """Issue 40, item 4: on a tree the default compliant joints are every revolute joint that
+    carries a mass (the seed's 1-3 left a 20-joint tree its torso's only); a serial arm keeps 1-3."""
+    import fgcal
+    from fgcal.calibration.problem import compliant_joints
+
+    tree = fgcal.load_robot("dual_arm_torso")
+    assert compliant_joints(tree, None) == tuple(range(1, tree.n_links + 1))
+    assert compliant_joints(fgcal.load_robot("abb_irb120"), None) == (1, 2, 3)
+    assert compliant_joints(tree, (2, 3)) == (2, 3)

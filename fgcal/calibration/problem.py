@@ -551,8 +551,25 @@ def source_of(settings: MeasurementSettings) -> Path:
 
 
 def compliant_joints(robot: Robot, joints: tuple[int, ...] | None) -> tuple[int, ...]:
-    """The config's compliant joints, or by default the seed's 1-3 that the robot has."""
-    return default_compliant_joints(robot.n_links) if joints is None else joints
+    """The config's compliant joints, or by default: on a serial arm the seed's 1-3 that it has;
+    on a tree (tips besides the flange) every revolute joint that carries a mass, identifiability
+    deciding which the data determine (the seed's three left a 20-joint tree with its torso's
+    compliances only, and twice the error the data support)."""
+    if joints is not None:
+        return joints
+    if robot.tips:
+        return loaded_joints(robot)
+    return default_compliant_joints(robot.n_links)
+
+
+def loaded_joints(robot: Robot) -> tuple[int, ...]:
+    """The revolute joints (1-based) whose motion carries a body with mass (a link's or the
+    payload): their torque bends them."""
+    model = robot.compiled
+    carried_kg = model.carried.astype(float) @ model.masses
+    prismatic = np.asarray(robot.prismatic, dtype=bool)
+    return tuple(int(i) + 1 for i in range(len(carried_kg)) if carried_kg[i] > 0
+                 and not (i < len(prismatic) and prismatic[i]))  # fmt: skip
 
 
 def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | None) -> list[str]:

@@ -204,16 +204,17 @@ class CalibrationResult:
         return self.problem.formulation
 
     @property
-    def held_from_earlier_stages(self) -> dict[str, int]:
-        """Parameters a stage before the last moved and the last did not release -> the last
-        stage (1-based) that estimated them: held at that value, their uncertainty in no sigma
-        and no prediction."""
-        final = set(self.released)
-        out: dict[str, int] = {}
-        for k, stage in enumerate(self.stages[:-1], 1):
+    def held_from_earlier_stages(self) -> dict[str, str]:
+        """Parameters a stage before the last moved and the last did not release (nor found not
+        identifiable at the solution: those are reported with their reason) -> the name of the
+        last stage that estimated them: held at that value, their uncertainty in no sigma and
+        no prediction."""
+        final = set(self.released) | set(self.final_identifiability.unidentifiable)
+        out: dict[str, str] = {}
+        for stage in self.stages[:-1]:
             for name in stage.released:
                 if name not in final:
-                    out[name] = k
+                    out[name] = stage.name
         return out
 
     @property

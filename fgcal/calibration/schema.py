@@ -227,7 +227,8 @@ class CalibrationConfig(Schema):
     formulation: Literal[NAMES] = Field(None, description="default: the one that reads the dataset's measured tables")
     model: Literal[(*MODELS, "auto")] = Field("DH,s,e", description="the error model; auto: compare and pick")
     compliant_joints: list[Annotated[int, Field(ge=1)]] = Field(
-        None, description="1-based joints with a compliance (default 1-3)"
+        None, description="1-based joints with a compliance (default 1-3; on a tree every revolute joint carrying "
+        "a mass)"
     )
     fixture_orientation: Literal["known", "estimate"] = "known"
     schedule: Literal["staged", "one_shot", "custom"] = "staged"
