@@ -452,3 +452,16 @@ def test_a_trees_report_says_what_each_compliance_moves_and_what_absorbs_a_param
     assert any(n.startswith("base.") for n in absorbed) and all("tracker" in r or "tool_points" in r or "together"
                                                               in r for r in absorbed.values()), absorbed
     assert not any(n.startswith("base.") and r.startswith("no effect") for n, r in reasons.items()), reasons
+
+
+def test_with_nothing_held_out_each_tips_fitting_residuals(dual_arm, capsys):
+    """Issue 40, item 7: a tree calibrated with nothing held out reports each tip's fitting
+    residuals (mm in report.md), before and after."""
+    data = _copy_dataset(dual_arm / "data", dual_arm / "nothing_held_out")
+    (data / "calibration.yaml").write_text((data / "calibration.yaml").read_text() + "validation: {holdout: 0}\n")
+    report = _calibrate(data, dual_arm / "nothing_held_out_report", capsys)
+    assert report["validation"]["by_tip"] is None
+    fit = report["fit_by_tip"]
+    assert list(fit) == ["left_hand", "right_hand"]
+    assert all(entry["after_rms_m"] < entry["before_rms_m"] / 50 for entry in fit.values()), fit
+    assert "## Fitting residuals per tip" in (dual_arm / "nothing_held_out_report" / "report.md").read_text()

@@ -194,6 +194,9 @@ class CalibrationResult:
     # A tree's held-out figures per tip (fgcal.calibration.by_tip.TipScore), as validation is:
     # against the truth once scored with it, else the measurements'; None on a serial arm.
     by_tip: Mapping[str, object] | None = None
+    # With nothing held out, a tree's fitting residuals per tip (TipScore: before and after the
+    # calibration, no prediction); None otherwise.
+    fit_by_tip: Mapping[str, object] | None = None
     # k-fold cross-validation (calibration.cross_validation): per fold and pooled; validation and
     # prediction then hold the folds' pooled errors, and this result is the fit on all.
     cross_validation: Mapping[str, object] | None = None

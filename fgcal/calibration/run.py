@@ -304,6 +304,8 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     if test_observations is not None and covariance is not None and released:
         prediction = formulation.predicted_held_out(problem, test_observations, state, covariance, factor)
     by_tip = measured_by_tip(problem, test_observations, before, state, covariance, factor)
+    # Nothing held out: each tip's fitting residuals, before and after (a tree's chains one by one).
+    fit_by_tip = None if len(problem.test) else measured_by_tip(problem, problem.observations, before, state, None, 1.0)
     residual = None
     if config.residual_model == "gp":
         t = time.perf_counter()
@@ -348,6 +350,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         residual_model=residual,
         fixed_evidence_sigmas=evidence,
         by_tip=by_tip,
+        fit_by_tip=fit_by_tip,
         timing={
             "solve_s": solve_time,
             "total_s": time.perf_counter() - started,

@@ -103,6 +103,11 @@ def report_dict(result: CalibrationResult) -> dict:
         "warnings": warnings(result),
         "validation_protocol": validation_protocol(result),
         "cross_validation": None if result.cross_validation is None else dict(result.cross_validation),
+        # Nothing held out on a tree: each tip's fitting residuals (m), before and after.
+        "fit_by_tip": None if result.fit_by_tip is None else {
+            tip: {k: v for k, v in score.as_dict().items() if k != "predicted_rms_m"}
+            for tip, score in result.fit_by_tip.items()
+        },
         "model": config.model,
         "formulation": formulation.name,
         "formulation_source": config.formulation_source,
@@ -690,6 +695,14 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         if "errors" in plots:
             lines += ["", f"![errors]({plots['errors']})"]
         lines += _iso_lines(doc.get("iso9283")) + _worst_lines(doc.get("worst_configurations"))
+    if doc.get("fit_by_tip"):
+        lines += ["", "## Fitting residuals per tip", "", "Nothing is held out: each chain's residuals on the fitting "
+                  "measurements (RMS, mm), which say how each tip fits, not how it holds out.", "",
+                  "| tip | residuals | before | after |", "|---|---|---|---|"]  # fmt: skip
+        for tip, entry in doc["fit_by_tip"].items():
+            lines.append(f"| {tip} | {entry['n_errors']} | {figure(entry['before_rms_m'] * 1e3)} | "
+                         f"{figure(entry['after_rms_m'] * 1e3)} |")  # fmt: skip
+        lines.append("")
     if doc["rejected_measurements"]:
         lines += ["", f"## Rejected measurements ({len(doc['rejected_measurements'])})", ""]
         lines += ["| config | kind | point or target | size (sigmas) | size |", "|---|---|---|---|---|"]
