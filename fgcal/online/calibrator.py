@@ -33,6 +33,7 @@ from ..factors import BehindCameraError, FactorError, Projections, RandomWalkFac
 from ..model.camera import Camera, solve_pnp
 from ..model.parameters import default_compliant_joints, unit_of
 from ..model.robot import Robot
+from .compression import merged_factor
 from .drift import Alarm, DriftTest
 from .growing import GrowingKinematics, RowKinematics
 from .released import candidates, structural_identifiability
@@ -329,40 +330,12 @@ class OnlineCalibrator:
             if len(slots) < 2 or len(keys) > 3:  # GTSAM's Python JacobianFactor takes up to 3 keys
                 kept += slots
                 continue
-            merged.add(self._merged_factor(keys, [factors.at(i) for i in slots], linearization_point))
+            merged.add(merged_factor(keys, [factors.at(i) for i in slots], linearization_point))
             removed += slots
         if removed:
             self.smoother.update(merged, gtsam.Values(), {}, removed)
         self._marginals = kept
 
-    @staticmethod
-    def _merged_factor(keys: tuple[int, ...], marginals: list, linearization_point: gtsam.Values):
-        point = gtsam.Values()
-        for key in keys:
-            if key == OBJECT_KEY:
-                point.insert(key, linearization_point.atPose3(key))
-            else:
-                point.insert(key, linearization_point.atVector(key))
-        dims = {key: (6 if key == OBJECT_KEY else len(point.atVector(key))) for key in keys}
-        offsets = dict(zip(keys, np.cumsum([0, *[dims[k] for k in keys]])[:-1].tolist(), strict=True))
-        width = sum(dims.values())
-        blocks = []
-        for marginal in marginals:
-            linear = marginal.linearize(linearization_point)
-            A, b = linear.jacobian()
-            stacked = np.zeros((A.shape[0], width + 1))
-            column = 0
-            for key in linear.keys():  # noqa: SIM118 (a GaussianFactor, not a dict)
-                stacked[:, offsets[key] : offsets[key] + dims[key]] = A[:, column : column + dims[key]]
-                column += dims[key]
-            stacked[:, width] = b
-            blocks.append(stacked)
-        R = np.linalg.qr(np.vstack(blocks), mode="r")
-        arguments = []
-        for key in keys:
-            arguments += [key, R[:, offsets[key] : offsets[key] + dims[key]]]
-        unit = gtsam.noiseModel.Unit.Create(R.shape[0])
-        return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), point)
 
     def image_measurements(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> Projections:
         """The image's projections on (p_c, O): one factor for all its points, which keeps its
@@ -401,7 +374,7 @@ class OnlineCalibrator:
             removed.append(slot)
         linearization_point = self.smoother.getLinearizationPoint()
         for keys, group in by_keys.items():
-            out.add(self._merged_factor(keys, group, linearization_point))
+            out.add(merged_factor(keys, group, linearization_point))
         return out, removed
 
     def _check_observations(self, observations: list[tuple[str, np.ndarray]]) -> list[tuple[str, np.ndarray]]:

@@ -44,6 +44,7 @@ from ..model.motion import MotionHistory
 from ..model.parameters import unit_of
 from ..model.robot import Robot
 from .calibrator import MERGE_MARGINALS_ABOVE, OnlineSettings, OnlineUpdate, params_key
+from .compression import copy_value, merged_factor
 from .drift import DriftTest
 from .growing import GrowingKinematics
 
@@ -412,7 +413,7 @@ class FormulationCalibrator:
             if len(slots) < 2 or len(keys) > 3:
                 kept += slots
                 continue
-            merged.add(_merged_factor(keys, [factors.at(i) for i in slots], point))
+            merged.add(merged_factor(keys, [factors.at(i) for i in slots], point))
             removed += slots
         if removed:
             self.smoother.update(merged, gtsam.Values(), {}, removed)
@@ -460,43 +461,5 @@ class FormulationCalibrator:
 def _subset(values: gtsam.Values, keys) -> gtsam.Values:
     out = gtsam.Values()
     for key in keys:
-        _copy(out, values, key)
+        copy_value(out, values, key)
     return out
-
-
-def _copy(out: gtsam.Values, values: gtsam.Values, key: int) -> int:
-    """One value of ``values`` into ``out``, whatever its type (a Pose3, a Rot3 or a vector);
-    returns its tangent dimension."""
-    for read, dim in ((values.atPose3, 6), (values.atRot3, 3), (values.atVector, None)):
-        try:
-            value = read(key)
-        except Exception:  # GTSAM's wrong-type error
-            continue
-        out.insert(key, value)
-        return dim if dim is not None else len(value)
-    raise TypeError(f"unsupported value type at key {gtsam.DefaultKeyFormatter(key)}")
-
-
-def _merged_factor(keys: tuple[int, ...], marginals: list, point: gtsam.Values):
-    """One QR-compressed linear factor for linear factors on ``keys`` (at ``point``)."""
-    subset = gtsam.Values()
-    dims = {key: _copy(subset, point, key) for key in keys}
-    offsets = dict(zip(keys, np.cumsum([0, *[dims[k] for k in keys]])[:-1].tolist(), strict=True))
-    width = sum(dims.values())
-    blocks = []
-    for marginal in marginals:
-        linear = marginal.linearize(subset)
-        A, b = linear.jacobian()
-        stacked = np.zeros((A.shape[0], width + 1))
-        column = 0
-        for key in linear.keys():  # noqa: SIM118 (a GaussianFactor, not a dict)
-            stacked[:, offsets[key] : offsets[key] + dims[key]] = A[:, column : column + dims[key]]
-            column += dims[key]
-        stacked[:, width] = b
-        blocks.append(stacked)
-    R = np.linalg.qr(np.vstack(blocks), mode="r")
-    arguments = []
-    for key in keys:
-        arguments += [key, R[:, offsets[key] : offsets[key] + dims[key]]]
-    unit = gtsam.noiseModel.Unit.Create(R.shape[0])
-    return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), subset)

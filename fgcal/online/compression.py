@@ -1,0 +1,45 @@
+"""Marginal factors compressed: the linear factors iSAM2 keeps for what left the window, on the
+same variables, merged into one QR-compressed factor (both online calibrators)."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+
+def copy_value(out: gtsam.Values, values: gtsam.Values, key: int) -> int:
+    """One value of ``values`` into ``out``, whatever its type (a Pose3, a Rot3 or a vector);
+    returns its tangent dimension."""
+    for read, dim in ((values.atPose3, 6), (values.atRot3, 3), (values.atVector, None)):
+        try:
+            value = read(key)
+        except Exception:  # GTSAM's wrong-type error
+            continue
+        out.insert(key, value)
+        return dim if dim is not None else len(value)
+    raise TypeError(f"unsupported value type at key {gtsam.DefaultKeyFormatter(key)}")
+
+
+def merged_factor(keys: tuple[int, ...], marginals: list, point: gtsam.Values):
+    """One QR-compressed linear factor for linear factors on ``keys`` (at ``point``)."""
+    subset = gtsam.Values()
+    dims = {key: copy_value(subset, point, key) for key in keys}
+    offsets = dict(zip(keys, np.cumsum([0, *[dims[k] for k in keys]])[:-1].tolist(), strict=True))
+    width = sum(dims.values())
+    blocks = []
+    for marginal in marginals:
+        linear = marginal.linearize(subset)
+        A, b = linear.jacobian()
+        stacked = np.zeros((A.shape[0], width + 1))
+        column = 0
+        for key in linear.keys():  # noqa: SIM118 (a GaussianFactor, not a dict)
+            stacked[:, offsets[key] : offsets[key] + dims[key]] = A[:, column : column + dims[key]]
+            column += dims[key]
+        stacked[:, width] = b
+        blocks.append(stacked)
+    R = np.linalg.qr(np.vstack(blocks), mode="r")
+    arguments = []
+    for key in keys:
+        arguments += [key, R[:, offsets[key] : offsets[key] + dims[key]]]
+    unit = gtsam.noiseModel.Unit.Create(R.shape[0])
+    return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), subset)
