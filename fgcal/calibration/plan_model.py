@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -45,6 +45,15 @@ class Candidates:
     q: np.ndarray  # (M, n) rad
     blocks: list[str] | None  # camera cells: the label of the block each configuration sees
     points_F: np.ndarray | None  # (M, 4, 3) the block's points in F (m)
+    # Why draws were not kept as candidates: {reason: how many}; a plan reports it.
+    discarded: dict[str, int] = field(default_factory=dict)
+    # (M, k) which of the k things a candidate would measure the instrument sees (the rows of
+    # the others are zero: not measured); None: all of them.
+    seen: np.ndarray | None = None
+    seen_label: str = ""  # what the k things are ("reflectors")
+    # The configurations over which accuracy counts (None: the candidates): the workspace,
+    # where the candidates are only those the instrument can measure.
+    workspace: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -119,12 +128,15 @@ class Reflectors(Planning):
     def candidates(
         self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
     ) -> Candidates:
-        return joint_space_candidates(cell, count, rng)
+        return joint_space_candidates(cell, count, rng, progress=progress)
 
     def rows(
         self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
     ) -> PlanRows:
         J_p, J_aux = _tracker_rows(robot, data, cell, cand, names)
+        if cand.seen is not None:  # a reflector the tracker does not see is not measured
+            mask = np.repeat(cand.seen, 3, axis=1)[:, :, None]
+            J_p, J_aux = J_p * mask, J_aux * mask
         sigma = cell.tracker_sigma_m
         n_targets = len(cell.tracker_targets)
         labels = ["tracker.rx", "tracker.ry", "tracker.rz", "tracker.tx", "tracker.ty", "tracker.tz"]
@@ -146,6 +158,9 @@ class Reflectors(Planning):
 # -- candidates -------------------------------------------------------------------------------
 
 
+NOT_IN_VIEW = "viewpoints not reached within the joint limits, or the block not wholly in the nominal camera's view"
+
+
 def camera_candidates(
     cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
 ) -> Candidates:
@@ -158,10 +173,11 @@ def camera_candidates(
     # from two starts per viewpoint: more viewpoints for the same time than six starts.
     ik_cell = replace(cell, robot=robot.with_model("DH,s"))
     views = []
-    rounds = 0
+    rounds = requested = 0
     while len(views) < count and rounds < 40:
         rounds += 1
         requests = random_block_requests(cell, max(256, int(1.4 * (count - len(views)))), rng)
+        requested += len(requests)
         views += solve_views(
             ik_cell, requests, robot.fk_tool, rng, starts=2, iterations=IK_ITERATIONS, tol=IK_TOL, freeze_converged=True
         )
@@ -169,6 +185,7 @@ def camera_candidates(
             progress(f"  candidates: {min(len(views), count)} of {count} reachable, visible configurations")
         if rounds >= 3 and not views:
             raise InputError(cell.source, "objects", "no reachable configuration sees any block of the objects")
+    lost = requested - len(views)
     views = views[:count]
     if len(views) < count:
         raise InputError(cell.source, "objects", f"only {len(views)} reachable, visible configurations found")
@@ -176,13 +193,65 @@ def camera_candidates(
         np.array([v.q for v in views]),
         [v.block[0].name for v in views],
         np.array([[p.position_F for p in v.block] for v in views]),
+        discarded={NOT_IN_VIEW: lost} if lost else {},
     )
 
 
-def joint_space_candidates(cell: Cell, count: int, rng: np.random.Generator) -> Candidates:
-    """``count`` configurations uniform within the joint limits (fgcal.simulation.design); the
-    reflectors are taken to be visible: fgcal's cells do not model the tracker's line of sight."""
-    return Candidates(uniform_configurations(cell.robot, count, rng), None, None)
+NOT_SEEN = "no reflector within its acceptance angle of the line to the tracker"
+WORKSPACE_SIZE = 2000  # configurations of the region where accuracy counts
+
+
+def joint_space_candidates(
+    cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+) -> Candidates:
+    """``count`` configurations uniform within the joint limits (fgcal.simulation.design) at
+    which the tracker sees at least one reflector on the nominal model: within its acceptance
+    angle of the line to the tracker (the cell's ``tracker.normals`` and ``acceptance``); the
+    others are drawn and discarded, and counted. ``seen``: which reflectors each candidate's
+    tracker sees (only those are measured). The workspace, where accuracy counts, is the
+    draws before the filter: the robot works where the tracker does not see it too."""
+    robot = cell.robot
+    params = robot.parameter_vector()
+    tips = sorted(set(cell.reflector_tips))
+    batch = max(2000, 4 * count)
+    kept_q, kept_seen, workspace = [], [], None
+    found = examined = 0
+    while found < count and examined < 400 * count:
+        q = uniform_configurations(robot, batch, rng)
+        workspace = q[:WORKSPACE_SIZE] if workspace is None else workspace
+        data = kinematics.forward(robot, params, q)
+        seen = cell.reflectors_visible({tip: kinematics.frame_pose(robot, data, tip) for tip in tips})
+        keep = np.flatnonzero(seen.any(axis=1))[: count - found]
+        # Counted up to the last draw kept: the draws after it were not needed.
+        examined += batch if found + len(keep) < count else int(keep[-1]) + 1
+        kept_q.append(q[keep])
+        kept_seen.append(seen[keep])
+        found += len(keep)
+        if progress and found < count:
+            progress(f"  candidates: {found} of {count} with a reflector in the tracker's view ({examined} drawn)")
+    if found == 0:
+        raise InputError(
+            cell.source,
+            "tracker",
+            f"the tracker sees no reflector at any of {examined} configurations within the joint limits "
+            "(tracker.pose, tracker.normals, tracker.acceptance)",
+        )
+    if found < count:
+        raise InputError(
+            cell.source,
+            "tracker",
+            f"only {found} of {examined} configurations have a reflector in the tracker's view: ask for fewer "
+            "candidates (--candidates), or check tracker.pose, tracker.normals and tracker.acceptance",
+        )
+    return Candidates(
+        np.concatenate(kept_q),
+        None,
+        None,
+        discarded={NOT_SEEN: examined - found} if examined > found else {},
+        seen=np.concatenate(kept_seen),
+        seen_label="reflectors",
+        workspace=workspace,
+    )
 
 
 # -- rows ---------------------------------------------------------------------------------------

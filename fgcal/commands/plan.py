@@ -28,6 +28,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         approach_offset_rad=float(np.radians(args.approach_offset)),
     )
     written = write_plan(result, args.out, plot=not args.no_plots)
+    for line in result.discarded_lines():
+        say(f"  {line}")
     say(
         f"  predicted position accuracy {result.predicted_sigma_m * 1e3:.4f} mm RMS over the region "
         f"(space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
@@ -53,6 +55,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         "predicted_sigma_m": result.predicted_sigma_m, "space_filling_sigma_m": result.space_filling_sigma_m,
         "condition_number": result.indices["condition_number"], "cpu_s": dict(result.timing_s),
         "approach": result.approach, "lost_motion": result.lost_motion,
+        "n_drawn": result.drawn, "discarded": dict(result.candidates.discarded), "out_of_view": result.unseen,
     })  # fmt: skip
     return 0
 

@@ -76,7 +76,9 @@ def build_information(
     kept = [names[i] for i in keep]
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
     scale = np.array([parameter_scale(n, moments_rms) for n in kept])
-    region_q = cand.q[np.random.default_rng(seed).permutation(len(cand.q))[:n_region]]
+    # Where accuracy counts: the workspace the formulation gives, else the candidates.
+    pool = cand.q if cand.workspace is None else cand.workspace
+    region_q = pool[np.random.default_rng(seed).permutation(len(pool))[:n_region]]
     region_data = kinematics.forward(robot, params, region_q)
     G = kinematics.jacobian(robot, region_data, kept, frame=frame, point=point)  # (E, 3, m)
     positions = transform_points(kinematics.frame_pose(robot, region_data, frame), point)

@@ -67,6 +67,40 @@ class PlanResult:
     lost_motion: dict | None = None
 
     @property
+    def drawn(self) -> int:
+        """Configurations drawn for the candidates: those kept and those discarded."""
+        return len(self.candidates.q) + sum(self.candidates.discarded.values())
+
+    @property
+    def unseen(self) -> dict | None:
+        """Of what the plan's configurations would measure, how much the instrument does not
+        see (not measured, and not counted in the prediction); None: it sees everything."""
+        seen = self.candidates.seen
+        if seen is None:
+            return None
+        chosen = seen[self.chosen]
+        return {
+            "what": self.candidates.seen_label,
+            "measured": int(chosen.sum()),
+            "out_of_view": int(chosen.size - chosen.sum()),
+            "configurations_seeing_all": int(chosen.all(axis=1).sum()),
+        }
+
+    def discarded_lines(self) -> list[str]:
+        """Why draws were discarded before planning, one line each."""
+        lines = [
+            f"{count} of {self.drawn} drawn configurations discarded: {reason}"
+            for reason, count in self.candidates.discarded.items()
+        ]
+        unseen = self.unseen
+        if unseen is not None and unseen["out_of_view"]:
+            lines.append(
+                f"the plan's configurations measure {unseen['measured']} {unseen['what']}; "
+                f"{unseen['out_of_view']} others are out of the instrument's view (not measured, not counted)"
+            )
+        return lines
+
+    @property
     def approach_points(self) -> np.ndarray | None:
         """(n, joints) the approach point of each planned configuration (unidirectional), or None."""
         if self.approach != "unidirectional":
@@ -83,6 +117,9 @@ class PlanResult:
             "seed": self.seed,
             "n_configurations": self.n,
             "n_candidates": len(self.candidates.q),
+            "n_drawn": self.drawn,
+            "discarded": dict(self.candidates.discarded),
+            "out_of_view": self.unseen,
             "parameters": self.info.names,
             "auxiliary_unknowns": self.info.aux_labels,
             "unidentifiable": self.info.unidentifiable,
@@ -378,6 +415,7 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         f"(seed {result.seed}) by the **{result.criterion}** criterion, for the {result.formulation} "
         f"formulation and model {result.model}.",
         "",
+        *[f"- {line[0].upper()}{line[1:]}." for line in result.discarded_lines()],
         f"- Predicted position accuracy over the region: **{_mm(result.predicted_sigma_m)} mm RMS** "
         f"(scored point, {'no' if info.gauge == 'none' else info.gauge} gauge removed; measurement sigma "
         f"{info.sigma_m * 1e3:g} mm); a "
