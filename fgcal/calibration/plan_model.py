@@ -92,6 +92,9 @@ class FlangeCamera(Planning):
     """A camera on the flange seeing the cell's calibration objects (pairs, projection)."""
 
     rotation: bool  # the fixture's orientation in W is an unknown (its position always is)
+    # Pairs: the images fall into groups of this many at random, each group with a common
+    # position of its own that its pairs do not see (None: one fixture position for all images).
+    group_images: int | None = None
 
     def candidates(
         self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
@@ -102,6 +105,8 @@ class FlangeCamera(Planning):
         self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
     ) -> PlanRows:
         J_p, J_aux, p_C = _camera_rows(robot, data, cell, cand, names, self.rotation)
+        if self.group_images is not None:
+            J_p, J_aux = _grouped(J_p, J_aux, p_C, self.group_images)
         sigma = cell.camera_point_sigma_m
         labels = (["fixture.rx", "fixture.ry", "fixture.rz"] if self.rotation else []) + [
             "fixture.tx",
@@ -275,6 +280,24 @@ def _camera_rows(
         blocks.insert(0, -R_C_W @ skew(p_W))
     J_aux = np.concatenate(blocks, axis=-1).reshape(len(cand.q), -1, 3 * len(blocks))
     return J_p, J_aux, p_C
+
+
+def _grouped(J_p: np.ndarray, J_aux: np.ndarray, p_C: np.ndarray, group: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of images whose groups of ``group`` (drawn at random) each lose a common position:
+    in expectation an image loses 1/group of its own points' common position (the part of its
+    information a translation of its block would explain). With P the projector onto that
+    translation (the block's points moving together in the camera frame), the rows become
+    ``(I - a P) J``, ``(2a - a^2) = 1/group``: their information is ``J^T J - J^T P J / group``.
+    The design's common translation (the auxiliary unknown) stays."""
+    n_points = p_C.shape[1]
+    a = 1.0 - np.sqrt(1.0 - 1.0 / group)
+    # The block's points' translation in the camera frame: rows of every point, one 3x3 each.
+    T = np.tile(np.eye(3), (n_points, 1)) / np.sqrt(n_points)  # (3r, 3) orthonormal columns
+
+    def project(J: np.ndarray) -> np.ndarray:
+        return J - a * T @ (T.T @ J)
+
+    return project(J_p), project(J_aux)
 
 
 def _tracker_rows(

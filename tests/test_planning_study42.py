@@ -1,0 +1,43 @@
+"""Issue 42 studies (``pytest -m study``): the planned 36 configurations of the seed cell
+against the seed's 36-image design, and a tracker plan against the space-filling design of the
+same candidates, each simulated, calibrated with nothing held out and scored against the truth,
+seeds 1-3."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import SEED_CELL
+
+pytestmark = pytest.mark.study
+
+
+@pytest.fixture(scope="module")
+def seed_cell_study(tmp_path_factory):
+    from fgcal.planning.study import design_study
+
+    rows = design_study(SEED_CELL, tmp_path_factory.mktemp("study42"), seeds=(1, 2, 3), planned_sizes=(36,),
+                        space_filling_sizes=())["seeds"]  # fmt: skip
+    return np.array([row["planned"][36]["rms_m"] / row["seed_design_m"] for row in rows])
+
+
+def test_planned_36_at_most_half_the_seed_design_on_average(seed_cell_study):
+    """Measured (d-optimal, 5000 candidates): 0.20, 0.72, 0.44 (mean 0.45); 0.27, 0.75, 0.49
+    (mean 0.50) before the plan modelled the pairs' groups."""
+    assert np.mean(seed_cell_study) <= 0.5, seed_cell_study
+
+
+@pytest.mark.xfail(reason="issue 42: seed 2's planned design holds out 0.72x its seed design (0.75x before)")
+def test_no_seed_above_07(seed_cell_study):
+    assert np.max(seed_cell_study) <= 0.7, seed_cell_study
+
+
+def test_tracker_plan_beats_space_filling_over_seeds(tmp_path):
+    """The IRB 120 tracker cell, 30 configurations from 1000 candidates the tracker sees:
+    measured planned / space-filling 0.63, 1.08, 0.74 (mean RMS 1.06e-5 against 1.35e-5 m)."""
+    from fgcal.planning.study import planned_against_space_filling
+
+    scores = [planned_against_space_filling(SEED_CELL.parent / "irb120_tracker.yaml", tmp_path / f"s{seed}", 30,
+                                            seed=seed, n_candidates=1000) for seed in (1, 2, 3)]  # fmt: skip
+    planned, space_filling = (np.mean([s[key] for s in scores]) for key in ("planned_m", "space_filling_m"))
+    assert planned < space_filling, (planned, space_filling)
