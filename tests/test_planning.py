@@ -224,6 +224,7 @@ def test_tracker_cell_simulates_plans_and_calibrates(tmp_path):
     [
         ("irb120_tracker", None, 0, "tracker"),  # crashed without --formulation
         ("kr125_seed", None, 0, "pairs"),
+        ("irb120_static_camera", None, 0, "static_camera"),  # issue 42: planned through its protocol
         ("seven_axis_touch", None, 2, "neither"),  # crashed: a touch cell has no camera nor tracker
         ("irb120_ballbar", "tracker", 2, "needs a tracker"),  # planned for a tracker the cell has not
         ("irb120_tracker", "pairs", 2, "needs a camera"),

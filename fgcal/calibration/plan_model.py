@@ -34,6 +34,7 @@ from ..model import kinematics
 from ..model.robot import Robot
 from ..simulation.cell import Cell
 from ..simulation.design import random_block_requests, solve_views, uniform_configurations
+from ..simulation.static_camera import board_seen
 
 PRIOR_SIGMA_AUX = {"translation": 1.0, "rotation": 1.0, "reflector": 0.1}  # m, rad, m: weak priors
 # A candidate needs its block in view, not a pose to 1e-9: fewer IK iterations, more candidates.
@@ -64,10 +65,11 @@ class PlanRows:
     aux: np.ndarray  # (M, r, a) on the auxiliary unknowns
     aux_labels: list[str]  # (a,)
     aux_sigma: np.ndarray  # (a,) their weak prior sigmas (m, rad)
-    sigma_m: float  # the measurement sigma the rows are whitened by
+    sigma_m: float  # the measurement sigma the rows are whitened by (in ``unit``)
     frame: str  # the scored point's frame
     point: np.ndarray  # (3,) the scored point in that frame
     gauge: str  # what the score removes first: none, translation or rigid
+    unit: str = "m"  # of the measurement sigma: m, or px
 
 
 class Planning(ABC):
@@ -157,6 +159,36 @@ class Reflectors(Planning):
             frame=cell.tracker_target_tips[0] if cell.tracker_target_tips else "flange",
             point=cell.tracker_targets[0],
             gauge="none",
+        )
+
+
+@dataclass(frozen=True)
+class StaticBoard(Planning):
+    """A camera fixed in the cell watching a board on the flange (static_camera)."""
+
+    def candidates(
+        self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+    ) -> Candidates:
+        return board_candidates(cell, count, rng, progress=progress)
+
+    def rows(
+        self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+    ) -> PlanRows:
+        setup = cell.static_camera
+        J_p, J_aux = _board_rows(robot, data, cell, names)
+        sigma = cell.pixel_sigma_px
+        labels = [f"{what}.{a}" for what in ("static_camera", "board") for a in ("rx", "ry", "rz", "tx", "ty", "tz")]
+        aux_sigma = ([PRIOR_SIGMA_AUX["rotation"]] * 3 + [PRIOR_SIGMA_AUX["translation"]] * 3) * 2
+        return PlanRows(
+            params=J_p / sigma,
+            aux=J_aux / sigma,
+            aux_labels=labels,
+            aux_sigma=np.array(aux_sigma),
+            sigma_m=sigma,
+            frame=cell.tip,
+            point=setup.board_mount[:3, 3].copy(),
+            gauge="rigid",
+            unit="px",
         )
 
 
@@ -259,6 +291,40 @@ def joint_space_candidates(
     )
 
 
+BOARD_UNSEEN = "the board not wholly in the nominal camera's image, or turned beyond its max_view_angle"
+
+
+def board_candidates(
+    cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+) -> Candidates:
+    """``count`` configurations uniform within the joint limits at which the nominal static
+    camera sees the whole board (as the simulator's design draws them); the others are
+    discarded and counted. The workspace, where accuracy counts, is the draws before the filter."""
+    robot = cell.robot
+    setup = cell.static_camera
+    params = robot.parameter_vector()
+    batch = max(2000, 4 * count)
+    kept, workspace, found, examined = [], None, 0, 0
+    while found < count and examined < 400 * count:
+        q = uniform_configurations(robot, batch, rng)
+        workspace = q[:WORKSPACE_SIZE] if workspace is None else workspace
+        T_W_n = kinematics.frame_pose(robot, kinematics.forward(robot, params, q), cell.tip)
+        keep = np.flatnonzero(board_seen(cell, inverse(setup.pose) @ T_W_n @ setup.board_mount))[: count - found]
+        examined += batch if found + len(keep) < count else int(keep[-1]) + 1
+        kept.append(q[keep])
+        found += len(keep)
+        if progress and found < count:
+            progress(f"  candidates: {found} of {count} showing the board to the camera ({examined} drawn)")
+    if found < count:
+        raise InputError(
+            cell.source,
+            "static_camera",
+            f"only {found} of {examined} configurations show the camera the whole board: ask for fewer candidates "
+            "(--candidates), or check static_camera.pose and max_view_angle",
+        )
+    return Candidates(np.concatenate(kept), None, None, discarded={BOARD_UNSEEN: examined - found}, workspace=workspace)
+
+
 # -- rows ---------------------------------------------------------------------------------------
 
 
@@ -298,6 +364,37 @@ def _grouped(J_p: np.ndarray, J_aux: np.ndarray, p_C: np.ndarray, group: int) ->
         return J - a * T @ (T.T @ J)
 
     return project(J_p), project(J_aux)
+
+
+def _board_rows(
+    robot: Robot, data: kinematics.KinematicsData, cell: Cell, names: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Six rows per candidate carrying exactly the information of all the board's corners'
+    pixels (pinhole; the distortion left out of the derivatives): every pixel moves with the
+    board's twist (w, v) in the camera frame, ``d p_C = w x p_C + v``, so the rows D of all
+    corners on that twist (2k x 6) compress to ``chol(D^T D)^T`` (6 x 6) times the twist's
+    Jacobian G on the parameters (the tip's body twist carried to the camera), the camera's pose
+    (moved in its frame) and the board's mounting (moved in the tip's frame)."""
+    setup = cell.static_camera
+    T_W_n = kinematics.frame_pose(robot, data, cell.tip)
+    T_C_n = inverse(setup.pose)[None] @ T_W_n  # (M, 4, 4)
+    p_C = transform_points((T_C_n @ setup.board_mount)[:, None], setup.board_points)  # (M, k, 3)
+    x, y, z = p_C[..., 0], p_C[..., 1], p_C[..., 2]
+    cam = setup.camera
+    P = np.zeros((*p_C.shape[:2], 2, 3))
+    P[..., 0, 0], P[..., 0, 2] = cam.fx / z, -cam.fx * x / z**2
+    P[..., 1, 1], P[..., 1, 2] = cam.fy / z, -cam.fy * y / z**2
+    eye = np.broadcast_to(np.eye(3), (*p_C.shape, 3))
+    D = (P @ np.concatenate([-skew(p_C), eye], axis=-1)).reshape(len(p_C), -1, 6)  # (M, 2k, 6)
+    L = np.linalg.cholesky(np.swapaxes(D, 1, 2) @ D)  # (M, 6, 6)
+    # A twist (w, v) of the tip in its own frame moves the board by (R w, R v + t x R w) in C.
+    R, t = T_C_n[:, :3, :3], T_C_n[:, :3, 3]
+    A = np.zeros((len(p_C), 6, 6))
+    A[:, :3, :3], A[:, 3:, 3:], A[:, 3:, :3] = R, R, skew(t) @ R
+    G_p = A @ kinematics.jacobian(robot, data, names, frame=cell.tip)  # (M, 6, m)
+    G_aux = np.concatenate([np.broadcast_to(np.eye(6), A.shape), A], axis=2)  # camera, board
+    Lt = np.swapaxes(L, 1, 2)
+    return Lt @ G_p, Lt @ G_aux
 
 
 def _tracker_rows(

@@ -34,8 +34,9 @@ class Information:
     region: np.ndarray  # (3E, p) scored-point Jacobian over the region (m per unit), gauge removed
     scale: np.ndarray  # (len(names),) plausible deviation of each parameter (for the indices)
     unidentifiable: dict[str, str]
-    sigma_m: float  # measurement sigma
+    sigma_m: float  # measurement sigma (in ``unit``)
     gauge: str
+    unit: str = "m"  # of the measurement sigma: m or px
 
     @property
     def n_params(self) -> int:
@@ -94,4 +95,5 @@ def build_information(
         unidentifiable=identifiability.unidentifiable,
         sigma_m=measured.sigma_m,
         gauge=gauge,
+        unit=measured.unit,
     )

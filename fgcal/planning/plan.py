@@ -164,7 +164,8 @@ class PlanResult:
             "parameters": self.info.names,
             "auxiliary_unknowns": self.info.aux_labels,
             "unidentifiable": self.info.unidentifiable,
-            "measurement_sigma_m": self.info.sigma_m,
+            "measurement_sigma_m": self.info.sigma_m if self.info.unit == "m" else None,
+            "measurement_sigma": {"value": self.info.sigma_m, "unit": self.info.unit},
             "gauge_removed": self.info.gauge,
             "predicted_position_sigma_rms_m": self.predicted_sigma_m,
             "prediction": self.prediction(),
@@ -254,8 +255,8 @@ def choose_formulation(cell: Cell, formulation: str | None) -> str:
         raise InputError(
             cell.source,
             None,
-            "fgcal plan models a camera on the flange or a laser tracker, and this cell has neither "
-            "(touch, ballbar and static-camera cells are not planned yet)",
+            f"this cell has neither of the instruments fgcal plan models ({', '.join(PLANNED_INSTRUMENTS)}); "
+            "touch and ballbar cells are not planned yet",
         )
     if formulation not in REGISTRY:
         raise InputError(None, "--formulation", f"unknown formulation {formulation!r} (one of {', '.join(REGISTRY)})")
@@ -269,7 +270,7 @@ def choose_formulation(cell: Cell, formulation: str | None) -> str:
             cell.source,
             kind,
             f"the {formulation} formulation needs a {kind}, and this cell has "
-            + (" and ".join(available) if available else "neither a camera nor a tracker"),
+            + (" and ".join(available) if available else "none that fgcal plan models"),
         )
     return formulation
 
@@ -484,6 +485,10 @@ def _mm(value: float | None) -> str:
     return "-" if value is None else f"{value * 1e3:.4f}"
 
 
+def _sigma(info: Information) -> str:
+    return f"{info.sigma_m * 1e3:g} mm" if info.unit == "m" else f"{info.sigma_m:g} {info.unit}"
+
+
 def _markdown(result: PlanResult, plot: bool) -> str:
     info = result.info
     lines = [
@@ -496,7 +501,7 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         *[f"- {line[0].upper()}{line[1:]}." for line in result.discarded_lines()],
         f"- Predicted position accuracy over the region: **{_mm(result.predicted_sigma_m)} mm RMS, the floor if the "
         f"model describes the robot** (scored point, {'no' if info.gauge == 'none' else info.gauge} gauge removed; "
-        f"measurement sigma {info.sigma_m * 1e3:g} mm); a "
+        f"measurement sigma {_sigma(info)}); a "
         f"space-filling design of the same size: {_mm(result.space_filling_sigma_m)} mm.",
         f"- {result.prediction_lines()[1][0].upper()}{result.prediction_lines()[1][1:]}.",
         f"- {info.n_params} identifiable parameters: {', '.join(info.names)}.",

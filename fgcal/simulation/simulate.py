@@ -22,7 +22,7 @@ from ..model.robot_io import embed_robot
 from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
-from .static_camera import static_camera_design, write_static_camera_tables
+from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
 from .touch import touch_design, write_touch_tables
 from .truth import perturb_parameters
 
@@ -110,8 +110,8 @@ def simulate(
             raise InputError(
                 cell.source, what, f"a {what} cell's configurations are its readings: no other design or drift"
             )
-    if cell.static_camera is not None and (configurations is not None or drift is not None):
-        raise InputError(cell.source, "static_camera", "a static-camera cell draws its own design: no file or drift")
+    if cell.static_camera is not None and drift is not None:
+        raise InputError(cell.source, "static_camera", "a static-camera cell: no drift")
     if cell.camera is None and cell.design.kind == "seed":
         raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
     if drift is not None and cell.camera is None:
@@ -141,9 +141,16 @@ def simulate(
     say(f"designing configurations ({cell.design.kind}) for {robot.name} in {cell.name}")
     if configurations is not None:
         views, unseen = file_design(cell, Path(configurations), true_camera)
+        if cell.static_camera is not None:  # what the true camera does not see of the board is left out
+            q_file = np.array([v.q for v in views])
+            seen = board_seen(cell, board_in_camera(cell, q_file, true_params))
+            unseen = [f"line {i + 2}" for i in np.flatnonzero(~seen)]
+            views = [v for v, s in zip(views, seen, strict=True) if s]
+            if not views:
+                raise InputError(configurations, None, "the simulated camera sees the board at none of them")
         if unseen:
             say(
-                f"  {len(unseen)} configurations left out: the simulated true camera does not see their block "
+                f"  {len(unseen)} configurations left out: the simulated true camera does not see their block or board "
                 f"({', '.join(unseen[:5])}{', ...' if len(unseen) > 5 else ''})"
             )
     elif cell.touch is not None:
