@@ -77,3 +77,34 @@ def test_static_camera_plans_and_simulates(tmp_path):
                  "--out", str(sim), "-q"]) == 0  # fmt: skip
     dataset = load_dataset(sim)
     assert "pixels" in dataset.tables and 10 <= len(dataset.q) <= 12
+
+
+def test_touch_plans_simulates_and_calibrates(tmp_path):
+    """A touch cell is planned: each candidate seats the probe in a point from above on the
+    nominal model, the plan names each configuration's point, the known distances are
+    information every design has, and the plan simulates exactly (the true robot seated with
+    the plan's orientation) and calibrates."""
+    from fgcal.calibration.config import CalibrationConfig
+    from fgcal.calibration.run import calibrate
+
+    out = tmp_path / "plan"
+    argv = ["plan", "seven_axis_touch", "--n", "60", "--candidates", "400", "--out", str(out), "--no-plots"]
+    assert main(argv) == 0
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["formulation"] == "touch" and "probe.x" in plan["auxiliary_unknowns"]
+    assert plan["predicted_position_sigma_rms_m"] < plan["space_filling_same_n_sigma_rms_m"]
+    lines = (out / "configurations.csv").read_text().splitlines()
+    assert lines[0].endswith(",q7,point")
+    points = [line.rsplit(",", 1)[1] for line in lines[1:]]
+    # The greedy start alone touched one point only (a first touch tells nothing about the
+    # robot): the exchange from the space-filling design touches several, each more than once.
+    touched = {p: points.count(p) for p in set(points)}
+    assert len(touched) >= 3 and min(touched.values()) >= 2, touched
+    sim = tmp_path / "sim"
+    assert main(["simulate", "seven_axis_touch", "--configurations", str(out / "configurations.csv"),
+                 "--out", str(sim), "-q"]) == 0  # fmt: skip
+    dataset = load_dataset(sim)
+    assert len(dataset.q) >= 55
+    config = CalibrationConfig.defaults(sim, formulation="touch", validation={"holdout": 0.0}, compliant_joints=[2, 4])
+    result = calibrate(config)  # the cell's compliant joints, as simulate's calibration.yaml suggests
+    assert result.fit.chi2_per_dof < 2.0

@@ -52,3 +52,28 @@ def test_static_camera_plan_beats_space_filling_over_seeds(tmp_path):
                                             20, seed=seed, n_candidates=1000) for seed in (1, 2, 3)]  # fmt: skip
     planned, space_filling = (np.mean([s[key] for s in scores]) for key in ("planned_m", "space_filling_m"))
     assert planned < space_filling, (planned, space_filling)
+
+
+def test_touch_plan_beats_random_touches_on_every_seed(tmp_path):
+    """The seven-axis touch cell, 60 touches from 1000 candidates, against the cell's own
+    random touches of the same number (12 per point): measured 0.86, 0.91, 0.71x."""
+    import yaml
+
+    from fgcal.planning.plan import plan, prepare, write_plan
+    from fgcal.planning.study import evaluation_configurations, truth_rms
+    from fgcal.simulation.simulate import simulate
+
+    cell = SEED_CELL.parent / "seven_axis_touch.yaml"
+    doc = yaml.safe_load(cell.read_text())
+    doc["robot"] = str((cell.parent / doc["robot"]).resolve())
+    doc["touch"]["touches_per_point"] = 60 // len(doc["touch"]["points"])
+    (tmp_path / "random.yaml").write_text(yaml.safe_dump(doc))
+    joints = doc["perturbation"]["compliant_joints"]
+    for seed in (1, 2, 3):
+        planner = prepare(cell, 1000, seed=seed)
+        write_plan(plan(cell, 60, planner=planner, curve_max=0), tmp_path / f"plan{seed}", plot=False)
+        simulate(cell, tmp_path / f"p{seed}", seed, configurations=tmp_path / f"plan{seed}" / "configurations.csv")
+        simulate(tmp_path / "random.yaml", tmp_path / f"r{seed}", seed)
+        q_eval = evaluation_configurations(planner, seed)
+        planned, random = (truth_rms(tmp_path / f"{k}{seed}", q_eval, "touch", joints) for k in ("p", "r"))
+        assert planned < random, (seed, planned, random)

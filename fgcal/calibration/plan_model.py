@@ -29,12 +29,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.se3 import inverse, skew, transform_points
+from ..core.se3 import inverse, pose, skew, transform_points
 from ..model import kinematics
 from ..model.robot import Robot
 from ..simulation.cell import Cell
 from ..simulation.design import random_block_requests, solve_views, uniform_configurations
+from ..simulation.ik import solve_ik
 from ..simulation.static_camera import board_seen
+from ..simulation.touch import approach_rotation
 
 PRIOR_SIGMA_AUX = {"translation": 1.0, "rotation": 1.0, "reflector": 0.1}  # m, rad, m: weak priors
 # A candidate needs its block in view, not a pose to 1e-9: fewer IK iterations, more candidates.
@@ -52,6 +54,9 @@ class Candidates:
     # the others are zero: not measured); None: all of them.
     seen: np.ndarray | None = None
     seen_label: str = ""  # what the k things are ("reflectors")
+    label_column: str = "block"  # configurations.csv's column of ``blocks`` (the block seen, the point touched)
+    # A label chosen must be chosen this often (a point touched once is not calibrated), or not at all.
+    min_per_label: int = 1
     # The configurations over which accuracy counts (None: the candidates): the workspace,
     # where the candidates are only those the instrument can measure.
     workspace: np.ndarray | None = None
@@ -70,6 +75,9 @@ class PlanRows:
     point: np.ndarray  # (3,) the scored point in that frame
     gauge: str  # what the score removes first: none, translation or rigid
     unit: str = "m"  # of the measurement sigma: m, or px
+    # Whitened rows every design has, on the auxiliary unknowns alone (a drawing's known
+    # distances between touched points); None: none.
+    fixed: np.ndarray | None = None
 
 
 class Planning(ABC):
@@ -189,6 +197,54 @@ class StaticBoard(Planning):
             point=setup.board_mount[:3, 3].copy(),
             gauge="rigid",
             unit="px",
+        )
+
+
+@dataclass(frozen=True)
+class ProbeTouches(Planning):
+    """A probe on the flange seated in fixed points from above (touch): the rows are the
+    probe's centre in W, ``T_W_n(q) s - a_k = 0``, sigma the cell's touch sigma; auxiliary: the
+    probe s and the points a_k; the drawing's known distances are rows every design has."""
+
+    def candidates(
+        self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+    ) -> Candidates:
+        return touch_candidates(cell, count, rng, progress=progress)
+
+    def rows(
+        self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+    ) -> PlanRows:
+        touch = cell.touch
+        n_points = len(touch.names)
+        point = np.array([touch.names.index(b) for b in cand.blocks])
+        J_p = kinematics.jacobian(robot, data, names, frame=cell.tip, point=touch.probe)  # (M, 3, m)
+        J_aux = np.zeros((len(cand.q), 3, 3 + 3 * n_points))
+        J_aux[:, :, :3] = kinematics.frame_pose(robot, data, cell.tip)[:, :3, :3]
+        for k in range(n_points):
+            J_aux[point == k, :, 3 + 3 * k : 6 + 3 * k] = -np.eye(3)
+        sigma = cell.touch_sigma_m
+        fixed = None
+        if touch.known_distances:
+            rows = []
+            for a in range(n_points):
+                for b in range(a + 1, n_points):
+                    u = touch.points[a] - touch.points[b]
+                    row = np.zeros(3 + 3 * n_points)
+                    row[3 + 3 * a : 6 + 3 * a], row[3 + 3 * b : 6 + 3 * b] = u, -u
+                    rows.append(row / np.linalg.norm(u) / cell.spacing_sigma_m)
+            fixed = np.array(rows)
+        labels = [f"probe.{a}" for a in "xyz"] + [f"{name}.{a}" for name in touch.names for a in "xyz"]
+        aux_sigma = [PRIOR_SIGMA_AUX["reflector"]] * 3 + [PRIOR_SIGMA_AUX["translation"]] * (3 * n_points)
+        return PlanRows(
+            params=J_p / sigma,
+            aux=J_aux / sigma,
+            aux_labels=labels,
+            aux_sigma=np.array(aux_sigma),
+            sigma_m=sigma,
+            frame=cell.tip,
+            point=touch.probe.copy(),
+            gauge="rigid",
+            fixed=fixed,
         )
 
 
@@ -323,6 +379,57 @@ def board_candidates(
             "(--candidates), or check static_camera.pose and max_view_angle",
         )
     return Candidates(np.concatenate(kept), None, None, discarded={BOARD_UNSEEN: examined - found}, workspace=workspace)
+
+
+TOUCH_UNREACHED = "the probe not seated in its point within the joint limits, within max_tilt of vertical"
+
+
+def touch_candidates(
+    cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+) -> Candidates:
+    """``count`` configurations seating the probe in the cell's points on the nominal model:
+    a point at random, the probe's axis within ``max_tilt`` of vertical in a random direction
+    with a random spin (as the simulator's touches), by inverse kinematics from two random
+    starts; the approaches not reached are discarded and counted. Accuracy counts where the
+    probe works: over the candidates (the points' neighbourhood, every approach), not the whole
+    joint space, which a few points on a table cannot calibrate."""
+    robot, touch = cell.robot, cell.touch
+    params = robot.parameter_vector()
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    q_kept, points, tried, unreached, rounds = [], [], 0, 0, 0
+    while len(points) < count and rounds < 40:
+        rounds += 1
+        batch = max(64, int(1.5 * (count - len(points))))
+        which = rng.integers(len(touch.names), size=batch)
+        R = np.array([approach_rotation(touch.max_tilt_rad, rng) for _ in range(batch)])
+        targets = np.array([pose(R_i, touch.points[k] - R_i @ touch.probe) for k, R_i in zip(which, R, strict=True)])
+        solved = np.zeros(batch, dtype=bool)
+        q = np.zeros((batch, robot.n_joints))
+        for _ in range(2):
+            left = np.flatnonzero(~solved)
+            start = rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
+            q_try, ok = solve_ik(robot, params, targets[left], start, frame=cell.tip, iterations=IK_ITERATIONS,
+                                 tol=IK_TOL, freeze_converged=True)  # fmt: skip
+            q[left[ok]], solved[left[ok]] = q_try[ok], True
+        tried += batch
+        unreached += int((~solved).sum())
+        keep = np.flatnonzero(solved)[: count - len(points)]
+        q_kept.append(q[keep])
+        points += [touch.names[k] for k in which[keep]]
+        if progress and len(points) < count:
+            progress(f"  candidates: {len(points)} of {count} touches reached ({tried} tried)")
+        if rounds >= 3 and not points:
+            raise InputError(cell.source, "touch.points", "the probe reaches none of the points within max_tilt")
+    if len(points) < count:
+        raise InputError(cell.source, "touch.points", f"only {len(points)} of {tried} approaches reached")
+    return Candidates(
+        np.concatenate(q_kept),
+        points,
+        None,
+        discarded={TOUCH_UNREACHED: unreached} if unreached else {},
+        label_column="point",
+        min_per_label=2,
+    )
 
 
 # -- rows ---------------------------------------------------------------------------------------

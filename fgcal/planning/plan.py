@@ -32,7 +32,7 @@ from ..model.robot import MODELS
 from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
 from . import MAX_CANDIDATES
-from .exchange import CRITERIA, information_of, plan_design, predicted_sigma
+from .exchange import CRITERIA, criterion_value, information_of, plan_design, predicted_sigma, with_repeats
 from .indices import observability
 from .information import Information, build_information
 
@@ -305,7 +305,9 @@ def prepare(
             raise InputError(None, "--approach-offset", "leaves no room within a joint's limits")
         robot = replace(robot, limits=limits)
     cell = replace(cell, robot=robot)
-    config = CalibrationConfig.defaults(".", formulation=formulation, model=model)
+    # The compliant joints the cell declares (those fgcal simulate's calibration.yaml names).
+    compliant = [int(j) for j in cell.perturbation.compliant_joints]
+    config = CalibrationConfig.defaults(".", formulation=formulation, model=model, compliant_joints=compliant)
     planning = registered(formulation).planning(config.measurement)
     if planning is None:  # choose_formulation planned it: its planning does not depend on settings
         raise InputError(None, "--formulation", f"the {formulation} formulation is not planned yet")
@@ -372,6 +374,15 @@ def plan(
     # designs and the start of this plan's exchange.
     greedy = plan_design(info, max([n, *sizes]), criterion, max_passes=0)[1]
     chosen, _ = plan_design(info, n, criterion, progress=say, greedy_order=greedy)
+    # The greedy start is myopic where a measurement tells nothing until it is repeated (a point
+    # touched once only locates itself): the exchange from the space-filling design too, the
+    # better of the two kept.
+    other, _ = plan_design(info, n, criterion, start=planner.space_filling(n))
+    if criterion_value(info, other, criterion) > criterion_value(info, chosen, criterion) + 1e-9:
+        say("  the exchange from the space-filling design is better than from the greedy one: taken")
+        chosen = other
+    if cand.blocks is not None and cand.min_per_label > 1:
+        chosen = with_repeats(info, chosen, cand.blocks, cand.min_per_label, criterion)
     timing["selection"] = time.process_time() - started
     started = time.process_time()
     curves = _curves(planner, greedy, sizes)
@@ -465,7 +476,7 @@ def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> li
     header = ["config", *[f"q{i}" for i in range(1, n_joints + 1)]]
     rows = [[f"p{k:04d}", *cand.q[c]] for k, c in enumerate(chosen)]
     if cand.blocks is not None:
-        header.append("block")
+        header.append(cand.label_column)
         rows = [[*row, cand.blocks[c]] for row, c in zip(rows, chosen, strict=True)]
     approach = result.approach_points
     if approach is not None:

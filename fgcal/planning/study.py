@@ -24,11 +24,15 @@ from ..simulation.simulate import simulate
 from .plan import SCORED_POINT_C, Planner, plan, prepare, write_plan
 
 
-def truth_rms(dataset: Path, q_eval: np.ndarray, formulation: str) -> float:
+def truth_rms(dataset: Path, q_eval: np.ndarray, formulation: str, compliant_joints: Sequence[int] = ()) -> float:
     """RMS (m) of the scored point's error against the truth at ``q_eval`` (pairs: the
     translation gauge removed; tracker: the reflectors in the tracker frame), after
-    calibrating ``dataset`` with nothing held out."""
-    config = CalibrationConfig.defaults(dataset, formulation=formulation, model="DH,s,e", validation={"holdout": 0.0})
+    calibrating ``dataset`` with nothing held out (``compliant_joints``: the cell's, where it
+    declares them)."""
+    joints = {"compliant_joints": [int(j) for j in compliant_joints]} if len(compliant_joints) else {}
+    config = CalibrationConfig.defaults(
+        dataset, formulation=formulation, model="DH,s,e", validation={"holdout": 0.0}, **joints
+    )
     result = calibrate(config)
     # A camera's scored point is the fixed SCORED_POINT_C, whatever the designs measured.
     points = SCORED_POINT_C[None, :] if result.problem.frame == "tool" else None
@@ -69,7 +73,8 @@ def planned_against_space_filling(
     for name, path in (("planned_m", out_dir / "plan" / "configurations.csv"),
                        ("space_filling_m", out_dir / "space_filling.csv")):  # fmt: skip
         simulate(cell, out_dir / name, seed, configurations=path)
-        scores[name] = truth_rms(out_dir / name, q_eval, planner.formulation)
+        joints = planner.cell.perturbation.compliant_joints
+        scores[name] = truth_rms(out_dir / name, q_eval, planner.formulation, joints)
     return scores
 
 

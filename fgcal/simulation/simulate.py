@@ -23,7 +23,7 @@ from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pa
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
 from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
-from .touch import touch_design, write_touch_tables
+from .touch import touch_design, touch_file_design, write_touch_tables
 from .truth import perturb_parameters
 
 
@@ -106,7 +106,8 @@ def simulate(
             raise InputError(None, "--configurations", "takes the place of --design and --n")
         cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
     for setup, what in ((cell.touch, "touch"), (cell.ballbar, "ballbar")):
-        if setup is not None and (configurations is not None or design is not None or drift is not None):
+        from_file = configurations is not None and what != "touch"  # a touch plan names each one's point
+        if setup is not None and (from_file or design is not None or drift is not None):
             raise InputError(
                 cell.source, what, f"a {what} cell's configurations are its readings: no other design or drift"
             )
@@ -139,7 +140,14 @@ def simulate(
         return robot.fk_tool(q, true_params)
 
     say(f"designing configurations ({cell.design.kind}) for {robot.name} in {cell.name}")
-    if configurations is not None:
+    if configurations is not None and cell.touch is not None:
+        q_touch, touched, seating, unreached = touch_file_design(
+            cell, Path(configurations), robot.parameter_vector(true_params), design_rng, noise_rng
+        )
+        views = [View(qi, None, ()) for qi in q_touch]
+        if unreached:
+            say(f"  {len(unreached)} touches left out: the true robot does not reach them ({', '.join(unreached[:5])})")
+    elif configurations is not None:
         views, unseen = file_design(cell, Path(configurations), true_camera)
         if cell.static_camera is not None:  # what the true camera does not see of the board is left out
             q_file = np.array([v.q for v in views])
