@@ -108,3 +108,30 @@ def test_touch_plans_simulates_and_calibrates(tmp_path):
     config = CalibrationConfig.defaults(sim, formulation="touch", validation={"holdout": 0.0}, compliant_joints=[2, 4])
     result = calibrate(config)  # the cell's compliant joints, as simulate's calibration.yaml suggests
     assert result.fit.chi2_per_dof < 2.0
+
+
+def test_ballbar_plans_simulates_and_calibrates(tmp_path):
+    """A ballbar cell is planned: readings with the ball within the bar's travel of a pivot,
+    the flange down within max_tilt, on the nominal model; each pivot read at least six times;
+    the plan names each reading's pivot, simulates exactly (the true distance at the plan's
+    joints) and calibrates."""
+    from fgcal.calibration.config import CalibrationConfig
+    from fgcal.calibration.run import calibrate
+
+    out = tmp_path / "plan"
+    argv = ["plan", "irb120_ballbar", "--n", "150", "--candidates", "400", "--out", str(out), "--no-plots"]
+    assert main(argv) == 0
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["formulation"] == "distances" and "ball.x" in plan["auxiliary_unknowns"]
+    assert plan["predicted_position_sigma_rms_m"] < plan["space_filling_same_n_sigma_rms_m"]
+    lines = (out / "configurations.csv").read_text().splitlines()
+    assert lines[0].endswith(",q6,pivot")
+    pivots = [line.rsplit(",", 1)[1] for line in lines[1:]]
+    assert min(pivots.count(p) for p in set(pivots)) >= 6
+    sim = tmp_path / "sim"
+    assert main(["simulate", "irb120_ballbar", "--configurations", str(out / "configurations.csv"),
+                 "--out", str(sim), "-q"]) == 0  # fmt: skip
+    dataset = load_dataset(sim)
+    assert len(dataset.q) >= 140
+    result = calibrate(CalibrationConfig.defaults(sim, formulation="distances", validation={"holdout": 0.0}))
+    assert result.fit.chi2_per_dof < 2.0

@@ -77,3 +77,27 @@ def test_touch_plan_beats_random_touches_on_every_seed(tmp_path):
         q_eval = evaluation_configurations(planner, seed)
         planned, random = (truth_rms(tmp_path / f"{k}{seed}", q_eval, "touch", joints) for k in ("p", "r"))
         assert planned < random, (seed, planned, random)
+
+
+def test_ballbar_plan_beats_random_readings_on_every_seed(tmp_path):
+    """The IRB 120 ballbar cell, 150 readings from 1000 candidates, against the cell's own
+    random readings of the same number (50 per pivot): measured 0.94, 0.53, 0.54x."""
+    import yaml
+
+    from fgcal.planning.plan import plan, prepare, write_plan
+    from fgcal.planning.study import evaluation_configurations, truth_rms
+    from fgcal.simulation.simulate import simulate
+
+    cell = SEED_CELL.parent / "irb120_ballbar.yaml"
+    doc = yaml.safe_load(cell.read_text())
+    doc["ballbar"]["readings_per_pivot"] = 150 // len(doc["ballbar"]["pivots"])
+    (tmp_path / "random.yaml").write_text(yaml.safe_dump(doc))
+    for seed in (1, 2, 3):
+        planner = prepare(cell, 1000, seed=seed)
+        write_plan(plan(cell, 150, planner=planner, curve_max=0), tmp_path / f"plan{seed}", plot=False)
+        simulate(cell, tmp_path / f"p{seed}", seed, configurations=tmp_path / f"plan{seed}" / "configurations.csv")
+        simulate(tmp_path / "random.yaml", tmp_path / f"r{seed}", seed)
+        q_eval = evaluation_configurations(planner, seed)
+        joints = planner.cell.perturbation.compliant_joints
+        planned, random = (truth_rms(tmp_path / f"{k}{seed}", q_eval, "distances", joints) for k in ("p", "r"))
+        assert planned < random, (seed, planned, random)

@@ -248,6 +248,46 @@ class ProbeTouches(Planning):
         )
 
 
+@dataclass(frozen=True)
+class BallbarReadings(Planning):
+    """A ballbar between a ball on the flange and fixed pivots (distances): one row per
+    reading, the bar's direction u on the ball's motion, ``u^T (T_W_n(q) s - a_k)``, sigma the
+    cell's distance sigma; auxiliary: the ball s and the pivots a_k. Readings between two
+    configurations are not planned."""
+
+    def candidates(
+        self, cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+    ) -> Candidates:
+        return ballbar_candidates(cell, count, rng, progress=progress)
+
+    def rows(
+        self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
+    ) -> PlanRows:
+        bar = cell.ballbar
+        pivot = np.array([bar.names.index(b) for b in cand.blocks])
+        T_W_n = kinematics.frame_pose(robot, data, cell.tip)
+        u = transform_points(T_W_n, bar.ball) - bar.pivots[pivot]
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        J_p = u[:, None, :] @ kinematics.jacobian(robot, data, names, frame=cell.tip, point=bar.ball)  # (M, 1, m)
+        J_aux = np.zeros((len(cand.q), 1, 3 + 3 * len(bar.names)))
+        J_aux[:, 0, :3] = np.einsum("ni,nij->nj", u, T_W_n[:, :3, :3])
+        for k in range(len(bar.names)):
+            J_aux[pivot == k, 0, 3 + 3 * k : 6 + 3 * k] = -u[pivot == k]
+        sigma = cell.distance_sigma_m
+        labels = [f"ball.{a}" for a in "xyz"] + [f"{name}.{a}" for name in bar.names for a in "xyz"]
+        aux_sigma = [PRIOR_SIGMA_AUX["reflector"]] * 3 + [PRIOR_SIGMA_AUX["translation"]] * (3 * len(bar.names))
+        return PlanRows(
+            params=J_p / sigma,
+            aux=J_aux / sigma,
+            aux_labels=labels,
+            aux_sigma=np.array(aux_sigma),
+            sigma_m=sigma,
+            frame=cell.tip,
+            point=bar.ball.copy(),
+            gauge="rigid",
+        )
+
+
 # -- candidates -------------------------------------------------------------------------------
 
 
@@ -429,6 +469,65 @@ def touch_candidates(
         discarded={TOUCH_UNREACHED: unreached} if unreached else {},
         label_column="point",
         min_per_label=2,
+    )
+
+
+BALLBAR_UNREACHED = "the ball not reached within the joint limits, the flange within max_tilt of straight down"
+MIN_ELEVATION_RAD = np.deg2rad(10.0)  # as the simulator's readings: the bar clear of the pivot's plate
+
+
+def ballbar_candidates(
+    cell: Cell, count: int, rng: np.random.Generator, progress: Callable[[str], None] | None = None
+) -> Candidates:
+    """``count`` readings to the cell's pivots on the nominal model: a pivot at random, the ball
+    at a random length within the bar's travel in a random direction above the pivot's plane,
+    the flange pointing down within ``max_tilt`` with a random spin (as the simulator's), by
+    inverse kinematics from two random starts; the readings not reached are discarded and
+    counted. Accuracy counts over the candidates (where the ball works)."""
+    robot, bar = cell.robot, cell.ballbar
+    if not bar.names:
+        raise InputError(cell.source, "ballbar.pivots", "readings between configurations are not planned yet")
+    params = robot.parameter_vector()
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    q_kept, pivots, unreached, rounds = [], [], 0, 0
+    while len(pivots) < count and rounds < 40:
+        rounds += 1
+        batch = max(64, int(1.5 * (count - len(pivots))))
+        which = rng.integers(len(bar.names), size=batch)
+        length = rng.uniform(*bar.length_m, batch)
+        azimuth = rng.uniform(-np.pi, np.pi, batch)
+        elevation = np.arcsin(rng.uniform(np.sin(MIN_ELEVATION_RAD), 1.0, batch))
+        direction = np.stack(
+            [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1
+        )
+        centres = bar.pivots[which] + length[:, None] * direction
+        R = np.array([approach_rotation(bar.max_tilt_rad, rng) for _ in range(batch)])
+        targets = np.array([pose(R_i, c - R_i @ bar.ball) for c, R_i in zip(centres, R, strict=True)])
+        solved = np.zeros(batch, dtype=bool)
+        q = np.zeros((batch, robot.n_joints))
+        for _ in range(2):
+            left = np.flatnonzero(~solved)
+            start = rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
+            q_try, ok = solve_ik(robot, params, targets[left], start, frame=cell.tip, iterations=IK_ITERATIONS,
+                                 tol=IK_TOL, freeze_converged=True)  # fmt: skip
+            q[left[ok]], solved[left[ok]] = q_try[ok], True
+        unreached += int((~solved).sum())
+        keep = np.flatnonzero(solved)[: count - len(pivots)]
+        q_kept.append(q[keep])
+        pivots += [bar.names[k] for k in which[keep]]
+        if progress and len(pivots) < count:
+            progress(f"  candidates: {len(pivots)} of {count} readings reached")
+        if rounds >= 3 and not pivots:
+            raise InputError(cell.source, "ballbar.pivots", "the ball reaches no pivot's travel within max_tilt")
+    if len(pivots) < count:
+        raise InputError(cell.source, "ballbar.pivots", f"only {len(pivots)} readings reached")
+    return Candidates(
+        np.concatenate(q_kept),
+        pivots,
+        None,
+        discarded={BALLBAR_UNREACHED: unreached} if unreached else {},
+        label_column="pivot",
+        min_per_label=6,  # three for the pivot, three for the ball, more for the robot
     )
 
 

@@ -19,7 +19,7 @@ from ..data.dataset import FORMAT, write_csv, write_header
 from ..data.truth import Truth
 from ..model.motion import MotionHistory, features
 from ..model.robot_io import embed_robot
-from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
+from .ballbar import ballbar_design, ballbar_file_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
 from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
@@ -105,9 +105,11 @@ def simulate(
         if design is not None or n_configurations is not None:
             raise InputError(None, "--configurations", "takes the place of --design and --n")
         cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
+    # A touch or ballbar plan (--configurations) names each one's point or pivot.
+    if cell.ballbar is not None and configurations is not None and cell.ballbar.pairs:
+        raise InputError(cell.source, "ballbar", "a plan of readings between configurations is not simulated yet")
     for setup, what in ((cell.touch, "touch"), (cell.ballbar, "ballbar")):
-        from_file = configurations is not None and what != "touch"  # a touch plan names each one's point
-        if setup is not None and (from_file or design is not None or drift is not None):
+        if setup is not None and (design is not None or drift is not None):
             raise InputError(
                 cell.source, what, f"a {what} cell's configurations are its readings: no other design or drift"
             )
@@ -147,6 +149,13 @@ def simulate(
         views = [View(qi, None, ()) for qi in q_touch]
         if unreached:
             say(f"  {len(unreached)} touches left out: the true robot does not reach them ({', '.join(unreached[:5])})")
+    elif configurations is not None and cell.ballbar is not None:
+        q_bar, bar_pivots, bar_lengths, beyond = ballbar_file_design(
+            cell, Path(configurations), robot.parameter_vector(true_params)
+        )
+        views = [View(qi, None, ()) for qi in q_bar]
+        if beyond:
+            say(f"  {len(beyond)} readings left out: beyond the bar's travel on the true robot ({beyond[0]}, ...)")
     elif configurations is not None:
         views, unseen = file_design(cell, Path(configurations), true_camera)
         if cell.static_camera is not None:  # what the true camera does not see of the board is left out
