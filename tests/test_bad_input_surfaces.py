@@ -480,11 +480,14 @@ CASES = [
     ("plan_candidates_zero", _argv(*PLAN, "--n", "10", "--candidates", "0"), "fgcal plan", "--candidates"),
     ("plan_candidates_huge", _argv(*PLAN, "--n", "10", "--candidates", "10000000"), "fgcal plan", "--candidates"),
     ("plan_unknown_formulation", _argv(*PLAN, "--n", "10", "--formulation", "sonar"), "--formulation", "sonar"),
-    ("plan_formulation_not_planned", _argv(*PLAN, "--n", "10", "--formulation", "touch"), "--formulation",
+    ("plan_formulation_not_planned", _argv(*PLAN, "--n", "10", "--formulation", "poses"), "--formulation",
      "not planned"),
+    # Issue 42: touch is planned; a cell without a probe is told so
+    ("plan_touch_on_camera_cell", _argv(*PLAN, "--n", "10", "--formulation", "touch"), "kr125_seed", "touch"),
     ("plan_seed_negative", _argv(*PLAN, "--n", "10", "--seed", "-1"), "fgcal plan", "--seed"),
-    ("plan_ballbar_cell", _argv("plan", "irb120_ballbar", "--n", "10", "--out", "plan"), "irb120_ballbar",
-     "neither"),
+    # Issue 42: a ballbar's readings to pivots are planned, those between configurations not yet
+    ("plan_ball_pairs_cell", _argv("plan", "irb120_ball_pairs", "--n", "10", "--out", "plan"), "irb120_ball_pairs",
+     "not planned yet"),
     ("plan_tracker_on_ballbar_cell", _argv("plan", "irb120_ballbar", "--n", "10", "--out", "plan",
      "--formulation", "tracker"), "irb120_ballbar", "tracker"),
     # fgcal simulate
@@ -502,7 +505,7 @@ CASES = [
     ("simulate_seed_negative", _argv("simulate", "irb120_tracker", "--out", "sim", "--seed", "-3"),
      "fgcal simulate", "--seed"),
     ("simulate_drift_static_camera", _argv("simulate", "irb120_static_camera", "--out", "sim", "--drift",
-     "theta2=0.001@10"), "static_camera", "no file or drift"),
+     "theta2=0.001@10"), "static_camera", "a static-camera cell: no drift"),
     ("simulate_drift_malformed", _argv("simulate", "kr125_seed", "--out", "sim", "--drift", "theta2"), "--drift",
      "NAME=CHANGE@CONFIGURATION"),
     ("simulate_drift_huge", _argv("simulate", "kr125_seed", "--out", "sim", "--drift", "theta2=1e300@3"), "--drift",

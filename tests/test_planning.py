@@ -224,10 +224,13 @@ def test_tracker_cell_simulates_plans_and_calibrates(tmp_path):
     [
         ("irb120_tracker", None, 0, "tracker"),  # crashed without --formulation
         ("kr125_seed", None, 0, "pairs"),
-        ("seven_axis_touch", None, 2, "neither"),  # crashed: a touch cell has no camera nor tracker
+        ("irb120_static_camera", None, 0, "static_camera"),  # issue 42: planned through its protocol
+        ("seven_axis_touch", None, 2, "plan more configurations"),  # issue 42: planned (8 touches are too few)
+        ("irb120_ballbar", None, 2, "plan more configurations"),  # issue 42: planned (8 readings are too few)
+        ("irb120_ball_pairs", None, 2, "not planned yet"),  # readings between configurations
         ("irb120_ballbar", "tracker", 2, "needs a tracker"),  # planned for a tracker the cell has not
         ("irb120_tracker", "pairs", 2, "needs a camera"),
-        ("kr125_seed", "touch", 2, "not planned yet"),
+        ("kr125_seed", "touch", 2, "needs a touch"),
         ("kr125_seed", "sonar", 2, "unknown formulation"),
     ],
 )

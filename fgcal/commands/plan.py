@@ -13,8 +13,14 @@ from .options import JSON_HELP, SEED, bundled_cell, emit, integer, real
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from ..planning.plan import plan, write_plan
+    from ..planning.plan import model_error_from_report, plan, write_plan
 
+    model_error_m, source = None, None
+    if args.model_error is not None:
+        model_error_m, source = args.model_error * 1e-3, "--model-error"
+    elif args.model_error_from is not None:
+        model_error_m = model_error_from_report(args.model_error_from)
+        source = f"held out beyond its prediction in {args.model_error_from}"
     result = plan(
         bundled_cell(args.cell),
         args.n,
@@ -26,15 +32,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
         progress=Reporter(),
         approach=args.approach,
         approach_offset_rad=float(np.radians(args.approach_offset)),
+        model_error_m=model_error_m,
+        model_error_source=source,
     )
     written = write_plan(result, args.out, plot=not args.no_plots)
     for kind in args.program or []:
         written += [path.name for path in _program(kind, result, args)]
+    for line in result.discarded_lines():
+        say(f"  {line}")
+    floor, real = result.prediction_lines()
     say(
-        f"  predicted position accuracy {result.predicted_sigma_m * 1e3:.4f} mm RMS over the region "
-        f"(space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
+        f"  {floor} (space-filling design of {args.n}: {result.space_filling_sigma_m * 1e3:.4f} mm); "
         f"condition number {result.indices['condition_number']:.3g}"
     )
+    say(f"  {real}")
     t = result.timing_s
     say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
     if result.lost_motion is not None:
@@ -55,6 +66,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         "predicted_sigma_m": result.predicted_sigma_m, "space_filling_sigma_m": result.space_filling_sigma_m,
         "condition_number": result.indices["condition_number"], "cpu_s": dict(result.timing_s),
         "approach": result.approach, "lost_motion": result.lost_motion,
+        "prediction": result.prediction(), "n_drawn": result.drawn, "discarded": dict(result.candidates.discarded),
+        "out_of_view": result.unseen,
     })  # fmt: skip
     return 0
 
@@ -136,6 +149,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also write the plan as a program to drive it: rapid (cal_plan.mod, MoveAbsJ), krl (cal_plan.src and "
         ".dat, PTP to E6AXIS) or csv-deg (configurations_deg.csv), joints in degrees, in the plan's order with its "
         "approach points",
+    )  # fmt: skip
+    error = p.add_mutually_exclusive_group()
+    error.add_argument(
+        "--model-error", type=real(0.0, 1000.0, "mm"), metavar="MM",
+        help="what the model does not describe on the real robot, mm RMS at a point: the plan then predicts what the "
+        "robot will show, sqrt(floor^2 + MM^2) (without it, the prediction is the floor if the model holds)",
+    )  # fmt: skip
+    error.add_argument(
+        "--model-error-from", metavar="REPORT",
+        help="an earlier calibration's report.json: the model error is its held-out error beyond its prediction",
     )  # fmt: skip
     p.add_argument("--no-plots", action="store_true", help="no predicted_accuracy.png")
     p.add_argument("--json", action="store_true", help=JSON_HELP)

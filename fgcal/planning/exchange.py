@@ -41,23 +41,30 @@ class DesignState:
 
     @classmethod
     def empty(cls, info: Information) -> DesignState:
-        return cls(info, np.diag(info.prior), np.diag(1.0 / info.prior), [])
+        M = info.prior_matrix
+        return cls(info, M, np.linalg.inv(M), [])
 
     def add(self, c: int) -> None:
         J = self.info.rows[c]
         A = J @ self.M_inv
-        S = np.eye(len(J)) + A @ J.T
-        self.M_inv -= A.T @ np.linalg.solve(S, A)
         self.M += J.T @ J
+        self._update(-A, np.eye(len(J)) + A @ J.T, A)
         self.chosen.append(c)
 
     def remove(self, c: int) -> None:
         J = self.info.rows[c]
         A = J @ self.M_inv
-        S = np.eye(len(J)) - A @ J.T
-        self.M_inv += A.T @ np.linalg.solve(S, A)
         self.M -= J.T @ J
+        self._update(A, np.eye(len(J)) - A @ J.T, A)
         self.chosen.remove(c)
+
+    def _update(self, left: np.ndarray, S: np.ndarray, A: np.ndarray) -> None:
+        """M_inv += left^T S^-1 A; where rounding leaves S singular (information that weak
+        priors and strong rows make ill-conditioned), the inverse is recomputed from M."""
+        try:
+            self.M_inv += left.T @ np.linalg.solve(S, A)
+        except np.linalg.LinAlgError:
+            self.refresh()
 
     def refresh(self) -> None:
         """Recompute the inverse (rank updates accumulate rounding)."""
@@ -132,16 +139,22 @@ def plan_design(
     max_passes: int = 4,
     progress: Callable[[str], None] | None = None,
     greedy_order: list[int] | None = None,
+    start: list[int] | None = None,
 ) -> tuple[list[int], list[int]]:
     """The chosen candidate indices (n), and the greedy order (the prefix of any length is
     the greedy design of that length). ``greedy_order``: a longer greedy order of the same
-    criterion, whose prefix is then the start (the same additions, not recomputed)."""
+    criterion, whose prefix is then the start (the same additions, not recomputed). ``start``:
+    a design of n to exchange from instead of the greedy one (the greedy order returned is then
+    that design)."""
     if criterion not in CRITERIA:
         raise ValueError(f"unknown criterion {criterion!r}; expected one of {CRITERIA}")
     gains = _gain_function(criterion, info)
     all_idx = np.arange(len(info.rows))
     state = DesignState.empty(info)
     for k in range(n):
+        if start is not None:
+            state.add(start[k])
+            continue
         if greedy_order is not None and k < len(greedy_order):
             state.add(greedy_order[k])
             continue
@@ -176,10 +189,46 @@ def plan_design(
 
 def information_of(info: Information, chosen: list[int] | np.ndarray) -> np.ndarray:
     rows = info.rows[np.asarray(chosen, dtype=int)].reshape(-1, info.rows.shape[2])
-    return np.diag(info.prior) + rows.T @ rows
+    return info.prior_matrix + rows.T @ rows
 
 
 def predicted_sigma(info: Information, M: np.ndarray) -> float:
     """RMS (m) over the region of the scored point's predicted error norm (gauge removed)."""
     covariance = np.linalg.inv(M)
     return float(np.sqrt(np.einsum("ij,jk,ik->", info.region, covariance, info.region) / info.n_region))
+
+
+def criterion_value(info: Information, chosen: list[int], criterion: str) -> float:
+    """The criterion of a design, larger is better: log det of the parameters' information with
+    the auxiliary unknowns eliminated (d-optimal), minus the mean predicted variance over the
+    region (position), or the index (o1..o5)."""
+    M = information_of(info, chosen)
+    m = info.n_params
+    if criterion == "d-optimal":
+        return float(np.linalg.slogdet(M)[1] - np.linalg.slogdet(M[m:, m:])[1])
+    if criterion == "position":
+        return -float(np.trace(info.region.T @ info.region @ np.linalg.inv(M)))
+    return observability(M, info, len(chosen) * info.rows.shape[1])[criterion.upper()]
+
+
+def with_repeats(info: Information, chosen: list[int], labels: list[str], minimum: int, criterion: str) -> list[int]:
+    """The design with every label (a point touched) chosen ``minimum`` times or not at all:
+    the configurations of a label chosen fewer times are replaced, one by one, by the best
+    candidates of labels already chosen often enough."""
+    counts: dict[str, int] = {}
+    for c in chosen:
+        counts[labels[c]] = counts.get(labels[c], 0) + 1
+    short = {label for label, k in counts.items() if k < minimum}
+    if not short:
+        return chosen
+    gains = _gain_function(criterion, info)
+    state = DesignState.empty(info)
+    for c in chosen:
+        if labels[c] not in short:
+            state.add(c)
+    allowed = np.array([i for i in range(len(labels)) if labels[i] in counts and labels[i] not in short])
+    while len(state.chosen) < len(chosen):
+        g = gains(state, allowed)
+        g[np.isin(allowed, state.chosen)] = -np.inf
+        state.add(int(allowed[int(np.argmax(g))]))
+    return list(state.chosen)

@@ -34,8 +34,16 @@ class Information:
     region: np.ndarray  # (3E, p) scored-point Jacobian over the region (m per unit), gauge removed
     scale: np.ndarray  # (len(names),) plausible deviation of each parameter (for the indices)
     unidentifiable: dict[str, str]
-    sigma_m: float  # measurement sigma
+    sigma_m: float  # measurement sigma (in ``unit``)
     gauge: str
+    unit: str = "m"  # of the measurement sigma: m or px
+    fixed: np.ndarray | None = None  # (p, p) information every design has (known distances), or None
+
+    @property
+    def prior_matrix(self) -> np.ndarray:
+        """The information before any configuration: the priors and the fixed rows."""
+        M = np.diag(self.prior)
+        return M if self.fixed is None else M + self.fixed
 
     @property
     def n_params(self) -> int:
@@ -65,9 +73,14 @@ def build_information(
     measured = planning.rows(robot, data, cell, cand, names)
     J_p, J_aux, frame, point, gauge = measured.params, measured.aux, measured.frame, measured.point, measured.gauge
     moments = data.moments[reference]
+    aux_rows = J_aux[reference].reshape(-1, J_aux.shape[2])
+    param_rows = J_p[reference].reshape(-1, len(names))
+    if measured.fixed is not None:  # rows every design has count for the identifiability too
+        aux_rows = np.vstack([aux_rows, measured.fixed])
+        param_rows = np.vstack([param_rows, np.zeros((len(measured.fixed), len(names)))])
     identifiability = select(
-        J_p[reference].reshape(-1, len(names)),
-        J_aux[reference].reshape(-1, J_aux.shape[2]),
+        param_rows,
+        aux_rows,
         names,
         moments,
         config.min_information,
@@ -76,7 +89,9 @@ def build_information(
     kept = [names[i] for i in keep]
     moments_rms = np.sqrt(np.mean(moments**2, axis=0))
     scale = np.array([parameter_scale(n, moments_rms) for n in kept])
-    region_q = cand.q[np.random.default_rng(seed).permutation(len(cand.q))[:n_region]]
+    # Where accuracy counts: the workspace the formulation gives, else the candidates.
+    pool = cand.q if cand.workspace is None else cand.workspace
+    region_q = pool[np.random.default_rng(seed).permutation(len(pool))[:n_region]]
     region_data = kinematics.forward(robot, params, region_q)
     G = kinematics.jacobian(robot, region_data, kept, frame=frame, point=point)  # (E, 3, m)
     positions = transform_points(kinematics.frame_pose(robot, region_data, frame), point)
@@ -92,4 +107,13 @@ def build_information(
         unidentifiable=identifiability.unidentifiable,
         sigma_m=measured.sigma_m,
         gauge=gauge,
+        unit=measured.unit,
+        fixed=None if measured.fixed is None else _fixed(measured.fixed, len(kept)),
     )
+
+
+def _fixed(rows: np.ndarray, n_params: int) -> np.ndarray:
+    """The information (p, p) of rows on the auxiliary unknowns alone, p = parameters + aux."""
+    F = np.zeros((n_params + rows.shape[1],) * 2)
+    F[n_params:, n_params:] = rows.T @ rows
+    return F

@@ -32,7 +32,7 @@ from ..model.robot import MODELS
 from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
 from . import MAX_CANDIDATES
-from .exchange import CRITERIA, information_of, plan_design, predicted_sigma
+from .exchange import CRITERIA, criterion_value, information_of, plan_design, predicted_sigma, with_repeats
 from .indices import observability
 from .information import Information, build_information
 
@@ -65,6 +65,81 @@ class PlanResult:
     approach_offset_rad: float = APPROACH_OFFSET_RAD
     # With the cell's motion_history: what its lost motion leaves that no static model absorbs (m)
     lost_motion: dict | None = None
+    # What the model does not describe on the real robot (m RMS at a point), and where it came
+    # from (--model-error, or an earlier calibration's report.json); None: not given.
+    model_error_m: float | None = None
+    model_error_source: str | None = None
+
+    @property
+    def expected_m(self) -> float | None:
+        """What a real robot will show (m RMS), given its model error: the floor and the
+        model error in quadrature (docs/planning.md); None without a model error."""
+        if self.model_error_m is None:
+            return None
+        return float(np.hypot(self.predicted_sigma_m, self.model_error_m))
+
+    def prediction(self) -> dict:
+        return {
+            "floor_m": self.predicted_sigma_m,
+            "floor_holds_if": "the model describes the robot and the noise is as declared",
+            "model_error_m": self.model_error_m,
+            "model_error_source": self.model_error_source,
+            "expected_rms_m": self.expected_m,
+            "formula": "expected = sqrt(floor^2 + model_error^2)",
+        }
+
+    def prediction_lines(self) -> list[str]:
+        """The prediction in words: the floor, and what a real robot shows (or how to ask)."""
+        floor = (
+            f"predicted position accuracy {_mm(self.predicted_sigma_m)} mm RMS over the region: the floor, if the "
+            "model describes the robot (the noise alone)"
+        )
+        if self.model_error_m is None:
+            return [
+                floor,
+                "a real robot shows more: what its model does not describe adds in quadrature (the IRB 120 on real "
+                "tracker data holds out 0.27-0.45 mm); give --model-error MM, or --model-error-from an earlier "
+                "calibration's report.json, to predict it",
+            ]
+        return [
+            floor,
+            f"with a model error of {_mm(self.model_error_m)} mm RMS ({self.model_error_source}), a real robot is "
+            f"expected to hold out {_mm(self.expected_m)} mm RMS = sqrt(floor^2 + model error^2)",
+        ]
+
+    @property
+    def drawn(self) -> int:
+        """Configurations drawn for the candidates: those kept and those discarded."""
+        return len(self.candidates.q) + sum(self.candidates.discarded.values())
+
+    @property
+    def unseen(self) -> dict | None:
+        """Of what the plan's configurations would measure, how much the instrument does not
+        see (not measured, and not counted in the prediction); None: it sees everything."""
+        seen = self.candidates.seen
+        if seen is None:
+            return None
+        chosen = seen[self.chosen]
+        return {
+            "what": self.candidates.seen_label,
+            "measured": int(chosen.sum()),
+            "out_of_view": int(chosen.size - chosen.sum()),
+            "configurations_seeing_all": int(chosen.all(axis=1).sum()),
+        }
+
+    def discarded_lines(self) -> list[str]:
+        """Why draws were discarded before planning, one line each."""
+        lines = [
+            f"{count} of {self.drawn} drawn configurations discarded: {reason}"
+            for reason, count in self.candidates.discarded.items()
+        ]
+        unseen = self.unseen
+        if unseen is not None and unseen["out_of_view"]:
+            lines.append(
+                f"the plan's configurations measure {unseen['measured']} {unseen['what']}; "
+                f"{unseen['out_of_view']} others are out of the instrument's view (not measured, not counted)"
+            )
+        return lines
 
     @property
     def approach_points(self) -> np.ndarray | None:
@@ -83,12 +158,17 @@ class PlanResult:
             "seed": self.seed,
             "n_configurations": self.n,
             "n_candidates": len(self.candidates.q),
+            "n_drawn": self.drawn,
+            "discarded": dict(self.candidates.discarded),
+            "out_of_view": self.unseen,
             "parameters": self.info.names,
             "auxiliary_unknowns": self.info.aux_labels,
             "unidentifiable": self.info.unidentifiable,
-            "measurement_sigma_m": self.info.sigma_m,
+            "measurement_sigma_m": self.info.sigma_m if self.info.unit == "m" else None,
+            "measurement_sigma": {"value": self.info.sigma_m, "unit": self.info.unit},
             "gauge_removed": self.info.gauge,
             "predicted_position_sigma_rms_m": self.predicted_sigma_m,
+            "prediction": self.prediction(),
             "space_filling_same_n_sigma_rms_m": self.space_filling_sigma_m,
             "observability": self.indices,
             "curves": self.curves,
@@ -175,8 +255,8 @@ def choose_formulation(cell: Cell, formulation: str | None) -> str:
         raise InputError(
             cell.source,
             None,
-            "fgcal plan models a camera on the flange or a laser tracker, and this cell has neither "
-            "(touch, ballbar and static-camera cells are not planned yet)",
+            f"this cell has neither of the instruments fgcal plan models ({', '.join(PLANNED_INSTRUMENTS)}); "
+            "touch and ballbar cells are not planned yet",
         )
     if formulation not in REGISTRY:
         raise InputError(None, "--formulation", f"unknown formulation {formulation!r} (one of {', '.join(REGISTRY)})")
@@ -190,7 +270,7 @@ def choose_formulation(cell: Cell, formulation: str | None) -> str:
             cell.source,
             kind,
             f"the {formulation} formulation needs a {kind}, and this cell has "
-            + (" and ".join(available) if available else "neither a camera nor a tracker"),
+            + (" and ".join(available) if available else "none that fgcal plan models"),
         )
     return formulation
 
@@ -225,7 +305,9 @@ def prepare(
             raise InputError(None, "--approach-offset", "leaves no room within a joint's limits")
         robot = replace(robot, limits=limits)
     cell = replace(cell, robot=robot)
-    config = CalibrationConfig.defaults(".", formulation=formulation, model=model)
+    # The compliant joints the cell declares (those fgcal simulate's calibration.yaml names).
+    compliant = [int(j) for j in cell.perturbation.compliant_joints]
+    config = CalibrationConfig.defaults(".", formulation=formulation, model=model, compliant_joints=compliant)
     planning = registered(formulation).planning(config.measurement)
     if planning is None:  # choose_formulation planned it: its planning does not depend on settings
         raise InputError(None, "--formulation", f"the {formulation} formulation is not planned yet")
@@ -256,13 +338,19 @@ def plan(
     planner: Planner | None = None,
     approach: str = "previous",
     approach_offset_rad: float = APPROACH_OFFSET_RAD,
+    model_error_m: float | None = None,
+    model_error_source: str | None = None,
 ) -> PlanResult:
     """Plan ``n`` configurations of the cell from ``n_candidates`` (seeded); ``planner``:
     prepared candidates to reuse (then the cell and candidate options are its own).
     ``approach``: ``previous`` (each configuration reached from the one before, in the plan's
     order) or ``unidirectional`` (each from ``approach_offset_rad`` below on every joint: its
-    lost motion is then the same everywhere, and the joint offsets absorb it)."""
+    lost motion is then the same everywhere, and the joint offsets absorb it). ``model_error_m``:
+    what the model does not describe on the real robot (m RMS; ``model_error_source`` says
+    where it came from), for the prediction of what a real robot shows."""
     say = progress or (lambda _msg: None)
+    if model_error_m is not None and not (np.isfinite(model_error_m) and model_error_m >= 0.0):
+        raise InputError(None, "--model-error", f"a model error of 0 or more, got {model_error_m}")
     if criterion not in CRITERIA:
         raise InputError(None, "--criterion", f"unknown criterion {criterion!r} (one of {', '.join(CRITERIA)})")
     if approach not in APPROACHES:
@@ -286,6 +374,15 @@ def plan(
     # designs and the start of this plan's exchange.
     greedy = plan_design(info, max([n, *sizes]), criterion, max_passes=0)[1]
     chosen, _ = plan_design(info, n, criterion, progress=say, greedy_order=greedy)
+    # The greedy start is myopic where a measurement tells nothing until it is repeated (a point
+    # touched once only locates itself): the exchange from the space-filling design too, the
+    # better of the two kept.
+    other, _ = plan_design(info, n, criterion, start=planner.space_filling(n))
+    if criterion_value(info, other, criterion) > criterion_value(info, chosen, criterion) + 1e-9:
+        say("  the exchange from the space-filling design is better than from the greedy one: taken")
+        chosen = other
+    if cand.blocks is not None and cand.min_per_label > 1:
+        chosen = with_repeats(info, chosen, cand.blocks, cand.min_per_label, criterion)
     timing["selection"] = time.process_time() - started
     started = time.process_time()
     curves = _curves(planner, greedy, sizes)
@@ -311,7 +408,37 @@ def plan(
         approach=approach,
         approach_offset_rad=float(approach_offset_rad),
         lost_motion=lost_motion_left(planner.cell, cand.q[chosen], approach_offset_rad),
+        model_error_m=None if model_error_m is None else float(model_error_m),
+        model_error_source=model_error_source or ("--model-error" if model_error_m is not None else None),
     )
+
+
+def model_error_from_report(path: str | Path) -> float:
+    """What a model left unexplained on a robot, from an earlier calibration's report.json
+    (m RMS): the held-out position error after calibration beyond what that calibration
+    predicted of it (its noise and parameter uncertainty), ``sqrt(max(held_out^2 -
+    predicted^2, 0))``."""
+    import json
+
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise InputError(path, None, f"not a readable report.json: {exc}") from None
+    validation = doc.get("validation") if isinstance(doc, dict) else None
+    try:
+        held_out = float(validation["after"]["position_error_m"]["rms"])
+        predicted = float(validation["predicted_position_sigma_m"]["rms"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(
+            path,
+            "validation",
+            "no held-out position error after calibration and its prediction (validation.after.position_error_m.rms, "
+            "validation.predicted_position_sigma_m.rms): a calibration's report.json with held-out configurations",
+        ) from None
+    if not (np.isfinite(held_out) and np.isfinite(predicted)) or held_out < 0 or predicted < 0:
+        raise InputError(path, "validation", "held-out and predicted RMS must be finite numbers >= 0")
+    return float(np.sqrt(max(held_out**2 - predicted**2, 0.0)))
 
 
 def lost_motion_left(cell: Cell, q: np.ndarray, offset_rad: float) -> dict | None:
@@ -349,7 +476,7 @@ def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> li
     header = ["config", *[f"q{i}" for i in range(1, n_joints + 1)]]
     rows = [[f"p{k:04d}", *cand.q[c]] for k, c in enumerate(chosen)]
     if cand.blocks is not None:
-        header.append("block")
+        header.append(cand.label_column)
         rows = [[*row, cand.blocks[c]] for row, c in zip(rows, chosen, strict=True)]
     approach = result.approach_points
     if approach is not None:
@@ -369,6 +496,10 @@ def _mm(value: float | None) -> str:
     return "-" if value is None else f"{value * 1e3:.4f}"
 
 
+def _sigma(info: Information) -> str:
+    return f"{info.sigma_m * 1e3:g} mm" if info.unit == "m" else f"{info.sigma_m:g} {info.unit}"
+
+
 def _markdown(result: PlanResult, plot: bool) -> str:
     info = result.info
     lines = [
@@ -378,10 +509,12 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         f"(seed {result.seed}) by the **{result.criterion}** criterion, for the {result.formulation} "
         f"formulation and model {result.model}.",
         "",
-        f"- Predicted position accuracy over the region: **{_mm(result.predicted_sigma_m)} mm RMS** "
-        f"(scored point, {'no' if info.gauge == 'none' else info.gauge} gauge removed; measurement sigma "
-        f"{info.sigma_m * 1e3:g} mm); a "
+        *[f"- {line[0].upper()}{line[1:]}." for line in result.discarded_lines()],
+        f"- Predicted position accuracy over the region: **{_mm(result.predicted_sigma_m)} mm RMS, the floor if the "
+        f"model describes the robot** (scored point, {'no' if info.gauge == 'none' else info.gauge} gauge removed; "
+        f"measurement sigma {_sigma(info)}); a "
         f"space-filling design of the same size: {_mm(result.space_filling_sigma_m)} mm.",
+        f"- {result.prediction_lines()[1][0].upper()}{result.prediction_lines()[1][1:]}.",
         f"- {info.n_params} identifiable parameters: {', '.join(info.names)}.",
         f"- Auxiliary unknowns: {', '.join(info.aux_labels)}.",
         f"- Not identifiable from a design of this size: {', '.join(info.unidentifiable) or 'none'}.",

@@ -17,22 +17,65 @@ import numpy as np
 from ..calibration.config import CalibrationConfig
 from ..calibration.run import calibrate
 from ..calibration.scoring import truth_errors
+from ..data.dataset import write_csv
 from ..data.truth import load_truth
 from ..simulation.design import max_min_selection
 from ..simulation.simulate import simulate
-from .plan import SCORED_POINT_C, plan, prepare, write_plan
+from .plan import SCORED_POINT_C, Planner, plan, prepare, write_plan
 
 
-def _score(dataset: Path, q_eval: np.ndarray, formulation: str) -> float:
+def truth_rms(dataset: Path, q_eval: np.ndarray, formulation: str, compliant_joints: Sequence[int] = ()) -> float:
     """RMS (m) of the scored point's error against the truth at ``q_eval`` (pairs: the
     translation gauge removed; tracker: the reflectors in the tracker frame), after
-    calibrating ``dataset`` with nothing held out."""
-    config = CalibrationConfig.defaults(dataset, formulation=formulation, model="DH,s,e", validation={"holdout": 0.0})
+    calibrating ``dataset`` with nothing held out (``compliant_joints``: the cell's, where it
+    declares them)."""
+    joints = {"compliant_joints": [int(j) for j in compliant_joints]} if len(compliant_joints) else {}
+    config = CalibrationConfig.defaults(
+        dataset, formulation=formulation, model="DH,s,e", validation={"holdout": 0.0}, **joints
+    )
     result = calibrate(config)
     # A camera's scored point is the fixed SCORED_POINT_C, whatever the designs measured.
     points = SCORED_POINT_C[None, :] if result.problem.frame == "tool" else None
     errors = truth_errors(result.problem, result.state, load_truth(dataset), q=q_eval, points=points)["tool_point"]
     return float(np.sqrt(np.mean(np.sum(errors.errors**2, axis=1))))
+
+
+def evaluation_configurations(planner: Planner, seed: int, n_eval: int = 200) -> np.ndarray:
+    """Independent configurations where a design is scored against the truth: another
+    candidate stream, thinned max-min; over the workspace where the formulation gives it (the
+    robot works where the instrument cannot see it too)."""
+    pool = planner.planning.candidates(planner.cell, 5 * n_eval, np.random.default_rng(10_000 + seed))
+    pool_q = pool.q if pool.workspace is None else pool.workspace
+    return pool_q[max_min_selection(pool_q, planner.cell.robot.limits, n_eval, np.random.default_rng(seed))]
+
+
+def planned_against_space_filling(
+    cell: Path,
+    out_dir: Path,
+    n: int,
+    seed: int = 1,
+    n_candidates: int = 2000,
+    criterion: str = "d-optimal",
+    formulation: str | None = None,
+) -> dict:
+    """A plan of ``n`` and the space-filling design of ``n`` from the same candidates (those
+    the cell can measure), each simulated (the same true robot), calibrated with nothing held
+    out and scored against the truth (RMS, m) at independent configurations."""
+    out_dir = Path(out_dir)
+    planner = prepare(cell, n_candidates, formulation=formulation, seed=seed)
+    q_eval = evaluation_configurations(planner, seed)
+    result = plan(cell, n, criterion, planner=planner, curve_max=0)
+    write_plan(result, out_dir / "plan", plot=False)
+    q_sf = planner.candidates.q[planner.space_filling(n)]
+    header = ["config", *[f"q{i}" for i in range(1, q_sf.shape[1] + 1)]]
+    write_csv(out_dir / "space_filling.csv", header, [[f"s{k:04d}", *q] for k, q in enumerate(q_sf)])
+    scores = {"predicted_m": result.predicted_sigma_m, "plan": result}
+    for name, path in (("planned_m", out_dir / "plan" / "configurations.csv"),
+                       ("space_filling_m", out_dir / "space_filling.csv")):  # fmt: skip
+        simulate(cell, out_dir / name, seed, configurations=path)
+        joints = planner.cell.perturbation.compliant_joints
+        scores[name] = truth_rms(out_dir / name, q_eval, planner.formulation, joints)
+    return scores
 
 
 def n_reaching(sizes: Sequence[int], rms: Sequence[float], target_m: float) -> float | None:
@@ -67,24 +110,21 @@ def design_study(
         started = time.perf_counter()
         planner = prepare(cell, seed=seed, formulation=formulation)
         formulation = planner.formulation
-        # Independent evaluation configurations: another candidate stream, thinned max-min.
-        eval_rng = np.random.default_rng(10_000 + seed)
-        pool = planner.planning.candidates(planner.cell, 5 * n_eval, eval_rng)
-        q_eval = pool.q[max_min_selection(pool.q, planner.cell.robot.limits, n_eval, np.random.default_rng(seed))]
+        q_eval = evaluation_configurations(planner, seed, n_eval)
         base = out_dir / f"seed{seed}"
         row = {"seed": seed, "planned": {}, "space_filling": {}}
         if with_seed_design:
             simulate(cell, base / "seed_design", seed, design="seed")
-            row["seed_design_m"] = _score(base / "seed_design", q_eval, formulation)
+            row["seed_design_m"] = truth_rms(base / "seed_design", q_eval, formulation)
         for n in planned_sizes:
             result = plan(cell, n, criterion, formulation=formulation, planner=planner, curve_max=0)
             write_plan(result, base / f"plan{n}", plot=False)
             simulate(cell, base / f"planned{n}", seed, configurations=base / f"plan{n}" / "configurations.csv")
-            rms = _score(base / f"planned{n}", q_eval, formulation)
+            rms = truth_rms(base / f"planned{n}", q_eval, formulation)
             row["planned"][n] = {"rms_m": rms, "predicted_m": result.predicted_sigma_m}
         for n in space_filling_sizes:
             simulate(cell, base / f"space_filling{n}", seed, design="space_filling", n_configurations=n)
-            row["space_filling"][n] = {"rms_m": _score(base / f"space_filling{n}", q_eval, formulation)}
+            row["space_filling"][n] = {"rms_m": truth_rms(base / f"space_filling{n}", q_eval, formulation)}
         for kind in ("planned", "space_filling"):
             sizes = sorted(row[kind])
             if sizes:

@@ -43,6 +43,35 @@ def ballbar_design(
     return q, [bar.names[k] for k in order], length
 
 
+def ballbar_file_design(
+    cell: Cell, path: Path, true_params: np.ndarray
+) -> tuple[np.ndarray, list[str], np.ndarray, list[str]]:
+    """The readings of a CSV (``config, q1..qn, pivot``, as fgcal plan writes it): the true
+    robot at the file's joints, the true distance from its ball to the pivot; configurations,
+    pivots, distances, and the configurations left out (the distance beyond the bar's travel)."""
+    from ..core.errors import InputError
+    from ..core.se3 import transform_points
+    from ..data.dataset import parse_numbers, read_csv
+
+    robot, bar = cell.robot, cell.ballbar
+    joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    header, body = read_csv(path, ["config", *joints, "pivot"])
+    if not body:
+        raise InputError(path, None, "no configurations")
+    q = parse_numbers(path, header, body, joints, "angle", 1.0)
+    names = [row[header.index("pivot")].strip() for row in body]
+    for i, name in enumerate(names):
+        if name not in bar.names:
+            raise InputError(path, f"line {i + 2}, column pivot", f"no pivot {name!r} in {cell.name}")
+    ball = transform_points(robot.fk(q, robot.parameter_dict(true_params), tip=cell.tip), bar.ball)
+    length = np.linalg.norm(ball - bar.pivots[[bar.names.index(n) for n in names]], axis=1)
+    inside = (length >= bar.length_m[0]) & (length <= bar.length_m[1])
+    left_out = [body[i][header.index("config")].strip() for i in np.flatnonzero(~inside)]
+    if not inside.any():
+        raise InputError(path, None, "the true robot puts the ball within the bar's travel at none of them")
+    return q[inside], [n for n, ok in zip(names, inside, strict=True) if ok], length[inside], left_out
+
+
 def pairs_design(
     cell: Cell, true_params: np.ndarray, design_rng: np.random.Generator, progress: Callable[[str], None] | None = None
 ) -> np.ndarray:

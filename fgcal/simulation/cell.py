@@ -24,6 +24,8 @@ from .schema import CellFile
 
 SIDES = ("+x", "-x", "+y", "-y", "+z", "-z")
 DESIGNS = ("seed", "space_filling")
+# A spherically mounted retroreflector returns the beam within about +-30 deg of its axis.
+REFLECTOR_ACCEPTANCE_DEG = 30.0
 APPROACHES = ("previous", "from_below")
 
 
@@ -188,6 +190,10 @@ class Cell:
     static_camera: StaticCameraSetup | None = None
     has_tracker: bool = True  # a laser tracker measures the reflectors (tracker_targets)
     tracker_target_tips: tuple[str, ...] = ()  # per target, the tree's tip it is on (empty: all on the flange)
+    # Per target: the reflector's axis (unit, in its tip's frame; default z) and its acceptance
+    # half-angle (rad; default REFLECTOR_ACCEPTANCE_DEG): the tracker sees it within that cone.
+    tracker_normals: np.ndarray | None = None  # (m, 3); None: every reflector along its tip's z axis
+    tracker_acceptance_rad: np.ndarray | None = None  # (m,); None: the default acceptance
     tip: str = "flange"  # the tree's tip carrying the probe, ball, board or reflectors (cell tip:)
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
 
@@ -206,6 +212,42 @@ class Cell:
 
     def points(self) -> list[GridPoint]:
         return [p for side in self.sides for row in side.points for p in row]
+
+    @property
+    def reflector_normals(self) -> np.ndarray:
+        """(m, 3) each reflector's axis in its tip's frame (unit)."""
+        if self.tracker_normals is not None:
+            return self.tracker_normals
+        return np.tile([0.0, 0.0, 1.0], (len(self.tracker_targets), 1))
+
+    @property
+    def reflector_acceptance_rad(self) -> np.ndarray:
+        """(m,) each reflector's acceptance half-angle (rad)."""
+        if self.tracker_acceptance_rad is not None:
+            return self.tracker_acceptance_rad
+        return np.full(len(self.tracker_targets), np.radians(REFLECTOR_ACCEPTANCE_DEG))
+
+    @property
+    def reflector_tips(self) -> tuple[str, ...]:
+        """Each reflector's tip (the flange unless a tree's targets name theirs)."""
+        return self.tracker_target_tips or (self.robot.flange_name,) * len(self.tracker_targets)
+
+    def reflector_angles(self, T_W_tips: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, m) the angle (rad) between each reflector's axis and its line to the tracker, at
+        N configurations whose tip poses ``T_W_tips`` ({tip: (N, 4, 4)}) are given."""
+        tips = self.reflector_tips
+        angles = []
+        for s, normal, tip in zip(self.tracker_targets, self.reflector_normals, tips, strict=True):
+            T = T_W_tips[tip]
+            line = self.tracker_pose[:3, 3] - transform_points(T, s)
+            axis = T[:, :3, :3] @ normal
+            cosine = np.sum(line * axis, axis=1) / np.maximum(np.linalg.norm(line, axis=1), 1e-12)
+            angles.append(np.arccos(np.clip(cosine, -1.0, 1.0)))
+        return np.array(angles).T.reshape(-1, len(self.tracker_targets))
+
+    def reflectors_visible(self, T_W_tips: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, m) whether the tracker sees each reflector: within its acceptance angle."""
+        return self.reflector_angles(T_W_tips) <= self.reflector_acceptance_rad
 
 
 def _pose(fields: Fields, key: str, to_m: float, to_rad: float) -> np.ndarray:
@@ -402,6 +444,7 @@ def load_cell(path: str | Path) -> Cell:
 
     tracker = doc.sub("tracker", {})
     targets, target_tips = _tracker_targets(tracker, robot, to_m, tip)
+    normals, acceptance = _reflector_axes(tracker, len(targets), to_rad)
 
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
@@ -449,6 +492,8 @@ def load_cell(path: str | Path) -> Cell:
         tracker_pose=_pose(tracker, "pose", to_m, to_rad),
         tracker_targets=np.array(targets),
         tracker_target_tips=target_tips,
+        tracker_normals=normals,
+        tracker_acceptance_rad=acceptance,
         tip=tip,
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, nonnegative=True),
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, nonnegative=True),
@@ -512,3 +557,51 @@ def _tracker_targets(
     if not targets:
         raise tracker.error("targets", "at least one reflector on the flange (the tracker has nothing to measure)")
     return targets, tuple(tips) if set(tips) != {robot.flange_name} else ()
+
+
+def _per_target(tracker: Fields, key: str) -> list[tuple[str, object]]:
+    """``tracker.<key>`` given as ``tracker.targets`` is: a list in the targets' order, or
+    ``{tip: [...]}`` in the same tips and order; (field path, value) per target."""
+    raw, shape = tracker.raw(key), tracker.raw("targets", None)
+    groups = raw.items() if isinstance(raw, dict) else [(None, raw)]
+    if isinstance(shape, dict) != isinstance(raw, dict) or (isinstance(raw, dict) and list(raw) != list(shape or {})):
+        raise tracker.error(key, "give it as targets is given: a list, or the same {tip: [...]} mapping")
+    out = []
+    for tip, values in groups:
+        where = key if tip is None else f"{key}.{tip}"
+        if not isinstance(values, list):
+            raise tracker.error(where, f"expected a list, one per reflector, got {values!r}")
+        out += [(f"{where}[{i}]", value) for i, value in enumerate(values)]
+    return out
+
+
+def _reflector_axes(tracker: Fields, n_targets: int, to_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """``tracker.normals`` (each reflector's axis in its tip's frame, as targets are listed;
+    default z) and ``tracker.acceptance`` (the acceptance half-angle in the angle unit: one
+    number for all, or one per reflector; default REFLECTOR_ACCEPTANCE_DEG)."""
+    normals = np.tile([0.0, 0.0, 1.0], (n_targets, 1))
+    if tracker.has("normals"):
+        given = _per_target(tracker, "normals")
+        if len(given) != n_targets:
+            raise tracker.error("normals", f"one per reflector: {n_targets} targets, {len(given)} normals")
+        for i, (where, value) in enumerate(given):
+            v = Fields({"n": value}, tracker.source, tracker.path(where)).vector("n", 3)
+            if np.linalg.norm(v) < 1e-9:
+                raise tracker.error(where, "a direction, not zero")
+            normals[i] = v / np.linalg.norm(v)
+    acceptance = np.full(n_targets, np.radians(REFLECTOR_ACCEPTANCE_DEG))
+    if tracker.has("acceptance"):
+        raw = tracker.raw("acceptance")
+        given = (
+            [("acceptance", raw)] * n_targets
+            if not isinstance(raw, (list, dict))
+            else _per_target(tracker, "acceptance")
+        )
+        if len(given) != n_targets:
+            raise tracker.error("acceptance", f"one number, or one per reflector: {n_targets} targets, {len(given)}")
+        for i, (where, value) in enumerate(given):
+            angle = Fields({"a": value}, tracker.source, tracker.path(where)).number("a", scale=to_rad, positive=True)
+            if angle > np.pi / 2:
+                raise tracker.error(where, "a reflector's acceptance half-angle: at most 90 deg")
+            acceptance[i] = angle
+    return normals, acceptance

@@ -111,5 +111,3 @@ class Renderer:
 
 def board_pose_in_camera(T_W_C: np.ndarray, T_W_F: np.ndarray, board: SideBoard) -> np.ndarray:
     return inverse(T_W_C) @ T_W_F @ board.T_F_B
-
-

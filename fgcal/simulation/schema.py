@@ -57,10 +57,40 @@ Targets = checked(
 )
 
 
+Normals = checked(
+    _targets,
+    {
+        "description": "each reflector's axis in its tip's frame, listed as targets are (default z)",
+        "anyOf": [_POINTS, {"type": "object", "additionalProperties": _POINTS}],
+    },
+)
+
+
+def _acceptance(value: Any) -> Any:
+    entries = value if isinstance(value, list) else list(value.values()) if isinstance(value, dict) else [value]
+    for i, entry in enumerate(entries):
+        for k, v in enumerate(entry if isinstance(entry, list) else [entry]):
+            to_number(v, f"[{i}][{k}]" if isinstance(entry, list) else f"[{i}]")
+    return value
+
+
+Acceptance = checked(
+    _acceptance,
+    {
+        "description": "a reflector's acceptance half-angle (the file's angle unit; default 30 deg): one number, "
+        "or one per reflector, listed as targets are",
+        "anyOf": [NUMBER_JSON, {"type": "array", "items": NUMBER_JSON},
+                  {"type": "object", "additionalProperties": {"type": "array", "items": NUMBER_JSON}}],
+    },
+)  # fmt: skip
+
+
 class Tracker(Schema):
     pose: Pose = Field(None, description="the tracker in the world frame W")
     targets: Targets = None
     probe: Pose = Field(None, description="a 6-DoF probe on the flange (tracker poses)")
+    normals: Normals = None
+    acceptance: Acceptance = None
 
 
 class NamedPoint(Schema):

@@ -19,11 +19,11 @@ from ..data.dataset import FORMAT, write_csv, write_header
 from ..data.truth import Truth
 from ..model.motion import MotionHistory, features
 from ..model.robot_io import embed_robot
-from .ballbar import ballbar_design, pairs_design, write_ballbar_table, write_pairs_table
+from .ballbar import ballbar_design, ballbar_file_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
-from .static_camera import static_camera_design, write_static_camera_tables
-from .touch import touch_design, write_touch_tables
+from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
+from .touch import touch_design, touch_file_design, write_touch_tables
 from .truth import perturb_parameters
 
 
@@ -110,13 +110,16 @@ def simulate(
         if design is not None or n_configurations is not None:
             raise InputError(None, "--configurations", "takes the place of --design and --n")
         cell = replace(cell, design=replace(cell.design, kind=f"file {Path(configurations).name}"))
+    # A touch or ballbar plan (--configurations) names each one's point or pivot.
+    if cell.ballbar is not None and configurations is not None and cell.ballbar.pairs:
+        raise InputError(cell.source, "ballbar", "a plan of readings between configurations is not simulated yet")
     for setup, what in ((cell.touch, "touch"), (cell.ballbar, "ballbar")):
-        if setup is not None and (configurations is not None or design is not None or drift is not None):
+        if setup is not None and (design is not None or drift is not None):
             raise InputError(
                 cell.source, what, f"a {what} cell's configurations are its readings: no other design or drift"
             )
-    if cell.static_camera is not None and (configurations is not None or drift is not None):
-        raise InputError(cell.source, "static_camera", "a static-camera cell draws its own design: no file or drift")
+    if cell.static_camera is not None and drift is not None:
+        raise InputError(cell.source, "static_camera", "a static-camera cell: no drift")
     if cell.camera is None and cell.design.kind == "seed":
         raise InputError(cell.source, "design.kind", "the seed design looks at the objects: a tracker cell has none")
     if drift is not None and cell.camera is None and not cell.has_tracker:
@@ -144,11 +147,32 @@ def simulate(
         return robot.fk_tool(q, true_params)
 
     say(f"designing configurations ({cell.design.kind}) for {robot.name} in {cell.name}")
-    if configurations is not None:
+    if configurations is not None and cell.touch is not None:
+        q_touch, touched, seating, unreached = touch_file_design(
+            cell, Path(configurations), robot.parameter_vector(true_params), design_rng, noise_rng
+        )
+        views = [View(qi, None, ()) for qi in q_touch]
+        if unreached:
+            say(f"  {len(unreached)} touches left out: the true robot does not reach them ({', '.join(unreached[:5])})")
+    elif configurations is not None and cell.ballbar is not None:
+        q_bar, bar_pivots, bar_lengths, beyond = ballbar_file_design(
+            cell, Path(configurations), robot.parameter_vector(true_params)
+        )
+        views = [View(qi, None, ()) for qi in q_bar]
+        if beyond:
+            say(f"  {len(beyond)} readings left out: beyond the bar's travel on the true robot ({beyond[0]}, ...)")
+    elif configurations is not None:
         views, unseen = file_design(cell, Path(configurations), true_camera)
+        if cell.static_camera is not None:  # what the true camera does not see of the board is left out
+            q_file = np.array([v.q for v in views])
+            seen = board_seen(cell, board_in_camera(cell, q_file, true_params))
+            unseen = [f"line {i + 2}" for i in np.flatnonzero(~seen)]
+            views = [v for v, s in zip(views, seen, strict=True) if s]
+            if not views:
+                raise InputError(configurations, None, "the simulated camera sees the board at none of them")
         if unseen:
             say(
-                f"  {len(unseen)} configurations left out: the simulated true camera does not see their block "
+                f"  {len(unseen)} configurations left out: the simulated true camera does not see their block or board "
                 f"({', '.join(unseen[:5])}{', ...' if len(unseen) > 5 else ''})"
             )
     elif cell.touch is not None:

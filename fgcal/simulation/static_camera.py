@@ -24,19 +24,23 @@ def board_in_camera(cell: Cell, q: np.ndarray, true_params: dict[str, float]) ->
     return inverse(setup.pose) @ cell.robot.fk(q, true_params, tip=cell.tip) @ setup.board_mount
 
 
-def static_camera_design(cell: Cell, true_params: dict[str, float], rng: np.random.Generator) -> list[View]:
+def board_seen(cell: Cell, T_C_B: np.ndarray) -> np.ndarray:
+    """(N,) whether the camera sees the whole board at each of its poses T_C_B (N, 4, 4): its
+    face (+z) towards the camera within ``max_view_angle`` of the line of sight, every corner
+    in front of the camera and inside the image."""
     setup = cell.static_camera
+    sight = T_C_B[:, :3, 3] / np.linalg.norm(T_C_B[:, :3, 3], axis=1)[:, None]
+    facing = -np.sum(T_C_B[:, :3, 2] * sight, axis=1) >= np.cos(setup.max_view_angle_rad)
+    seen = np.zeros(len(T_C_B), dtype=bool)
+    for i in np.flatnonzero(facing):
+        seen[i] = setup.camera.sees(transform_points(T_C_B[i], setup.board_points))
+    return seen
+
+
+def static_camera_design(cell: Cell, true_params: dict[str, float], rng: np.random.Generator) -> list[View]:
     wanted = cell.design.n_configurations
     pool = uniform_configurations(cell.robot, DRAWS * wanted, rng)
-    T_C_B = board_in_camera(cell, pool, true_params)
-    seen = []
-    for i, T in enumerate(T_C_B):
-        points = transform_points(T, setup.board_points)
-        # The board's face (+z) towards the camera: its normal against the line of sight.
-        sight = T[:3, 3] / np.linalg.norm(T[:3, 3])
-        facing = -float(T[:3, 2] @ sight) >= np.cos(setup.max_view_angle_rad)
-        if facing and setup.camera.sees(points):
-            seen.append(i)
+    seen = list(np.flatnonzero(board_seen(cell, board_in_camera(cell, pool, true_params))))
     if len(seen) < wanted:
         raise InputError(
             cell.source,

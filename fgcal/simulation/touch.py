@@ -57,6 +57,46 @@ def touch_design(
     return q, [touch.names[k] for k in order], noise
 
 
+def touch_file_design(
+    cell: Cell, path: Path, true_params: np.ndarray, design_rng: np.random.Generator, noise_rng: np.random.Generator
+) -> tuple[np.ndarray, list[str], np.ndarray, list[str]]:
+    """The touches of a CSV (``config, q1..qn, point``, as fgcal plan writes it): each seats
+    the true robot's probe in its point (plus the seating noise) with the flange's orientation
+    the nominal model has at the file's joints, by inverse kinematics from those joints (then
+    from random starts); configurations, points, seating noise, and the configurations left
+    out (not reached on the true robot)."""
+    from ..data.dataset import parse_numbers, read_csv
+
+    robot, touch = cell.robot, cell.touch
+    joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
+    header, body = read_csv(path, ["config", *joints, "point"])
+    if not body:
+        raise InputError(path, None, "no configurations")
+    q_file = parse_numbers(path, header, body, joints, "angle", 1.0)
+    names = [row[header.index("point")].strip() for row in body]
+    for i, name in enumerate(names):
+        if name not in touch.names:
+            raise InputError(path, f"line {i + 2}, column point", f"no point {name!r} in {cell.name}")
+    which = np.array([touch.names.index(name) for name in names])
+    noise = noise_rng.normal(0.0, cell.touch_sigma_m, (len(names), 3))
+    R = robot.fk(q_file, tip=cell.tip)[:, :3, :3]  # the nominal orientation the plan chose
+    centres = touch.points[which] + noise
+    targets = np.array([pose(R_i, c - R_i @ touch.probe) for c, R_i in zip(centres, R, strict=True)])
+    q, solved = solve_ik(robot, true_params, targets, q_file, frame=cell.tip, freeze_converged=True)
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    for _ in range(STARTS):
+        left = np.flatnonzero(~solved)
+        if not len(left):
+            break
+        start = design_rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
+        q_try, ok = solve_ik(robot, true_params, targets[left], start, frame=cell.tip, freeze_converged=True)
+        q[left[ok]], solved[left[ok]] = q_try[ok], True
+    left_out = [body[i][header.index("config")].strip() for i in np.flatnonzero(~solved)]
+    if not solved.any():
+        raise InputError(path, None, "the true robot seats its probe at none of the configurations")
+    return q[solved], [names[i] for i in np.flatnonzero(solved)], noise[solved], left_out
+
+
 ROUNDS = 20  # rounds of new orientations for the positions not reached yet
 NOTHING_REACHED_ROUNDS = 2  # rounds without a single position reached after which the design stops
 # Rounds after which a design with more than half its positions unreached stops (the bundled
@@ -129,8 +169,8 @@ def reach_all(
 def write_touch_tables(
     out: Path, cell: Cell, config_ids: list[str], points: list[str], noise: np.ndarray, rng: np.random.Generator
 ) -> dict[str, int]:
-    """touch_points.csv and, when the drawing gives them, point_distances.csv (every pair,
-    each distance with the spacing noise); the noise goes to truth/."""
+    """touch_points.csv and, when the drawing gives them, point_distances.csv (every pair of
+    touched points, each distance with the spacing noise); the noise goes to truth/."""
     touch = cell.touch
     write_csv(out / "touch_points.csv", ["config", "point"], [[c, p] for c, p in zip(config_ids, points, strict=True)])
     write_csv(
@@ -141,8 +181,9 @@ def write_touch_tables(
     counts = {"touch_points": len(points)}
     if touch.known_distances:
         rows, noise_rows = [], []
-        for a in range(len(touch.names)):
-            for b in range(a + 1, len(touch.names)):
+        touched = [k for k, name in enumerate(touch.names) if name in set(points)]  # a plan may leave one out
+        for i, a in enumerate(touched):
+            for b in touched[i + 1 :]:
                 n = float(rng.normal(0.0, cell.spacing_sigma_m))
                 distance = float(np.linalg.norm(touch.points[a] - touch.points[b]))
                 rows.append([touch.names[a], touch.names[b], distance + n])

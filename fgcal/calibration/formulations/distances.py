@@ -17,6 +17,7 @@ from ...data.truth import Truth, named_points
 from ...factors import Distances, MeasurementSet, RobustLoss
 from ...model.robot import Robot
 from ..batch import BatchKinematics
+from ..plan_model import BallbarReadings, Planning
 from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, rows_of, subset_of, take
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
@@ -59,6 +60,9 @@ class DistanceReadings(Formulation):
         "instead of its full length, joint angles or lengths in other units than units: declares"
     )
     instrument = "ballbar"
+
+    def planning(self, settings: MeasurementSettings) -> Planning:
+        return BallbarReadings()
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.distance_m

@@ -113,7 +113,8 @@ class Pairs(Formulation):
         return "rigid" if settings.fixture_orientation == "estimate" else "translation"
 
     def planning(self, settings: MeasurementSettings) -> Planning:
-        return FlangeCamera(rotation=settings.fixture_orientation == "estimate")
+        rotation = settings.fixture_orientation == "estimate"
+        return FlangeCamera(rotation=rotation, group_images=settings.pairs.group_images)
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         observations = pair_observations(dataset, settings, fit)

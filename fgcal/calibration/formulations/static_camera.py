@@ -16,6 +16,7 @@ from ...data.truth import Truth
 from ...factors import MeasurementSet, RobustLoss, StaticProjections
 from ...model.robot import Robot
 from ..batch import BatchKinematics
+from ..plan_model import Planning, StaticBoard
 from ..problem import Formulation, HeldOut, Keys, Observations, Problem, Rejection, Scored
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
@@ -52,6 +53,9 @@ class StaticCamera(Formulation):
 
     def gauge(self, settings: MeasurementSettings) -> str:
         return "rigid"
+
+    def planning(self, settings: MeasurementSettings) -> Planning:
+        return StaticBoard()
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         if dataset.camera_mounting is not None:

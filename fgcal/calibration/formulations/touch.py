@@ -18,6 +18,7 @@ from ...data.truth import Truth, named_points
 from ...factors import MeasurementSet, RobustLoss, SocketSpacings, TouchPoints
 from ...model.robot import Robot
 from ..batch import BatchKinematics
+from ..plan_model import Planning, ProbeTouches
 from ..prediction import scored_jacobian
 from ..problem import (
     Formulation,
@@ -77,6 +78,9 @@ class Touch(Formulation):
 
     def gauge(self, settings: MeasurementSettings) -> str:
         return "rigid"
+
+    def planning(self, settings: MeasurementSettings) -> Planning:
+        return ProbeTouches()
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         table = measured_table(dataset, "touch_points", self.name)
