@@ -554,6 +554,8 @@ CASES = [
     ("calibrate_validation_seed_negative", _config_text("validation: {holdout: 0.25, seed: -1}\n"),
      "calibration.yaml", "validation.seed"),
     ("calibrate_pairs_seed_negative", _config_text("pairs: {seed: -5}\n"), "calibration.yaml", "pairs.seed"),
+    ("calibrate_images_for_a_tracker", _config_text("formulation: tracker\npixels_from: images\n"), "calibration.yaml",
+     "pixels_from: images: the tracker formulation reads no pixels"),
     ("calibrate_schedule_overruled_by_stages", _config_text("schedule: one_shot\nstages: [[theta], [a]]\n"),
      "calibration.yaml", "write schedule: custom"),
     ("calibrate_key_given_twice", _config_text("validation: {holdout: 0.5}\nvalidation: {holdout: 0.25}\n"),

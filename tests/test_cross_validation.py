@@ -60,10 +60,27 @@ def test_each_fold_is_its_separate_run_on_faro(tmp_path, capsys):
 @pytest.mark.parametrize(("validation", "field"), [
     ("{fold: 2}", "validation.fold"), ("{folds: 5, holdout: 0.2}", "validation.holdout"),
     ("{folds: 5, fold: 6}", "validation.fold"), ("{folds: 5, complement: true}", "validation.complement"),
-    ("{folds: 1}", "validation.folds"),
+    ("{folds: 1}", "validation.folds"), ("{folds: 11}", "validation.folds"),
 ])  # fmt: skip
 def test_folds_that_cannot_be_are_refused(validation, field, tmp_path, capsys):
     assert main(["simulate", "irb120_tracker", "--out", str(tmp_path / "sim"), "--n", "20", "-q"]) == 0
     (tmp_path / "c.yaml").write_text(f"dataset: sim\nvalidation: {validation}\n")
     assert main(["calibrate", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
     assert f"c.yaml: {field}" in capsys.readouterr().err
+
+
+def test_a_trees_folds_are_pooled_per_tip(tmp_path, capsys):
+    """On a tree the per-tip held-out figures are the folds' pooled, as the headline's are (the
+    report read "nothing is held out" for the fit on all)."""
+    assert main(["simulate", "dual_arm_tracker", "--out", str(tmp_path / "sim"), "--n", "120", "--seed", "1",
+                 "-q"]) == 0  # fmt: skip
+    (tmp_path / "cv.yaml").write_text("dataset: sim\nformulation: tracker\nvalidation: {folds: 3, seed: 0}\n")
+    assert main(["calibrate", str(tmp_path / "cv.yaml"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    capsys.readouterr()
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    by_tip, pooled = report["validation"]["by_tip"], report["headline"]["after_m"]["rms"]
+    assert report["fit_by_tip"] is None and list(by_tip) == ["left_hand", "right_hand"]
+    counts = np.array([e["n_errors"] for e in by_tip.values()])
+    after = np.array([e["after_rms_m"] for e in by_tip.values()])
+    assert np.isclose(np.sqrt(np.sum(counts * after**2) / counts.sum()), pooled, rtol=1e-9)
+    assert "Fitting residuals per tip" not in (tmp_path / "out" / "report.md").read_text()

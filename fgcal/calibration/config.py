@@ -98,8 +98,9 @@ def _stages(config: ConfigSchema, source: Path) -> tuple[str, tuple[tuple[str, .
     if "schedule" in config.model_fields_set and config.schedule != "custom":
         own = SEED_STAGES if config.schedule == "staged" else ONE_SHOT
         if stages != tuple(tuple(stage) for stage in own):  # a schedule the stages overrule: say which one runs
-            raise InputError(source, "schedule", f"{config.schedule!r} with a stages list that is not its own steps: "
-                             "the stages run; write schedule: custom (or leave schedule: out)")  # fmt: skip
+            steps = " then ".join("[" + ", ".join(stage) + "]" for stage in own)
+            raise InputError(source, "schedule", f"{config.schedule!r} is the steps {steps}, and stages: lists others: "
+                             "to run the stages, write schedule: custom (or leave schedule: out)")  # fmt: skip
     return "custom", stages
 
 

@@ -54,7 +54,23 @@ def pooled(final: CalibrationResult, folds: list[CalibrationResult], config: Cal
         "pooled_predicted_rms_m": prediction.rms if prediction is not None else None,
         "n_held_out": int(sum(r["n_held_out"] for r in rows)),
     }
-    return dataclasses.replace(final, validation=validation, prediction=prediction, cross_validation=summary)
+    return dataclasses.replace(final, validation=validation, prediction=prediction, cross_validation=summary,
+                               by_tip=_pool_tips(folds), fit_by_tip=None)  # fmt: skip
+
+
+def _pool_tips(folds: list[CalibrationResult]) -> dict | None:
+    """A tree's per-tip held-out figures pooled over the folds, as the pooled ones are."""
+    from .by_tip import TipScore
+
+    if not all(f.by_tip for f in folds):
+        return None
+    out = {}
+    for tip in folds[0].by_tip:
+        scores = [f.by_tip[tip] for f in folds]
+        counts = [s.after.errors.size for s in scores]
+        out[tip] = TipScore(_pool([s.before for s in scores]), _pool([s.after for s in scores]),
+                            _pool_predictions([s.predicted for s in scores], counts))  # fmt: skip
+    return out
 
 
 def _pool(parts: list[ErrorStats]) -> ErrorStats:

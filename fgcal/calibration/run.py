@@ -62,6 +62,8 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         if j > robot.n_links:
             raise InputError(config.path, "compliant_joints", f"joint {j} does not exist on {robot.name}")
     detection = None
+    if config.pixels_from == "images" and "pixels_from" not in formulation.settings_read:
+        raise InputError(config.path, "pixels_from", f"images: the {formulation.name} formulation reads no pixels")
     if config.pixels_from == "images":
         from ..data.images import detect_images
 
@@ -73,6 +75,9 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     settings = dataclasses.replace(
         config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
     )
+    if config.folds is not None and len(dataset.configs) < 2 * config.folds:  # a fold of one, and the rest
+        raise InputError(config.path, "validation.folds", f"{config.folds} folds of {len(dataset.configs)} "
+                         "configurations: at least two configurations a fold")  # fmt: skip
     if config.folds is not None and config.fold is not None:  # one fold held out of a fit on the others
         fit, test = fold_split(len(dataset.configs), config.folds, config.fold, config.split, config.split_seed)
     elif config.split == "ordered":  # the rows are the measurement order: the run's last part held out

@@ -46,6 +46,7 @@ def report_dict(result: CalibrationResult) -> dict:
     parameters = {}
     released_by_stages = set(releasable(problem.candidates, config.stages))
     held = result.held_from_earlier_stages
+    stage_fixed = {item[1:] for stage in config.stages for item in stage if item.startswith("!")}
     for name in problem.candidates:
         entry = {
             "unit": unit_of(name),
@@ -55,7 +56,8 @@ def report_dict(result: CalibrationResult) -> dict:
             "sigma": sigmas.get(name),
             "sigma_declared_noise": declared.get(name),
             "status": "estimated" if name in sigmas else f"held at stage {held[name]}'s estimate" if name in held
-            else "fixed" if name in released_by_stages else "not released",
+            else "fixed" if name in released_by_stages else "fixed by a stage's fix:" if name in stage_fixed
+            else "not released",
         }
         if name in absorbs:
             entry["effective_value_absorbs"] = sorted(absorbs[name])
@@ -617,8 +619,11 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
         + ("" if doc["formulation_source"] == "the config" else f" ({doc['formulation_source']})")
         + f", schedule {doc['schedule']}. The config's lengths in {doc['units']['length']}, angles in "
         f"{doc['units']['angle']} ({doc['units']['source']}). "
-        f"{doc['n_fit_configurations']} configurations for fitting, {doc['n_validation_configurations']} held "
-        f"out, {doc['n_residuals']} residuals. Total time {doc['timing']['total_s']:.2f} s."
+        + (f"{doc['n_fit_configurations']} configurations for fitting, all of them (the fit the "
+           f"{doc['cross_validation']['folds']} folds of the headline score), "
+           if doc.get("cross_validation") else
+           f"{doc['n_fit_configurations']} configurations for fitting, {doc['n_validation_configurations']} held out, ")
+        + f"{doc['n_residuals']} residuals. Total time {doc['timing']['total_s']:.2f} s."
         + (f" Simulation seed {doc['seed']}." if doc["seed"] is not None else ""),
         "",
     ]

@@ -93,7 +93,7 @@ class Pairs(Formulation):
     name = "pairs"
     frame = "tool"
     kind = "camera_points"
-    settings_read = ("pairs", "fixture_orientation", "noise.camera_point_sigma")
+    settings_read = ("pairs", "fixture_orientation", "noise.camera_point_sigma", "pixels_from")
     score = "point_pair"
     score_vectors = False
     likely_causes = (

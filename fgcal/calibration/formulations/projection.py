@@ -36,7 +36,7 @@ class Projection(Formulation):
     frame = "tool"
     unit = "px"
     kind = "pixels"
-    settings_read = ("noise.pixel_sigma_px", "intrinsics")
+    settings_read = ("noise.pixel_sigma_px", "intrinsics", "pixels_from")
     score = "reprojection"
     score_width = 2
     score_vectors = False

@@ -38,7 +38,7 @@ class StaticCamera(Formulation):
     frame = "flange"
     unit = "px"
     kind = "pixels"
-    settings_read = ("noise.pixel_sigma_px", "intrinsics")
+    settings_read = ("noise.pixel_sigma_px", "intrinsics", "pixels_from")
     score = "reprojection"
     score_width = 2
     score_vectors = False
