@@ -82,13 +82,15 @@ def test_a_prior_keeps_its_sigma_when_the_noise_is_scaled(tmp_path, capsys):
     from fgcal.commands.cli import main
 
     assert main(["simulate", "dual_arm_tracker", "--out", str(tmp_path / "sim"), "--n", "120", "--seed", "1"]) == 0
+    # A declared noise a tenth of the simulation's (0.015 mm): chi2/dof about 100, whatever the model.
     (tmp_path / "u.yaml").write_text("dataset: sim\nformulation: tracker\nunits: {length: mm, angle: deg}\n"
+                                     "noise: {tracker_sigma: 0.0015}\n"
                                      "bounds: {base.tz: 0.5, d2: 0.2, alpha: 0.01}\n")  # fmt: skip
     assert main(["calibrate", str(tmp_path / "u.yaml"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
     capsys.readouterr()
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     factor = report["goodness_of_fit"]["variance_factor"]
-    assert factor > 10  # the bounds hold the truth's deviations off: the noise does not explain the fit
+    assert factor > 10  # the declared noise does not explain the fit
     p = report["parameters"]
     assert abs(p["base.tz"]["sigma"] / 5e-4 - 1) < 1e-6  # nothing but the prior determines base.tz
     assert p["alpha2"]["sigma"] <= p["alpha2"]["prior_sigma"] * (1 + 1e-6)
