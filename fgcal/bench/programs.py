@@ -9,9 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration.suggest import write_suggested_config
 from ..core.outputs import output_dir, write_text
-from ..data.dataset import load_dataset
 from ..data.program_filter import configurations
 from ..data.programs import krl_abc_deg
 from ..simulation.cell import load_cell
@@ -42,7 +40,7 @@ def write_targets(robot, n: int, folder: Path, seed: int) -> tuple[Path, Path]:
 
 def program_bench(
     out: Path,
-    data_dir: Path,
+    robot_file: Path,
     cell: Path,
     child_usage: Callable[[list[str]], tuple[float, float, float]],
     command: Callable[..., list[str]],
@@ -51,13 +49,9 @@ def program_bench(
 ) -> dict:
     """CPU per target of ``fgcal compensate`` on a KRL program and on the same targets as a CSV,
     from the difference between two sizes (the start-up, the same for both, drops out); the
-    robot calibrated on the simulated ``data_dir`` of ``cell``."""
+    robot ``robot_file`` a calibration of ``cell`` wrote (the memory bench's: no second one)."""
     folder = output_dir(out / "programs")
-    config = write_suggested_config(load_cell(cell), load_dataset(data_dir))
-    calibration = folder / "calibration"
-    child_usage(command("calibrate", str(config), "--out", str(calibration), "-q", "--no-plots"))
-    robot_file = calibration / "calibrated_robot.yaml"
-    nominal = load_dataset(data_dir).robot
+    nominal = load_cell(cell).robot
     cpu: dict[str, list[float]] = {"program": [], "csv": []}
     for n in sizes:
         dat, csv = write_targets(nominal, n, folder, seed=n)

@@ -618,8 +618,9 @@ def run_bench(
     result.update(demo_bench(out, repeats, say))
     result.update(memory_bench(out, seed, memory_n, say))
     say("program filtering:")
-    result.update(program_bench(out, simulated_case(out, seed, sizes[0], say), SEED_CELL, child_usage,
-                                _fgcal_command, say, (program_targets // 20, program_targets)))  # fmt: skip
+    calibrated = out / f"memory_n{memory_n}" / "calibrated_robot.yaml"  # the memory bench's calibration
+    result.update(program_bench(out, calibrated, SEED_CELL, child_usage, _fgcal_command, say,
+                                (program_targets // 20, program_targets)))  # fmt: skip
     if faro is not None:
         say(f"FARO set ({faro}): whole calibrate command against a plain scipy DH fit")
         result.update(faro_bench(Path(faro), out / "faro", repeats, say))
