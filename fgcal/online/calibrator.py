@@ -33,14 +33,12 @@ from ..factors import BehindCameraError, FactorError, Projections, RandomWalkFac
 from ..model.camera import Camera, solve_pnp
 from ..model.parameters import default_compliant_joints, unit_of
 from ..model.robot import Robot
-from .compression import merged_factor
+from .compression import merge_marginals, merged_factor
 from .drift import Alarm, DriftTest
 from .growing import GrowingKinematics, RowKinematics
 from .released import candidates, structural_identifiability
 
 OBJECT_KEY = gtsam.symbol("o", 0)
-# Marginal factors of departed images are merged into one when there are more than this.
-MERGE_MARGINALS_ABOVE = 4
 
 
 def params_key(cycle: int) -> int:
@@ -303,38 +301,8 @@ class OnlineCalibrator:
         return bool(self._jump) or (cycle is not None and cycle != self._cycle_label)
 
     def _merge_marginals(self) -> None:
-        """Merge the marginal factors of the images that left the window.
-
-        Each marginalisation, and each freezing of images that left the window, leaves a
-        LinearContainerFactor on (p_c, O); left alone they pile up, and every update would
-        eliminate them all again. Re-expressed at
-        the current linearisation point (which leaves each quadratic as it was), the ones on
-        the same variables are stacked and compressed by QR into one Jacobian factor (a
-        Hessian would do too, but QR elimination needs a Jacobian and a merged marginal may
-        be rank deficient)."""
-        factors = self.smoother.getFactors()
-        for i in range(self._scanned, factors.size()):
-            if isinstance(factors.at(i), gtsam.LinearContainerFactor):
-                self._marginals.append(i)
-        self._scanned = factors.size()
-        # A marginal factor goes away itself when one of its variables is marginalised.
-        self._marginals = [i for i in self._marginals if factors.at(i) is not None]
-        if len(self._marginals) <= MERGE_MARGINALS_ABOVE:
-            return
-        by_keys: dict[tuple[int, ...], list[int]] = {}
-        for i in self._marginals:
-            by_keys.setdefault(tuple(sorted(factors.at(i).keys())), []).append(i)
-        linearization_point = self.smoother.getLinearizationPoint()
-        merged, removed, kept = gtsam.NonlinearFactorGraph(), [], []
-        for keys, slots in by_keys.items():
-            if len(slots) < 2 or len(keys) > 3:  # GTSAM's Python JacobianFactor takes up to 3 keys
-                kept += slots
-                continue
-            merged.add(merged_factor(keys, [factors.at(i) for i in slots], linearization_point))
-            removed += slots
-        if removed:
-            self.smoother.update(merged, gtsam.Values(), {}, removed)
-        self._marginals = kept
+        """Merge the marginal factors of the images that left the window (compression.merge_marginals)."""
+        self._marginals, self._scanned = merge_marginals(self.smoother, self._marginals, self._scanned)
 
 
     def image_measurements(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> Projections:

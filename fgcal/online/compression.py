@@ -43,3 +43,40 @@ def merged_factor(keys: tuple[int, ...], marginals: list, point: gtsam.Values):
         arguments += [key, R[:, offsets[key] : offsets[key] + dims[key]]]
     unit = gtsam.noiseModel.Unit.Create(R.shape[0])
     return gtsam.LinearContainerFactor(gtsam.JacobianFactor(*arguments, R[:, width], unit), subset)
+
+
+MERGE_MARGINALS_ABOVE = 4  # marginal factors kept apart up to this many
+
+
+def merge_marginals(smoother, marginals: list[int], scanned: int) -> tuple[list[int], int]:
+    """Merge the marginal factors of what left a fixed-lag window; returns the slots of those
+    kept apart and the smoother's factor slots scanned so far.
+
+    Each marginalisation leaves a LinearContainerFactor; left alone they pile up, and every
+    update would eliminate them all again. Re-expressed at the current linearisation point
+    (which leaves each quadratic as it was), the ones on the same variables are stacked and
+    compressed by QR into one Jacobian factor (a Hessian would do too, but QR elimination needs
+    a Jacobian and a merged marginal may be rank deficient)."""
+    factors = smoother.getFactors()
+    for i in range(scanned, factors.size()):
+        if isinstance(factors.at(i), gtsam.LinearContainerFactor):
+            marginals.append(i)
+    scanned = factors.size()
+    # A marginal factor goes away itself when one of its variables is marginalised.
+    marginals = [i for i in marginals if factors.at(i) is not None]
+    if len(marginals) <= MERGE_MARGINALS_ABOVE:
+        return marginals, scanned
+    by_keys: dict[tuple[int, ...], list[int]] = {}
+    for i in marginals:
+        by_keys.setdefault(tuple(sorted(factors.at(i).keys())), []).append(i)
+    point = smoother.getLinearizationPoint()
+    merged, removed, kept = gtsam.NonlinearFactorGraph(), [], []
+    for keys, slots in by_keys.items():
+        if len(slots) < 2 or len(keys) > 3:  # GTSAM's Python JacobianFactor takes up to 3 keys
+            kept += slots
+            continue
+        merged.add(merged_factor(keys, [factors.at(i) for i in slots], point))
+        removed += slots
+    if removed:
+        smoother.update(merged, gtsam.Values(), {}, removed)
+    return kept, scanned

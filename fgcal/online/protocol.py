@@ -43,8 +43,8 @@ from ..factors import RandomWalkFactor, gaussian
 from ..model.motion import MotionHistory
 from ..model.parameters import unit_of
 from ..model.robot import Robot
-from .calibrator import MERGE_MARGINALS_ABOVE, OnlineSettings, OnlineUpdate, params_key
-from .compression import copy_value, merged_factor
+from .calibrator import OnlineSettings, OnlineUpdate, params_key
+from .compression import copy_value, merge_marginals
 from .drift import DriftTest
 from .growing import GrowingKinematics
 
@@ -394,30 +394,9 @@ class FormulationCalibrator:
         return out, removed
 
     def _merge_marginals(self) -> None:
-        """Merge the linear factors on the same variables (stacked and compressed by QR), as
-        the camera's calibrator does; GTSAM's Python JacobianFactor takes up to 3 keys."""
-        factors = self.smoother.getFactors()
-        for i in range(self._scanned, factors.size()):
-            if isinstance(factors.at(i), gtsam.LinearContainerFactor):
-                self._marginals.append(i)
-        self._scanned = factors.size()
-        self._marginals = [i for i in self._marginals if factors.at(i) is not None]
-        if len(self._marginals) <= MERGE_MARGINALS_ABOVE:
-            return
-        by_keys: dict[tuple[int, ...], list[int]] = {}
-        for i in self._marginals:
-            by_keys.setdefault(tuple(sorted(factors.at(i).keys())), []).append(i)
-        point = self.smoother.getLinearizationPoint()
-        merged, removed, kept = gtsam.NonlinearFactorGraph(), [], []
-        for keys, slots in by_keys.items():
-            if len(slots) < 2 or len(keys) > 3:
-                kept += slots
-                continue
-            merged.add(merged_factor(keys, [factors.at(i) for i in slots], point))
-            removed += slots
-        if removed:
-            self.smoother.update(merged, gtsam.Values(), {}, removed)
-        self._marginals = kept
+        """Merge the marginal factors on the same variables, as the camera's calibrator does
+        (compression.merge_marginals)."""
+        self._marginals, self._scanned = merge_marginals(self.smoother, self._marginals, self._scanned)
 
     # -- the estimate ---------------------------------------------------------------------------
 
