@@ -435,7 +435,6 @@ def touch_candidates(
     joint space, which a few points on a table cannot calibrate."""
     robot, touch = cell.robot, cell.touch
     params = robot.parameter_vector()
-    low, high = robot.limits[:, 0], robot.limits[:, 1]
     q_kept, points, tried, unreached, rounds = [], [], 0, 0, 0
     while len(points) < count and rounds < 40:
         rounds += 1
@@ -443,14 +442,7 @@ def touch_candidates(
         which = rng.integers(len(touch.names), size=batch)
         R = np.array([approach_rotation(touch.max_tilt_rad, rng) for _ in range(batch)])
         targets = np.array([pose(R_i, touch.points[k] - R_i @ touch.probe) for k, R_i in zip(which, R, strict=True)])
-        solved = np.zeros(batch, dtype=bool)
-        q = np.zeros((batch, robot.n_joints))
-        for _ in range(2):
-            left = np.flatnonzero(~solved)
-            start = rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
-            q_try, ok = solve_ik(robot, params, targets[left], start, frame=cell.tip, iterations=IK_ITERATIONS,
-                                 tol=IK_TOL, freeze_converged=True)  # fmt: skip
-            q[left[ok]], solved[left[ok]] = q_try[ok], True
+        q, solved = _reached(robot, params, targets, cell.tip, rng)
         tried += batch
         unreached += int((~solved).sum())
         keep = np.flatnonzero(solved)[: count - len(points)]
@@ -472,6 +464,21 @@ def touch_candidates(
     )
 
 
+def _reached(robot: Robot, params: np.ndarray, targets: np.ndarray, tip: str, rng: np.random.Generator):
+    """Joints (N, n) reaching ``targets`` (N, 4, 4) with ``tip``, by inverse kinematics from two
+    random starts within the ranges (revolute joints within +-pi), and which were reached."""
+    low, high = robot.limits[:, 0], robot.limits[:, 1]
+    solved = np.zeros(len(targets), dtype=bool)
+    q = np.zeros((len(targets), robot.n_joints))
+    for _ in range(2):
+        left = np.flatnonzero(~solved)
+        start = rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
+        q_try, ok = solve_ik(robot, params, targets[left], start, frame=tip, iterations=IK_ITERATIONS, tol=IK_TOL,
+                             freeze_converged=True)  # fmt: skip
+        q[left[ok]], solved[left[ok]] = q_try[ok], True
+    return q, solved
+
+
 BALLBAR_UNREACHED = "the ball not reached within the joint limits, the flange within max_tilt of straight down"
 MIN_ELEVATION_RAD = np.deg2rad(10.0)  # as the simulator's readings: the bar clear of the pivot's plate
 
@@ -488,7 +495,6 @@ def ballbar_candidates(
     if not bar.names:
         raise InputError(cell.source, "ballbar.pivots", "readings between configurations are not planned yet")
     params = robot.parameter_vector()
-    low, high = robot.limits[:, 0], robot.limits[:, 1]
     q_kept, pivots, unreached, rounds = [], [], 0, 0
     while len(pivots) < count and rounds < 40:
         rounds += 1
@@ -503,14 +509,7 @@ def ballbar_candidates(
         centres = bar.pivots[which] + length[:, None] * direction
         R = np.array([approach_rotation(bar.max_tilt_rad, rng) for _ in range(batch)])
         targets = np.array([pose(R_i, c - R_i @ bar.ball) for c, R_i in zip(centres, R, strict=True)])
-        solved = np.zeros(batch, dtype=bool)
-        q = np.zeros((batch, robot.n_joints))
-        for _ in range(2):
-            left = np.flatnonzero(~solved)
-            start = rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
-            q_try, ok = solve_ik(robot, params, targets[left], start, frame=cell.tip, iterations=IK_ITERATIONS,
-                                 tol=IK_TOL, freeze_converged=True)  # fmt: skip
-            q[left[ok]], solved[left[ok]] = q_try[ok], True
+        q, solved = _reached(robot, params, targets, cell.tip, rng)
         unreached += int((~solved).sum())
         keep = np.flatnonzero(solved)[: count - len(pivots)]
         q_kept.append(q[keep])
