@@ -51,22 +51,14 @@ def ballbar_file_design(
     pivots, distances, and the configurations left out (the distance beyond the bar's travel)."""
     from ..core.errors import InputError
     from ..core.se3 import transform_points
-    from ..data.dataset import parse_numbers, read_csv
+    from .design import labelled_file
 
     robot, bar = cell.robot, cell.ballbar
-    joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
-    header, body = read_csv(path, ["config", *joints, "pivot"])
-    if not body:
-        raise InputError(path, None, "no configurations")
-    q = parse_numbers(path, header, body, joints, "angle", 1.0)
-    names = [row[header.index("pivot")].strip() for row in body]
-    for i, name in enumerate(names):
-        if name not in bar.names:
-            raise InputError(path, f"line {i + 2}, column pivot", f"no pivot {name!r} in {cell.name}")
+    q, names, configs = labelled_file(path, cell, "pivot", bar.names)
     ball = transform_points(robot.fk(q, robot.parameter_dict(true_params), tip=cell.tip), bar.ball)
     length = np.linalg.norm(ball - bar.pivots[[bar.names.index(n) for n in names]], axis=1)
     inside = (length >= bar.length_m[0]) & (length <= bar.length_m[1])
-    left_out = [body[i][header.index("config")].strip() for i in np.flatnonzero(~inside)]
+    left_out = [configs[i] for i in np.flatnonzero(~inside)]
     if not inside.any():
         raise InputError(path, None, "the true robot puts the ball within the bar's travel at none of them")
     return q[inside], [n for n, ok in zip(names, inside, strict=True) if ok], length[inside], left_out

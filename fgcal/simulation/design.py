@@ -350,3 +350,21 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     if not views:
         raise InputError(path, None, "the simulated camera sees its block at none of the configurations")
     return views, unseen
+
+
+def labelled_file(path: Path, cell: Cell, column: str, known: Sequence[str]) -> tuple[np.ndarray, list[str], list[str]]:
+    """A plan's CSV of labelled configurations (``config, q1..qn, COLUMN``, as fgcal plan writes a
+    touch or ballbar plan): the joints (N, n), each row's label (one of ``known``, the cell's) and
+    each row's configuration id."""
+    from ..data.dataset import parse_numbers, read_csv
+
+    joints = [f"q{i}" for i in range(1, cell.robot.n_joints + 1)]
+    header, body = read_csv(path, ["config", *joints, column])
+    if not body:
+        raise InputError(path, None, "no configurations")
+    q = parse_numbers(path, header, body, joints, "angle", 1.0)
+    labels = [row[header.index(column)].strip() for row in body]
+    for i, label in enumerate(labels):
+        if label not in known:
+            raise InputError(path, f"line {i + 2}, column {column}", f"no {column} {label!r} in {cell.name}")
+    return q, labels, [row[header.index("config")].strip() for row in body]

@@ -65,18 +65,10 @@ def touch_file_design(
     the nominal model has at the file's joints, by inverse kinematics from those joints (then
     from random starts); configurations, points, seating noise, and the configurations left
     out (not reached on the true robot)."""
-    from ..data.dataset import parse_numbers, read_csv
+    from .design import labelled_file
 
     robot, touch = cell.robot, cell.touch
-    joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
-    header, body = read_csv(path, ["config", *joints, "point"])
-    if not body:
-        raise InputError(path, None, "no configurations")
-    q_file = parse_numbers(path, header, body, joints, "angle", 1.0)
-    names = [row[header.index("point")].strip() for row in body]
-    for i, name in enumerate(names):
-        if name not in touch.names:
-            raise InputError(path, f"line {i + 2}, column point", f"no point {name!r} in {cell.name}")
+    q_file, names, configs = labelled_file(path, cell, "point", touch.names)
     which = np.array([touch.names.index(name) for name in names])
     noise = noise_rng.normal(0.0, cell.touch_sigma_m, (len(names), 3))
     R = robot.fk(q_file, tip=cell.tip)[:, :3, :3]  # the nominal orientation the plan chose
@@ -91,7 +83,7 @@ def touch_file_design(
         start = design_rng.uniform(np.maximum(low, -np.pi), np.minimum(high, np.pi), (len(left), robot.n_joints))
         q_try, ok = solve_ik(robot, true_params, targets[left], start, frame=cell.tip, freeze_converged=True)
         q[left[ok]], solved[left[ok]] = q_try[ok], True
-    left_out = [body[i][header.index("config")].strip() for i in np.flatnonzero(~solved)]
+    left_out = [configs[i] for i in np.flatnonzero(~solved)]
     if not solved.any():
         raise InputError(path, None, "the true robot seats its probe at none of the configurations")
     return q[solved], [names[i] for i in np.flatnonzero(solved)], noise[solved], left_out
