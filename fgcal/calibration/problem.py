@@ -22,7 +22,7 @@ A formulation knows:
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
@@ -528,6 +528,15 @@ def rows_of(dataset: Dataset, table: Table, key: str, subset: np.ndarray) -> Ite
         index = subset_pos.get(config_pos[cid])
         if index is not None:
             yield index, str(name), values
+
+
+def refuse_unstarted(seen: Iterable[str], known: Sequence[str], path: Path, column: str, what: str, lost: str) -> None:
+    """An online measurement naming a ``what`` (a reflector, a point) the online calibration did
+    not start with is refused: its unknown (``lost``) is not estimated."""
+    unknown = sorted(set(seen) - set(known))
+    if unknown:
+        raise InputError(path, column, f"{what} {unknown[0]!r} is not one the online calibration started with "
+                         f"({', '.join(known)}): {lost}")  # fmt: skip
 
 
 def measured_table(dataset: Dataset, table: str, formulation: str) -> Table:

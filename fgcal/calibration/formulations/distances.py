@@ -18,7 +18,18 @@ from ...factors import Distances, MeasurementSet, RobustLoss
 from ...model.robot import Robot
 from ..batch import BatchKinematics
 from ..plan_model import BallbarReadings, Planning
-from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, rows_of, subset_of, take
+from ..problem import (
+    Formulation,
+    Keys,
+    Observations,
+    Problem,
+    Rejection,
+    Scored,
+    refuse_unstarted,
+    rows_of,
+    subset_of,
+    take,
+)
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
 
@@ -103,12 +114,8 @@ class DistanceReadings(Formulation):
         configurations, tool_distances, is no one configuration's: not taken online)."""
         table = dataset.tables.get("distances")
         seen = {name for _, name, _ in rows_of(dataset, table, "pivot", subset)} if table else set()
-        unknown = sorted(seen - set(like.names))
-        if unknown:
-            raise InputError(
-                dataset.path / "distances.csv", "pivot", f"pivot {unknown[0]!r} is not one the online calibration "
-                f"started with ({', '.join(like.names)}): its position is not estimated",
-            )  # fmt: skip
+        refuse_unstarted(seen, like.names, dataset.path / "distances.csv", "pivot", "pivot",
+                         "its position is not estimated")  # fmt: skip
         return _observations(dataset, subset, None, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:

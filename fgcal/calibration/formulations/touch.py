@@ -30,6 +30,7 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
+    refuse_unstarted,
     rows_of,
     subset_of,
     take,
@@ -108,12 +109,8 @@ class Touch(Formulation):
         between points (point_distances) are no configuration's and are not taken online."""
         seen = {name for _, name, _ in rows_of(dataset, measured_table(dataset, "touch_points", self.name), "point",
                                                  subset)}  # fmt: skip
-        unknown = sorted(seen - set(like.names))
-        if unknown:
-            raise InputError(
-                dataset.path / "touch_points.csv", "point", f"point {unknown[0]!r} is not one the online calibration "
-                f"started with ({', '.join(like.names)}): its position is not estimated",
-            )  # fmt: skip
+        refuse_unstarted(seen, like.names, dataset.path / "touch_points.csv", "point", "point",
+                         "its position is not estimated")  # fmt: skip
         return _observations(dataset, subset, like.names, spacings=False)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:

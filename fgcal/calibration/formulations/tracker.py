@@ -33,6 +33,7 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
+    refuse_unstarted,
     rows_of,
     subset_of,
     take,
@@ -122,12 +123,8 @@ class Tracker(Formulation):
         self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
     ) -> Observations:
         rows = list(rows_of(dataset, measured_table(dataset, "tracker_points", self.name), "target", subset))
-        unknown = sorted({name for _, name, _ in rows} - set(like.names))
-        if unknown:
-            raise InputError(
-                dataset.path / "tracker_points.csv", "target", f"reflector {unknown[0]!r} is not one the online "
-                f"calibration started with ({', '.join(like.names)}): its position on the flange is not estimated",
-            )  # fmt: skip
+        refuse_unstarted((name for _, name, _ in rows), like.names, dataset.path / "tracker_points.csv", "target",
+                         "reflector", "its position on the flange is not estimated")  # fmt: skip
         return _observations(dataset, subset, rows, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
