@@ -29,14 +29,16 @@ from ..model.parameters import (
 from .graph import StageGraph
 from .priors import Priors
 
+# A fixed frame's perturbation comes first: where it duplicates the row after it (theta, d, sx,
+# sy of a DH row), the frame, the mount a robot file names as uncertain, keeps the deviation.
 GROUPS = (
+    ("frame",),
     ("theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"),
     ("sx", "sy"),
     ("kx", "ky", "kz", "kc"),
     (MASS_KIND,),
     ("lm", "lv"),
     ("tool",),
-    ("frame",),
     ("base",),
 )
 # Plausible deviations: m, rad; a joint's lost motion is hundredths of a degree.

@@ -82,8 +82,8 @@ class Intrinsics(Schema):
 
 
 _PARAMETER = (
-    r"^((theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz|lm|lv)[1-9][0-9]*|(base|tool)\.(tx|ty|tz|rx|ry|rz)"
-    r"|mass\.[A-Za-z_][A-Za-z0-9_]*)$"
+    r"^((theta|d|a|alpha|sx|sy|kx|ky|kz|kc|tx|ty|tz|rx|ry|rz|lm|lv)[1-9][0-9]*|(base|tool)\.(tx|ty|tz|rx|ry|rz)"
+    r"|frame\.[A-Za-z_][A-Za-z0-9_]*\.(tx|ty|tz|rx|ry|rz)|mass\.[A-Za-z_][A-Za-z0-9_]*)$"
 )
 _JOINTS = r"^[1-9][0-9]*(-[1-9][0-9]*)?$"
 

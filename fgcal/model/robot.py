@@ -233,6 +233,22 @@ class Robot:
         """The fixed frames with parameters frame.{name}.*: those before rows, then the calibrated tips."""
         return [name for name, _, _ in self.fixed_frames] + list(self.calibrated_tips)
 
+    @property
+    def framed_parameters(self) -> list[str]:
+        """The row parameters fixed frames duplicate exactly: those of the row right after a frame (a
+        DH row's theta, d, sx, sy), and, on a link from which every joint leaves through a frame and
+        no tip hangs, its motion's offset and what follows it (a DH row's theta, d, a, alpha). A
+        frame's perturbation and these are one deviation (identifiability keeps the frame's)."""
+        names = [f"{kind}{j + 1}" for _, j, _ in self.fixed_frames for kind in self.joints[j].framed]
+        parents = self.parents if self.parents is not None else tuple(range(-1, self.n_links - 1))
+        framed = {j for _, j, _ in self.fixed_frames}
+        hanging = {j for _, j, _ in self.tips} | {self.n_links - 1 if self.flange_joint is None else self.flange_joint}
+        for link in range(self.n_links):
+            children = [j for j, p in enumerate(parents) if p == link]
+            if children and all(j in framed for j in children) and link not in hanging:
+                names += [f"{kind}{link + 1}" for kind in self.joints[link].carrying]
+        return list(dict.fromkeys(names))
+
     @cached_property
     def parameter_names(self) -> list[str]:
         coupled = {j for j, _ in self.compliance_coupling}
