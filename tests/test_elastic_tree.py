@@ -109,6 +109,21 @@ def test_a_fixed_frame_before_a_row_is_the_transform_it_says(convention):
     assert np.abs(got - expected).max() < 1e-12
 
 
+def test_a_calibrated_tip_is_its_pose_then_its_perturbation():
+    """A tip with ``calibrate: true`` has frame.{tip}.* (translation, then rotation vector) after its
+    pose on its link; the flange's own are tool.*."""
+    xyz, rpy = [0.0, 0.05, 0.12], [0.0, -1.2, 0.7]
+    robot = _robot(ARM, tips=[{"name": "tcp", "joint": 3, "xyz": xyz, "rpy": rpy, "calibrate": True}])
+    names = [f"frame.tcp.{kind}" for kind in ("tx", "ty", "tz", "rx", "ry", "rz")]
+    assert robot.parameter_names[-18:-12] == names  # before base and tool
+    perturbation = np.array([0.001, 0.002, -0.003, 0.02, -0.01, 0.03])
+    T_pert = np.eye(4)
+    T_pert[:3, :3], T_pert[:3, 3] = so3_exp(perturbation[3:]), perturbation[:3]
+    q = np.random.default_rng(6).uniform(-1.5, 1.5, (4, 3))
+    expected = robot.fk(q) @ pose_from_xyz_rpy(np.array(xyz), np.array(rpy)) @ T_pert
+    assert np.abs(robot.fk(q, dict(zip(names, perturbation, strict=True)), tip="tcp") - expected).max() < 1e-12
+
+
 def _humanoid_parameters(robot: fgcal.Robot, rng: np.random.Generator) -> dict[str, float]:
     from conftest import random_parameters
 
@@ -179,3 +194,32 @@ def test_the_humanoid_robot_file_round_trips():
     q = np.random.default_rng(8).uniform(robot.limits[:, 0], robot.limits[:, 1], (5, robot.n_joints))
     for tip in ("left_hand", "right_hand"):
         assert np.abs(again.fk(q, tip=tip) - robot.fk(q, params, tip=tip)).max() < 1e-12
+
+
+def test_the_humanoid_exports_its_fixed_frames_and_loads(tmp_path, capsys):
+    """As a URDF (fgcal's layout of a tree): both hands where fgcal's rigid model puts them, with
+    calibrated mounts (the fixed frames are in the joints' origins); the sidecar says which joints
+    bend about their parent's axes, the coupled compliance and the loads URDF cannot hold."""
+    import yourdfpy
+
+    from fgcal.commands.cli import main
+    from fgcal.model.robot_io import save_robot
+
+    robot = fgcal.load_robot("humanoid_upper_body")
+    params = {"frame.left_mount.tz": 0.003, "frame.right_mount.rx": 0.01, "kc3": 2e-5, "kx2": 1e-5}
+    save_robot(tmp_path / "calibrated.yaml", robot, params)
+    assert main(["export", str(tmp_path / "calibrated.yaml"), "--urdf", str(tmp_path / "h.urdf"),
+                 "--no-rigid-fit"]) == 0  # fmt: skip
+    capsys.readouterr()
+    sidecar = yaml.safe_load((tmp_path / "h.compliance.yaml").read_text())
+    assert [j.get("about") for j in sidecar["joints"]].count("parent") == 4
+    assert sidecar["joints"][2]["coupled_compliance"] == {"from": "joint_2", "kc_rad_per_Nm": 2e-5}
+    assert [load.get("tip", load.get("body")) for load in sidecar["loads"]] == ["left_hand", "right_hand", "head"]
+    rigid = robot.with_model("DH,s")
+    urdf = yourdfpy.URDF.load(str(tmp_path / "h.urdf"), load_meshes=False, build_collision_scene_graph=False)
+    for q in np.random.default_rng(4).uniform(robot.limits[:, 0], robot.limits[:, 1], (3, robot.n_joints)):
+        values = rigid.geometry_values(q)[0]
+        urdf.update_cfg({f"joint_{i + 1}": v for i, v in enumerate(values)})
+        for tip in ("left_hand", "right_hand"):
+            expected = rigid.fk(q, params, tip=tip)
+            np.testing.assert_allclose(urdf.get_transform(tip, "world"), expected, atol=1e-9)
