@@ -226,7 +226,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     frame_names = [name for name, _, _ in fixed_frames] + list(tree["calibrated_tips"])
     for frame in frame_names:
         if frame_names.count(frame) > 1:
-            where = next((f"joints[{j}].frame.name" for f, j, _ in fixed_frames if f == frame), "tips")
+            where = next((f"joints[{j}].frame.name" for f, j, _ in reversed(fixed_frames) if f == frame), "tips")
             raise InputError(source, where, f"two fixed frames named {frame!r}: their parameters frame.{frame}.* clash")
     payload = doc.sub("payload", {})
     gravity = doc.vector("gravity", 3, [0.0, 0.0, -9.81])
