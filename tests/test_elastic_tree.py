@@ -84,6 +84,37 @@ def test_a_parent_axis_compliance_is_dummy_joints_turned_by_its_moment():
     assert np.allclose(moments[:, 3:6], t2, rtol=1e-12, atol=1e-9)
 
 
+def test_a_parent_axis_compliance_on_a_branchs_first_joint():
+    """A branch's first joint bending about its parent's axes bends at the frame the branch leaves
+    from (not at the end of the branch before it): the same as dummy joints there."""
+    side = {"theta": 0.0, "d": 0.2, "a": 0.3, "alpha": 0.5, "parent": 1, "limits": [-3, 3], "mass": 4.0,
+            "com": [0.0, 0.1, 0.0]}  # fmt: skip
+    elastic = _robot(
+        [ARM[0], side, {**ARM[1], "parent": 1, "compliance": {"about": "parent"}}, ARM[2]],
+        parameters={"kx2": 0.0, "kx3": 2e-3, "ky3": 3e-3, "kz3": 1e-3}, flange_joint=4,
+    )  # fmt: skip
+    dummies = _robot(
+        [ARM[0], side, {**_dummy([0, 0, 1]), "parent": 1}, _dummy([0, 1, 0]), _dummy([1, 0, 0]), ARM[1], ARM[2]],
+        model="DH,s", flange_joint=7,
+    )  # fmt: skip
+    q = np.random.default_rng(9).uniform(-1.5, 1.5, (10, 4))
+    at_zero = np.column_stack([q[:, :2], np.zeros((len(q), 3)), q[:, 2:]])
+    t3 = _moment(dummies, at_zero, dummies.chain.link_end[0], [5, 6])
+    turned = at_zero.copy()
+    turned[:, 2], turned[:, 3], turned[:, 4] = 1e-3 * t3[:, 2], 3e-3 * t3[:, 1], 2e-3 * t3[:, 0]
+    assert np.abs(elastic.fk(q)[:, :3, 3] - dummies.fk(turned)[:, :3, 3]).max() < 1e-12
+    # Its Jacobian (every parameter and joint, at the flange) against central differences.
+    from test_kinematics import _fd_columns
+
+    params = elastic.nominal_parameters()
+    wrt = elastic.parameter_names + [f"q{i}" for i in range(1, 5)]
+    J = elastic.jacobian(q[:3], wrt, params)
+    for col, name in enumerate(wrt):
+        numeric, _ = _fd_columns(elastic, q[:3], params, name, "flange", np.zeros(3), 1e-6 if name[0] == "k" else 1e-5)
+        error = np.linalg.norm(J[:, :, col] - numeric) / max(np.linalg.norm(numeric), 1e-3)
+        assert error < 1e-6, (name, error)
+
+
 @pytest.mark.parametrize("convention", ["standard", "modified", "origin"])
 def test_a_fixed_frame_before_a_row_is_the_transform_it_says(convention):
     """A fixed frame (xyz, rpy) and its six parameters between joint 1's link and joint 2's row, in

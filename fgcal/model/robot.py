@@ -505,7 +505,7 @@ def build_chain(robot: Robot) -> Chain:
             if i in coupling:  # about the same z, driven by the other joint's z moment
                 deflection.insert(1, ET("Rz", param=param(COUPLED_COMPLIANCE), moment=3 * coupling[i] + 2))
         if i in parent_axis:  # bent about the parent's axes, at the frame the row starts from
-            bend.append(len(elements) + len(new))
+            bend.append(len(elements) + len(new) if new else start)  # (a branch's first: where it leaves)
             new += deflection
         (first, *more), offset = robot.drives[i]
         new += joint.before_bend(param, first[0], first[1], robot.model != "DH")
