@@ -18,7 +18,8 @@ CELLS = sorted(p.stem for p in (REPO / "datasets" / "cells").glob("*.yaml"))
 
 @pytest.mark.parametrize("cell", CELLS)
 def test_the_config_simulate_writes_states_only_what_its_formulation_reads(cell, tmp_path, capsys):
-    sized = cell.startswith(("irb120_tracker", "dual", "robot_positioner", "irb120_static", "positioner_static"))
+    sized = cell.startswith(("irb120_tracker", "dual", "robot_positioner", "irb120_static", "positioner_static",
+                             "humanoid"))
     size = ["--n", "12"] if sized else []
     assert main(["simulate", cell, "--out", str(tmp_path / "sim"), "--seed", "1", *size]) == 0
     capsys.readouterr()

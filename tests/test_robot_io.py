@@ -21,6 +21,7 @@ def test_bundled_library():
             "seven_axis": 7,
             "positioner_2axis": 2,
             "dual_arm_torso": 17,
+            "humanoid_upper_body": 17,
             "irb120_positioner": 8,
         }.get(name, 6)
         assert robot.source.strip(), f"{name} must name its source"

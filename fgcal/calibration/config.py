@@ -27,9 +27,9 @@ from .settings import ROBUST_DEFAULTS, MeasurementSettings, Noise, PairSettings
 SEED_STAGES = (
     ("theta",),
     ("alpha", "sx", "sy", "rx", "ry", "rz"),
-    ("kx", "ky", "kz", MASS_KIND),
-    ("theta", "alpha", "sx", "sy", "rx", "ry", "rz", "kx", "ky", "kz", "d", "a", "tx", "ty", "tz", "base", "tool",
-     "lm", "lv", MASS_KIND),
+    ("kx", "ky", "kz", "kc", MASS_KIND),
+    ("theta", "alpha", "sx", "sy", "rx", "ry", "rz", "kx", "ky", "kz", "kc", "d", "a", "tx", "ty", "tz", "base",
+     "tool", "frame", "lm", "lv", MASS_KIND),
 )  # fmt: skip
 ONE_SHOT = (SEED_STAGES[-1],)
 

@@ -29,10 +29,13 @@ from ..model.parameters import (
 from .graph import StageGraph
 from .priors import Priors
 
+# A fixed frame's perturbation comes first: where it duplicates the row after it (theta, d, sx,
+# sy of a DH row), the frame, the mount a robot file names as uncertain, keeps the deviation.
 GROUPS = (
+    ("frame",),
     ("theta", "d", "a", "alpha", "tx", "ty", "tz", "rx", "ry", "rz"),
     ("sx", "sy"),
-    ("kx", "ky", "kz"),
+    ("kx", "ky", "kz", "kc"),
     (MASS_KIND,),
     ("lm", "lv"),
     ("tool",),
@@ -59,7 +62,7 @@ def parameter_scale(name: str, moments_rms: np.ndarray) -> float:
     compliance, the value that deflects its joint by 10 mrad at the RMS gravity moment of
     its component over the data (so the scale suits a 3 kg arm and a 125 kg arm alike)."""
     kind, _ = split_name(name)
-    if kind in ("kx", "ky", "kz"):
+    if kind in COMPLIANCE_KINDS:
         moment = moments_rms[moment_column(name)]
         return SCALE["angle"] / max(float(moment), 1e-9)
     if kind in ("d", "a", "tx", "ty", "tz"):

@@ -21,6 +21,7 @@ from ..core.fields import to_float
 from ..core.units import Units
 from ..model.parameters import (
     COMPLIANCE_KINDS,
+    COUPLED_COMPLIANCE,
     JOINT_KINDS,
     LENGTH_KINDS,
     MASS_KIND,
@@ -32,7 +33,7 @@ from ..model.parameters import (
 )
 
 CLASSES = ("length", "angle", "compliance", "motion", "mass")
-KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS)
+KINDS = (*JOINT_KINDS, COUPLED_COMPLIANCE, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS)
 # fgcal's soft bounds when a config states none (SI): they keep lengths from absorbing angular
 # errors and the motion terms from running off, and are not counted as information.
 DEFAULTS = {"length": 0.01, "motion": float(np.radians(0.5))}

@@ -34,7 +34,7 @@ from ..core.errors import InputError
 from ..data.dataset import Dataset, Table
 from ..data.truth import Truth
 from ..factors import MeasurementSet, RobustLoss
-from ..model.parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
+from ..model.parameters import COMPLIANCE_KINDS, MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
 from ..model.robot import Robot
 from .batch import BatchKinematics
 from .plan_model import Planning
@@ -600,7 +600,7 @@ def candidate_parameters(robot: Robot, model: str, joints: tuple[int, ...] | Non
         if (
             owner in ("base", "tool")
             or kind in kinds
-            or ("e" in terms and kind in ("kx", "ky", "kz") and owner in compliant)
+            or ("e" in terms and kind in COMPLIANCE_KINDS and owner in compliant)
         ):
             names.append(name)
     return names

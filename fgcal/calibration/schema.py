@@ -11,7 +11,7 @@ from pydantic import Field, create_model
 
 from ..core.noise import NoiseSection
 from ..core.schema import NUMBER_JSON, Number, Schema, Units, checked, refuse, to_number, vector
-from ..model.parameters import JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
+from ..model.parameters import COUPLED_COMPLIANCE, FRAME, JOINT_KINDS, MASS_KIND, MOTION_KINDS, ORIGIN_CORRECTION_KINDS
 from ..model.robot import MODELS
 from .formulations import NAMES
 from .settings import PARTNERS, ROBUST_DEFAULTS
@@ -21,7 +21,7 @@ ANGLE = "the config's angle unit"
 LOSSES = ("huber", "cauchy")
 LOSS = "[huber|cauchy, threshold in robust sigmas], or null or none: no robust loss (least squares)"
 # The parameter kinds a stage may release.
-KINDS = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool")
+KINDS = (*JOINT_KINDS, COUPLED_COMPLIANCE, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, MASS_KIND, "base", "tool", FRAME)
 NUMBER_POSITIVE = {"anyOf": [{**NUMBER_JSON["anyOf"][0], "exclusiveMinimum": 0}, *NUMBER_JSON["anyOf"][1:]]}
 
 
@@ -82,8 +82,8 @@ class Intrinsics(Schema):
 
 
 _PARAMETER = (
-    r"^((theta|d|a|alpha|sx|sy|kx|ky|kz|tx|ty|tz|rx|ry|rz|lm|lv)[1-9][0-9]*|(base|tool)\.(tx|ty|tz|rx|ry|rz)"
-    r"|mass\.[A-Za-z_][A-Za-z0-9_]*)$"
+    r"^((theta|d|a|alpha|sx|sy|kx|ky|kz|kc|tx|ty|tz|rx|ry|rz|lm|lv)[1-9][0-9]*|(base|tool)\.(tx|ty|tz|rx|ry|rz)"
+    r"|frame\.[A-Za-z_][A-Za-z0-9_]*\.(tx|ty|tz|rx|ry|rz)|mass\.[A-Za-z_][A-Za-z0-9_]*)$"
 )
 _JOINTS = r"^[1-9][0-9]*(-[1-9][0-9]*)?$"
 

@@ -50,6 +50,8 @@ class Description(Protocol):
     coms: np.ndarray
     payload_mass: float
     payload_com: np.ndarray
+    tip_payloads: tuple[tuple[str, float, np.ndarray], ...]
+    fixed_bodies: tuple[tuple[str, int, float, np.ndarray], ...]
     gravity: np.ndarray
     compliant: bool
     history: bool
@@ -70,9 +72,10 @@ class ChainModel:
     """The constant tables of one robot's chain (SI units); see the module's docstring.
 
     Bodies b: the L links (body i: the link of joint i, in frame ``body_frame[i]``), then the
-    payload on the flange. ``carried`` (L, B): joint i carries body b (its motion, the element
-    ending at B_i, moves it); element k moves the bodies ``set_bodies[moved_set[k]]`` (S, B: the
-    distinct sets); ``moves_bend`` (L, K) the elements that move each bending frame ``bend``.
+    payload on the flange, the tips' payloads and the fixed bodies. ``carried`` (L, B): joint i
+    carries body b (its last motion element, chain.carriers, moves it); element k moves the bodies
+    ``set_bodies[moved_set[k]]`` (S, B: the distinct sets); ``moves_bend`` (L, K) the elements
+    that move each bending frame ``bend``.
     """
 
     name: str
@@ -205,15 +208,26 @@ def build(robot: Description) -> ChainModel:
     chain = robot.chain
     layout = ets.layout(chain.elements)
     paths = layout.ancestry
-    body_frame = np.array([*chain.link_end, chain.flange], dtype=np.int64)
+    tip_frames = dict(chain.tips)
+    extra = getattr(robot, "tip_payloads", ()), getattr(robot, "fixed_bodies", ())
+    body_frame = np.array(
+        [*chain.link_end, chain.flange, *(tip_frames[tip] for tip, _, _ in extra[0]),
+         *(chain.base_end if joint < 0 else chain.link_end[joint] for _, joint, _, _ in extra[1])],
+        dtype=np.int64,
+    )  # fmt: skip
     bend = np.array(chain.bend, dtype=np.int64)
     moved = paths[body_frame]  # (B, K): element k moves body b
     set_bodies, moved_set = np.unique(moved.T, axis=0, return_inverse=True)
-    carried = np.ascontiguousarray(moved[:, bend - 1].T)
+    carried = np.ascontiguousarray(moved[:, np.array(chain.carriers, dtype=np.int64)].T)
     names = list(robot.parameter_names)
     index = {name: k for k, name in enumerate(names)}
-    masses = np.append(robot.masses, robot.payload_mass).astype(float)
-    coms = np.ascontiguousarray(np.vstack([robot.coms, robot.payload_com]), dtype=float)
+    masses = np.array(
+        [*robot.masses, robot.payload_mass, *(m for _, m, _ in extra[0]), *(m for _, _, m, _ in extra[1])], dtype=float
+    )
+    coms = np.ascontiguousarray(
+        np.vstack([robot.coms, robot.payload_com, *(c for _, _, c in extra[0]), *(c for _, _, _, c in extra[1])]),
+        dtype=float,
+    ).reshape(-1, 3)
     mass_param = np.full(len(masses), -1, dtype=np.int64)
     for group, members in robot.mass_groups:
         mass_param[list(members)] = index[f"{MASS_KIND}.{group}"]

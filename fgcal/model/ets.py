@@ -199,7 +199,10 @@ class Chain:
     ``frames[link_end[i]]`` is frame i+1 (after joint i+1, 0-based i), ``frames[bend[i]]``
     the bending frame B_{i+1} right after the joint motion, ``frames[base_end]`` the
     robot base frame 0, ``frames[flange]`` the flange n and ``frames[tool]`` the tool frame
-    (by default the end of the sequence); ``tips`` the named frames of a tree (name, index).
+    (by default the end of the sequence); ``tips`` the named frames of a tree (name, index);
+    ``carrier[i]`` joint i+1's (last) motion element, which moves every body the joint carries
+    (default ``bend[i] - 1``: a deflection after the motion; one about the parent's axes comes
+    before it).
     """
 
     elements: tuple[ET, ...]
@@ -209,6 +212,11 @@ class Chain:
     flange: int
     tool_frame: int | None = None
     tips: tuple[tuple[str, int], ...] = ()
+    carrier: tuple[int, ...] = ()
+
+    @property
+    def carriers(self) -> tuple[int, ...]:
+        return self.carrier if self.carrier else tuple(b - 1 for b in self.bend)
 
     @property
     def tool(self) -> int:

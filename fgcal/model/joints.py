@@ -66,6 +66,12 @@ class _DHRow:
 
     kinds = DH_KINDS
     prismatic = False
+    # What a fixed frame right before the row duplicates exactly (a rotation about the axes the
+    # row starts with, a translation along its z, which the motion keeps).
+    framed: tuple[str, ...] = ("theta", "d", "sx", "sy")
+    # What fixed frames on every branch leaving the link duplicate exactly: the motion's offset
+    # and what follows it.
+    carrying: tuple[str, ...] = ("theta", "d", "a", "alpha")
 
     def nominal(self) -> dict[str, float]:
         return {"theta": self.theta, "d": self.d, "a": self.a, "alpha": self.alpha}
@@ -87,6 +93,9 @@ class DHJoint(_DHRow):
 class ModifiedDHJoint(_DHRow):
     """A revolute joint in modified (Craig) DH form (rad, m): ``alpha`` and ``a`` come before
     the joint's motion, ``d`` after it."""
+
+    framed = ("alpha", "a", "sx", "sy", "theta", "d")
+    carrying = ("theta", "d")
 
     def before_bend(self, param: ParamIndex, joint: int, sign: float, distortions: bool) -> list[ET]:
         link = [ET("Rx", param=param("alpha")), ET("Tx", param=param("a"))]
@@ -116,6 +125,17 @@ class OriginJoint:
     @property
     def kinds(self) -> tuple[str, ...]:
         return PRISMATIC_KINDS if self.prismatic else ORIGIN_KINDS
+
+    @property
+    def framed(self) -> tuple[str, ...]:
+        """What a fixed frame right before the joint duplicates exactly: its origin's correction
+        and its offset."""
+        return (*ORIGIN_CORRECTION_KINDS, "d" if self.prismatic else "theta")
+
+    @property
+    def carrying(self) -> tuple[str, ...]:
+        """What fixed frames on every branch leaving the joint's link duplicate exactly."""
+        return ("d" if self.prismatic else "theta",)
 
     def nominal(self) -> dict[str, float]:
         return {}

@@ -20,7 +20,7 @@ from .chain_model import ChainModel
 from .ets import ET, Chain
 from .ik import IKResult, inverse_kinematics
 from .joints import DHJoint, Joint, perturbation_elements, pose_elements
-from .parameters import MASS_KIND, parameter_names
+from .parameters import COUPLED_COMPLIANCE, FRAME, FRAME_LABEL, MASS_KIND, parameter_names
 
 # Each model adds terms to the one before: axis distortions (s), gravity compliances (e) and
 # the motion history's joint offsets (h: lost motion and the speed term, fgcal.model.motion).
@@ -82,6 +82,21 @@ class Robot:
     # The controller's joints' speed and effort limits, (moved, 2): rad/s (m/s) and N m (N), NaN
     # where the robot file states none (None: none stated). Written to URDF, not used in fitting.
     ratings: np.ndarray | None = None
+    # Fixed frames (issue 40): (name, joint, pose) a constant transform T (4x4, m) between joint's
+    # parent link and its row, with the six parameters frame.{name}.*; ``calibrated_tips`` the tips
+    # whose poses have them too (frame.{tip}.*).
+    fixed_frames: tuple[tuple[str, int, np.ndarray], ...] = ()
+    calibrated_tips: tuple[str, ...] = ()
+    # Compliances: the joints whose deflection turns about their parent's axes, at the frame their
+    # row starts from (DLR's model), instead of about the bending frame after their motion; and
+    # coupled compliances (joint, joint whose z moment drives it, both 0-based): parameter kc{joint}.
+    parent_axis: tuple[int, ...] = ()
+    compliance_coupling: tuple[tuple[int, int], ...] = ()
+    # Loads beyond the flange's payload: (tip, mass kg, centre of mass in the tip's frame, m) and
+    # fixed bodies (name, joint whose link carries it or -1 the base, mass kg, centre of mass in
+    # that link's frame, m).
+    tip_payloads: tuple[tuple[str, float, np.ndarray], ...] = ()
+    fixed_bodies: tuple[tuple[str, int, float, np.ndarray], ...] = ()
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -120,6 +135,21 @@ class Robot:
         names = [name for name, _, _ in self.tips] + [self.flange_name]
         if len(set(names)) != len(names):
             raise ValueError(f"tip names must differ: {names}")
+        frames = self.frame_names
+        if len(set(frames)) != len(frames) or any(not FRAME_LABEL.match(f) for f in frames):
+            raise ValueError(f"fixed frames need distinct names of letters, digits and _: {frames}")
+        if any(not 0 <= j < n for _, j, _ in self.fixed_frames) or any(t not in names for t in self.calibrated_tips):
+            raise ValueError("a fixed frame stands before a joint of the robot, or is one of its tips")
+        if any(not 0 <= j < n for j in self.parent_axis):
+            raise ValueError(f"parent_axis: joints of the robot's {n}")
+        if any(not (0 <= j < n and 0 <= i < n and i != j) for j, i in self.compliance_coupling) or len(
+            {j for j, _ in self.compliance_coupling}
+        ) != len(self.compliance_coupling):
+            raise ValueError("a coupled compliance: a joint, once, driven by another joint of the robot")
+        if any(t not in names or not m >= 0 for t, m, _ in self.tip_payloads):
+            raise ValueError("a tip payload: a tip of the robot, a mass >= 0")
+        if any(not -1 <= j < n or not m >= 0 for _, j, m, _ in self.fixed_bodies):
+            raise ValueError("a fixed body: on a joint's link (or -1, the base), a mass >= 0")
 
     def __repr__(self) -> str:
         kinds = "prismatic and revolute" if self.prismatic.any() else "revolute"
@@ -198,9 +228,32 @@ class Robot:
         followers = {k for k, _, _ in self.coupled}
         return np.array([j.prismatic for k, j in enumerate(self.joints) if k not in followers], dtype=bool)
 
+    @property
+    def frame_names(self) -> list[str]:
+        """The fixed frames with parameters frame.{name}.*: those before rows, then the calibrated tips."""
+        return [name for name, _, _ in self.fixed_frames] + list(self.calibrated_tips)
+
+    @property
+    def framed_parameters(self) -> list[str]:
+        """The row parameters fixed frames duplicate exactly: those of the row right after a frame (a
+        DH row's theta, d, sx, sy), and, on a link from which every joint leaves through a frame and
+        no tip hangs, its motion's offset and what follows it (a DH row's theta, d, a, alpha). A
+        frame's perturbation and these are one deviation (identifiability keeps the frame's)."""
+        names = [f"{kind}{j + 1}" for _, j, _ in self.fixed_frames for kind in self.joints[j].framed]
+        parents = self.parents if self.parents is not None else tuple(range(-1, self.n_links - 1))
+        framed = {j for _, j, _ in self.fixed_frames}
+        hanging = {j for _, j, _ in self.tips} | {self.n_links - 1 if self.flange_joint is None else self.flange_joint}
+        for link in range(self.n_links):
+            children = [j for j, p in enumerate(parents) if p == link]
+            if children and all(j in framed for j in children) and link not in hanging:
+                names += [f"{kind}{link + 1}" for kind in self.joints[link].carrying]
+        return list(dict.fromkeys(names))
+
     @cached_property
     def parameter_names(self) -> list[str]:
-        return parameter_names([j.kinds for j in self.joints], self.n_joints, [name for name, _ in self.mass_groups])
+        coupled = {j for j, _ in self.compliance_coupling}
+        kinds = [(*j.kinds, *((COUPLED_COMPLIANCE,) if i in coupled else ())) for i, j in enumerate(self.joints)]
+        return parameter_names(kinds, self.n_joints, [name for name, _ in self.mass_groups], self.frame_names)
 
     def nominal_parameters(self) -> dict[str, float]:
         """Every SPEC parameter name with its nominal value (SI): the manufacturer's DH,
@@ -428,26 +481,44 @@ def build_chain(robot: Robot) -> Chain:
     def frame_of(joint: int) -> int:
         return base_end if joint < 0 else link_end[joint]
 
+    before = {joint: (name, pose) for name, joint, pose in robot.fixed_frames}
+    coupling = dict(robot.compliance_coupling)
+    parent_axis = set(robot.parent_axis)
+    carrier = []
     for i, joint in enumerate(robot.joints):
 
         def param(kind: str, number: int = i + 1) -> int:
             return index[f"{kind}{number}"]
 
         start = frame_of(robot.parents[i]) if robot.parents is not None else len(elements)
-        (first, *more), offset = robot.drives[i]
-        elements += hung(joint.before_bend(param, first[0], first[1], robot.model != "DH"), start)
-        if more or offset:
-            # A coupled joint: one motion per joint it follows, about the same axis (they commute).
-            motion = elements[-1]
-            elements[-1] = replace(motion, const=motion.const + offset)
-            elements += [ET(motion.axis, joint=column, sign=c) for column, c in more]
-        bend.append(len(elements))
+        new: list[ET] = []
+        if i in before:  # a fixed frame on the parent link: its nominal pose, then its perturbation
+            name, pose = before[i]
+            new += [*pose_elements(pose), *perturbation_elements(index[f"{FRAME}.{name}.tx"])]
+        deflection = []
         if robot.compliant:
-            elements += [
+            deflection = [
                 ET("Rz", param=param("kz"), moment=3 * i + 2),
                 ET("Ry", param=param("ky"), moment=3 * i + 1),
                 ET("Rx", param=param("kx"), moment=3 * i),
             ]
+            if i in coupling:  # about the same z, driven by the other joint's z moment
+                deflection.insert(1, ET("Rz", param=param(COUPLED_COMPLIANCE), moment=3 * coupling[i] + 2))
+        if i in parent_axis:  # bent about the parent's axes, at the frame the row starts from
+            bend.append(len(elements) + len(new) if new else start)  # (a branch's first: where it leaves)
+            new += deflection
+        (first, *more), offset = robot.drives[i]
+        new += joint.before_bend(param, first[0], first[1], robot.model != "DH")
+        if more or offset:
+            # A coupled joint: one motion per joint it follows, about the same axis (they commute).
+            motion = new[-1]
+            new[-1] = replace(motion, const=motion.const + offset)
+            new += [ET(motion.axis, joint=column, sign=c) for column, c in more]
+        carrier.append(len(elements) + len(new) - 1)  # the last motion: it moves what the joint carries
+        if i not in parent_axis:
+            bend.append(len(elements) + len(new))
+            new += deflection
+        elements += hung(new, start)
         elements += joint.after_bend(param)
         link_end.append(len(elements))
     flange = frame_of(robot.n_links - 1 if robot.flange_joint is None else robot.flange_joint)
@@ -458,11 +529,16 @@ def build_chain(robot: Robot) -> Chain:
     elements += hung([*pose_elements(robot.tool_pose), *perturbation_elements(index["tool.tx"])], flange)
     tool = len(elements)
     tips = [(robot.flange_name, flange)]
+    calibrated = set(robot.calibrated_tips)
     for name, joint_index, pose in robot.tips:
         frame = frame_of(joint_index)
         to_tip = pose_elements(pose)
+        if name in calibrated:
+            to_tip += perturbation_elements(index[f"{FRAME}.{name}.tx"])
         if to_tip:
             elements += hung(to_tip, frame)
             frame = len(elements)
         tips.append((name, frame))
-    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end), flange, tool, tuple(tips))
+    if robot.flange_name in calibrated:
+        raise ValueError(f"the flange {robot.flange_name!r} has the tool's parameters (tool.*), not a frame's")
+    return Chain(tuple(elements), base_end, tuple(bend), tuple(link_end), flange, tool, tuple(tips), tuple(carrier))

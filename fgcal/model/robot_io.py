@@ -36,7 +36,7 @@ from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, rpy_from_rotation
 from ..core.units import Units, parse_units
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
-from .parameters import LENGTH_KINDS, MASS_KIND, is_motion, parameter_names, split_name
+from .parameters import FRAME_LABEL, LENGTH_KINDS, MASS_KIND, is_motion, parameter_names, split_name
 from .robot import MODELS, Robot
 from .schema import RobotFile
 
@@ -185,7 +185,15 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
     if not joints:
         raise doc.error("joints", "a robot needs at least one joint")
     geometries, directions, limits, masses, coms, parents, coupled, ratings = [], [], [], [], [], [], [], []
+    fixed_frames, parent_axis, compliance_coupling = [], [], []
     for number, joint in enumerate(joints, start=1):
+        if joint.has("frame"):
+            fixed_frames.append(_fixed_frame(joint, number, units))
+        about_parent, driver = _compliance(joint, number, len(joints))
+        if about_parent:
+            parent_axis.append(number - 1)
+        if driver is not None:
+            compliance_coupling.append((number - 1, driver))
         # A tree: the joint (1-based) whose link this one hangs from, 0 the base; default the one before.
         parents.append(joint.integer("parent", number - 1, minimum=0, maximum=number - 1) - 1)
         geometry = _joint_geometry(joint, units, convention)
@@ -214,10 +222,22 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
                 raise joints[k].error("coupling.joints", f"joint {leader + 1} is of another kind (revolute, "
                                       "prismatic): a coupled joint follows joints of its own kind")  # fmt: skip
     mass_groups = _mass_groups(doc, len(joints))
+    tree = _tree(doc, units, parents)
+    frame_names = [name for name, _, _ in fixed_frames] + list(tree["calibrated_tips"])
+    for frame in frame_names:
+        if frame_names.count(frame) > 1:
+            where = next((f"joints[{j}].frame.name" for f, j, _ in reversed(fixed_frames) if f == frame), "tips")
+            raise InputError(source, where, f"two fixed frames named {frame!r}: their parameters frame.{frame}.* clash")
     payload = doc.sub("payload", {})
     gravity = doc.vector("gravity", 3, [0.0, 0.0, -9.81])
     overrides = {}
-    names = set(parameter_names([g.kinds for g in geometries], len(directions), [g for g, _ in mass_groups]))
+    kc = {j for j, _ in compliance_coupling}
+    names = set(
+        parameter_names(
+            [(*g.kinds, *(("kc",) if i in kc else ())) for i, g in enumerate(geometries)],
+            len(directions), [g for g, _ in mass_groups], frame_names,
+        )
+    )  # fmt: skip
     params = doc.sub("parameters", {})
     for key in params.data:
         if key not in names:
@@ -254,7 +274,11 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         coupled=tuple(coupled),
         mass_groups=mass_groups,
         ratings=np.array(ratings) if np.isfinite(ratings).any() else None,
-        **_tree(doc, units, parents),
+        fixed_frames=tuple(fixed_frames),
+        parent_axis=tuple(parent_axis),
+        compliance_coupling=tuple(compliance_coupling),
+        fixed_bodies=_fixed_bodies(doc, units, len(joints)),
+        **tree,
     )
 
 
@@ -333,7 +357,7 @@ def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
         out["flange_joint"] = doc.integer("flange_joint", n, minimum=0, maximum=n) - 1
     if doc.has("flange_name"):
         out["flange_name"] = _link_name(doc.string("flange_name"), doc.source, "flange_name")
-    tips = []
+    tips, calibrated, payloads = [], [], []
     for k, tip in enumerate(doc.sub_list("tips") if doc.has("tips") else []):
         name = _link_name(tip.string("name"), doc.source, f"tips[{k}].name")
         joint = tip.integer("joint", minimum=0, maximum=n) - 1
@@ -341,11 +365,62 @@ def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
             tip.vector("xyz", 3, [0, 0, 0], units.to_m), tip.vector("rpy", 3, [0, 0, 0], units.to_rad)
         )
         tips.append((name, joint, pose))
+        if tip.raw("calibrate", False) is True:
+            if not FRAME_LABEL.match(name):
+                raise tip.error("calibrate", f"a calibrated tip's parameters are frame.{name}.*: its name must be "
+                                "letters, digits and _")  # fmt: skip
+            calibrated.append(name)
+        if tip.has("payload"):
+            load = tip.sub("payload")
+            payloads.append((name, load.number("mass", 0.0, nonnegative=True), load.vector("com", 3, [0, 0, 0],
+                                                                                          units.to_m)))  # fmt: skip
     names = [name for name, _, _ in tips] + [out.get("flange_name", "flange")]
     if len(set(names)) != len(names):
         raise doc.error("tips", f"tip names must differ (and differ from the flange's): {names}")
     out["tips"] = tuple(tips)
+    out["calibrated_tips"] = tuple(calibrated)
+    out["tip_payloads"] = tuple(payloads)
     return out
+
+
+def _fixed_frame(joint: Fields, number: int, units: Units) -> tuple[str, int, np.ndarray]:
+    """A joint's ``frame: {name, xyz, rpy}``: a constant transform between its parent link and its
+    row, calibrated through frame.{name}.*."""
+    entry = joint.sub("frame")
+    name = entry.string("name")
+    if not FRAME_LABEL.match(name):
+        raise entry.error("name", f"a fixed frame's parameters are frame.{name}.*: letters, digits and _, got {name!r}")
+    pose = pose_from_xyz_rpy(entry.vector("xyz", 3, [0, 0, 0], units.to_m), entry.vector("rpy", 3, [0, 0, 0],
+                                                                                            units.to_rad))  # fmt: skip
+    return name, number - 1, pose
+
+
+def _compliance(joint: Fields, number: int, n: int) -> tuple[bool, int | None]:
+    """A joint's ``compliance: {about: joint | parent, coupled_from: i}``: whether it bends about its
+    parent's axes, and the joint (0-based) whose z moment also deflects it (kc), if any."""
+    if not joint.has("compliance"):
+        return False, None
+    entry = joint.sub("compliance")
+    parent = entry.string("about", "joint", ("joint", "parent")) == "parent"
+    if not entry.has("coupled_from"):
+        return parent, None
+    source = entry.integer("coupled_from", minimum=1, maximum=n)
+    if source == number:
+        raise entry.error("coupled_from", f"another joint's number: joint {number}'s own moment is its kz")
+    return parent, source - 1
+
+
+def _fixed_bodies(doc: Fields, units: Units, n: int) -> tuple[tuple[str, int, float, np.ndarray], ...]:
+    """``bodies: [{name, joint, mass, com}]``: masses fixed to a joint's link (0: the base), with their
+    centres of mass in that link's frame (a head on joints the controller does not move)."""
+    out = []
+    for k, body in enumerate(doc.sub_list("bodies") if doc.has("bodies") else []):
+        name = _link_name(body.string("name"), doc.source, f"bodies[{k}].name")
+        if name in [b[0] for b in out]:
+            raise body.error("name", f"bodies' names must differ: {name!r} twice")
+        out.append((name, body.integer("joint", minimum=0, maximum=n) - 1, body.number("mass", nonnegative=True),
+                    body.vector("com", 3, [0, 0, 0], units.to_m)))  # fmt: skip
+    return tuple(out)
 
 
 def _link_name(text: str, source: str | Path, field: str) -> str:
@@ -439,6 +514,8 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     values.update(params or {})
     joints = []
     coupling = {k: (sources, offset) for k, sources, offset in robot.coupled}
+    frames_before = {joint: (name, pose) for name, joint, pose in robot.fixed_frames}
+    drivers = dict(robot.compliance_coupling)
     columns = iter(range(robot.n_joints))
     for i, geometry in enumerate(robot.joints, start=1):
         if isinstance(geometry, (DHJoint, ModifiedDHJoint)):
@@ -469,6 +546,16 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
                     if np.isfinite(value):
                         entry[key] = float(value)
         entry.update({"mass": float(robot.masses[i - 1]), "com": [float(v) for v in robot.coms[i - 1]]})
+        if i - 1 in frames_before:
+            name, pose = frames_before[i - 1]
+            entry["frame"] = {"name": name, **_pose_dict(pose)}
+        compliance = {}
+        if i - 1 in robot.parent_axis:
+            compliance["about"] = "parent"
+        if i - 1 in drivers:
+            compliance["coupled_from"] = drivers[i - 1] + 1
+        if compliance:
+            entry["compliance"] = compliance
         joints.append(entry)
     doc = {
         "name": robot.name,
@@ -495,7 +582,20 @@ def robot_document(robot: Robot, params: dict[str, float] | None = None, notes: 
     if robot.mass_groups:
         doc["mass_groups"] = {name: [m + 1 for m in members] for name, members in robot.mass_groups}
     if robot.tips:
-        doc["tips"] = [{"name": name, "joint": joint + 1, **_pose_dict(pose)} for name, joint, pose in robot.tips]
+        loads = {tip: (mass, com) for tip, mass, com in robot.tip_payloads}
+        doc["tips"] = []
+        for name, joint, pose in robot.tips:
+            tip = {"name": name, "joint": joint + 1, **_pose_dict(pose)}
+            if name in robot.calibrated_tips:
+                tip["calibrate"] = True
+            if name in loads:
+                tip["payload"] = {"mass": float(loads[name][0]), "com": [float(v) for v in loads[name][1]]}
+            doc["tips"].append(tip)
+    if robot.fixed_bodies:
+        doc["bodies"] = [
+            {"name": name, "joint": joint + 1, "mass": float(mass), "com": [float(v) for v in com]}
+            for name, joint, mass, com in robot.fixed_bodies
+        ]
     if notes:
         doc["notes"] = notes
     return doc

@@ -81,6 +81,42 @@ class Coupling(Schema):
     offset: Number = Field(0.0, description=f"{ANGLE} (a prismatic joint's: {LENGTH})")
 
 
+class FixedFrame(Schema):
+    """A constant transform between a joint's parent link and its row, calibrated through
+    frame.{name}.tx .. rz."""
+
+    name: str = Field(description="the frame's name (letters, digits and _): its parameters are frame.{name}.*")
+    xyz: vector(3) = Field([0.0, 0.0, 0.0], description=LENGTH)
+    rpy: vector(3) = Field([0.0, 0.0, 0.0], description=ANGLE)
+
+
+class Compliance(Schema):
+    """Where a joint's gravity deflection turns (model DH,s,e), and another joint's moment that drives it."""
+
+    about: Literal["joint", "parent"] = Field(
+        "joint", description="joint: about the axes after the joint's motion; parent: about the axes of the frame "
+        "its row starts from (the parent link's), through that frame's origin"
+    )  # fmt: skip
+    coupled_from: int = Field(
+        None, ge=1, description="the joint (1-based) whose moment about its z axis also turns this one about its "
+        "z axis (parameter kc of this joint)"
+    )  # fmt: skip
+
+
+class TipPayload(Schema):
+    mass: Number = Field(0.0, ge=0, description="kg")
+    com: vector(3) = Field([0.0, 0.0, 0.0], description=f"centre of mass in the tip's frame, {LENGTH}")
+
+
+class Body(Schema):
+    """A mass fixed to a joint's link (0: the base), such as a head on joints the controller does not move."""
+
+    name: str
+    joint: int = Field(ge=0, description="1-based joint whose link carries the body; 0 the base")
+    mass: Number = Field(ge=0, description="kg")
+    com: vector(3) = Field([0.0, 0.0, 0.0], description=f"centre of mass in that link's frame, {LENGTH}")
+
+
 class Joint(Schema):
     """A joint: DH (theta, d, a, alpha; the robot's dh_convention or its own convention) or
     origin/axis/type, not both."""
@@ -101,6 +137,8 @@ class Joint(Schema):
     effort: Number = Field(None, gt=0, description="effort limit, N m (a prismatic joint's: N)")
     mass: Number = Field(0.0, ge=0, description="the link's mass, kg")
     com: vector(3) = Field([0.0, 0.0, 0.0], description=f"the link's centre of mass in its frame, {LENGTH}")
+    frame: FixedFrame = Field(None, description="a fixed frame between the parent link and this joint's row")
+    compliance: Compliance = None
 
 
 class Tip(Schema):
@@ -110,6 +148,8 @@ class Tip(Schema):
     joint: int = Field(ge=0, description="1-based joint whose link carries the tip; 0 the base")
     xyz: vector(3) = Field([0.0, 0.0, 0.0], description=LENGTH)
     rpy: vector(3) = Field([0.0, 0.0, 0.0], description=ANGLE)
+    calibrate: bool = Field(False, description="the tip's pose has the six parameters frame.{name}.*")
+    payload: TipPayload = Field(None, description="a load on the tip (a hand beyond an arm's last joint)")
 
 
 class RobotFile(Schema):
@@ -137,4 +177,5 @@ class RobotFile(Schema):
     flange_name: str = None
     tips: list[Tip] = None
     mass_groups: dict[str, list[int]] = Field(None, description="bodies whose masses one parameter scales")
+    bodies: list[Body] = Field(None, description="masses fixed to a link (the gravity moments see them)")
     notes: Any = None

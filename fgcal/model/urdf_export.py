@@ -97,11 +97,12 @@ def joint_frames(robot: Robot) -> dict:
         # The joint's motion ends right before its bending frame (a coupled joint's: one element
         # per joint it follows, all about one axis); at q = 0 the frame after it is B_i. A
         # coupled joint's URDF value is its own, sum c q + c_0: its axis is not signed.
-        k = chain.bend[i] - 1
+        # (chain.carriers: before a deflection about the parent's axes, which comes before the row.)
+        k = chain.carriers[i]
         sign = 1.0 if i in followers else robot.drives[i][0][0][1]
         # A joint given by its origin keeps its link frame (after the axis alignment is undone).
-        J = frames[chain.link_end[i]] if isinstance(robot.joints[i], OriginJoint) else frames[chain.bend[i]]
-        after_motion = frames[chain.bend[i]]
+        J = frames[chain.link_end[i]] if isinstance(robot.joints[i], OriginJoint) else frames[k + 1]
+        after_motion = frames[k + 1]
         if np.linalg.norm(J[:3, 3] - after_motion[:3, 3]) > 1e-12:
             raise ValueError(f"joint {i + 1}: the link frame is not on the joint axis")
         et = chain.elements[k]
@@ -508,6 +509,7 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
     frames = joint_frames(robot)
     names = joint_names or [f"joint_{i + 1}" for i in range(robot.n_links)]
     coupled = {k: (sources, offset) for k, sources, offset in robot.coupled}
+    drivers = dict(robot.compliance_coupling)
     joints = []
     for i in range(robot.n_links):
         B_in_joint = inverse(frames["joints"][i]) @ frames["bends"][i]
@@ -516,6 +518,11 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
             "compliance_rad_per_Nm": [values[f"{axis}{i + 1}"] for axis in ("kx", "ky", "kz")],
             "bending_frame_rpy_rad": [clean(v) for v in rpy_from_rotation(B_in_joint[:3, :3])],
         }
+        if i in robot.parent_axis:  # bent about its parent's axes, at the frame its row starts from
+            entry["about"] = "parent"
+            entry["bending_frame_xyz_m"] = [clean(v) for v in B_in_joint[:3, 3]]
+        if i in drivers:  # deflected about its bending frame's z by kc times another joint's z moment
+            entry["coupled_compliance"] = {"from": names[drivers[i]], "kc_rad_per_Nm": values[f"kc{i + 1}"]}
         if i in coupled:  # its URDF value is sum c q; the offset is in its origin
             sources, offset = coupled[i]
             entry["follows"] = {names[s]: float(c) for s, c in sources}
@@ -537,7 +544,21 @@ def compliance_document(robot: Robot, urdf_name: str, joint_names: list[str] | N
             "Joint i deflects by Rz(kz tz) Ry(ky ty) Rx(kx tx) right after its motion, in its bending frame B_i "
             "(bending_frame_rpy_rad: B_i in the URDF joint frame; z along the joint axis). t = (tx, ty, tz) is the "
             "gravity moment (N m) that joint i carries, in B_i: the weights of the links after it and of the payload "
-            "(the URDF inertials) about B_i's origin, on the undeformed chain, with gravity gravity_m_per_s2 in world."
+            "(the URDF inertials, and loads) about B_i's origin, on the undeformed chain, with gravity "
+            "gravity_m_per_s2 in world. A joint with about: parent bends before its motion instead, in the frame its "
+            "row starts from (bending_frame_xyz_m, _rpy_rad in its joint frame at zero); coupled_compliance adds "
+            "Rz(kc t_z) with the z moment of the joint it names."
+        ),
+        # Loads URDF has no place for: the tips' payloads and the fixed bodies (fgcal.model.robot).
+        **(
+            {"loads": [
+                *({"tip": tip, "mass_kg": float(m), "com_m_in_tip": [float(v) for v in c]}
+                  for tip, m, c in robot.tip_payloads),
+                *({"body": name, "on": names[j] if j >= 0 else "base", "mass_kg": float(m),
+                   "com_m_in_link": [float(v) for v in c]} for name, j, m, c in robot.fixed_bodies),
+            ]}
+            if robot.tip_payloads or robot.fixed_bodies
+            else {}
         ),
         "gravity_m_per_s2": [float(v) for v in robot.gravity],
         "payload": {

@@ -33,7 +33,7 @@ def candidates(robot: Robot, compliant_joints: tuple[int, ...]) -> list[str]:
         kind, owner = split_name(name)
         if owner == "base" or kind in (*MOTION_KINDS, MASS_KIND):
             return False
-        return owner in compliant_joints if kind in ("kx", "ky", "kz") else True
+        return owner in compliant_joints if kind in ("kx", "ky", "kz", "kc") else True
 
     return [n for n in robot.parameter_names if wanted(n)]
 

@@ -13,12 +13,16 @@ def perturb_parameters(robot: Robot, pert: Perturbation, rng: np.random.Generato
     """True parameter values (SI): uniform deviations of +-half-width on lengths and angles,
     uniform compliances in [low, high] on the compliant joints, zero compliance elsewhere, mass
     scales within 1 +- the cell's mass_scale (no draw without one: seeded cells keep their truth). The
-    motion terms are not drawn (nominal zero; a cell's motion_history sets them)."""
+    motion terms are not drawn (nominal zero; a cell's motion_history sets them). A fixed frame's
+    six take the deviation of its mount, and the parameters of the row after it that they duplicate
+    exactly (a DH row's theta, d, sx, sy) stay nominal: one deviation, drawn once (what the
+    calibration estimates, identifiability keeping the frame's)."""
     true = robot.nominal_parameters()
+    framed = set(robot.framed_parameters)
     low, high = pert.compliance_range
     for name in robot.parameter_names:
         kind, owner = split_name(name)
-        if kind in MOTION_KINDS:
+        if kind in MOTION_KINDS or name in framed:
             continue
         if kind == MASS_KIND:  # a body group's mass scale, nominal 1
             true[name] += float(rng.uniform(-pert.mass_scale, pert.mass_scale)) if pert.mass_scale else 0.0
