@@ -231,6 +231,10 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     )
     if config.formulation_source != "the config":
         say(f"  formulation {formulation.name}: {config.formulation_source}")
+    for part in formulation.parts(problem):
+        if part.name is not None:
+            rows = f"{part.problem.n_residuals} residuals" if part.use == "fit" else "not fitted, scored"
+            say(f"  set {part.name}: {part.formulation.name} formulation, {part.use}: {rows}")
     if problem.detection is not None:
         d = problem.detection
         say(
@@ -456,6 +460,8 @@ def held_out_summary(result: CalibrationResult) -> str | None:
     (key, before), (_, after) = scores
     predicted = f" (predicted {result.prediction.rms * 1e3:.4g} mm)" if result.prediction is not None else ""
     reference = "the simulation's truth" if result.truth is not None else "the held-out measurements"
+    headline = result.problem.formulation.headline_name
+    reference += "" if headline is None else f" of set {headline}"
     return (
         f"  held-out {SCORES[key]} against {reference}: before {before.rms * 1e3:.4g} mm RMS, "
         f"after {after.rms * 1e3:.4g} mm RMS{predicted}"

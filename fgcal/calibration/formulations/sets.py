@@ -106,6 +106,7 @@ class Combined(Formulation):
         # The headline score: the first validation set's, else the first fitting set's.
         self.headline = members.index((validating or fitting)[0])
         self.first_fit = members.index(fitting[0])
+        self.headline_name = members[self.headline].name
         head = members[self.headline].formulation
         self.unit, self.score, self.score_vectors = head.unit, head.score, head.score_vectors
         self.settings_read = tuple(sorted({o for m in members for o in m.formulation.settings_read}))
