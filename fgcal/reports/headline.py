@@ -154,9 +154,12 @@ def headline(result: CalibrationResult) -> dict | None:
     if after is None:
         return None
     key, stat = after
+    # With several measurement sets, whose held-out measurements (the headline's set).
+    named = result.problem.formulation.headline_name
+    own = "" if named is None else f" of set {named}"
     out = {
         "score": SCORES[key],
-        "reference": "ground truth" if result.truth is not None else "held-out measurements",
+        "reference": "ground truth" if result.truth is not None else f"held-out measurements{own}",
         "n_configurations": validation_protocol(result)["n_held_out"],
         "validation_protocol": validation_protocol(result),
         "warnings": warnings(result),
