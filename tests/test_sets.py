@@ -111,3 +111,56 @@ def test_bad_sets_are_refused_naming_the_field(two_sets, sets, extra, field):
     with pytest.raises(InputError) as error:
         _config(two_sets.parent, sets, **extra)
     assert error.value.field == field
+
+
+def _validation_run(root):
+    sets = [{"name": "tracker", "formulation": "tracker"},
+            {"name": "bar", "formulation": "distances", "use": "validation"}]  # fmt: skip
+    return calibrate(_config(root, sets, schedule="one_shot"))
+
+
+def test_a_validation_set_is_scored_not_fitted_within_its_prediction(two_sets):
+    """A tracker set fits, a ballbar set validates: the ballbar's readings are not in the fit
+    (neither its rows nor its unknowns), its ball and pivots are registered on its fitting
+    configurations with the robot held at the calibration, and its held-out RMS lies within 1.5x
+    of the prediction through that registration (the headline's score: the validation set's)."""
+    result = _validation_run(two_sets.parent)
+    problem = result.problem
+    tracker = problem.formulation.parts(problem)[0]
+    assert problem.n_residuals == tracker.problem.n_residuals
+    assert set(result.state.aux) == {"tracker/tracker", "tracker/tool_points"}
+    after, before = result.validation["after"]["distance"], result.validation["before"]["distance"]
+    assert after.rms == result.validation["after"]["bar/distance"].rms
+    assert "tool_point" not in result.validation["after"]
+    assert after.rms < before.rms / 10
+    assert 1 / 1.5 <= after.rms / result.prediction.rms <= 1.5, (after.rms, result.prediction)
+
+
+@pytest.mark.study
+def test_a_validation_sets_score_lies_within_its_prediction_over_seeds(tmp_path):
+    """The same on four seeds, the two cells carrying the same payload (one true robot): the
+    ballbar's held-out RMS over the seeds within 1.5x of its predicted RMS over them (one seed's
+    ratio spreads: its parameter error is one draw)."""
+    from conftest import REPO
+
+    from fgcal.simulation.simulate import simulate
+
+    cells = REPO / "datasets" / "cells"
+    tracker = yaml.safe_load((cells / "irb120_tracker.yaml").read_text())
+    bar = yaml.safe_load((cells / "irb120_ballbar.yaml").read_text())
+    bar["payload"] = tracker["payload"]
+    measured, predicted = [], []
+    for seed in (3, 4, 5, 6):
+        root = tmp_path / str(seed)
+        root.mkdir()
+        sources = {}
+        for name, doc in (("tracker", tracker), ("bar", bar)):
+            (root / f"{name}.yaml").write_text(yaml.safe_dump(doc))
+            simulate(root / f"{name}.yaml", root / name, seed=seed)
+            sources[name] = root / name
+        merge_datasets(sources, root / "data")
+        result = _validation_run(root)
+        measured.append(result.validation["after"]["distance"].rms)
+        predicted.append(result.prediction.rms)
+    ratio = np.sqrt(np.mean(np.square(measured)) / np.mean(np.square(predicted)))
+    assert 1 / 1.5 <= ratio <= 1.5, (measured, predicted)
