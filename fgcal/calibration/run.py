@@ -152,8 +152,9 @@ def _check_first_stage(problem: Problem, report: StageReport, stage: StageGraph,
     far above both the declared noise and anything a kinematic error explains (GROSS_RESIDUAL,
     GROSS_SIGMAS); each fitting set on its own."""
     for part in problem.formulation.parts(problem):
-        if part.use == "fit":
-            _check_part(part.problem, report, part.sets_of(stage.measurements)[0], values, part.name)
+        own = part.sets_of(stage.measurements)
+        if part.use == "fit" and own:
+            _check_part(part.problem, report, own[0], values, part.name)
 
 
 def _check_part(problem: Problem, report: StageReport, main, values, name: str | None) -> None:
@@ -461,7 +462,7 @@ def held_out_summary(result: CalibrationResult) -> str | None:
     predicted = f" (predicted {result.prediction.rms * 1e3:.4g} mm)" if result.prediction is not None else ""
     reference = "the simulation's truth" if result.truth is not None else "the held-out measurements"
     headline = result.problem.formulation.headline_name
-    reference += "" if headline is None else f" of set {headline}"
+    reference += "" if headline is None or result.truth is not None else f" of set {headline}"
     return (
         f"  held-out {SCORES[key]} against {reference}: before {before.rms * 1e3:.4g} mm RMS, "
         f"after {after.rms * 1e3:.4g} mm RMS{predicted}"

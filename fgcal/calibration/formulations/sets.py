@@ -232,7 +232,8 @@ class Combined(Formulation):
             )
             for s in sets:
                 s.part = k
-            out += sets
+            # A set on P alone while nothing is released (stage 0 of the others' unknowns) has no variable.
+            out += [s for s in sets if s.variables]
         return out
 
     def robust_loss(self, problem: Problem, measurements: list[MeasurementSet], values: gtsam.Values):
@@ -256,6 +257,8 @@ class Combined(Formulation):
             if part.use != "fit":
                 continue
             own = part.sets_of(sets)
+            if not own:
+                continue
             outcome = part.formulation.reject(part.problem, own, values, robust_scale(own, values))
             if outcome is not None:
                 observations = observations.with_part(part.index, outcome[0])
