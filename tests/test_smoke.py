@@ -337,6 +337,9 @@ def test_two_measurement_sets_calibrate(bundled_sim, tmp_path, capsys):
     assert after <= 1.5 * validation["predicted_position_sigma_m"]["rms"], validation["predicted_position_sigma_m"]
     assert after * 20 <= before, (before, after)
     assert "## Measurement sets" in (tmp_path / "r" / "report.md").read_text()
+    from fgcal.reports.estimates import load_estimates
+
+    assert {"tracker/tracker", "tracker/tool_points"} <= set(load_estimates(tmp_path / "r" / "estimates.yaml"))
 
 
 def _python_blocks(path: Path) -> list[str]:
