@@ -5,6 +5,7 @@ near its prediction through the registration of its own unknowns."""
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
 import gtsam
 import numpy as np
@@ -113,19 +114,40 @@ def test_bad_sets_are_refused_naming_the_field(two_sets, sets, extra, field):
     assert error.value.field == field
 
 
+def _validation_run_fit_ids(data):
+    """The fitting configurations' ids of the default split of ``data``."""
+    from fgcal.calibration.problem import split
+    from fgcal.data.dataset import load_dataset
+
+    dataset = load_dataset(data)
+    fit, _ = split(len(dataset.configs), 0.25, 0)
+    return dataset.configs[fit]
+
+
 def _validation_run(root):
     sets = [{"name": "tracker", "formulation": "tracker"},
             {"name": "bar", "formulation": "distances", "use": "validation"}]  # fmt: skip
     return calibrate(_config(root, sets, schedule="one_shot"))
 
 
-def test_a_validation_set_is_scored_not_fitted_within_its_prediction(two_sets):
+def test_a_validation_set_is_scored_not_fitted_within_its_prediction(two_sets, tmp_path):
     """A tracker set fits, a ballbar set validates: the ballbar's readings are not in the fit
     (neither its rows nor its unknowns), its ball and pivots are registered on its fitting
     configurations with the robot held at the calibration, and its held-out RMS lies within 1.5x
-    of the prediction through that registration (the headline's score: the validation set's)."""
-    result = _validation_run(two_sets.parent)
+    of the prediction through that registration (the headline's score: the validation set's). A
+    tracker reading 5 mm off is rejected, in the tracker set's own robust units."""
+    shutil.copytree(two_sets, tmp_path / "data")
+    table = tmp_path / "data" / "tracker_points.csv"
+    lines = table.read_text().splitlines()
+    fitted = {str(c) for c in _validation_run_fit_ids(two_sets)}
+    row = next(i for i, line in enumerate(lines[1:], 1) if line.split(",")[0] in fitted)
+    cells = lines[row].split(",")
+    cells[2] = repr(float(cells[2]) + 0.005)
+    lines[row] = ",".join(cells)
+    table.write_text("\n".join(lines) + "\n")
+    result = _validation_run(tmp_path)
     problem = result.problem
+    assert [(r.config, r.kind, r.name) for r in problem.rejected] == [(cells[0], "tracker_points", cells[1])]
     tracker = problem.formulation.parts(problem)[0]
     assert problem.n_residuals == tracker.problem.n_residuals
     assert set(result.state.aux) == {"tracker/tracker", "tracker/tool_points"}
