@@ -15,11 +15,13 @@ from conftest import merge_datasets
 
 from fgcal.calibration.config import load_config
 from fgcal.calibration.formulations import REGISTRY
+from fgcal.calibration.formulations.sets import Combined
 from fgcal.calibration.problem import Keys
 from fgcal.calibration.run import calibrate
 from fgcal.calibration.settings import Noise
 from fgcal.core.errors import InputError
 from fgcal.factors import ParameterBoundFactor
+from fgcal.reports.headline import warnings
 
 
 @pytest.fixture(scope="module")
@@ -96,6 +98,15 @@ def test_two_sets_give_the_estimate_of_the_graph_built_by_hand(two_sets):
             mine = state.aux[aux_name].from_values(solved, key).value
             np.testing.assert_allclose(result.state.value(f"{name}/{aux_name}"), mine, atol=1e-7)
     assert {"tracker/tool_point", "bar/distance", "tool_point"} <= set(result.validation["after"])
+
+    # Each set's residuals against its own noise: a tracker sigma declared 20x too small is said.
+    members = problem.formulation.members
+    small = dataclasses.replace(members[0].settings.noise, tracker_m=members[0].settings.noise.tracker_m / 20)
+    wrong = Combined([dataclasses.replace(members[0], settings=dataclasses.replace(members[0].settings, noise=small)),
+                      members[1]])  # fmt: skip
+    said = warnings(dataclasses.replace(result, problem=dataclasses.replace(problem, formulation=wrong)))
+    assert not any("declared noise" in w for w in warnings(result))
+    assert len(said) == 1 and said[0].startswith("set tracker's residuals are"), said
 
 
 @pytest.mark.parametrize(

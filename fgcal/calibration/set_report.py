@@ -73,6 +73,27 @@ def set_summary(result: CalibrationResult) -> dict | None:
     return {"headline_set": headline, "sets": sets, "parameters": _sigmas(result, jacobians)}
 
 
+def noise_ratios(result: CalibrationResult) -> dict[str, float]:
+    """Per fitting set, the RMS of its whitened residuals at the estimate (about 1 when its
+    declared noise is right; no Jacobians: the headline's check); empty for one formulation."""
+    problem, state = result.problem, result.state
+    formulation = problem.formulation
+    if not isinstance(formulation, Combined):
+        return {}
+    released = result.released
+    kinematics = problem.kinematics(state, released, problem.observations)
+    keys = keys_of(state, bool(released))
+    values = values_of(state, keys, kinematics.base[kinematics.index])
+    measurements = formulation.measurement_sets(problem, problem.observations, kinematics, keys, state, None)
+    out = {}
+    for part in formulation.parts(problem):
+        own = part.sets_of(measurements)
+        if part.use == "fit" and own:
+            whitened = np.concatenate([m.whitened(m.read(values), False, robust=False).residual for m in own])
+            out[part.name] = float(np.sqrt(np.mean(whitened**2)))
+    return out
+
+
 def _own(scores: dict, name: str) -> dict[str, float]:
     """A set's held-out scores (``SET/score`` keys), by score: their RMS."""
     return {key.split("/", 1)[1]: stat.rms for key, stat in scores.items() if key.startswith(f"{name}/")}
