@@ -167,7 +167,9 @@ def headline(result: CalibrationResult) -> dict | None:
     out = {
         "score": SCORES[key],
         "reference": "ground truth" if result.truth is not None else f"held-out measurements{own}",
-        "n_configurations": validation_protocol(result)["n_held_out"],
+        # With several sets, the held-out configurations the headline's set measures.
+        "n_configurations": validation_protocol(result)["n_held_out"] if named is None or stat.configs is None
+        else len(np.unique(stat.configs)),
         "validation_protocol": validation_protocol(result),
         "warnings": warnings(result),
         "after_m": _triple(stat),
