@@ -197,3 +197,19 @@ def test_a_validation_sets_score_lies_within_its_prediction_over_seeds(tmp_path)
         predicted.append(result.prediction.rms)
     ratio = np.sqrt(np.mean(np.square(measured)) / np.mean(np.square(predicted)))
     assert 1 / 1.5 <= ratio <= 1.5, (measured, predicted)
+
+
+@pytest.mark.study
+def test_a_validation_set_held_out_whole_is_registered_on_its_held_out_configurations(bundled_sim, tmp_path):
+    """The tracker's configurations last and the run's last quarter held out (split: ordered): the
+    split leaves the validation set no fitting configuration, so its unknowns are registered on
+    its held-out ones, which the report says; its score still lies within 1.5x of its
+    prediction, which counts the registration's fit to the same rows."""
+    merge_datasets({"bar": bundled_sim("irb120_ballbar", 2), "tracker": bundled_sim("irb120_tracker", 2)},
+                   tmp_path / "data")  # fmt: skip
+    sets = [{"name": "bar", "formulation": "distances"},
+            {"name": "tracker", "formulation": "tracker", "use": "validation"}]  # fmt: skip
+    result = calibrate(_config(tmp_path, sets, validation={"split": "ordered", "holdout": 0.25}))
+    assert result.problem.observations.registered_on == ("", "held-out")
+    after = result.validation["after"]["tool_point"]
+    assert 1 / 1.5 <= after.rms / result.prediction.rms <= 1.5, (after.rms, result.prediction)
