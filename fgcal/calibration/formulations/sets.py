@@ -152,8 +152,10 @@ class Combined(Formulation):
         return head.formulation.sigma(head.settings)
 
     def gauge(self, settings: MeasurementSettings) -> str:
-        head = self.members[self.headline]
-        return head.formulation.gauge(head.settings)
+        """The gauge of the first fitting set, whose points a score against the truth measures
+        (:meth:`scored`)."""
+        first = self.members[self.first_fit]
+        return first.formulation.gauge(first.settings)
 
     def frames(self, problem: Problem) -> str | tuple[str, ...]:
         return self.members[self.first_fit].formulation.frames(self.view(problem, self.first_fit))
