@@ -50,8 +50,9 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     """The problem a config poses on a dataset: its formulation, the split into fitting and
     held-out configurations (a separate validation set held out too), the candidate
     parameters and the fitting observations."""
-    formulation = combined([Member(s.name, registered(s.formulation), s.measurement, s.use) for s in config.sets]) \
-        if config.sets else registered(config.formulation)  # fmt: skip
+    # A config's sets: the composite of their formulations, each with the noise in effect for it.
+    formulation = combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
+                            for s in config.sets]) if config.sets else registered(config.formulation)  # fmt: skip
     if config.residual_model != "none":
         check_residual_model(formulation, config.path)
     robot = dataset.robot.with_model(config.model)
@@ -75,9 +76,6 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     # The noise in effect: fgcal's defaults, what the instrument states (the dataset), what the
     # config states, the later winning.
     settings = _in_effect(config.measurement, dataset)
-    if config.sets:
-        formulation = combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
-                                for s in config.sets])  # fmt: skip
     if config.folds is not None and len(dataset.configs) < 2 * config.folds:  # a fold of one, and the rest
         raise InputError(config.path, "validation.folds", f"{config.folds} folds of {len(dataset.configs)} "
                          "configurations: at least two configurations a fold")  # fmt: skip
