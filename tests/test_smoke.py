@@ -332,6 +332,8 @@ def test_two_measurement_sets_calibrate(bundled_sim, tmp_path, capsys):
     assert report["goodness_of_fit"]["consistent_with_declared_noise"]
     sets = {entry["name"]: entry for entry in report["sets"]["sets"]}
     assert set(sets) == {"camera", "tracker"} and all(0.7 < e["chi2_per_dof"] < 1.3 for e in sets.values()), sets
+    tracker = sets["tracker"]  # against its held-out measurements, in its own unit
+    assert tracker["held_out"]["after"]["tool_point_rms_m"] <= 1.5 * tracker["predicted_rms_m"], tracker
     validation = report["validation"]
     before, after = (validation[k]["position_error_m"]["rms"] for k in ("before", "after"))
     assert after <= 1.5 * validation["predicted_position_sigma_m"]["rms"], validation["predicted_position_sigma_m"]

@@ -54,20 +54,20 @@ def set_summary(result: CalibrationResult) -> dict | None:
                 C = covariance.matrix[np.ix_(index, index)]
                 share = float(np.einsum("ij,jk,ik->", J, C, J))
             dof = len(J) - share
-            entry.update(n_rows=len(J), residual_rms=sums, chi2=chi2, dof=dof,
+            entry.update(n_rows=len(J), **{f"residual_rms_{unit}": v for unit, v in sums.items()}, chi2=chi2, dof=dof,
                          chi2_per_dof=chi2 / dof if dof > 0 else None)  # fmt: skip
         else:
             registered_on = problem.observations.registered_on[part.index]
             entry["registered_on"] = registered_on
-        scores = result.validation
-        entry["held_out_rms"] = {label: _own(scores.get(label, {}), part.name) for label in ("before", "after")}
+        scores = result.measured  # against the held-out measurements (validation: the truth, when scored)
+        entry["held_out"] = {label: _own(scores.get(label, {}), part.name) for label in ("before", "after")}
         predicted = None
         if result.covariance is not None and result.test_observations is not None and released:
             factor = result.fit.variance_factor if result.fit is not None else 1.0
             predicted = formulation.set_prediction(
                 problem, result.test_observations, state, result.covariance, factor, part.index
             )
-        entry["predicted_rms"] = None if predicted is None else predicted.rms
+        entry["predicted_rms_m"] = None if predicted is None else predicted.rms
         sets.append(entry)
     headline = formulation.members[formulation.headline].name
     return {"headline_set": headline, "sets": sets, "parameters": _sigmas(result, jacobians)}
@@ -95,8 +95,15 @@ def noise_ratios(result: CalibrationResult) -> dict[str, float]:
 
 
 def _own(scores: dict, name: str) -> dict[str, float]:
-    """A set's held-out scores (``SET/score`` keys), by score: their RMS."""
-    return {key.split("/", 1)[1]: stat.rms for key, stat in scores.items() if key.startswith(f"{name}/")}
+    """A set's held-out scores (``SET/score`` keys), by score: their RMS, the unit in the key
+    (``tool_point_rms_m``, ``reprojection_rms_px``)."""
+    out = {}
+    for key, stat in scores.items():
+        if key.startswith(f"{name}/"):
+            score = key.split("/", 1)[1]
+            unit = next((u for u in ("px", "rad") if score.endswith(f"_{u}")), "m")
+            out[f"{score.removesuffix(f'_{unit}')}_rms_{unit}"] = stat.rms
+    return out
 
 
 def _span(offset: tuple[int, int]) -> tuple[int, int]:

@@ -13,12 +13,8 @@ _SHOWN = {"m": (1e3, "mm"), "rad": (1e3, "mrad"), "px": (1.0, "px")}
 def _value(value: float | None, unit: str) -> str:
     if value is None:
         return "-"
-    scale, shown = _SHOWN.get(unit.rsplit("_", 1)[-1] if "_" in unit else unit, (1e3, "mm"))
+    scale, shown = _SHOWN.get(unit, (1e3, "mm"))
     return f"{figure(value * scale)} {shown}"
-
-
-def _score_unit(score: str) -> str:
-    return score.rsplit("_", 1)[-1] if score.endswith(("_px", "_rad")) else "m"
 
 
 def set_lines(sets: dict | None, sigma_units) -> list[str]:
@@ -37,17 +33,18 @@ def set_lines(sets: dict | None, sigma_units) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]  # fmt: skip
     for entry in sets["sets"]:
-        residual = ", ".join(_value(v, u) for u, v in entry.get("residual_rms", {}).items()) or "-"
+        residual = ", ".join(_value(v, k.removeprefix("residual_rms_")) for k, v in entry.items()
+                             if k.startswith("residual_rms_")) or "-"  # fmt: skip
         chi2 = entry.get("chi2_per_dof")
-        after = entry["held_out_rms"]["after"]
+        after = entry["held_out"]["after"]
         main = next(iter(after), None)
-        unit = _score_unit(main) if main else "m"
-        before = entry["held_out_rms"]["before"].get(main) if main else None
+        unit = main.rsplit("_", 1)[-1] if main else "m"
+        before = entry["held_out"]["before"].get(main) if main else None
         use = entry["use"] + (f" (registered on {entry['registered_on']})" if entry.get("registered_on") else "")
         lines.append(
             f"| {entry['name']} | {entry['formulation']} | {use} | {entry.get('n_rows', '-')} | {residual} | "
             f"{'-' if chi2 is None else f'{chi2:.3g}'} | {_value(before, unit)} | "
-            f"{_value(after.get(main) if main else None, unit)} | {_value(entry['predicted_rms'], unit)} |"
+            f"{_value(after.get(main) if main else None, unit)} | {_value(entry['predicted_rms_m'], 'm')} |"
         )
     fitting = [e["name"] for e in sets["sets"] if e["use"] == "fit"]
     if sets["parameters"] and len(fitting) > 1:
