@@ -21,7 +21,7 @@ from .by_tip import measured_by_tip
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
-from .formulations.sets import Combined, Member, combined
+from .formulations.sets import Combined, Member
 from .graph import StageGraph, build_graph, robust_scale
 from .identifiability import Identifiability, analyse, evidence_against_fixing, motion_warning
 from .models import compare_models
@@ -51,7 +51,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     held-out configurations (a separate validation set held out too), the candidate
     parameters and the fitting observations."""
     # A config's sets: the composite of their formulations, each with the noise in effect for it.
-    formulation = combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
+    formulation = Combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
                             for s in config.sets]) if config.sets else registered(config.formulation)  # fmt: skip
     if config.residual_model != "none":
         check_residual_model(formulation, config.path)

@@ -346,7 +346,3 @@ class Combined(Formulation):
             if own:
                 out[part.name] = own
         return {"sets_details": out} if out else {}
-
-
-def combined(members: list[Member]) -> Combined:
-    return Combined(members)
