@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 
 from ..model.parameters import kind_label
-from .graph import StageGraph, build_graph, robust_scale
+from .graph import StageGraph, build_graph
 from .problem import Problem, read_state
 from .results import StageReport
 from .state import State
@@ -84,8 +84,8 @@ def solve_stage(
     for _ in range(5):
         if stage.robust_scale is None:
             break
-        new_scale = robust_scale(stage.measurements[:1], result)
-        if new_scale > 0.9 * stage.robust_scale:
+        retaken = problem.formulation.robust_loss(problem, stage.measurements, result)
+        if retaken is None or np.all(np.asarray(retaken[1]) > 0.9 * np.asarray(stage.robust_scale)):
             break
         stage = build_graph(problem, released, new_state)
         result, more = optimise(stage, problem.max_iterations)
@@ -107,5 +107,6 @@ def solve_stage(
         f"{report.time_s:.2f} s")  # fmt: skip
     # What later steps ask of a solved stage is at its solution (covariance, rejection): the
     # optimiser's trial points go, tens of MB each at thousands of configurations.
-    stage.kinematics.keep_only(result.atVector(stage.keys.params) if stage.keys.params is not None else None)
+    for kinematics in stage.every_kinematics():
+        kinematics.keep_only(result.atVector(stage.keys.params) if stage.keys.params is not None else None)
     return new_state, report, stage, result

@@ -96,7 +96,10 @@ def load_estimates(path: str | Path) -> dict:
     rotation (3x3) and the intrinsics (9,), whichever it holds; InputError on a damaged file."""
     path = Path(path)
     doc = Fields(read_yaml(path), path)
-    doc.check_keys(("format", "units", "camera_mounting", *SECTIONS))
+    # A calibration with several measurement sets names each set's unknowns SET/section.
+    named = {key: str(key).split("/", 1)[1] for key in doc.data if "/" in str(key)}
+    sections = {**SECTIONS, **{key: SECTIONS[base] for key, base in named.items() if base in SECTIONS}}
+    doc.check_keys(("format", "units", "camera_mounting", *sections))
     if doc.string("format") != FORMAT:
         raise doc.error("format", f"expected {FORMAT!r}")
 
@@ -106,7 +109,7 @@ def load_estimates(path: str | Path) -> dict:
         return pose_from_xyz_rpy(inner.vector("xyz", 3), inner.vector("rpy", 3))
 
     out: dict = {"camera_mounting": pose(doc.sub("camera_mounting"))}
-    for key, kind in SECTIONS.items():
+    for key, kind in sections.items():
         if not doc.has(key):
             continue
         section = doc.sub(key)
