@@ -226,3 +226,46 @@ def test_a_measurement_without_the_formulations_table_is_skipped(tracker300):
     with pytest.raises(InputError, match="tracker"):
         calibrator.fold(empty)
     assert calibrator.n_images == 10
+
+
+def test_a_gross_error_is_gated_and_not_folded_in(tracker300):
+    """Issue 41: a measurement whose residual at the current estimate exceeds the gate (5
+    predicted sigmas) is logged and not folded in, whatever the formulation (the protocol)."""
+    calibrator = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS)
+    measurements = dataset_measurements(tracker300)
+    fold_all(calibrator, measurements[:20])
+    table, ids, values = measurements[20].observations[0]
+    knocked = values.copy()
+    knocked[0] += [2e-3, 0.0, 0.0]  # one reflector 2 mm off: a knocked target
+    bad = measurements[20].__class__("bad.json", measurements[20].q, (), None, ((table, ids, knocked),))
+    before = calibrator.current_params().copy()
+    update = calibrator.fold(bad)
+    assert update.rejected_points and "configuration 1" in update.rejected_points[0], update.rejected_points
+    assert calibrator.n_images == 20 and np.array_equal(calibrator.current_params(), before)
+    update = calibrator.fold(measurements[20])  # the genuine one is well within the gate
+    assert calibrator.n_images == 21 and not update.rejected_points
+
+
+def test_a_cycles_batch_in_one_file_folds_in_as_its_measurements_do(tracker300, tmp_path):
+    """Issue 41: an inbox file may carry a work cycle's configurations (``configurations``);
+    folded in together they end where the same measurements one file each do (0.1 sigma)."""
+    from dataclasses import replace
+
+    from fgcal.online.measurement import read_measurement, write_measurement
+
+    measurements = dataset_measurements(tracker300, cycle_size=10)[:40]
+    single = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS)
+    fold_all(single, measurements)
+    for k in range(4):
+        part = measurements[10 * k : 10 * k + 10]
+        write_measurement(tmp_path / "inbox", replace(part[0], name=f"cycle{k}.json", batch=tuple(part[1:])))
+    robot = single.robot
+    files = sorted((tmp_path / "inbox").glob("*.json"))
+    batches = [read_measurement(path, robot.n_joints, limits=robot.limits) for path in files]
+    assert [len(b.configurations) for b in batches] == [10] * 4
+    np.testing.assert_array_equal(batches[1].batch[3].q, measurements[14].q)  # the file round-trips
+    together = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS)
+    fold_all(together, batches)
+    assert together.n_images == 40 and together.cycle == single.cycle == 3
+    distance = np.abs(together.current_params() - single.current_params())[single.model.index] / single.sigmas
+    assert distance.max() < 0.1, single.released[int(np.argmax(distance))]

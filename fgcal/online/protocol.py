@@ -215,21 +215,28 @@ class FormulationCalibrator:
     def add(self, reading: Reading, cycle: int | None = None) -> OnlineUpdate:
         """Fold one measurement in (the first ``start_measurements`` are held back and folded in
         together, into the last one's work cycle)."""
+        return self.add_batch([reading], cycle)
+
+    def add_batch(self, readings: list[Reading], cycle: int | None = None) -> OnlineUpdate:
+        """Fold a work cycle's measurements in together, in one update (an inbox file with
+        several configurations); before the start they are held back as :meth:`add`'s."""
         started = time.perf_counter()
-        q = self.robot.check_q(reading.q)[0]
-        reading = replace(reading, q=q)
-        if not reading.n_observations:
-            raise InputError(None, "observations", "a measurement needs at least one observation")
+        checked = []
+        for reading in readings:
+            q = self.robot.check_q(reading.q)[0]
+            if not reading.n_observations:
+                raise InputError(None, "observations", "a measurement needs at least one observation")
+            checked.append(replace(reading, q=q))
         latest = next((c for _, c in reversed(self._pending) if c is not None), self._cycle_label)
         if cycle is not None and latest is not None and cycle < latest:
             raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {latest}")
         if self.state is None:
-            self._pending.append((reading, cycle))
+            self._pending += [(reading, cycle) for reading in checked]
             if not self._start():
                 return self._update(started, [], {"pending_images": len(self._pending)})
             pending, self._pending = self._pending, []
             return self._fold([r for r, _ in pending], pending[-1][1], started)
-        return self._fold([reading], cycle, started)
+        return self._fold(checked, cycle, started)
 
     def _start(self) -> bool:
         """With enough measurements held back, the auxiliary unknowns' starting values and the
@@ -290,6 +297,17 @@ class FormulationCalibrator:
         P = params_key(self.cycle + (1 if new_cycle else 0))
         first_row = self.model._next
         per_reading = self.factors(readings, first_row, P)  # an InputError here changes nothing
+        gated: list[str] = []
+        if self.n_images:  # an estimate to gate against (the start's batch is not gated)
+            z = self._innovations(per_reading, P, self._walk_sigmas(cycle) if new_cycle else None)
+            gated = [f"configuration {i + 1}: {value:.1f} sigma" for i, value in enumerate(z)
+                     if value > self.settings.outlier_gate_sigma]  # fmt: skip
+            keep = [i for i, value in enumerate(z) if value <= self.settings.outlier_gate_sigma]
+            readings, per_reading = [readings[i] for i in keep], [per_reading[i] for i in keep]
+            if not readings:  # nothing folded in: the estimate and the cycle stay
+                update = self._update(started, [], {"gated": gated})
+                update.rejected_points = gated
+                return update
         rows = [self.model.add(r.q, self.cycle + (1 if new_cycle else 0)) for r in readings]
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if self.n_images == 0:
@@ -300,9 +318,7 @@ class FormulationCalibrator:
             self._cycle_label = cycle
         elif new_cycle:
             elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
-            sigmas = self.drift_sigmas * np.sqrt(elapsed)
-            jumped = sorted(self._jump)
-            sigmas[jumped] = self.prior_sigmas[jumped]
+            sigmas = self._walk_sigmas(cycle)
             self.cycle += 1
             self.drift_time += elapsed
             graph.add(RandomWalkFactor(params_key(self.cycle - 1), P, sigmas).factor)
@@ -339,7 +355,61 @@ class FormulationCalibrator:
         if alarms:
             self._jump = {self.released.index(a.parameter) for a in alarms}
             self.drift.reset()
-        return self._update(started, alarms)
+        update = self._update(started, alarms, {"gated": gated} if gated else None)
+        update.rejected_points = gated
+        return update
+
+    def _walk_sigmas(self, cycle: int | None) -> np.ndarray:
+        """The random walk's sigmas from the current cycle to the next one (``cycle``, its label):
+        the drift over the cycles elapsed, a parameter that raised an alarm its prior again."""
+        elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
+        sigmas = self.drift_sigmas * np.sqrt(elapsed)
+        jumped = sorted(self._jump)
+        sigmas[jumped] = self.prior_sigmas[jumped]
+        return sigmas
+
+    def _innovations(
+        self, per_reading: list[gtsam.NonlinearFactorGraph], P: int, walk: np.ndarray | None
+    ) -> list[float]:
+        """Per reading, its largest normalised innovation: each whitened residual row r_i at the
+        current estimate over its predicted sigma, ``|r_i| / sqrt(S_ii)``, ``S = I + A C A^T``
+        (A: the rows' whitened Jacobian on the parameters and the auxiliary unknowns, C their
+        joint marginal covariance; ``walk``: a new cycle's random walk, added to the parameters').
+        A measurement the current estimate predicts to within its own noise and the estimate's
+        uncertainty scores about 1; a gross error (a wrong target, a knocked reflector) many."""
+        current = params_key(self.cycle)
+        estimate = self.smoother.calculateEstimate()
+        keys = [current, *self.keys.values()]
+        joint = self.smoother.getISAM2().jointMarginalCovariance(gtsam.KeyVector(keys))
+        dims = [len(self._p), *(aux.dim for aux in self.state.aux.values())]
+        offsets = np.concatenate([[0], np.cumsum(dims)])
+        C = np.zeros((offsets[-1], offsets[-1]))
+        for i, a in enumerate(keys):
+            for j, b in enumerate(keys):
+                C[offsets[i] : offsets[i + 1], offsets[j] : offsets[j + 1]] = joint.at(a, b)
+        if walk is not None:
+            C[: dims[0], : dims[0]] += np.diag(walk**2)
+        values = gtsam.Values()
+        values.insert(P, self._p)
+        for key in self.keys.values():
+            copy_value(values, estimate, key)
+        column = {P: 0, **{key: offsets[i + 1] for i, key in enumerate(self.keys.values())}}
+        out = []
+        for graph in per_reading:
+            largest = 0.0
+            for k in range(graph.size()):
+                linear = graph.at(k).linearize(values)
+                A_blocks, b = linear.jacobian()
+                A = np.zeros((len(b), offsets[-1]))
+                start = 0
+                for key in linear.keys():
+                    width = next(d for d, o in zip(dims, offsets[:-1], strict=True) if o == column[key])
+                    A[:, column[key] : column[key] + width] = A_blocks[:, start : start + width]
+                    start += width
+                S = 1.0 + np.einsum("ij,jk,ik->i", A, C, A)
+                largest = max(largest, float(np.max(np.abs(b) / np.sqrt(S), initial=0.0)))
+            out.append(largest)
+        return out
 
     def _update(self, started: float, alarms: list, extra: dict | None = None) -> OnlineUpdate:
         return OnlineUpdate(
@@ -359,16 +429,19 @@ class FormulationCalibrator:
     def check(self, measurement, source) -> None:
         """InputError for a measurement file without a table the reference dataset measures
         (before it is logged); what the formulation reads of it is checked as it is folded in."""
-        tables = {"pixels"} if measurement.pixels else set()
-        tables |= {name for name, _, _ in measurement.observations}
-        if self.formulation.kind not in tables and not tables & set(self.measured):
-            raise InputError(
-                source, "observations", f"no table the {self.formulation.name} formulation reads (the reference "
-                f"dataset measures {', '.join(sorted(self.measured)) or 'none'}; got {', '.join(sorted(tables))})",
-            )  # fmt: skip
+        for k, part in enumerate(measurement.configurations):
+            tables = {"pixels"} if part.pixels else set()
+            tables |= {name for name, _, _ in part.observations}
+            if self.formulation.kind not in tables and not tables & set(self.measured):
+                field_ = f"configurations[{k}].observations" if measurement.batch else "observations"
+                raise InputError(
+                    source, field_, f"no table the {self.formulation.name} formulation reads (the reference "
+                    f"dataset measures {', '.join(sorted(self.measured)) or 'none'}; got {', '.join(sorted(tables))})",
+                )  # fmt: skip
 
     def fold(self, measurement) -> OnlineUpdate:
-        return self.add(measurement.reading(), measurement.cycle)
+        """A measurement file's configurations, folded in together."""
+        return self.add_batch(measurement.readings(), measurement.cycle)
 
     # -- bounded memory -------------------------------------------------------------------------
 
