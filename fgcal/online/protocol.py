@@ -402,7 +402,7 @@ class FormulationCalibrator:
                 A_blocks, b = linear.jacobian()
                 A = np.zeros((len(b), offsets[-1]))
                 start = 0
-                for key in linear.keys():
+                for key in list(linear.keys()):  # a KeyVector
                     width = next(d for d, o in zip(dims, offsets[:-1], strict=True) if o == column[key])
                     A[:, column[key] : column[key] + width] = A_blocks[:, start : start + width]
                     start += width
