@@ -63,8 +63,9 @@ class OnlineSettings:
     outlier_gate_px: float = 3.0
     # A formulation's measurement (fgcal.online.protocol) whose residual at the current estimate
     # exceeds this many of its predicted sigmas (noise and the estimate's uncertainty) is logged
-    # and not folded in.
-    outlier_gate_sigma: float = 5.0
+    # and not folded in; None: no gate (the default: on touch and ballbar cells the protocol's
+    # estimate is not yet consistent enough for it, docs/online.md).
+    outlier_gate_sigma: float | None = None
     # Measurements held back and folded in together before the first update (formulations
     # other than the camera's, fgcal.online.protocol): they start the auxiliary unknowns.
     start_measurements: int = 10

@@ -143,6 +143,7 @@ class FormulationCalibrator:
         self._pending: list[tuple[Reading, int | None]] = []
         self.state: State | None = None  # the auxiliary unknowns' starting values, once started
         self.like: Observations | None = None
+        self._once: tuple[Problem | None, Observations | None] = (None, None)
         self.keys: dict[str, int] = {}
         self._slots: dict[int, list[int]] = {}  # row -> smoother slots of its live factors
         self._scanned = 0
@@ -252,6 +253,7 @@ class FormulationCalibrator:
         state = self.formulation.initial_state(problem)
         self.state = state.with_params(self.start)
         self.like = problem.observations
+        self._once = problem, self.formulation.online_once(problem)
         self.keys = {name: aux_key(i) for i, name in enumerate(self.state.aux)}
         self.smoother = gtsam.IncrementalFixedLagSmoother(
             float(self.settings.window_images // self.settings.marginalise_every), self._isam_params()
@@ -298,7 +300,7 @@ class FormulationCalibrator:
         first_row = self.model._next
         per_reading = self.factors(readings, first_row, P)  # an InputError here changes nothing
         gated: list[str] = []
-        if self.n_images:  # an estimate to gate against (the start's batch is not gated)
+        if self.n_images and self.settings.outlier_gate_sigma is not None:  # the start's batch is not gated
             z = self._innovations(per_reading, P, self._walk_sigmas(cycle) if new_cycle else None)
             gated = [f"configuration {i + 1}: {value:.1f} sigma" for i, value in enumerate(z)
                      if value > self.settings.outlier_gate_sigma]  # fmt: skip
@@ -316,6 +318,7 @@ class FormulationCalibrator:
             for name, aux in self.state.aux.items():
                 values.insert(self.keys[name], aux.to_gtsam())
             self._cycle_label = cycle
+            graph.push_back(self._once_factors(P))
         elif new_cycle:
             elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
             sigmas = self._walk_sigmas(cycle)
@@ -358,6 +361,20 @@ class FormulationCalibrator:
         update = self._update(started, alarms, {"gated": gated} if gated else None)
         update.rejected_points = gated
         return update
+
+    def _once_factors(self, P: int) -> gtsam.NonlinearFactorGraph:
+        """The factors of what no configuration carries (Formulation.online_once), folded in
+        with the start: on the auxiliary unknowns, which stay in the window."""
+        graph = gtsam.NonlinearFactorGraph()
+        problem, observations = self._once
+        if observations is None:
+            return graph
+        kinematics = problem.kinematics(self.state, self.released, observations)
+        for measurements in self.formulation.measurement_sets(
+            problem, observations, kinematics, Keys(P, self.keys), self.state, None
+        ):
+            graph.add(measurements.factor().factor)
+        return graph
 
     def _walk_sigmas(self, cycle: int | None) -> np.ndarray:
         """The random walk's sigmas from the current cycle to the next one (``cycle``, its label):
