@@ -17,7 +17,11 @@ px)::
      "before_joints": [12.0, -40.0, 75.0, 0.0, 25.0, 0.0], "speed": 1.0,
      "observations": {"tracker_points": [{"target": "t1", "value": [2.2833, 0.4800, 0.4869]}]}}
 
-``pixels`` is the short form of the ``pixels`` table (its id column ``point``).
+``pixels`` is the short form of the ``pixels`` table (its id column ``point``). ``config``
+(optional) labels the configuration; a reading between two configurations (a table whose id
+columns are ``config_a``, ``config_b``, as tool_distances) names both by their labels, and joins
+the graph once both have arrived. A labelled configuration may carry no observation of its own
+(the first end of such readings).
 ``before_joints`` (same units as ``joints``) and ``speed`` (the move's speed factor, default
 1) say how the configuration was reached: the motion history a model DH,s,e,h fits.
 A work cycle's batch goes in one file as ``configurations``: each entry one configuration's
@@ -46,15 +50,15 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.fields import Fields
+from ..core.fields import Fields, check_name
 from ..core.outputs import output_dir, write_text
 from ..core.units import parse_units
 from .inbox import read_regular
 from .protocol import Reading
 
 FORMAT = "fgcal-measurement/1"
-KEYS = ["format", "name", "cycle", "units", "joints", "pixels", "observations", "before_joints", "speed"]
-CONFIGURATION_KEYS = ["joints", "pixels", "observations", "before_joints", "speed"]
+KEYS = ["format", "name", "cycle", "units", "config", "joints", "pixels", "observations", "before_joints", "speed"]
+CONFIGURATION_KEYS = ["config", "joints", "pixels", "observations", "before_joints", "speed"]
 MAX_CONFIGURATIONS = 1000  # a work cycle's batch
 
 
@@ -71,6 +75,9 @@ class Measurement:
     # The file's further configurations (a work cycle's batch; name, cycle: this one's), folded
     # in with this one; () : the file carries one configuration.
     batch: tuple[Measurement, ...] = ()
+    # The configuration's label, which readings between two configurations name (their
+    # config_a, config_b); None: none.
+    label: str | None = None
 
     @property
     def configurations(self) -> tuple[Measurement, ...]:
@@ -92,7 +99,7 @@ class Measurement:
         tables = {name: ({k: list(v) for k, v in ids.items()}, values) for name, ids, values in self.observations}
         if self.pixels:
             tables["pixels"] = ({"point": [n for n, _ in self.pixels]}, np.array([uv for _, uv in self.pixels]))
-        return Reading(self.q, tables, self.before, 1.0 if self.speed is None else self.speed)
+        return Reading(self.q, tables, self.before, 1.0 if self.speed is None else self.speed, self.label)
 
     def to_record(self) -> dict:
         """JSON-ready, SI units (what the state log stores)."""
@@ -103,8 +110,10 @@ class Measurement:
         return {**record, **self._configuration_record()}
 
     def _configuration_record(self) -> dict:
-        record: dict = {"joints": [float(v) for v in self.q]}
-        if self.pixels or not self.observations:  # a camera's image: as the log always held it
+        record: dict = {"config": self.label} if self.label is not None else {}
+        record["joints"] = [float(v) for v in self.q]
+        # A camera's image: as the log always held it.
+        if self.pixels or not (self.observations or self.label is not None):
             record["pixels"] = {n: [float(u), float(v)] for n, (u, v) in self.pixels}
         if self.observations:
             record["observations"] = {
@@ -167,16 +176,18 @@ def _configuration(
     raw_pixels = fields.sub("pixels", {})
     pixels = tuple((str(point), raw_pixels.vector(str(point), 2)) for point in raw_pixels.data)
     observations = _observations(fields.sub("observations", {}))
-    if not pixels and not observations:
+    label = check_name(fields.string("config"), fields.source, fields.path("config")) if fields.has("config") else None
+    if not pixels and not observations and label is None:
         raise fields.error(
             "pixels" if fields.has("pixels") or not fields.has("observations") else "observations",
-            "a measurement needs at least one observation",
+            "a measurement needs at least one observation (or a config label: a configuration that readings "
+            "between two configurations name)",
         )
     before = None
     if fields.has("before_joints"):
         before = fields.vector("before_joints", n_joints, scale=units.to_rad)
     speed = fields.number("speed", positive=True) if fields.has("speed") else None
-    return Measurement(name, q, pixels, cycle, observations, before, speed)
+    return Measurement(name, q, pixels, cycle, observations, before, speed, label=label)
 
 
 def _observations(tables: Fields) -> tuple:

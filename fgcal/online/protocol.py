@@ -64,10 +64,22 @@ class Reading:
     tables: dict[str, tuple[dict[str, list[str]], np.ndarray]]
     before: np.ndarray | None = None
     speed: float = 1.0
+    label: str | None = None  # what readings between two configurations call it (config_a, config_b)
 
     @property
     def n_observations(self) -> int:
         return sum(len(values) for _, values in self.tables.values())
+
+
+# Id columns that name configurations by their labels: a reading between two configurations.
+REFERS = "config_"
+# Configurations remembered for readings between two configurations, and readings waiting for
+# their other configuration: at most this many each (the oldest forgotten).
+MAX_REMEMBERED = 100_000
+
+
+def _refers(ids) -> list[str]:
+    return [k for k in ids if k.startswith(REFERS)]
 
 
 def aux_key(i: int) -> int:
@@ -112,8 +124,8 @@ class FormulationCalibrator:
         self.robot = robot.with_model(model or robot.model)
         self.measurement_settings = replace(MeasurementSettings(), noise=Noise.stated(reference.noise))
         # The measurements' tables come from the inbox; the rest (calibration points) stays.
-        static = {name: t for name, t in reference.tables.items() if "config" not in t.ids}
-        self.measured = sorted(name for name, t in reference.tables.items() if "config" in t.ids)
+        static = {name: t for name, t in reference.tables.items() if "config" not in t.ids and not _refers(t.ids)}
+        self.measured = sorted(name for name, t in reference.tables.items() if "config" in t.ids or _refers(t.ids))
         self.template = replace(
             reference, robot=self.robot, configs=np.zeros(0, dtype=object), q=np.zeros((0, robot.n_joints)),
             tables=static, history=None,
@@ -141,6 +153,10 @@ class FormulationCalibrator:
         self._sigmas = self.prior_sigmas.copy()
         self._covariance = np.diag(self.prior_sigmas**2)
         self._pending: list[tuple[Reading, int | None]] = []
+        # Labelled configurations that arrived: label -> (q, before, speed); and readings between
+        # two configurations waiting for one of them: (table, {id column: value}, values).
+        self._arrived: dict[str, tuple[np.ndarray, np.ndarray | None, float]] = {}
+        self._waiting: list[tuple[str, dict[str, str], np.ndarray]] = []
         self.state: State | None = None  # the auxiliary unknowns' starting values, once started
         self.like: Observations | None = None
         self._once: tuple[Problem | None, Observations | None] = (None, None)
@@ -190,26 +206,38 @@ class FormulationCalibrator:
         )
 
     def _dataset(self, readings: list[Reading], first: int) -> Dataset:
-        """The readings as a dataset of their configurations (ids m<row>)."""
-        ids = np.array([f"m{first + i}" for i in range(len(readings))], dtype=object)
+        """The readings as a dataset of their configurations (ids: their labels, or m<row>),
+        followed by the configurations that arrived before and that their readings between two
+        configurations name."""
+        ids = [r.label if r.label is not None else f"m{first + i}" for i, r in enumerate(readings)]
+        named = [ids[i] for i in range(len(readings))]
+        for reading in readings:
+            for row_ids, _ in reading.tables.values():
+                for key in _refers(row_ids):
+                    named += [label for label in row_ids[key] if label not in named]
+        extra = [label for label in named[len(readings) :] if label in self._arrived]
         tables: dict[str, Table] = dict(self.template.tables)
         for name in sorted({t for r in readings for t in r.tables}):
-            columns: dict[str, list] = {"config": []}
+            columns: dict[str, list] = {}
             values = []
             for config, reading in zip(ids, readings, strict=True):
                 if name not in reading.tables:
                     continue
                 row_ids, row_values = reading.tables[name]
-                columns["config"] += [config] * len(row_values)
+                if not _refers(row_ids):  # one configuration's: this one
+                    columns.setdefault("config", []).extend([config] * len(row_values))
                 for key, entries in row_ids.items():
                     columns.setdefault(key, []).extend(entries)
                 values.append(np.asarray(row_values, dtype=float))
             tables[name] = Table({k: np.array(v, dtype=object) for k, v in columns.items()}, np.vstack(values))
-        q = np.array([r.q for r in readings])
         n = self.robot.n_joints
-        before = np.array([r.before if r.before is not None else np.full(n, np.nan) for r in readings])
-        history = MotionHistory(before, np.array([r.speed for r in readings]))
-        return replace(self.template, configs=ids, q=q, tables=tables, history=history)
+        q = [r.q for r in readings] + [self._arrived[label][0] for label in extra]
+        before = [r.before for r in readings] + [self._arrived[label][1] for label in extra]
+        before = [b if b is not None else np.full(n, np.nan) for b in before]
+        speed = [r.speed for r in readings] + [self._arrived[label][2] for label in extra]
+        history = MotionHistory(np.array(before), np.array(speed))
+        configs = np.array(ids + extra, dtype=object)
+        return replace(self.template, configs=configs, q=np.array(q), tables=tables, history=history)
 
     # -- one measurement ------------------------------------------------------------------------
 
@@ -225,19 +253,66 @@ class FormulationCalibrator:
         checked = []
         for reading in readings:
             q = self.robot.check_q(reading.q)[0]
-            if not reading.n_observations:
+            if not reading.n_observations and reading.label is None:
                 raise InputError(None, "observations", "a measurement needs at least one observation")
             checked.append(replace(reading, q=q))
         latest = next((c for _, c in reversed(self._pending) if c is not None), self._cycle_label)
         if cycle is not None and latest is not None and cycle < latest:
             raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {latest}")
+        joined, waiting = self._join(checked)
+        arrived, waited = dict(self._arrived), list(self._waiting)
+        for reading in checked:
+            if reading.label is not None:
+                self._arrived[reading.label] = (reading.q, reading.before, reading.speed)
+        self._waiting = waiting
+        try:
+            return self._add_joined([r for r in joined if r.n_observations], cycle, started)
+        except BaseException:  # nothing changed: the configurations have not arrived
+            self._arrived, self._waiting = arrived, waited
+            raise
+
+    def _add_joined(self, readings: list[Reading], cycle: int | None, started: float) -> OnlineUpdate:
+        if not readings:  # configurations that readings between two configurations will name
+            return self._update(started, [], {"waiting_readings": len(self._waiting)})
         if self.state is None:
-            self._pending += [(reading, cycle) for reading in checked]
+            self._pending += [(reading, cycle) for reading in readings]
             if not self._start():
                 return self._update(started, [], {"pending_images": len(self._pending)})
             pending, self._pending = self._pending, []
             return self._fold([r for r, _ in pending], pending[-1][1], started)
-        return self._fold(checked, cycle, started)
+        return self._fold(readings, cycle, started)
+
+    def _join(self, readings: list[Reading]) -> tuple[list[Reading], list]:
+        """The readings with their rows between two configurations that can join the graph (both
+        configurations arrived, now or before), and the rows left waiting for one: a waiting row
+        joins with the last reading of this batch that it names."""
+        here = [r.label for r in readings if r.label is not None]
+        again = sorted({label for label in here if label in self._arrived} | {x for x in here if here.count(x) > 1})
+        if again:
+            raise InputError(None, "config", f"configuration {again[0]!r} has arrived before: labels must be unique")
+        known = set(self._arrived) | set(here)
+        tables = [dict(r.tables) for r in readings]
+        still = []
+        for name, row, values in self._waiting:
+            labels = {row[k] for k in _refers(row)}
+            if not labels <= known:
+                still.append((name, row, values))
+                continue
+            i = max(i for i, r in enumerate(readings) if r.label in labels)
+            _append(tables[i], name, row, values)
+        out = []
+        for reading, mine in zip(readings, tables, strict=True):
+            kept: dict = {}
+            for name, (ids, values) in mine.items():
+                refers = _refers(ids)
+                for i in range(len(values)):
+                    row = {k: v[i] for k, v in ids.items()}
+                    if refers and not {row[k] for k in refers} <= known:
+                        still.append((name, row, np.asarray(values[i], dtype=float)))
+                    else:
+                        _append(kept, name, row, values[i])
+            out.append(replace(reading, tables=kept))
+        return out, still[-MAX_REMEMBERED:]
 
     def _start(self) -> bool:
         """With enough measurements held back, the auxiliary unknowns' starting values and the
@@ -247,7 +322,7 @@ class FormulationCalibrator:
         readings = [r for r, _ in self._pending]
         dataset = self._dataset(readings, 0)
         try:
-            problem = self._problem(dataset, np.arange(len(readings)))
+            problem = self._problem(dataset, np.arange(len(dataset.configs)))
         except InputError:
             return False
         state = self.formulation.initial_state(problem)
@@ -278,12 +353,11 @@ class FormulationCalibrator:
         out = []
         for i, reading in enumerate(readings):
             dataset = self._dataset([reading], first_row + i)
-            observations = self.formulation.online_observations(
-                dataset, self.measurement_settings, np.arange(1), self.like
-            )
+            subset = np.arange(len(dataset.configs))  # this one, and those its readings name
+            observations = self.formulation.online_observations(dataset, self.measurement_settings, subset, self.like)
             if not observations.n_residuals:
                 raise InputError(None, "observations", f"none that the {self.formulation.name} formulation reads")
-            problem = self._problem(dataset, np.arange(1), observations)
+            problem = self._problem(dataset, subset, observations)
             kinematics = problem.kinematics(self.state, self.released, observations)
             keys = Keys(P, self.keys)
             graph = gtsam.NonlinearFactorGraph()
@@ -449,6 +523,8 @@ class FormulationCalibrator:
         for k, part in enumerate(measurement.configurations):
             tables = {"pixels"} if part.pixels else set()
             tables |= {name for name, _, _ in part.observations}
+            if not tables and part.label is not None:  # a configuration readings will name
+                continue
             if self.formulation.kind not in tables and not tables & set(self.measured):
                 field_ = f"configurations[{k}].observations" if measurement.batch else "observations"
                 raise InputError(
@@ -525,6 +601,13 @@ class FormulationCalibrator:
     @property
     def covariance(self) -> np.ndarray:
         return self._covariance.copy()
+
+
+def _append(tables: dict, name: str, row: dict[str, str], values: np.ndarray) -> None:
+    """Add one row (its ids, its values) to a reading's table ``name``."""
+    ids, stack = tables.get(name, ({k: [] for k in row}, np.zeros((0, len(values)))))
+    ids = {k: [*ids.get(k, []), row[k]] for k in row}
+    tables[name] = (ids, np.vstack([stack, np.asarray(values, dtype=float)[None, :]]))
 
 
 def _subset(values: gtsam.Values, keys) -> gtsam.Values:

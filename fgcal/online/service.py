@@ -364,6 +364,10 @@ class OnlineService:
         if measurement.cycle != self._cycle["label"] or not self._cycle["n"]:
             self._cycle = {"label": measurement.cycle, "n": 0, "start": self._previous.copy()}
         self._cycle["n"] += 1
+        if "waiting_readings" in update.extra:  # a configuration that readings between two will name
+            line(f"{measurement.name}: arrived, nothing of its own to fold in ({update.extra['waiting_readings']} "
+                 "readings between two configurations wait for their other one)")  # fmt: skip
+            return
         if "pending_images" in update.extra:  # held back until the unknowns can be started
             line(f"{measurement.name}: held back ({update.extra['pending_images']} so far; the first ones start the "
                  "instrument's unknowns together)")  # fmt: skip
