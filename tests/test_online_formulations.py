@@ -291,8 +291,9 @@ def test_the_service_logs_a_gated_measurement_and_reports_it(tracker300, tracker
     for m in measurements:
         write_measurement(tmp_path / "inbox", m)
     setup = tmp_path / "setup.yaml"
+    settings = {"prior_sigma_compliance": 1e-4, "outlier_gate_sigma": 5}
     setup.write_text(yaml.safe_dump({"dataset": str(tracker300), "formulation": "tracker", "released": tracker_released,
-                                     "settings": {"prior_sigma_compliance": 1e-4, "outlier_gate_sigma": 5}}))  # fmt: skip
+                                     "settings": settings}))  # fmt: skip
     service = OnlineService(tmp_path / "state", tmp_path / "inbox", setup)
     service.run(once=True)
     service.close()
@@ -316,8 +317,8 @@ def test_the_touch_spacings_are_folded_in_once_at_the_start(bundled_sim, monkeyp
     def spacing_rms(calibrator) -> float:
         points = calibrator.aux_estimate().value("touch_points")
         names = list(calibrator.state.aux["touch_points"].labels)
-        errors = [np.linalg.norm(points[names.index(a)] - points[names.index(b)]) - d
-                  for a, b, d in zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True)]  # fmt: skip
+        ends = zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True)
+        errors = [np.linalg.norm(points[names.index(a)] - points[names.index(b)]) - d for a, b, d in ends]
         return float(np.sqrt(np.mean(np.square(errors))))
 
     rms, released = {}, None
