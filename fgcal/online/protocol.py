@@ -264,6 +264,8 @@ class FormulationCalibrator:
         for reading in checked:
             if reading.label is not None:
                 self._arrived[reading.label] = (reading.q, reading.before, reading.speed)
+        while len(self._arrived) > MAX_REMEMBERED:  # the oldest forgotten: memory stays bounded
+            del self._arrived[next(iter(self._arrived))]
         self._waiting = waiting
         try:
             return self._add_joined([r for r in joined if r.n_observations], cycle, started)
