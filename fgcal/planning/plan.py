@@ -309,7 +309,7 @@ def prepare(
     approach = approach or default_approach(model)
     if approach not in APPROACHES:
         raise InputError(None, "--approach", f"unknown approach {approach!r} (one of {', '.join(APPROACHES)})")
-    if approach == "unidirectional" and approach_offset_rad <= 0.0:
+    if approach != "previous" and approach_offset_rad <= 0.0:  # an approach point needs a distance
         approach_offset_rad = APPROACH_OFFSET_RAD
     if approach == "previous" and _has_motion_terms(model):
         raise InputError(
