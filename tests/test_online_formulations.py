@@ -5,6 +5,7 @@ calibration has through the service (the smoke matrix)."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import gtsam
@@ -226,3 +227,139 @@ def test_a_measurement_without_the_formulations_table_is_skipped(tracker300):
     with pytest.raises(InputError, match="tracker"):
         calibrator.fold(empty)
     assert calibrator.n_images == 10
+
+
+@pytest.fixture(scope="module")
+def tracker_released(tracker300):
+    """The released parameters of the tracker cell's online run (its identifiability analysis,
+    once for the tests below)."""
+    return FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS).released
+
+
+def test_a_gross_error_is_gated_and_not_folded_in(tracker300, tracker_released):
+    """Issue 41: with the gate (outlier_gate_sigma: 5), a measurement whose residual at the
+    current estimate exceeds 5 predicted sigmas is not folded in, whatever the formulation (the
+    protocol); through the service it is logged and listed under skipped."""
+    settings = replace(TRACKER_SETTINGS, outlier_gate_sigma=5.0)
+    calibrator = FormulationCalibrator(load_dataset(tracker300), "tracker", settings, tracker_released)
+    measurements = dataset_measurements(tracker300)
+    fold_all(calibrator, measurements[:20])
+    table, ids, values = measurements[20].observations[0]
+    knocked = values.copy()
+    knocked[0] += [2e-3, 0.0, 0.0]  # one reflector 2 mm off: a knocked target
+    bad = measurements[20].__class__("bad.json", measurements[20].q, (), None, ((table, ids, knocked),))
+    before = calibrator.current_params().copy()
+    update = calibrator.fold(bad)
+    assert update.rejected_points and "configuration 1" in update.rejected_points[0], update.rejected_points
+    assert calibrator.n_images == 20 and np.array_equal(calibrator.current_params(), before)
+    update = calibrator.fold(measurements[20])  # the genuine one is well within the gate
+    assert calibrator.n_images == 21 and not update.rejected_points
+
+
+def test_a_cycles_batch_in_one_file_folds_in_as_its_measurements_do(tracker300, tracker_released, tmp_path):
+    """Issue 41: an inbox file may carry a work cycle's configurations (``configurations``);
+    folded in together they end where the same measurements one file each do (0.1 sigma; three
+    cycles of 10)."""
+    from fgcal.online.measurement import read_measurement, write_measurement
+
+    measurements = dataset_measurements(tracker300, cycle_size=10)[:30]
+    single = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS, tracker_released)
+    fold_all(single, measurements)
+    for k in range(3):
+        part = measurements[10 * k : 10 * k + 10]
+        write_measurement(tmp_path / "inbox", replace(part[0], name=f"cycle{k}.json", batch=tuple(part[1:])))
+    robot = single.robot
+    files = sorted((tmp_path / "inbox").glob("*.json"))
+    batches = [read_measurement(path, robot.n_joints, limits=robot.limits) for path in files]
+    assert [len(b.configurations) for b in batches] == [10] * 3
+    np.testing.assert_array_equal(batches[1].batch[3].q, measurements[14].q)  # the file round-trips
+    together = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS, tracker_released)
+    fold_all(together, batches)
+    assert together.n_images == 30 and together.cycle == single.cycle == 2
+    distance = np.abs(together.current_params() - single.current_params())[single.model.index] / single.sigmas
+    assert distance.max() < 0.1, single.released[int(np.argmax(distance))]
+
+
+def test_the_service_logs_a_gated_measurement_and_reports_it(tracker300, tracker_released, tmp_path):
+    from fgcal.online.measurement import write_measurement
+
+    measurements = dataset_measurements(tracker300)[:16]
+    table, ids, values = measurements[15].observations[0]
+    knocked = values.copy()
+    knocked[1] += [0.0, 0.0, 2e-3]
+    measurements[15] = replace(measurements[15], observations=((table, ids, knocked),))
+    for m in measurements:
+        write_measurement(tmp_path / "inbox", m)
+    setup = tmp_path / "setup.yaml"
+    settings = {"prior_sigma_compliance": 1e-4, "outlier_gate_sigma": 5}
+    setup.write_text(yaml.safe_dump({"dataset": str(tracker300), "formulation": "tracker", "released": tracker_released,
+                                     "settings": settings}))  # fmt: skip
+    service = OnlineService(tmp_path / "state", tmp_path / "inbox", setup)
+    service.run(once=True)
+    service.close()
+    report = json.loads((tmp_path / "state" / "report.json").read_text())
+    assert report["n_logged"] == 16 and report["n_images"] == 15, report
+    assert [s["name"] for s in report["skipped"]] == [measurements[15].name]
+    assert "gated (configuration 1: " in report["skipped"][0]["reason"]
+
+
+def test_the_touch_spacings_are_folded_in_once_at_the_start(bundled_sim, monkeypatch):
+    """Issue 41: a drawing's known distances between touched points (point_distances) are no
+    configuration's: online_once folds them in when the run starts. Measured on seven_axis_touch
+    (seed 1, 30 touches): the estimated points' distances 1.2e-5 m RMS from the drawing's, 1.1e-3 m
+    without them."""
+    from fgcal.calibration.formulations.touch import Touch
+
+    data = bundled_sim("seven_axis_touch")
+    dataset = load_dataset(data)
+    table = dataset.tables["point_distances"]
+
+    def spacing_rms(calibrator) -> float:
+        points = calibrator.aux_estimate().value("touch_points")
+        names = list(calibrator.state.aux["touch_points"].labels)
+        ends = zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True)
+        errors = [np.linalg.norm(points[names.index(a)] - points[names.index(b)]) - d for a, b, d in ends]
+        return float(np.sqrt(np.mean(np.square(errors))))
+
+    rms, released = {}, None
+    for once in (True, False):
+        if not once:
+            monkeypatch.setattr(Touch, "online_once", lambda self, problem: None)
+        calibrator = FormulationCalibrator(dataset, "touch", TRACKER_SETTINGS, released)
+        released = calibrator.released
+        fold_all(calibrator, dataset_measurements(data)[:30])
+        rms[once] = spacing_rms(calibrator)
+    assert rms[True] < 1e-4 and rms[True] < 0.05 * rms[False], rms
+
+
+def test_readings_between_two_configurations_join_once_both_arrived(bundled_sim, tmp_path):
+    """Issue 41: the ball-pairs cell (tool_distances, readings between two configurations of
+    their own) online through the service: the feed gives each configuration its id as a label
+    and each reading to the later of its two; a reading joins the graph once both have arrived.
+    A reading naming a configuration still to come waits for it."""
+    from fgcal.online.protocol import Reading
+
+    data = bundled_sim("irb120_ball_pairs")
+    fed = feed_dataset(data, tmp_path / "inbox", n=40, cycle_size=10)
+    setup = tmp_path / "setup.yaml"
+    setup.write_text(yaml.safe_dump({"dataset": str(data), "formulation": "distances",
+                                     "settings": {"prior_sigma_compliance": 1e-4}}))  # fmt: skip
+    service = OnlineService(tmp_path / "state", tmp_path / "inbox", setup)
+    service.run(once=True)
+    service.close()
+    report = json.loads((tmp_path / "state" / "report.json").read_text())
+    assert report["n_logged"] == fed == 40 and report["n_images"] == 20 and not report["skipped"], report
+    released = [e for e in report["parameters"].values() if e["status"] == "released"]
+    assert min(e["sigma"] / e["prior_sigma"] for e in released) < 0.1  # measured 0.012 (20 readings)
+    # A reading that arrives before its other configuration waits for it.
+    measurements = dataset_measurements(data)
+    calibrator = FormulationCalibrator(load_dataset(data), "distances", TRACKER_SETTINGS, released=["a2", "d4"])
+    first, second = measurements[0].reading(), measurements[1].reading()
+    assert not first.n_observations and second.n_observations == 1  # the reading goes with the later end
+    early = Reading(second.q, second.tables, label=second.label)
+    update = calibrator.add(early)
+    assert update.extra == {"waiting_readings": 1} and calibrator.n_images == 0
+    calibrator.add(Reading(first.q, {}, label=first.label))  # its other end: the reading joins
+    assert len(calibrator._pending) == 1 and not calibrator._waiting
+    with pytest.raises(InputError, match="has arrived before"):
+        calibrator.add(Reading(first.q, {}, label=first.label))

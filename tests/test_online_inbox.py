@@ -130,3 +130,40 @@ def test_a_claim_left_by_a_dead_process_is_taken_back(case, tmp_path):
     assert _logged(state) == names
     report = json.loads((state / "report.json").read_text())
     assert report["n_images"] == 3
+
+
+@pytest.mark.parametrize(
+    ("document", "field", "says"),
+    [
+        ({"configurations": [], "cycle": 1}, "configurations", "1 to 1000 configurations"),
+        ({"configurations": [{"joints": [0] * 6, "pixels": {"a": [1, 2]}}], "joints": [0] * 6}, "joints",
+         "in its entry"),
+        ({"configurations": [{"joints": [0] * 6, "pixels": {"a": [1, 2]}}, {"joints": [0] * 5}]},
+         "configurations[1].joints", "6"),
+        ({"configurations": [{"joints": [0] * 6}]}, "configurations[0].pixels", "at least one observation"),
+        ({"configurations": [{"joints": [0] * 6, "cycle": 2, "pixels": {"a": [1, 2]}}]}, "configurations[0].cycle",
+         "unknown field"),
+    ],
+    ids=["empty", "joints_beside", "short_joints", "nothing_observed", "cycle_inside"],
+)
+def test_a_bad_batch_file_names_its_field(document, field, says):
+    """Issue 41: a file with a work cycle's configurations; a bad one names the field."""
+    from fgcal.core.errors import InputError
+    from fgcal.online.measurement import FORMAT, parse_measurement
+
+    with pytest.raises(InputError) as error:
+        parse_measurement({"format": FORMAT, **document}, "x.json", "x.json", 6)
+    assert (error.value.field or "").startswith(field) and says in error.value.message, error.value
+
+
+def test_a_batch_file_round_trips_with_its_labels():
+    from fgcal.online.measurement import FORMAT, parse_measurement
+
+    entries = [{"config": "c1", "joints": [0.1] * 6},
+               {"config": "c2", "joints": [0.2] * 6, "observations": {"tool_distances": [
+                   {"config_a": "c1", "config_b": "c2", "value": [0.05]}]}}]  # fmt: skip
+    measurement = parse_measurement({"format": FORMAT, "cycle": 3, "configurations": entries}, "b.json", "b.json", 6)
+    assert [m.label for m in measurement.configurations] == ["c1", "c2"] and measurement.cycle == 3
+    assert measurement.n_observations == 1
+    again = parse_measurement(measurement.to_record(), "b.json", "log", 6)
+    assert again.to_record() == measurement.to_record()

@@ -27,6 +27,11 @@ def test_planned_36_at_most_half_the_seed_design_on_average(seed_cell_study):
     assert np.mean(seed_cell_study) <= 0.5, seed_cell_study
 
 
+# Not met, and not by a better criterion or exchange (docs/planning.md, "Seed 2"): the planned design
+# holds out what its calibration predicts (seed 2: 5.02e-5 m measured, 4.95e-5 predicted with the
+# calibration's own pair groups; the planner 4.59e-5 in expectation of the groups), and seed 2's
+# seed design is one of its good draws (7.0e-5 m). The position criterion predicts 4.47e-5, 20000
+# candidates 4.61e-5: 0.7x needs 4.9e-5. Seeds 4-6: 0.75, 0.74, 0.87x (d-optimal).
 @pytest.mark.xfail(reason="issue 42: seed 2's planned design holds out 0.72x its seed design (0.75x before)")
 def test_no_seed_above_07(seed_cell_study):
     assert np.max(seed_cell_study) <= 0.7, seed_cell_study

@@ -120,3 +120,54 @@ def test_visible_plan_beats_space_filling_on_the_truth(tmp_path):
     scores = planned_against_space_filling(CELLS / "irb120_tracker.yaml", Path(tmp_path), 30, seed=1,
                                            n_candidates=1000)  # fmt: skip
     assert scores["planned_m"] < scores["space_filling_m"], scores
+
+
+def _dh_origins(joints: list[dict], q: np.ndarray) -> np.ndarray:
+    """(N, 7, 3) the base's and each joint frame's origin (the independent DH above, m)."""
+    origins = [np.zeros((len(q), 3))]
+    T = np.tile(np.eye(4), (len(q), 1, 1))
+    for j, row in enumerate(joints):
+        T = T @ _dh_flange([row], q[:, j : j + 1])
+        origins.append(T[:, :3, 3].copy())
+    return np.stack(origins, axis=1)
+
+
+def test_a_reflector_behind_the_robots_own_body_is_not_a_candidate(tmp_path):
+    """Issue 42: with the cell's link radii, a draw whose every reflector in its acceptance angle
+    has its line to the tracker through one of the robot's bodies is discarded, and counted;
+    checked on the candidates by sampling each line of sight against capsules on an
+    independent DH chain's (distinct) joint origins."""
+    from fgcal.calibration.plan_model import OCCLUDED, joint_space_candidates
+
+    doc = yaml.safe_load((CELLS / "irb120_tracker.yaml").read_text())
+    doc["robot"] = str(ROBOTS / "abb_irb120.yaml")
+    radii_mm = [90, 70, 60, 60, 50]
+    doc["tracker"]["link_radii"] = radii_mm
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    candidates = joint_space_candidates(load_cell(path), 300, np.random.default_rng(4))
+    assert candidates.discarded.get(OCCLUDED, 0) > 0, candidates.discarded
+    q, seen = candidates.q, candidates.seen
+    joints = yaml.safe_load((ROBOTS / "abb_irb120.yaml").read_text())["joints"]
+    origins = _dh_origins(joints, q)
+    origins = origins[:, np.r_[True, np.linalg.norm(np.diff(origins[0], axis=0), axis=1) > 1e-9]]
+    assert origins.shape[1] == len(radii_mm) + 1
+    flange = _dh_flange(joints, q)
+    tracker = np.array(doc["tracker"]["pose"]["xyz"]) / 1e3
+    u = np.linspace(0.0, 1.0, 1001)
+    judged = 0
+    for t, s in enumerate(np.array(doc["tracker"]["targets"]) / 1e3):
+        reflector = flange[:, :3, :3] @ s + flange[:, :3, 3]
+        lines = reflector[:, None] + u[None, :, None] * (tracker - reflector)[:, None]  # (N, S, 3)
+        for k, radius in enumerate(np.array(radii_mm) / 1e3):
+            a, b = origins[:, k, None], origins[:, k + 1, None]
+            w = np.clip(np.sum((lines - a) * (b - a), axis=2) / np.sum((b - a) ** 2, axis=2), 0, 1)
+            distance = np.linalg.norm(lines - (a + w[..., None] * (b - a)), axis=2)  # (N, S)
+            judge = seen[:, t] & (distance[:, 0] > radius)  # a reflector inside this body: not judged
+            judged += int(judge.sum())
+            assert np.all(distance[judge].min(axis=1) >= radius - 1e-4), np.flatnonzero(judge)
+    assert judged > 100
+    with pytest.raises(InputError, match="5 radii"):
+        doc["tracker"]["link_radii"] = radii_mm[:4]
+        path.write_text(yaml.safe_dump(doc))
+        joint_space_candidates(load_cell(path), 10, np.random.default_rng(4))

@@ -331,6 +331,7 @@ def camera_candidates(
 
 
 NOT_SEEN = "no reflector within its acceptance angle of the line to the tracker"
+OCCLUDED = "every reflector within its acceptance angle hidden by the robot's own bodies (tracker.link_radii)"
 WORKSPACE_SIZE = 2000  # configurations of the region where accuracy counts
 
 
@@ -348,15 +349,21 @@ def joint_space_candidates(
     tips = sorted(set(cell.reflector_tips))
     batch = max(2000, 4 * count)
     kept_q, kept_seen, workspace = [], [], None
-    found = examined = 0
+    found = examined = occluded = 0
     while found < count and examined < 400 * count:
         q = uniform_configurations(robot, batch, rng)
         workspace = q[:WORKSPACE_SIZE] if workspace is None else workspace
         data = kinematics.forward(robot, params, q)
-        seen = cell.reflectors_visible({tip: kinematics.frame_pose(robot, data, tip) for tip in tips})
+        poses = {tip: kinematics.frame_pose(robot, data, tip) for tip in tips}
+        seen = cell.reflectors_visible(poses)
+        in_view = seen.any(axis=1)
+        if cell.link_radii_m is not None:  # the robot's own bodies in the line of sight
+            seen &= ~cell.reflectors_occluded(poses, chain_origins(cell, data))
         keep = np.flatnonzero(seen.any(axis=1))[: count - found]
         # Counted up to the last draw kept: the draws after it were not needed.
-        examined += batch if found + len(keep) < count else int(keep[-1]) + 1
+        drawn = batch if found + len(keep) < count else int(keep[-1]) + 1
+        examined += drawn
+        occluded += int(np.sum(in_view[:drawn] & ~seen[:drawn].any(axis=1)))
         kept_q.append(q[keep])
         kept_seen.append(seen[keep])
         found += len(keep)
@@ -376,15 +383,31 @@ def joint_space_candidates(
             f"only {found} of {examined} configurations have a reflector in the tracker's view: ask for fewer "
             "candidates (--candidates), or check tracker.pose, tracker.normals and tracker.acceptance",
         )
+    discarded = {NOT_SEEN: examined - found - occluded, OCCLUDED: occluded}
     return Candidates(
         np.concatenate(kept_q),
         None,
         None,
-        discarded={NOT_SEEN: examined - found} if examined > found else {},
+        discarded={reason: n for reason, n in discarded.items() if n},
         seen=np.concatenate(kept_seen),
         seen_label="reflectors",
         workspace=workspace,
     )
+
+
+def chain_origins(cell: Cell, data: kinematics.KinematicsData) -> np.ndarray:
+    """(N, L, 3) the distinct origins of the chain's frames in W, base to flange: the ends of
+    its L - 1 segments, which the cell's tracker.link_radii give one radius each."""
+    origins = np.transpose(data.frames[:, :, :, 3], (1, 0, 2))  # (N, K + 1, 3), elementary frames
+    # A frame at its predecessor's origin (a rotation, a zero offset) is so at every configuration.
+    step = np.linalg.norm(np.diff(origins[0], axis=0), axis=1) > 1e-9
+    origins = origins[:, np.r_[True, step]]
+    if len(cell.link_radii_m) != origins.shape[1] - 1:
+        raise InputError(
+            cell.source, "tracker.link_radii", f"{origins.shape[1] - 1} radii, one per segment of the robot's chain "
+            f"between consecutive distinct frame origins, base to flange; got {len(cell.link_radii_m)}",
+        )  # fmt: skip
+    return origins
 
 
 BOARD_UNSEEN = "the board not wholly in the nominal camera's image, or turned beyond its max_view_angle"

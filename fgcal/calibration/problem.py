@@ -322,6 +322,13 @@ class Formulation(ABC):
         labels of auxiliary unknowns and no such check."""
         return self.fit_observations(dataset, settings, subset)
 
+    def online_once(self, problem: Problem) -> Observations | None:
+        """The observations no configuration carries (a drawing's known distances between
+        touched points), which online recalibration folds in once, when it starts (``problem``:
+        the start's measurements); None (the default): none. Their measurement sets must not
+        need a configuration."""
+        return None
+
     @abstractmethod
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         """The held-out observations (None: nothing held out) and the held-out measurements

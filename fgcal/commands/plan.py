@@ -50,10 +50,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
     if result.lost_motion is not None:
         lost = result.lost_motion
-        advice = (
-            "this plan: calibrate it with DH,s,e" if result.approach == "unidirectional"
-            else "--approach unidirectional; visited in order, calibrate with DH,s,e,h"
-        )  # fmt: skip
+        advice = {
+            "unidirectional": "this plan: calibrate it with DH,s,e",
+            "varied": "this plan approaches each configuration its own way: calibrate it with DH,s,e,h",
+        }.get(result.approach, "--approach unidirectional; visited in order, calibrate with DH,s,e,h")
         say(
             f"  the cell's lost motion, beyond what constant joint offsets absorb: {lost['in_order_rms_m'] * 1e3:.4g} "
             f"mm RMS with the plan visited in order, {lost['unidirectional_rms_m'] * 1e3:.4g} mm with each "
@@ -95,14 +95,23 @@ def _program(kind: str, result, args: argparse.Namespace) -> list[Path]:
         payload=f"{robot.payload_mass:g} kg, centre of mass ({com_mm}) mm in the flange frame: the cell's, which the "
         "plan's compliances assume; set the controller's load data to it",
         units="deg for a revolute joint, mm for a prismatic one",
-        approach=(f"each configuration from its approach point {np.degrees(result.approach_offset_rad):g} deg below "
-                  "on every joint, visited just before it (a_ / XA_ points)") if approach is not None
+        approach=_approach_words(result) if approach is not None
         else "each configuration from the one before, in this order (the plan's)",
     )  # fmt: skip
     names = [f"p{k:04d}" for k in range(len(q))]  # as configurations.csv names them
     paths = write_joint_program(kind, args.out, names, q, approach, assumptions, np.asarray(robot.prismatic, bool))
     say(f"  {kind} program of the plan: {', '.join(p.name for p in paths)} ({NAME})")
     return paths
+
+
+def _approach_words(result) -> str:
+    offset = f"{np.degrees(result.approach_offset_rad):g} deg"
+    if result.approach == "varied":
+        return (f"each configuration from its own approach point, up to {offset} above or below on each joint, "
+                "visited just before it (a_ / XA_ points): the lost motion the plan's model fits depends on it")
+    return f"each configuration from its approach point {offset} below on every joint, visited just before it " + (
+        "(a_ / XA_ points)"
+    )
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -131,18 +140,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--formulation", help="what to plan for (pairs, projection, tracker; default: what the cell measures with)"
     )
     p.add_argument(
-        "--model", choices=("DH", "DH,s", "DH,s,e"), default="DH,s,e", metavar="MODEL",
-        help="kinematic model whose parameters the plan determines: DH, DH,s or DH,s,e (default DH,s,e)",
+        "--model", choices=("DH", "DH,s", "DH,s,e", "DH,s,e,h"), default="DH,s,e", metavar="MODEL",
+        help="kinematic model whose parameters the plan determines: DH, DH,s, DH,s,e or DH,s,e,h (the motion "
+        "history's lost motion and speed terms: planned with --approach varied) (default DH,s,e)",
     )  # fmt: skip
     p.add_argument("--seed", type=SEED, default=1, help="seed of the candidates (default 1)")
     p.add_argument(
-        "--approach", choices=("previous", "unidirectional"), default="previous",
-        help="each configuration reached from the one before (previous, the default), or from --approach-offset "
-        "below on every joint (unidirectional: approach points in configurations.csv, lost motion absorbed)",
+        "--approach", choices=("previous", "unidirectional", "varied"), default=None,
+        help="each configuration reached from the one before (previous, the default for a static model), from "
+        "--approach-offset below on every joint (unidirectional: approach points in configurations.csv, lost motion "
+        "absorbed), or from its own approach point above or below on each joint (varied, the default for DH,s,e,h: "
+        "the lost motion and speed terms become identifiable)",
     )  # fmt: skip
     p.add_argument(
         "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=2.0,
-        help="how far below each configuration its approach point is, deg (default 2)",
+        help="how far from each configuration its approach point is, deg (default 2; varied: 0.25 to 1 times it)",
     )  # fmt: skip
     p.add_argument(
         "--program", nargs="+", choices=("rapid", "krl", "csv-deg"), metavar="KIND",

@@ -14,20 +14,28 @@ from .measurement import Measurement, write_measurement
 def dataset_measurements(dataset_dir: str | Path, cycle_size: int | None = None) -> list[Measurement]:
     """One measurement per configuration of the dataset with observations: every table of
     the dataset indexed by configuration (a pixels table as ``pixels``), and how the
-    configuration was reached when the dataset says (its motion history)."""
+    configuration was reached when the dataset says (its motion history). A reading between
+    two configurations (a table whose ids name both, config_a and config_b, as tool_distances)
+    goes with the later of the two; the configurations then carry their ids as labels, and one
+    that only such readings name is a measurement of its own without observations."""
     dataset = load_dataset(dataset_dir)
     measured = {name: table for name, table in dataset.tables.items() if "config" in table.ids}
-    if not measured:
-        raise InputError(
-            dataset_dir, "measured", "the dataset has no table of one configuration's measurements (readings between "
-            "two configurations, such as tool_distances, are no one configuration's: online recalibration cannot "
-            "take them)",
-        )  # fmt: skip
+    between = {name: t for name, t in dataset.tables.items() if "config" not in t.ids and _refers(t.ids)}
+    if not measured and not between:
+        raise InputError(dataset_dir, "measured", "the dataset has no table of a configuration's measurements")
     rows: dict[str, dict[str, np.ndarray]] = {name: {} for name in measured}
     for name, table in measured.items():
         configs = np.asarray(table.ids["config"])
         for config in dict.fromkeys(configs.tolist()):
             rows[name][config] = np.flatnonzero(configs == config)
+    position = {c: j for j, c in enumerate(dataset.configs)}
+    later: dict[str, dict[str, list[int]]] = {name: {} for name in between}
+    named: set[str] = set()
+    for name, table in between.items():
+        for i in range(len(table.values)):
+            ends = [str(table.ids[k][i]) for k in _refers(table.ids)]
+            named.update(ends)
+            later[name].setdefault(max(ends, key=position.__getitem__), []).append(i)
     history = dataset.motion_history
     known = history.known()
     out = []
@@ -42,7 +50,12 @@ def dataset_measurements(dataset_dir: str | Path, cycle_size: int | None = None)
                 continue
             ids = {k: tuple(str(v) for v in column[mine]) for k, column in table.ids.items() if k != "config"}
             observations.append((name, ids, table.values[mine]))
-        if not pixels and not observations:
+        for name, table in between.items():
+            mine = np.array(later[name].get(config, []), dtype=int)
+            if len(mine):
+                observations.append((name, {k: tuple(str(v) for v in c[mine]) for k, c in table.ids.items()},
+                                     table.values[mine]))  # fmt: skip
+        if not pixels and not observations and config not in named:
             continue
         out.append(
             Measurement(
@@ -53,9 +66,15 @@ def dataset_measurements(dataset_dir: str | Path, cycle_size: int | None = None)
                 tuple(observations),
                 history.before[j] if known[j] else None,
                 float(history.speed[j]) if dataset.history is not None else None,
+                label=str(config) if between else None,
             )
         )
     return out
+
+
+def _refers(ids) -> list[str]:
+    """The id columns that name configurations (a reading between two)."""
+    return [k for k in ids if k.startswith("config_")]
 
 
 def feed_dataset(

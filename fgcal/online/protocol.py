@@ -64,10 +64,22 @@ class Reading:
     tables: dict[str, tuple[dict[str, list[str]], np.ndarray]]
     before: np.ndarray | None = None
     speed: float = 1.0
+    label: str | None = None  # what readings between two configurations call it (config_a, config_b)
 
     @property
     def n_observations(self) -> int:
         return sum(len(values) for _, values in self.tables.values())
+
+
+# Id columns that name configurations by their labels: a reading between two configurations.
+REFERS = "config_"
+# Configurations remembered for readings between two configurations, and readings waiting for
+# their other configuration: at most this many each (the oldest forgotten).
+MAX_REMEMBERED = 100_000
+
+
+def _refers(ids) -> list[str]:
+    return [k for k in ids if k.startswith(REFERS)]
 
 
 def aux_key(i: int) -> int:
@@ -112,8 +124,8 @@ class FormulationCalibrator:
         self.robot = robot.with_model(model or robot.model)
         self.measurement_settings = replace(MeasurementSettings(), noise=Noise.stated(reference.noise))
         # The measurements' tables come from the inbox; the rest (calibration points) stays.
-        static = {name: t for name, t in reference.tables.items() if "config" not in t.ids}
-        self.measured = sorted(name for name, t in reference.tables.items() if "config" in t.ids)
+        static = {name: t for name, t in reference.tables.items() if "config" not in t.ids and not _refers(t.ids)}
+        self.measured = sorted(name for name, t in reference.tables.items() if "config" in t.ids or _refers(t.ids))
         self.template = replace(
             reference, robot=self.robot, configs=np.zeros(0, dtype=object), q=np.zeros((0, robot.n_joints)),
             tables=static, history=None,
@@ -141,8 +153,13 @@ class FormulationCalibrator:
         self._sigmas = self.prior_sigmas.copy()
         self._covariance = np.diag(self.prior_sigmas**2)
         self._pending: list[tuple[Reading, int | None]] = []
+        # Labelled configurations that arrived: label -> (q, before, speed); and readings between
+        # two configurations waiting for one of them: (table, {id column: value}, values).
+        self._arrived: dict[str, tuple[np.ndarray, np.ndarray | None, float]] = {}
+        self._waiting: list[tuple[str, dict[str, str], np.ndarray]] = []
         self.state: State | None = None  # the auxiliary unknowns' starting values, once started
         self.like: Observations | None = None
+        self._once: tuple[Problem | None, Observations | None] = (None, None)
         self.keys: dict[str, int] = {}
         self._slots: dict[int, list[int]] = {}  # row -> smoother slots of its live factors
         self._scanned = 0
@@ -189,47 +206,115 @@ class FormulationCalibrator:
         )
 
     def _dataset(self, readings: list[Reading], first: int) -> Dataset:
-        """The readings as a dataset of their configurations (ids m<row>)."""
-        ids = np.array([f"m{first + i}" for i in range(len(readings))], dtype=object)
+        """The readings as a dataset of their configurations (ids: their labels, or m<row>),
+        followed by the configurations that arrived before and that their readings between two
+        configurations name."""
+        ids = [r.label if r.label is not None else f"m{first + i}" for i, r in enumerate(readings)]
+        named = [ids[i] for i in range(len(readings))]
+        for reading in readings:
+            for row_ids, _ in reading.tables.values():
+                for key in _refers(row_ids):
+                    named += [label for label in row_ids[key] if label not in named]
+        extra = [label for label in named[len(readings) :] if label in self._arrived]
         tables: dict[str, Table] = dict(self.template.tables)
         for name in sorted({t for r in readings for t in r.tables}):
-            columns: dict[str, list] = {"config": []}
+            columns: dict[str, list] = {}
             values = []
             for config, reading in zip(ids, readings, strict=True):
                 if name not in reading.tables:
                     continue
                 row_ids, row_values = reading.tables[name]
-                columns["config"] += [config] * len(row_values)
+                if not _refers(row_ids):  # one configuration's: this one
+                    columns.setdefault("config", []).extend([config] * len(row_values))
                 for key, entries in row_ids.items():
                     columns.setdefault(key, []).extend(entries)
                 values.append(np.asarray(row_values, dtype=float))
             tables[name] = Table({k: np.array(v, dtype=object) for k, v in columns.items()}, np.vstack(values))
-        q = np.array([r.q for r in readings])
         n = self.robot.n_joints
-        before = np.array([r.before if r.before is not None else np.full(n, np.nan) for r in readings])
-        history = MotionHistory(before, np.array([r.speed for r in readings]))
-        return replace(self.template, configs=ids, q=q, tables=tables, history=history)
+        q = [r.q for r in readings] + [self._arrived[label][0] for label in extra]
+        before = [r.before for r in readings] + [self._arrived[label][1] for label in extra]
+        before = [b if b is not None else np.full(n, np.nan) for b in before]
+        speed = [r.speed for r in readings] + [self._arrived[label][2] for label in extra]
+        history = MotionHistory(np.array(before), np.array(speed))
+        configs = np.array(ids + extra, dtype=object)
+        return replace(self.template, configs=configs, q=np.array(q), tables=tables, history=history)
 
     # -- one measurement ------------------------------------------------------------------------
 
     def add(self, reading: Reading, cycle: int | None = None) -> OnlineUpdate:
         """Fold one measurement in (the first ``start_measurements`` are held back and folded in
         together, into the last one's work cycle)."""
+        return self.add_batch([reading], cycle)
+
+    def add_batch(self, readings: list[Reading], cycle: int | None = None) -> OnlineUpdate:
+        """Fold a work cycle's measurements in together, in one update (an inbox file with
+        several configurations); before the start they are held back as :meth:`add`'s."""
         started = time.perf_counter()
-        q = self.robot.check_q(reading.q)[0]
-        reading = replace(reading, q=q)
-        if not reading.n_observations:
-            raise InputError(None, "observations", "a measurement needs at least one observation")
+        checked = []
+        for reading in readings:
+            q = self.robot.check_q(reading.q)[0]
+            if not reading.n_observations and reading.label is None:
+                raise InputError(None, "observations", "a measurement needs at least one observation")
+            checked.append(replace(reading, q=q))
         latest = next((c for _, c in reversed(self._pending) if c is not None), self._cycle_label)
         if cycle is not None and latest is not None and cycle < latest:
             raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {latest}")
+        joined, waiting = self._join(checked)
+        arrived, waited = dict(self._arrived), list(self._waiting)
+        for reading in checked:
+            if reading.label is not None:
+                self._arrived[reading.label] = (reading.q, reading.before, reading.speed)
+        while len(self._arrived) > MAX_REMEMBERED:  # the oldest forgotten: memory stays bounded
+            del self._arrived[next(iter(self._arrived))]
+        self._waiting = waiting
+        try:
+            return self._add_joined([r for r in joined if r.n_observations], cycle, started)
+        except BaseException:  # nothing changed: the configurations have not arrived
+            self._arrived, self._waiting = arrived, waited
+            raise
+
+    def _add_joined(self, readings: list[Reading], cycle: int | None, started: float) -> OnlineUpdate:
+        if not readings:  # configurations that readings between two configurations will name
+            return self._update(started, [], {"waiting_readings": len(self._waiting)})
         if self.state is None:
-            self._pending.append((reading, cycle))
+            self._pending += [(reading, cycle) for reading in readings]
             if not self._start():
                 return self._update(started, [], {"pending_images": len(self._pending)})
             pending, self._pending = self._pending, []
             return self._fold([r for r, _ in pending], pending[-1][1], started)
-        return self._fold([reading], cycle, started)
+        return self._fold(readings, cycle, started)
+
+    def _join(self, readings: list[Reading]) -> tuple[list[Reading], list]:
+        """The readings with their rows between two configurations that can join the graph (both
+        configurations arrived, now or before), and the rows left waiting for one: a waiting row
+        joins with the last reading of this batch that it names."""
+        here = [r.label for r in readings if r.label is not None]
+        again = sorted({label for label in here if label in self._arrived} | {x for x in here if here.count(x) > 1})
+        if again:
+            raise InputError(None, "config", f"configuration {again[0]!r} has arrived before: labels must be unique")
+        known = set(self._arrived) | set(here)
+        tables = [dict(r.tables) for r in readings]
+        still = []
+        for name, row, values in self._waiting:
+            labels = {row[k] for k in _refers(row)}
+            if not labels <= known:
+                still.append((name, row, values))
+                continue
+            i = max(i for i, r in enumerate(readings) if r.label in labels)
+            _append(tables[i], name, row, values)
+        out = []
+        for reading, mine in zip(readings, tables, strict=True):
+            kept: dict = {}
+            for name, (ids, values) in mine.items():
+                refers = _refers(ids)
+                for i in range(len(values)):
+                    row = {k: v[i] for k, v in ids.items()}
+                    if refers and not {row[k] for k in refers} <= known:
+                        still.append((name, row, np.asarray(values[i], dtype=float)))
+                    else:
+                        _append(kept, name, row, values[i])
+            out.append(replace(reading, tables=kept))
+        return out, still[-MAX_REMEMBERED:]
 
     def _start(self) -> bool:
         """With enough measurements held back, the auxiliary unknowns' starting values and the
@@ -239,12 +324,13 @@ class FormulationCalibrator:
         readings = [r for r, _ in self._pending]
         dataset = self._dataset(readings, 0)
         try:
-            problem = self._problem(dataset, np.arange(len(readings)))
+            problem = self._problem(dataset, np.arange(len(dataset.configs)))
         except InputError:
             return False
         state = self.formulation.initial_state(problem)
         self.state = state.with_params(self.start)
         self.like = problem.observations
+        self._once = problem, self.formulation.online_once(problem)
         self.keys = {name: aux_key(i) for i, name in enumerate(self.state.aux)}
         self.smoother = gtsam.IncrementalFixedLagSmoother(
             float(self.settings.window_images // self.settings.marginalise_every), self._isam_params()
@@ -269,12 +355,11 @@ class FormulationCalibrator:
         out = []
         for i, reading in enumerate(readings):
             dataset = self._dataset([reading], first_row + i)
-            observations = self.formulation.online_observations(
-                dataset, self.measurement_settings, np.arange(1), self.like
-            )
+            subset = np.arange(len(dataset.configs))  # this one, and those its readings name
+            observations = self.formulation.online_observations(dataset, self.measurement_settings, subset, self.like)
             if not observations.n_residuals:
                 raise InputError(None, "observations", f"none that the {self.formulation.name} formulation reads")
-            problem = self._problem(dataset, np.arange(1), observations)
+            problem = self._problem(dataset, subset, observations)
             kinematics = problem.kinematics(self.state, self.released, observations)
             keys = Keys(P, self.keys)
             graph = gtsam.NonlinearFactorGraph()
@@ -290,6 +375,17 @@ class FormulationCalibrator:
         P = params_key(self.cycle + (1 if new_cycle else 0))
         first_row = self.model._next
         per_reading = self.factors(readings, first_row, P)  # an InputError here changes nothing
+        gated: list[str] = []
+        if self.n_images and self.settings.outlier_gate_sigma is not None:  # the start's batch is not gated
+            z = self._innovations(per_reading, P, self._walk_sigmas(cycle) if new_cycle else None)
+            gated = [f"configuration {i + 1}: {value:.1f} sigma" for i, value in enumerate(z)
+                     if value > self.settings.outlier_gate_sigma]  # fmt: skip
+            keep = [i for i, value in enumerate(z) if value <= self.settings.outlier_gate_sigma]
+            readings, per_reading = [readings[i] for i in keep], [per_reading[i] for i in keep]
+            if not readings:  # nothing folded in: the estimate and the cycle stay
+                update = self._update(started, [], {"gated": gated})
+                update.rejected_points = gated
+                return update
         rows = [self.model.add(r.q, self.cycle + (1 if new_cycle else 0)) for r in readings]
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if self.n_images == 0:
@@ -298,11 +394,10 @@ class FormulationCalibrator:
             for name, aux in self.state.aux.items():
                 values.insert(self.keys[name], aux.to_gtsam())
             self._cycle_label = cycle
+            graph.push_back(self._once_factors(P))
         elif new_cycle:
             elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
-            sigmas = self.drift_sigmas * np.sqrt(elapsed)
-            jumped = sorted(self._jump)
-            sigmas[jumped] = self.prior_sigmas[jumped]
+            sigmas = self._walk_sigmas(cycle)
             self.cycle += 1
             self.drift_time += elapsed
             graph.add(RandomWalkFactor(params_key(self.cycle - 1), P, sigmas).factor)
@@ -339,7 +434,75 @@ class FormulationCalibrator:
         if alarms:
             self._jump = {self.released.index(a.parameter) for a in alarms}
             self.drift.reset()
-        return self._update(started, alarms)
+        update = self._update(started, alarms, {"gated": gated} if gated else None)
+        update.rejected_points = gated
+        return update
+
+    def _once_factors(self, P: int) -> gtsam.NonlinearFactorGraph:
+        """The factors of what no configuration carries (Formulation.online_once), folded in
+        with the start: on the auxiliary unknowns, which stay in the window."""
+        graph = gtsam.NonlinearFactorGraph()
+        problem, observations = self._once
+        if observations is None:
+            return graph
+        kinematics = problem.kinematics(self.state, self.released, observations)
+        for measurements in self.formulation.measurement_sets(
+            problem, observations, kinematics, Keys(P, self.keys), self.state, None
+        ):
+            graph.add(measurements.factor().factor)
+        return graph
+
+    def _walk_sigmas(self, cycle: int | None) -> np.ndarray:
+        """The random walk's sigmas from the current cycle to the next one (``cycle``, its label):
+        the drift over the cycles elapsed, a parameter that raised an alarm its prior again."""
+        elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
+        sigmas = self.drift_sigmas * np.sqrt(elapsed)
+        jumped = sorted(self._jump)
+        sigmas[jumped] = self.prior_sigmas[jumped]
+        return sigmas
+
+    def _innovations(
+        self, per_reading: list[gtsam.NonlinearFactorGraph], P: int, walk: np.ndarray | None
+    ) -> list[float]:
+        """Per reading, its largest normalised innovation: each whitened residual row r_i at the
+        current estimate over its predicted sigma, ``|r_i| / sqrt(S_ii)``, ``S = I + A C A^T``
+        (A: the rows' whitened Jacobian on the parameters and the auxiliary unknowns, C their
+        joint marginal covariance; ``walk``: a new cycle's random walk, added to the parameters').
+        A measurement the current estimate predicts to within its own noise and the estimate's
+        uncertainty scores about 1; a gross error (a wrong target, a knocked reflector) many."""
+        current = params_key(self.cycle)
+        estimate = self.smoother.calculateEstimate()
+        keys = [current, *self.keys.values()]
+        joint = self.smoother.getISAM2().jointMarginalCovariance(gtsam.KeyVector(keys))
+        dims = [len(self._p), *(aux.dim for aux in self.state.aux.values())]
+        offsets = np.concatenate([[0], np.cumsum(dims)])
+        C = np.zeros((offsets[-1], offsets[-1]))
+        for i, a in enumerate(keys):
+            for j, b in enumerate(keys):
+                C[offsets[i] : offsets[i + 1], offsets[j] : offsets[j + 1]] = joint.at(a, b)
+        if walk is not None:
+            C[: dims[0], : dims[0]] += np.diag(walk**2)
+        values = gtsam.Values()
+        values.insert(P, self._p)
+        for key in self.keys.values():
+            copy_value(values, estimate, key)
+        column = {P: 0, **{key: offsets[i + 1] for i, key in enumerate(self.keys.values())}}
+        out = []
+        for graph in per_reading:
+            largest = 0.0
+            for k in range(graph.size()):
+                linear = graph.at(k).linearize(values)
+                A_blocks, b = linear.jacobian()
+                A = np.zeros((len(b), offsets[-1]))
+                start = 0
+                for key in list(linear.keys()):  # a KeyVector
+                    width = next(d for d, o in zip(dims, offsets[:-1], strict=True) if o == column[key])
+                    A[:, column[key] : column[key] + width] = A_blocks[:, start : start + width]
+                    start += width
+                S = 1.0 + np.einsum("ij,jk,ik->i", A, C, A)
+                largest = max(largest, float(np.max(np.abs(b) / np.sqrt(S), initial=0.0)))
+            out.append(largest)
+        return out
 
     def _update(self, started: float, alarms: list, extra: dict | None = None) -> OnlineUpdate:
         return OnlineUpdate(
@@ -359,16 +522,21 @@ class FormulationCalibrator:
     def check(self, measurement, source) -> None:
         """InputError for a measurement file without a table the reference dataset measures
         (before it is logged); what the formulation reads of it is checked as it is folded in."""
-        tables = {"pixels"} if measurement.pixels else set()
-        tables |= {name for name, _, _ in measurement.observations}
-        if self.formulation.kind not in tables and not tables & set(self.measured):
-            raise InputError(
-                source, "observations", f"no table the {self.formulation.name} formulation reads (the reference "
-                f"dataset measures {', '.join(sorted(self.measured)) or 'none'}; got {', '.join(sorted(tables))})",
-            )  # fmt: skip
+        for k, part in enumerate(measurement.configurations):
+            tables = {"pixels"} if part.pixels else set()
+            tables |= {name for name, _, _ in part.observations}
+            if not tables and part.label is not None:  # a configuration readings will name
+                continue
+            if self.formulation.kind not in tables and not tables & set(self.measured):
+                field_ = f"configurations[{k}].observations" if measurement.batch else "observations"
+                raise InputError(
+                    source, field_, f"no table the {self.formulation.name} formulation reads (the reference "
+                    f"dataset measures {', '.join(sorted(self.measured)) or 'none'}; got {', '.join(sorted(tables))})",
+                )  # fmt: skip
 
     def fold(self, measurement) -> OnlineUpdate:
-        return self.add(measurement.reading(), measurement.cycle)
+        """A measurement file's configurations, folded in together."""
+        return self.add_batch(measurement.readings(), measurement.cycle)
 
     # -- bounded memory -------------------------------------------------------------------------
 
@@ -435,6 +603,13 @@ class FormulationCalibrator:
     @property
     def covariance(self) -> np.ndarray:
         return self._covariance.copy()
+
+
+def _append(tables: dict, name: str, row: dict[str, str], values: np.ndarray) -> None:
+    """Add one row (its ids, its values) to a reading's table ``name``."""
+    ids, stack = tables.get(name, ({k: [] for k in row}, np.zeros((0, len(values)))))
+    ids = {k: [*ids.get(k, []), row[k]] for k in row}
+    tables[name] = (ids, np.vstack([stack, np.asarray(values, dtype=float)[None, :]]))
 
 
 def _subset(values: gtsam.Values, keys) -> gtsam.Values:

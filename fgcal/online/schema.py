@@ -29,6 +29,9 @@ class Settings(Schema):
     alarm_lag_images: int = Field(None, ge=1, description="default 5")
     alarm_false_rate: Number = Field(None, gt=0, description="per image, over all parameters (default 1e-3)")
     outlier_gate_px: Number = Field(None, gt=0, description="px (default 3)")
+    outlier_gate_sigma: Number = Field(None, gt=0, description="a formulation's measurement whose residual at the "
+                                       "current estimate exceeds this many predicted sigmas is not folded in "
+                                       "(default: no gate; 5 on a tracker, docs/online.md)")  # fmt: skip
     start_measurements: int = Field(None, ge=1, description="measurements held back and folded in together before "
                                     "the first update, a formulation's (default 10)")  # fmt: skip
     compliant_joints: list[int] = Field(None, description="1-based joints with a compliance (default 1-3)")

@@ -207,6 +207,7 @@ class OnlineService:
         self._previous = cal.current_params()[cal.model.index].copy()  # before the last measurement
         self._cycle: dict = {"label": None, "n": 0, "start": self._previous.copy()}
         self.quarantined: dict[str, str] = {}  # name -> why folding it in failed
+        self._folded = 0  # configurations folded in (n_images after the last update)
         if self._history_handle is not None:
             self._history_handle.close()
         self._history_handle = open_for_writing(self.state.path / "history.csv")
@@ -317,6 +318,15 @@ class OnlineService:
             return None
         if not replaying:
             self.latencies.append(update.update_s)
+        gated = update.extra.get("gated")
+        if gated:  # logged, not folded in: a residual beyond the gate at the current estimate
+            reason = (f"gated ({', '.join(gated)} beyond {self.calibrator.settings.outlier_gate_sigma:g} predicted "
+                      "sigmas at the current estimate): not folded in")  # fmt: skip
+            self.skipped.append({"name": measurement.name, "reason": reason})
+            (detail if replaying else self.say)(f"{measurement.name}: {reason}")
+            if update.n_images == self._folded:  # none of its configurations folded in
+                return update
+        self._folded = update.n_images
         predicted = self.predicted = self.predicted_accuracy()
         self._log_measurement(measurement, update, predicted, replaying)
         if self.met_at is None and predicted["rms_m"] <= self.target_m:
@@ -354,6 +364,10 @@ class OnlineService:
         if measurement.cycle != self._cycle["label"] or not self._cycle["n"]:
             self._cycle = {"label": measurement.cycle, "n": 0, "start": self._previous.copy()}
         self._cycle["n"] += 1
+        if "waiting_readings" in update.extra:  # a configuration that readings between two will name
+            line(f"{measurement.name}: arrived, nothing of its own to fold in ({update.extra['waiting_readings']} "
+                 "readings between two configurations wait for their other one)")  # fmt: skip
+            return
         if "pending_images" in update.extra:  # held back until the unknowns can be started
             line(f"{measurement.name}: held back ({update.extra['pending_images']} so far; the first ones start the "
                  "instrument's unknowns together)")  # fmt: skip
@@ -368,7 +382,7 @@ class OnlineService:
             f"{measurement.n_observations} observations, {update.update_s * 1e3:.1f} ms; predicted RMS flange sigma "
             f"{predicted['rms_m'] * 1e3:#.3g} mm; largest step {name} {human(name, estimate[i] - self._previous[i])} "
             f"({step[i]:+.2f} sigma)"
-            + (f"; {len(update.rejected_points)} points gated" if update.rejected_points else "")
+            + (f"; {len(update.rejected_points)} gated" if update.rejected_points else "")
         )
         self._previous = estimate
 
@@ -454,9 +468,11 @@ class OnlineService:
                 ) from None
             self.logged[measurement.name] = _digest(record)
             shutil.move(str(claimed), self.processed / entry.name)
+            before = self.calibrator.n_images
             self._fold(measurement)
             count += 1
-            if self.calibrator.n_images % CHECKPOINT_EVERY == 0:
+            # Every CHECKPOINT_EVERY configurations (a file may carry several).
+            if self.calibrator.n_images // CHECKPOINT_EVERY > before // CHECKPOINT_EVERY:
                 self._checkpoint()
             self._write_outputs()
         return count

@@ -10,6 +10,7 @@ removed, as the calibration's own prediction does.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,7 @@ from ..calibration.plan_model import Candidates, Planning
 from ..calibration.problem import candidate_parameters
 from ..core.se3 import transform_points
 from ..model import kinematics
+from ..model.motion import MotionHistory, features
 from ..model.robot import Robot
 from ..simulation.cell import Cell
 
@@ -63,13 +65,18 @@ def build_information(
     reference: np.ndarray,
     n_region: int = 400,
     seed: int = 0,
+    before: np.ndarray | None = None,
+    region_before: Callable[[np.ndarray], np.ndarray | None] | None = None,
 ) -> Information:
     """Rows of every candidate on the parameters identifiable from the ``reference``
     candidates (indices: a generous space-filling design, so that the plan's unknowns are
-    those the cell can determine); ``planning``: what the config's formulation measures."""
+    those the cell can determine); ``planning``: what the config's formulation measures.
+    ``before`` (M, n): each candidate's approach point, whose move a model with the motion
+    history's terms sees (None: not known, no such offsets); ``region_before``: the approach
+    points of the region's configurations, drawn as the candidates'."""
     names = candidate_parameters(robot, config.model, config.compliant_joints)
     params = robot.parameter_vector()
-    data = kinematics.forward(robot, params, cand.q)
+    data = kinematics.forward(robot, params, cand.q, _motion(cand.q, before))
     measured = planning.rows(robot, data, cell, cand, names)
     J_p, J_aux, frame, point, gauge = measured.params, measured.aux, measured.frame, measured.point, measured.gauge
     moments = data.moments[reference]
@@ -92,7 +99,9 @@ def build_information(
     # Where accuracy counts: the workspace the formulation gives, else the candidates.
     pool = cand.q if cand.workspace is None else cand.workspace
     region_q = pool[np.random.default_rng(seed).permutation(len(pool))[:n_region]]
-    region_data = kinematics.forward(robot, params, region_q)
+    region_data = kinematics.forward(
+        robot, params, region_q, _motion(region_q, None if region_before is None else region_before(region_q))
+    )
     G = kinematics.jacobian(robot, region_data, kept, frame=frame, point=point)  # (E, 3, m)
     positions = transform_points(kinematics.frame_pose(robot, region_data, frame), point)
     G = without_gauge(G.reshape(-1, len(kept)), positions, gauge)
@@ -110,6 +119,14 @@ def build_information(
         unit=measured.unit,
         fixed=None if measured.fixed is None else _fixed(measured.fixed, len(kept)),
     )
+
+
+def _motion(q: np.ndarray, before: np.ndarray | None) -> np.ndarray | None:
+    """The motion history's features (N, 2n) of configurations reached from ``before`` at the
+    program's speed, or None."""
+    if before is None:
+        return None
+    return features(q, MotionHistory(before, np.ones(len(q))))
 
 
 def _fixed(rows: np.ndarray, n_params: int) -> np.ndarray:

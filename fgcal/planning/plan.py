@@ -38,7 +38,10 @@ from .information import Information, build_information
 
 RANDOM_DRAWS = 5
 REFERENCE_SIZE = 300
-APPROACHES = ("previous", "unidirectional")
+APPROACHES = ("previous", "unidirectional", "varied")
+# A varied approach moves each joint by this fraction of the approach offset or more, so that the
+# speed term (its share of the largest move) and the lost motion (saturating past 1 deg) part.
+VARIED_LEAST = 0.25
 APPROACH_OFFSET_RAD = float(np.radians(2.0))
 # The scored point of a camera cell: on the optical axis at the middle of the designs' standoff (m).
 SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
@@ -61,7 +64,10 @@ class PlanResult:
     indices: dict[str, float]
     curves: dict[str, list[float]]
     timing_s: dict[str, float] = field(default_factory=dict)
-    approach: str = "previous"  # or "unidirectional": every configuration approached from below
+    # "previous": each configuration reached from the one before; "unidirectional": from below on
+    # every joint; "varied": each from its own approach point (``approach_before``), within the
+    # offset above or below on each joint (model DH,s,e,h)
+    approach: str = "previous"
     approach_offset_rad: float = APPROACH_OFFSET_RAD
     # With the cell's motion_history: what its lost motion leaves that no static model absorbs (m)
     lost_motion: dict | None = None
@@ -69,6 +75,7 @@ class PlanResult:
     # from (--model-error, or an earlier calibration's report.json); None: not given.
     model_error_m: float | None = None
     model_error_source: str | None = None
+    approach_before: np.ndarray | None = None  # (M, n) each candidate's approach point, or None
 
     @property
     def expected_m(self) -> float | None:
@@ -143,10 +150,11 @@ class PlanResult:
 
     @property
     def approach_points(self) -> np.ndarray | None:
-        """(n, joints) the approach point of each planned configuration (unidirectional), or None."""
-        if self.approach != "unidirectional":
+        """(n, joints) the approach point of each planned configuration (unidirectional or
+        varied), or None."""
+        if self.approach_before is None:
             return None
-        return self.candidates.q[self.chosen] - self.approach_offset_rad
+        return self.approach_before[self.chosen]
 
     def to_json(self) -> dict:
         return {
@@ -174,7 +182,7 @@ class PlanResult:
             "curves": self.curves,
             "cpu_time_s": self.timing_s,
             "approach": self.approach,
-            "approach_offset_rad": self.approach_offset_rad if self.approach == "unidirectional" else None,
+            "approach_offset_rad": self.approach_offset_rad if self.approach != "previous" else None,
             "lost_motion": self.lost_motion,
         }
 
@@ -212,6 +220,8 @@ class Planner:
     info: Information
     timing_s: dict[str, float]
     planning: Planning  # what the formulation measures (Formulation.planning)
+    approach: str = "previous"
+    approach_before: np.ndarray | None = None  # (M, n) each candidate's approach point, or None
 
     def space_filling(self, n: int) -> list[int]:
         return max_min_selection(self.candidates.q, self.cell.robot.limits, n, np.random.default_rng(self.seed + 1))
@@ -284,21 +294,35 @@ def prepare(
     reference_size: int = REFERENCE_SIZE,
     progress: Callable[[str], None] | None = None,
     approach_offset_rad: float = 0.0,
+    approach: str | None = None,
 ) -> Planner:
     """Candidates of the cell (seeded) and their information rows on the parameters that a
     space-filling design of ``reference_size`` determines (a parameter the planned design
     cannot determine keeps its prior, its plausible deviation, in the prediction). With
-    ``approach_offset_rad``, candidates leave that much room above each lower joint limit, for
-    an approach from below."""
+    ``approach_offset_rad`` and the ``unidirectional`` approach, candidates leave that much
+    room above each lower joint limit, for an approach from below. ``approach`` (default:
+    ``varied`` for a model with the motion history's terms, else ``previous``): how each
+    candidate is reached, which a model with those terms sees (approach_points)."""
     say = progress or (lambda _msg: None)
     if model not in MODELS:
         raise InputError(None, "--model", f"unknown model {model!r} (one of {MODELS})")
+    approach = approach or default_approach(model)
+    if approach not in APPROACHES:
+        raise InputError(None, "--approach", f"unknown approach {approach!r} (one of {', '.join(APPROACHES)})")
+    if approach != "previous" and approach_offset_rad <= 0.0:  # an approach point needs a distance
+        approach_offset_rad = APPROACH_OFFSET_RAD
+    if approach == "previous" and _has_motion_terms(model):
+        raise InputError(
+            None, "--approach", f"model {model} fits the lost motion, which depends on how each configuration is "
+            "reached: in the plan's order (previous) that is not known while choosing; plan with --approach varied "
+            "(each configuration from its own approach point, above or below on each joint)",
+        )  # fmt: skip
     if not 1 <= n_candidates <= MAX_CANDIDATES:
         raise InputError(None, "--candidates", f"1 to {MAX_CANDIDATES} candidates, got {n_candidates}")
     cell = load_cell(cell_path)
     formulation = choose_formulation(cell, formulation)
     robot = cell.robot.with_model(model)
-    if approach_offset_rad > 0.0:
+    if approach == "unidirectional":
         limits = robot.limits.copy()
         limits[:, 0] += approach_offset_rad
         if np.any(limits[:, 0] >= limits[:, 1]):
@@ -319,10 +343,46 @@ def prepare(
     started = time.process_time()
     size = min(len(cand.q), reference_size)
     reference = np.array(max_min_selection(cand.q, robot.limits, size, np.random.default_rng(seed + 1)))
-    info = build_information(cell, robot, cand, config, planning, reference, seed=seed)
+    # Where the approach is the plan's, the candidates' and the region's (an independent stream).
+    approach_rng = np.random.default_rng(seed + 2)
+    before = approach_points(cand.q, robot.limits, approach, approach_offset_rad, approach_rng)
+    region_approach = lambda q: approach_points(q, robot.limits, approach, approach_offset_rad, approach_rng)  # noqa: E731
+    info = build_information(
+        cell, robot, cand, config, planning, reference, seed=seed, before=before, region_before=region_approach
+    )
     timing["information"] = time.process_time() - started
     say(f"  {info.n_params} identifiable parameters, {len(info.aux_labels)} auxiliary unknowns")
-    return Planner(cell, formulation, model, seed, cand, info, timing, planning)
+    return Planner(cell, formulation, model, seed, cand, info, timing, planning, approach, before)
+
+
+def _has_motion_terms(model: str) -> bool:
+    return "h" in model.split(",")
+
+
+def default_approach(model: str) -> str:
+    """``varied`` for a model with the motion history's terms (they need configurations reached
+    from different directions and distances), else ``previous``."""
+    return "varied" if _has_motion_terms(model) else "previous"
+
+
+def approach_points(
+    q: np.ndarray, limits: np.ndarray, approach: str, offset_rad: float, rng: np.random.Generator
+) -> np.ndarray | None:
+    """(N, n) the approach point of each configuration: ``unidirectional``, ``offset_rad``
+    below on every joint; ``varied``, on each joint above or below at random by
+    VARIED_LEAST to 1 times ``offset_rad`` (below where above would leave the limits, and the
+    other way round), so that the lost motion (the direction of the last move) and the speed
+    term (each joint's share of the largest move) vary from configuration to configuration;
+    ``previous``: None (reached from the one before: not known while choosing)."""
+    if approach == "unidirectional":
+        return q - offset_rad
+    if approach != "varied":
+        return None
+    sign = rng.choice([-1.0, 1.0], size=q.shape)
+    step = rng.uniform(VARIED_LEAST, 1.0, size=q.shape) * offset_rad
+    outside = (q - sign * step < limits[:, 0]) | (q - sign * step > limits[:, 1])
+    sign[outside] *= -1.0
+    return q - sign * step
 
 
 def plan(
@@ -336,7 +396,7 @@ def plan(
     curve_max: int | None = None,
     progress: Callable[[str], None] | None = None,
     planner: Planner | None = None,
-    approach: str = "previous",
+    approach: str | None = None,
     approach_offset_rad: float = APPROACH_OFFSET_RAD,
     model_error_m: float | None = None,
     model_error_source: str | None = None,
@@ -344,8 +404,10 @@ def plan(
     """Plan ``n`` configurations of the cell from ``n_candidates`` (seeded); ``planner``:
     prepared candidates to reuse (then the cell and candidate options are its own).
     ``approach``: ``previous`` (each configuration reached from the one before, in the plan's
-    order) or ``unidirectional`` (each from ``approach_offset_rad`` below on every joint: its
-    lost motion is then the same everywhere, and the joint offsets absorb it). ``model_error_m``:
+    order), ``unidirectional`` (each from ``approach_offset_rad`` below on every joint: its
+    lost motion is then the same everywhere, and the joint offsets absorb it) or ``varied``
+    (each from its own approach point: model DH,s,e,h's motion terms identifiable); default
+    by the model (default_approach). ``model_error_m``:
     what the model does not describe on the real robot (m RMS; ``model_error_source`` says
     where it came from), for the prediction of what a real robot shows."""
     say = progress or (lambda _msg: None)
@@ -353,17 +415,18 @@ def plan(
         raise InputError(None, "--model-error", f"a model error of 0 or more, got {model_error_m}")
     if criterion not in CRITERIA:
         raise InputError(None, "--criterion", f"unknown criterion {criterion!r} (one of {', '.join(CRITERIA)})")
-    if approach not in APPROACHES:
+    if approach is not None and approach not in APPROACHES:
         raise InputError(None, "--approach", f"unknown approach {approach!r} (one of {', '.join(APPROACHES)})")
     if not 0.0 < approach_offset_rad <= np.radians(30.0):
         raise InputError(None, "--approach-offset", "an approach offset in (0, 30] degrees")
     if planner is None:
         if not 1 <= n <= n_candidates:  # before the candidates are drawn: they take a while
             raise InputError(None, "--n", f"plan 1 to {n_candidates} (the candidates) configurations, got {n}")
-        offset = approach_offset_rad if approach == "unidirectional" else 0.0
-        planner = prepare(cell_path, n_candidates, formulation, model, seed, max(n, REFERENCE_SIZE), say, offset)
+        size = max(n, REFERENCE_SIZE)
+        planner = prepare(cell_path, n_candidates, formulation, model, seed, size, say, approach_offset_rad, approach)
         say(f"planning {n} configurations of {cell_path} ({planner.formulation}, {model}) by {criterion}")
     planner.check_size(n)
+    approach = planner.approach
     info, cand, robot = planner.info, planner.candidates, planner.cell.robot
     timing = dict(planner.timing_s)
     started = time.process_time()
@@ -410,6 +473,7 @@ def plan(
         lost_motion=lost_motion_left(planner.cell, cand.q[chosen], approach_offset_rad),
         model_error_m=None if model_error_m is None else float(model_error_m),
         model_error_source=model_error_source or ("--model-error" if model_error_m is not None else None),
+        approach_before=planner.approach_before,
     )
 
 
@@ -560,6 +624,13 @@ def _approach_lines(result: PlanResult) -> list[str]:
             "joint (configurations.csv `before_q1..`: move there first, then to the configuration). Its lost motion "
             "is then the same at every configuration, and the joint offsets absorb it: calibrate with DH,s,e, and "
             "run programs that approach their targets the same way."
+        )
+    elif result.approach == "varied":
+        lines.append(
+            f"Each configuration is approached from its own approach point, up to "
+            f"{np.degrees(result.approach_offset_rad):.3g} deg above or below on each joint (configurations.csv "
+            "`before_q1..`: move there first, then to the configuration): the direction and size of the last move "
+            "vary, so that the lost motion and speed terms of model DH,s,e,h are identifiable; calibrate with it."
         )
     else:
         lines.append(

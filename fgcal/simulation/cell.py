@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.fields import Fields, read_yaml
+from ..core.fields import Fields, read_yaml, to_float
 from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, transform_points
 from ..core.units import parse_units
@@ -194,6 +194,9 @@ class Cell:
     # half-angle (rad; default REFLECTOR_ACCEPTANCE_DEG): the tracker sees it within that cone.
     tracker_normals: np.ndarray | None = None  # (m, 3); None: every reflector along its tip's z axis
     tracker_acceptance_rad: np.ndarray | None = None  # (m,); None: the default acceptance
+    # The robot's bodies between tracker and reflectors: a capsule per segment between
+    # consecutive frames' origins, this radius each (m); None: not given (not checked).
+    link_radii_m: np.ndarray | None = None
     tip: str = "flange"  # the tree's tip carrying the probe, ball, board or reflectors (cell tip:)
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
 
@@ -248,6 +251,54 @@ class Cell:
     def reflectors_visible(self, T_W_tips: dict[str, np.ndarray]) -> np.ndarray:
         """(N, m) whether the tracker sees each reflector: within its acceptance angle."""
         return self.reflector_angles(T_W_tips) <= self.reflector_acceptance_rad
+
+    def reflectors_occluded(self, T_W_tips: dict[str, np.ndarray], origins: np.ndarray) -> np.ndarray:
+        """(N, m) whether the robot's own bodies hide each reflector from the tracker: its line to
+        the tracker passes within a body's radius of the body's axis (``origins``: (N, K, 3)
+        the frames' origins in W, base to flange; body k from origin k to k+1, radius
+        ``link_radii_m[k]``). A body whose capsule holds the reflector itself (the link it is
+        mounted on) is not judged. False everywhere where the cell gives no radii."""
+        tips = self.tracker_target_tips or ("flange",) * len(self.tracker_targets)
+        n = len(origins)
+        out = np.zeros((n, len(self.tracker_targets)), dtype=bool)
+        if self.link_radii_m is None:
+            return out
+        radii = self.link_radii_m
+        starts, ends = origins[:, :-1][:, : len(radii)], origins[:, 1:][:, : len(radii)]
+        tracker = np.broadcast_to(self.tracker_pose[:3, 3], (n, 3))
+        for t, (s, tip) in enumerate(zip(self.tracker_targets, tips, strict=True)):
+            reflector = transform_points(T_W_tips[tip], s)  # (N, 3)
+            for k in range(starts.shape[1]):
+                inside = point_segment_distance(reflector, starts[:, k], ends[:, k]) <= radii[k]
+                near = segment_distance(reflector, tracker, starts[:, k], ends[:, k]) < radii[k]
+                out[:, t] |= near & ~inside
+        return out
+
+
+def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) the distance from points p to segments a-b (each (N, 3))."""
+    ab = b - a
+    t = np.clip(np.sum((p - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """(N,) the shortest distance between segments p0-p1 and q0-q1 (each (N, 3)): the closest
+    points' parameters clamped to the segments (Ericson, Real-Time Collision Detection 5.1.9);
+    p0-p1 must have a length, q0-q1 may be a point."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e = np.sum(d1 * d1, axis=1), np.sum(d2 * d2, axis=1)
+    b, c, f = np.sum(d1 * d2, axis=1), np.sum(d1 * r, axis=1), np.sum(d2 * r, axis=1)
+    point = e <= 1e-24  # q0-q1 is a point
+    denominator = a * e - b * b
+    parallel = denominator <= 1e-12 * a * np.maximum(e, 1e-300)
+    s = np.where(parallel, 0.0, np.clip((b * f - c * e) / np.where(parallel, 1.0, denominator), 0.0, 1.0))
+    t = np.where(point, 0.0, (b * s + f) / np.where(point, 1.0, e))
+    below, above = t < 0.0, t > 1.0
+    s = np.where(below | point, np.clip(-c / a, 0.0, 1.0), s)
+    s = np.where(above & ~point, np.clip((b - c) / a, 0.0, 1.0), s)
+    t = np.clip(t, 0.0, 1.0)
+    return np.linalg.norm((p0 + s[:, None] * d1) - (q0 + t[:, None] * d2), axis=1)
 
 
 def _pose(fields: Fields, key: str, to_m: float, to_rad: float) -> np.ndarray:
@@ -494,6 +545,7 @@ def load_cell(path: str | Path) -> Cell:
         tracker_target_tips=target_tips,
         tracker_normals=normals,
         tracker_acceptance_rad=acceptance,
+        link_radii_m=_link_radii(tracker, to_m),
         tip=tip,
         camera_point_sigma_m=noise.number("camera_point_sigma", 1e-4 / to_m, to_m, nonnegative=True),
         pixel_sigma_px=noise.number("pixel_sigma_px", 0.1, nonnegative=True),
@@ -573,6 +625,19 @@ def _per_target(tracker: Fields, key: str) -> list[tuple[str, object]]:
             raise tracker.error(where, f"expected a list, one per reflector, got {values!r}")
         out += [(f"{where}[{i}]", value) for i, value in enumerate(values)]
     return out
+
+
+def _link_radii(tracker: Fields, to_m: float) -> np.ndarray | None:
+    """``tracker.link_radii``: the robot's bodies' radii (length unit), or None."""
+    if not tracker.has("link_radii"):
+        return None
+    raw = tracker.raw("link_radii")
+    if not isinstance(raw, list) or not raw:
+        raise tracker.error("link_radii", "a list of radii, one per segment between consecutive frames")
+    radii = np.array([to_float(v, tracker.source, tracker.path(f"link_radii[{i}]")) for i, v in enumerate(raw)]) * to_m
+    if np.any(radii < 0):
+        raise tracker.error("link_radii", "radii of 0 or more")
+    return radii
 
 
 def _reflector_axes(tracker: Fields, n_targets: int, to_rad: float) -> tuple[np.ndarray, np.ndarray]:

@@ -91,6 +91,11 @@ class Tracker(Schema):
     probe: Pose = Field(None, description="a 6-DoF probe on the flange (tracker poses)")
     normals: Normals = None
     acceptance: Acceptance = None
+    link_radii: list[Number] = Field(
+        None, description=f"{LENGTH}: the robot's own bodies, one capsule per segment between consecutive frames' "
+        "origins (base to flange), each this radius; a reflector whose line to the tracker passes through one is not "
+        "seen (fgcal plan)",
+    )  # fmt: skip
 
 
 class NamedPoint(Schema):

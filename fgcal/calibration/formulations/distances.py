@@ -110,8 +110,9 @@ class DistanceReadings(Formulation):
     def online_observations(
         self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
     ) -> Observations:
-        """A configuration's readings to the pivots the run started with (a reading between two
-        configurations, tool_distances, is no one configuration's: not taken online)."""
+        """A configuration's readings to the pivots the run started with, and its readings
+        between two configurations (tool_distances) whose other end ``dataset`` holds (online
+        recalibration adds it once both have arrived)."""
         table = dataset.tables.get("distances")
         seen = {name for _, name, _ in rows_of(dataset, table, "pivot", subset)} if table else set()
         refuse_unstarted(seen, like.names, dataset.path / "distances.csv", "pivot", "pivot",

@@ -106,12 +106,17 @@ class Touch(Formulation):
         self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
     ) -> Observations:
         """A configuration's touches of the points the run started with; the known spacings
-        between points (point_distances) are no configuration's and are not taken online."""
+        between points (point_distances) are no configuration's: folded in once (online_once)."""
         seen = {name for _, name, _ in rows_of(dataset, measured_table(dataset, "touch_points", self.name), "point",
                                                  subset)}  # fmt: skip
         refuse_unstarted(seen, like.names, dataset.path / "touch_points.csv", "point", "point",
                          "its position is not estimated")  # fmt: skip
         return _observations(dataset, subset, like.names, spacings=False)
+
+    def online_once(self, problem: Problem) -> Observations | None:
+        """The known spacings between the points the run started with (point_distances)."""
+        observations = _observations(problem.dataset, np.zeros(0, dtype=int), problem.observations.names)
+        return observations if len(observations.spacing_m) else None
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         dataset, names = problem.dataset, problem.observations.names
@@ -156,19 +161,21 @@ class Touch(Formulation):
     ) -> list[MeasurementSet]:
         noise = problem.settings.noise
         n_sockets = len(state.value("touch_points"))
-        sets: list[MeasurementSet] = [
-            TouchPoints(
-                kinematics,
-                keys.params,
-                keys["tool_points"],
-                keys["touch_points"],
-                n_sockets,
-                observations.configs,
-                observations.sockets,
-                noise.touch_m,
-                robust=robust,
+        sets: list[MeasurementSet] = []
+        if len(observations.configs):  # none: the spacings alone (online_once)
+            sets.append(
+                TouchPoints(
+                    kinematics,
+                    keys.params,
+                    keys["tool_points"],
+                    keys["touch_points"],
+                    n_sockets,
+                    observations.configs,
+                    observations.sockets,
+                    noise.touch_m,
+                    robust=robust,
+                )
             )
-        ]
         if len(observations.spacing_m):
             sets.append(
                 SocketSpacings(
