@@ -43,6 +43,8 @@ def test_some_joints_and_a_fixed_parameter(session):
     ("[[theta, {kind: base, joints: [1]}]]", "stages[0][1]"),
     ("[[theta, {kind: alpha, joints: [3-1]}]]", "stages[0][1].joints"),
     ("[{release: [theta], keep: [a2]}]", "stages[0]"),
+    ("[[theta, {kind: alpha, joints: [1-8]}]]", "{kind: alpha, joints}: joint 7 is not one of ABB IRB 120's 6"),
+    ("[[theta, {kind: kc, joints: [2]}]]", "{kind: kc, joints}: none of the joints listed has a parameter kc"),
 ])  # fmt: skip
 def test_stages_that_cannot_be_are_refused(session, stages, message, capsys):
     (session / "bad.yaml").write_text(f"dataset: sim\nformulation: tracker\nstages: {stages}\n")
@@ -60,3 +62,15 @@ def test_a_trees_default_compliances_are_every_loaded_joint():
     assert compliant_joints(tree, None) == tuple(range(1, tree.n_links + 1))
     assert compliant_joints(fgcal.load_robot("abb_irb120"), None) == (1, 2, 3)
     assert compliant_joints(tree, (2, 3)) == (2, 3)
+
+
+def test_a_kind_on_joints_of_a_mixed_tree_releases_where_the_joint_has_it():
+    """{kind, joints} over a robot whose joints differ in kinds (DH rows and joints given by their
+    origin, which have no alpha): the kind where a listed joint has it, as the whole kind does;
+    kc on the joint that has it. A joint beyond the robot stays refused (above)."""
+    from fgcal.calibration.schema import _release_items
+    from fgcal.calibration.solve import selects
+
+    stage = _release_items(["theta", {"kind": "alpha", "joints": ["1-10"]}, {"kind": "kc", "joints": [3]}], "[0]")
+    assert selects(stage, "alpha9") and selects(stage, "kc3") and not selects(stage, "kc4")
+    assert not selects(stage, "alpha11") and selects(stage, "theta9")

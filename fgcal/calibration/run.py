@@ -15,7 +15,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..data.dataset import Dataset, load_dataset
 from ..factors import OutsideModelError
-from ..model.parameters import kind_label
+from ..model.parameters import kind_label, split_name
 from ..model.robot import MODELS
 from .by_tip import measured_by_tip
 from .config import CalibrationConfig
@@ -280,7 +280,7 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
         for i, kinds in enumerate(config.stages, start=1):
             released = stage_parameters(kinds, identifiability.identifiable)
             if not released:
-                say(f"  stage {i}: nothing identifiable to release ({', '.join(kinds)})")
+                say(f"  stage {i}: nothing identifiable to release ({', '.join(k.lstrip('?') for k in kinds)})")
                 continue
             if last_stage is not None:
                 last_stage.forget()
@@ -441,13 +441,23 @@ def _check_stage_names(config: CalibrationConfig, robot) -> None:
     robot's, and a fixed one is one the stage releases."""
     names = set(robot.parameter_names)
     for i, stage in enumerate(config.stages):
+        listed = [item[1:] for item in stage if item.startswith("?")]
+        for name in listed:  # a {kind, joints} entry's: the joint is the robot's, the kind some listed joint's
+            kind, joint = split_name(name)
+            if not 1 <= joint <= robot.n_links:
+                raise InputError(config.path, f"stages[{i}]", f"{{kind: {kind}, joints}}: joint {joint} is not one "
+                                 f"of {robot.name}'s {robot.n_links}")  # fmt: skip
+        for kind in sorted({split_name(name)[0] for name in listed}):
+            if not any(split_name(n)[0] == kind and n in names for n in listed):
+                raise InputError(config.path, f"stages[{i}]", f"{{kind: {kind}, joints}}: none of the joints listed "
+                                 f"has a parameter {kind} on {robot.name}")  # fmt: skip
         for item in stage:
             name = item.removeprefix("!")
-            if name in STAGE_KINDS:
+            if name in STAGE_KINDS or item.startswith("?"):
                 continue
             if name not in names:
                 raise InputError(config.path, f"stages[{i}]", f"{robot.name} has no parameter {name!r}")
-            if item.startswith("!") and not any(kind_label(name) == k or name == k for k in stage):
+            if item.startswith("!") and not any(kind_label(name) == k or name == k or k == f"?{name}" for k in stage):
                 raise InputError(config.path, f"stages[{i}].fix", f"{name}: the stage does not release it")
 
 

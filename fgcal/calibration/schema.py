@@ -40,8 +40,7 @@ Loss = checked(
     {
         "description": LOSS,
         "anyOf": [
-            {"type": "array", "prefixItems": [{"enum": list(LOSSES)}, NUMBER_POSITIVE],
-             "minItems": 2, "maxItems": 2},
+            {"type": "array", "prefixItems": [{"enum": list(LOSSES)}, NUMBER_POSITIVE], "minItems": 2, "maxItems": 2},
             {"const": "none"},
             {"type": "null"},
         ],
@@ -119,7 +118,9 @@ def _release_items(items: Any, where: str) -> list[str]:
             if item["kind"] not in JOINT_KINDS_OF_STAGES:
                 kinds = ", ".join(JOINT_KINDS_OF_STAGES)
                 raise refuse(f"{item['kind']!r} is not a kind of a joint's parameters ({kinds})", here)
-            out += [f"{item['kind']}{joint}" for joint in _joint_numbers(item["joints"], f"{here}.joints")]
+            # "?name": released where the joint has that kind (a tree mixes DH rows and origin joints,
+            # whose kinds differ); calibration.run checks the joints are the robot's.
+            out += [f"?{item['kind']}{joint}" for joint in _joint_numbers(item["joints"], f"{here}.joints")]
         elif isinstance(item, str) and (item in KINDS or re.fullmatch(_PARAMETER, item)):
             out.append(item)
         else:
@@ -151,7 +152,7 @@ def _stages(value: Any) -> Any:
     return out
 
 
-JOINT_KINDS_OF_STAGES = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS)
+JOINT_KINDS_OF_STAGES = (*JOINT_KINDS, *ORIGIN_CORRECTION_KINDS, *MOTION_KINDS, "kc")
 _RELEASE_JSON = {"type": "array", "minItems": 1, "items": {"anyOf": [
     {"enum": list(KINDS)}, {"type": "string", "pattern": _PARAMETER},
     {"type": "object", "required": ["kind", "joints"], "additionalProperties": False, "properties": {
@@ -196,8 +197,9 @@ class Validation(Schema):
     folds: int = Field(None, ge=2, le=50, description="k-fold cross-validation: each of k folds (seeded, or the "
                        "run's order with split: ordered) held out of a fit on the others, the errors pooled; the "
                        "calibration reported is the fit on all configurations")  # fmt: skip
-    fold: int = Field(None, ge=1, description="with folds: run this fold alone (1-based), held out of a fit on the "
-                      "others")
+    fold: int = Field(
+        None, ge=1, description="with folds: run this fold alone (1-based), held out of a fit on the others"
+    )
 
 
 class Identifiability(Schema):

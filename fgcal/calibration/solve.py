@@ -21,8 +21,9 @@ RELATIVE_TOLERANCE, ABSOLUTE_TOLERANCE = 1e-8, 1e-14
 
 def selects(stage: Sequence[str], name: str) -> bool:
     """Whether a stage releases the parameter ``name``: its kind or its name is listed (a
-    ``{kind, joints}`` entry is listed as the names), and no ``"!name"`` holds it fixed."""
-    return (kind_label(name) in stage or name in stage) and f"!{name}" not in stage
+    ``{kind, joints}`` entry is listed as ``"?name"``: where the robot has it), and no ``"!name"``
+    holds it fixed."""
+    return (kind_label(name) in stage or name in stage or f"?{name}" in stage) and f"!{name}" not in stage
 
 
 def stage_parameters(kinds: Sequence[str], identifiable: Sequence[str]) -> list[str]:

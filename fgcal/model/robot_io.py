@@ -23,6 +23,7 @@ Schema (documented in docs/formats.md)::
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
@@ -35,6 +36,8 @@ from ..core.outputs import write_text
 from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, rpy_from_rotation
 from ..core.units import Units, parse_units
+from . import kinematics
+from .ets import homogeneous
 from .joints import DHJoint, ModifiedDHJoint, OriginJoint
 from .parameters import FRAME_LABEL, LENGTH_KINDS, MASS_KIND, is_motion, parameter_names, split_name
 from .robot import MODELS, Robot
@@ -251,7 +254,7 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
                 key, f"{overrides[key]:.3g} is beyond {MAX_MOTION_TERM:.3g} (1 deg or 17 mm): lost motion is "
                 "hundredths of a degree",
             )  # fmt: skip
-    return Robot(
+    robot = Robot(
         name=name,
         joints=tuple(geometries),
         directions=np.array(directions),
@@ -280,6 +283,49 @@ def parse_robot(raw: object, source: str | Path) -> Robot:
         fixed_bodies=_fixed_bodies(doc, units, len(joints)),
         **tree,
     )
+    _refuse_unparallel_coupling(robot, joints)
+    return robot
+
+
+COUPLED_AXES_DEG = 1.0  # a coupled compliance's joints: parallel within this at q = 0
+
+
+def _refuse_unparallel_coupling(robot: Robot, joints: list[Fields]) -> None:
+    """A coupled compliance kc_j deflects joint j by kc_j times joint i's moment about i's axis:
+    the model of parallel joints on one branch (a pitch joint's torque bending the next). Between
+    axes that are not parallel, or joints on different branches, it is no physical coupling, and a
+    robot file stating one is refused rather than fitted."""
+    if not robot.compliance_coupling:
+        return
+    parents = robot.parents if robot.parents is not None else tuple(range(-1, robot.n_links - 1))
+
+    def ancestors(j: int) -> set[int]:
+        out = set()
+        while parents[j] >= 0:
+            j = parents[j]
+            out.add(j)
+        return out
+
+    # By design: the nominal geometry (a calibrated file's corrections tilt the axes a little).
+    nominal = replace(robot, overrides={})
+    chain = nominal.chain
+    q = np.zeros((1, robot.n_joints))
+    frames = homogeneous(kinematics.forward(nominal, nominal.parameter_vector(), q).frames_rigid[:, 0])
+
+    def axis(i: int) -> np.ndarray:
+        k = chain.carriers[i]
+        return frames[k + 1][:3, "xyz".index(chain.elements[k].axis[1])]
+
+    for j, i in robot.compliance_coupling:
+        field = "compliance.coupled_from"
+        if i not in ancestors(j) and j not in ancestors(i):
+            raise joints[j].error(field, f"joint {i + 1} is on another branch than joint {j + 1}: a coupled "
+                                  "compliance is between parallel joints of one branch")  # fmt: skip
+        angle = np.degrees(np.arccos(np.clip(abs(float(axis(i) @ axis(j))), 0.0, 1.0)))
+        if angle > COUPLED_AXES_DEG:
+            raise joints[j].error(field, f"joint {i + 1}'s axis is {angle:.1f} deg from joint {j + 1}'s at q = 0: a "
+                                  "coupled compliance is between parallel joints (a pitch joint's torque bending the "
+                                  "next)")  # fmt: skip
 
 
 MAX_RATING = 1e6  # rad/s, m/s, N m or N: beyond is a typo, not a robot
@@ -372,8 +418,7 @@ def _tree(doc: Fields, units: Units, parents: list[int]) -> dict:
             calibrated.append(name)
         if tip.has("payload"):
             load = tip.sub("payload")
-            payloads.append((name, load.number("mass", 0.0, nonnegative=True), load.vector("com", 3, [0, 0, 0],
-                                                                                          units.to_m)))  # fmt: skip
+            payloads.append((name, load.number("mass", nonnegative=True), load.vector("com", 3, scale=units.to_m)))
     names = [name for name, _, _ in tips] + [out.get("flange_name", "flange")]
     if len(set(names)) != len(names):
         raise doc.error("tips", f"tip names must differ (and differ from the flange's): {names}")
@@ -419,7 +464,7 @@ def _fixed_bodies(doc: Fields, units: Units, n: int) -> tuple[tuple[str, int, fl
         if name in [b[0] for b in out]:
             raise body.error("name", f"bodies' names must differ: {name!r} twice")
         out.append((name, body.integer("joint", minimum=0, maximum=n) - 1, body.number("mass", nonnegative=True),
-                    body.vector("com", 3, [0, 0, 0], units.to_m)))  # fmt: skip
+                    body.vector("com", 3, scale=units.to_m)))  # fmt: skip
     return tuple(out)
 
 

@@ -104,8 +104,12 @@ class Compliance(Schema):
 
 
 class TipPayload(Schema):
-    mass: Number = Field(0.0, ge=0, description="kg")
-    com: vector(3) = Field([0.0, 0.0, 0.0], description=f"centre of mass in the tip's frame, {LENGTH}")
+    """A load on a tip, both stated: a payload without its mass or centre of mass is a typing slip."""
+
+    mass: Number = Field(ge=0, description="kg")
+    com: vector(3) = Field(
+        description=f"centre of mass in the tip's frame (moves with frame.TIP.* when calibrated), {LENGTH}"
+    )
 
 
 class Body(Schema):
@@ -114,7 +118,7 @@ class Body(Schema):
     name: str
     joint: int = Field(ge=0, description="1-based joint whose link carries the body; 0 the base")
     mass: Number = Field(ge=0, description="kg")
-    com: vector(3) = Field([0.0, 0.0, 0.0], description=f"centre of mass in that link's frame, {LENGTH}")
+    com: vector(3) = Field(description=f"centre of mass in that link's frame, {LENGTH}")
 
 
 class Joint(Schema):

@@ -45,6 +45,9 @@ def report_dict(result: CalibrationResult) -> dict:
         for partner in partners:
             absorbs.setdefault(partner, []).append(fixed)
     deflections, angles = compliance_effects(result)
+    # Joints the robot file models as elastic (bending about the parent's axes, or coupled): a
+    # lightweight arm's or a humanoid's, which bend beyond what an industrial joint does.
+    elastic = {*problem.robot.parent_axis, *(j for j, _ in problem.robot.compliance_coupling)}
     parameters = {}
     released_by_stages = set(releasable(problem.candidates, config.stages))
     held = result.held_from_earlier_stages
@@ -79,7 +82,7 @@ def report_dict(result: CalibrationResult) -> dict:
                 entry["flag"] = "negative compliance beyond 2 sigma: an effective correction, not a stiffness"
             elif estimate[name] < 0:
                 entry["flag"] = "negative, but within 2 sigma of zero"
-            elif angles[name] > PLAUSIBLE_JOINT_DEFLECTION_RAD:
+            elif angles[name] > PLAUSIBLE_JOINT_DEFLECTION_RAD and split_name(name)[1] - 1 not in elastic:
                 entry["flag"] = (
                     f"implausible: it deflects its joint by up to {angles[name] * 1e3:.3g} mrad under gravity, beyond "
                     f"the {PLAUSIBLE_JOINT_DEFLECTION_RAD * 1e3:g} mrad any industrial joint bends; an effective "

@@ -138,9 +138,9 @@ def warnings(result: CalibrationResult) -> list[str]:
         listed = ", ".join(f"{name} (stage {k})" for name, k in list(held.items())[:6])
         more = f" and {len(held) - 6} more" if len(held) > 6 else ""
         out.append(
-            f"{len(held)} parameters were estimated in an earlier stage and held there by the last one, which does "
-            f"not release them: {listed}{more}; their uncertainty is in no sigma and no predicted accuracy of this "
-            "report (release them in the last stage)"
+            f"{_count(len(held), 'parameter')} estimated in an earlier stage and held there by the last one, which "
+            f"does not release them (or fixes them): {listed}{more}; their uncertainty is in no sigma and no predicted "
+            "accuracy of this report (release them in the last stage)"
         )
     if against:
         listed = ", ".join(f"{name} ({sigmas:.3g} sigma)" for name, sigmas in against[:6])
@@ -297,3 +297,8 @@ def predicted_sigma(result: CalibrationResult) -> dict | None:
 
 
 PREDICTION_TOLERANCE = 1.5
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 parameter was`` or ``3 parameters were``."""
+    return f"{n} {noun} was" if n == 1 else f"{n} {noun}s were"
