@@ -13,6 +13,7 @@ from .base import (
     gaussian,
     point_jacobian,
 )
+from .contact import PlaneContacts, SelfContacts
 from .kinematics import Kinematics
 from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
@@ -31,11 +32,13 @@ __all__ = [
     "MeasurementSet",
     "OutsideModelError",
     "ParameterBoundFactor",
+    "PlaneContacts",
     "PointPairs",
     "Poses",
     "Projections",
     "RandomWalkFactor",
     "RobustLoss",
+    "SelfContacts",
     "SocketSpacings",
     "StaticProjections",
     "TouchPoints",

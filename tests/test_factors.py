@@ -16,11 +16,13 @@ from fgcal.factors import (
     MeasurementFactor,
     MeasurementSet,
     ParameterBoundFactor,
+    PlaneContacts,
     PointPairs,
     Poses,
     Projections,
     RandomWalkFactor,
     RobustLoss,
+    SelfContacts,
     SocketSpacings,
     StaticProjections,
     TouchPoints,
@@ -163,6 +165,20 @@ def _measurement_sets():
         sets.append((touches, values))
         if released:  # the spacings have no P: once is enough
             sets.append((SocketSpacings(8, 3, np.array([[0, 1], [2, 0]]), np.array([0.4, 0.7]), 1e-4, robust), values))
+        # Self-contact (balls on two tips touching) and contacts with planes, radii estimated or known.
+        values.insert(9, RNG.normal(0, 0.1, 9))  # three balls' centres on their tips
+        values.insert(10, RNG.uniform(0.01, 0.03, 3))  # their radii
+        values.insert(11, np.r_[RNG.normal(0, 0.1, 2), 0.4, RNG.normal(0, 0.1, 2), -0.3])  # two planes (a1, a2, d)
+        rows_a, rows_b = np.array([0, 1, 2, 2]), np.array([1, 2, 0, 1])
+        elements_a, elements_b = np.array([0, 1, 2, 0]), np.array([1, 2, 0, 2])
+        sets.append((SelfContacts(model, key, 9, 10, 3, rows_a, rows_b, elements_a, elements_b, 1e-4, robust), values))
+        sets.append((SelfContacts(model, key, 9, None, 3, rows_a, rows_b, elements_a, elements_b, 1e-4, robust,
+                                  radii=np.array([0.02, 0.025, 0.015])), values))  # fmt: skip
+        normals = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+        rows, elements, planes = np.array([0, 1, 2, 2]), np.array([0, 1, 2, 0]), np.array([0, 1, 1, 0])
+        sets.append((PlaneContacts(model, key, 9, 10, 11, 3, normals, rows, elements, planes, 1e-4, robust), values))
+        sets.append((PlaneContacts(model, key, 9, None, 11, 3, normals, rows, elements, planes, 1e-4, robust,
+                                   radii=np.array([0.02, 0.025, 0.015])), values))  # fmt: skip
     return sets
 
 
