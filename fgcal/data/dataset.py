@@ -33,6 +33,8 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
   or a board's pose in a camera: position and unit quaternion)
 - distances: ``config, pivot, distance`` (a ballbar from the tool ball to the fixed pivot)
 - tool_distances: ``config_a, config_b, distance`` (between the tool ball at two configurations)
+- contacts: ``config, element_a, element_b`` (two contact elements of dataset.yaml contact touch)
+- plane_contacts: ``config, element, plane`` (a contact element touches a plane of dataset.yaml contact)
 """
 
 from __future__ import annotations
@@ -75,6 +77,8 @@ TABLES = {
     "tracker_poses": (("config",), ("x", "y", "z", "qw", "qx", "qy", "qz"), ("length",) * 3 + ("unitless",) * 4),
     "distances": (("config", "pivot"), ("distance",), "length"),
     "tool_distances": (("config_a", "config_b"), ("distance",), "length"),
+    "contacts": (("config", "element_a", "element_b"), (), "length"),
+    "plane_contacts": (("config", "element", "plane"), (), "length"),
 }
 MEASUREMENTS = MEASURED  # the tables a dataset may list as measured (data.schema: one list)
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
@@ -93,6 +97,27 @@ class Table:
 
     def __len__(self) -> int:
         return len(self.values)
+
+
+@dataclass(frozen=True)
+class ContactElement:
+    """A ball on a tip (dataset.yaml contact.elements), its drawing's values (SI)."""
+
+    tip: str
+    centre: np.ndarray  # (3,) in the tip's frame
+    radius: float
+
+
+@dataclass(frozen=True)
+class ContactSetup:
+    """dataset.yaml contact: the elements and planes (nominal, SI) and the priors' sigmas."""
+
+    elements: dict[str, ContactElement]
+    planes: dict[str, tuple[np.ndarray, float]]  # name -> (unit normal in W, offset)
+    position_sigma_m: float = 2e-3
+    radius_sigma_m: float = 2e-6
+    plane_angle_sigma_rad: float | None = None
+    plane_offset_sigma_m: float | None = None
 
 
 @dataclass
@@ -115,6 +140,7 @@ class Dataset:
     # The tip of a tree that carries what is measured (a probe, a ball, a board, reflectors not
     # listed in tracker.tips): dataset.yaml tip; None: the flange.
     tip: str | None = None
+    contact: ContactSetup | None = None  # dataset.yaml contact (contact elements and planes)
 
     @property
     def motion_history(self) -> MotionHistory:
@@ -305,7 +331,7 @@ def _table(path: Path, name: str, units: Units) -> Table:
 # The id columns that name one measurement (a point of the drawing is named by its point alone);
 # a distance between a and b is the distance between b and a.
 KEY_COLUMNS = {"points": ("point",)}
-UNORDERED = ("point_distances", "tool_distances")
+UNORDERED = ("point_distances", "tool_distances", "contacts")
 
 
 def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
@@ -419,6 +445,11 @@ def load_dataset(path: str | Path) -> Dataset:
                 "target",
                 f"target {bad[0]!r} is not in dataset.yaml tracker.targets ({', '.join(sorted(declared))})",
             )
+    if doc.has("contact"):
+        dataset.contact = _contact(doc.sub("contact"), units, dataset.robot)
+    for name in ("contacts", "plane_contacts"):
+        if name in dataset.tables:
+            _check_contacts(dataset, name, _inside(root, files, name), doc)
     if doc.has("camera"):
         cam = doc.sub("camera")
         dataset.camera = parse_camera(cam)
@@ -479,6 +510,70 @@ def target_tips(tips: Fields, declared: set[str], robot: Robot) -> dict[str, str
             raise tips.error(str(target), robot.tip_error(tip))
         out[str(target)] = robot.flange_name if tip == "flange" else tip
     return out
+
+
+def _contact(section: Fields, units: Units, robot: Robot) -> ContactSetup:
+    """dataset.yaml contact: elements on tips of the robot, planes with a nonzero normal (SI)."""
+    elements = {}
+    listed = section.sub("elements")
+    for name in listed.data:
+        element = listed.sub(str(name))
+        tip = element.string("tip")
+        if robot.tip_error(tip):
+            raise element.error("tip", robot.tip_error(tip))
+        elements[str(name)] = ContactElement(
+            robot.flange_name if tip == "flange" else tip,
+            element.vector("xyz", 3, scale=units.to_m),
+            element.number("radius", scale=units.to_m, positive=True),
+        )
+    if not elements:
+        raise section.error("elements", "no contact element")
+    planes = {}
+    if section.has("planes"):
+        listed = section.sub("planes")
+        for name in listed.data:
+            plane = listed.sub(str(name))
+            normal = plane.vector("normal", 3)
+            if not np.linalg.norm(normal) > 1e-9:
+                raise plane.error("normal", "a plane's normal must not be zero")
+            planes[str(name)] = (normal / np.linalg.norm(normal), plane.number("offset", scale=units.to_m))
+    optional = {
+        key: section.number(key, None, scale, positive=True) if section.has(key) else None
+        for key, scale in (("position_sigma", units.to_m), ("radius_sigma", units.to_m),
+                           ("plane_angle_sigma", units.to_rad), ("plane_offset_sigma", units.to_m))
+    }  # fmt: skip
+    return ContactSetup(
+        elements,
+        planes,
+        optional["position_sigma"] or ContactSetup.position_sigma_m,
+        optional["radius_sigma"] or ContactSetup.radius_sigma_m,
+        optional["plane_angle_sigma"],
+        optional["plane_offset_sigma"],
+    )
+
+
+def _check_contacts(dataset: Dataset, name: str, path: Path, doc: Fields) -> None:
+    """Contacts name elements (and planes) of dataset.yaml contact; a ball never touches itself."""
+    if dataset.contact is None:
+        raise doc.error("contact", f"the {name} table needs the contact section (its elements and planes)")
+    table = dataset.tables[name]
+    columns = ("element_a", "element_b") if name == "contacts" else ("element",)
+    for column in columns:
+        for line, element in enumerate(table.ids[column], start=2):
+            if element not in dataset.contact.elements:
+                known = ", ".join(sorted(dataset.contact.elements))
+                raise InputError(path, f"line {line}, column {column}", f"element {element!r} is not in "
+                                 f"dataset.yaml contact.elements ({known})")  # fmt: skip
+    if name == "contacts":
+        for line, (a, b) in enumerate(zip(table.ids["element_a"], table.ids["element_b"], strict=True), start=2):
+            if a == b:
+                raise InputError(path, f"line {line}", f"a contact joins two different elements, got {a!r} twice")
+    else:
+        for line, plane in enumerate(table.ids["plane"], start=2):
+            if plane not in dataset.contact.planes:
+                known = ", ".join(sorted(dataset.contact.planes)) or "none"
+                raise InputError(path, f"line {line}, column plane", f"plane {plane!r} is not in "
+                                 f"dataset.yaml contact.planes ({known})")  # fmt: skip
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:

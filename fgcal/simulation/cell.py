@@ -159,9 +159,29 @@ class StaticCameraSetup:
     max_view_angle_rad: float  # between the board's normal and the line of sight
 
 
+@dataclass(frozen=True)
+class ContactCellSetup:
+    """Balls on the tips of a tree touching each other and planes of the cell (SI): the drawing's
+    (nominal) values, how far the truth is off them, and how many contacts are made."""
+
+    names: tuple[str, ...]
+    tips: tuple[str, ...]
+    centres: np.ndarray  # (k, 3) on their tips, nominal
+    radii: np.ndarray  # (k,)
+    plane_names: tuple[str, ...]
+    normals: np.ndarray  # (p, 3) unit, nominal, in W
+    offsets: np.ndarray  # (p,)
+    self_contacts: int
+    plane_contacts: int  # per ball and plane
+    centre_error_m: float
+    plane_angle_error_rad: float
+    plane_offset_error_m: float
+    position_sigma_m: float
+
+
 # What can measure in a cell, the more specific first: a 6D probe is a tracker's too, and a
-# camera cell has a tracker besides.
-INSTRUMENTS = ("static_camera", "touch", "ballbar", "tracker_probe", "camera", "tracker")
+# camera cell has a tracker besides; a robot touching itself carries a tracker for validation.
+INSTRUMENTS = ("static_camera", "touch", "ballbar", "self_contact", "planes", "tracker_probe", "camera", "tracker")
 
 
 @dataclass(frozen=True)
@@ -196,6 +216,8 @@ class Cell:
     tracker_acceptance_rad: np.ndarray | None = None  # (m,); None: the default acceptance
     tip: str = "flange"  # the tree's tip carrying the probe, ball, board or reflectors (cell tip:)
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
+    contact: ContactCellSetup | None = None  # balls on the tips touching each other and planes
+    contact_sigma_m: float = 0.0
 
     @property
     def instruments(self) -> list[str]:
@@ -204,6 +226,8 @@ class Cell:
             "static_camera": self.static_camera is not None,
             "touch": self.touch is not None,
             "ballbar": self.ballbar is not None,
+            "self_contact": self.contact is not None and self.contact.self_contacts > 0,
+            "planes": self.contact is not None and self.contact.plane_contacts > 0 and bool(self.contact.plane_names),
             "tracker_probe": self.tracker_probe is not None,
             "camera": self.camera is not None,
             "tracker": self.has_tracker,
@@ -356,6 +380,43 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
     )
 
 
+def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> ContactCellSetup:
+    names, tips, centres, radii = [], [], [], []
+    for ball in section.sub_list("elements"):
+        tip = ball.string("tip")
+        if robot.tip_error(tip):
+            raise ball.error("tip", robot.tip_error(tip))
+        names.append(ball.string("name"))
+        tips.append(robot.flange_name if tip == "flange" else tip)
+        centres.append(ball.vector("xyz", 3, scale=to_m))
+        radii.append(ball.number("radius", scale=to_m, positive=True))
+    plane_names, normals, offsets = [], [], []
+    for plane in section.sub_list("planes") if section.has("planes") else []:
+        normal = plane.vector("normal", 3)
+        if not np.linalg.norm(normal) > 1e-9:
+            raise plane.error("normal", "a plane's normal must not be zero")
+        plane_names.append(plane.string("name"))
+        normals.append(normal / np.linalg.norm(normal))
+        offsets.append(plane.number("offset", scale=to_m))
+    for what, labels in (("elements", names), ("planes", plane_names)):
+        if len(set(labels)) != len(labels):
+            raise section.error(what, f"duplicate name among {labels}")
+    if not names:
+        raise section.error("elements", "at least one ball")
+    self_contacts = section.integer("self_contacts", 40, minimum=0)
+    if self_contacts and (len(names) < 2 or tips[0] == tips[1]):
+        raise section.error("self_contacts", "join the first two balls, which must be on two different tips")
+    return ContactCellSetup(
+        tuple(names), tuple(tips), np.array(centres), np.array(radii), tuple(plane_names),
+        np.array(normals).reshape(-1, 3), np.array(offsets), self_contacts,
+        section.integer("plane_contacts", 12, minimum=0),
+        section.number("centre_error", 1e-3 / to_m, to_m, nonnegative=True),
+        section.number("plane_angle_error", np.radians(1.0) / to_rad, to_rad, nonnegative=True),
+        section.number("plane_offset_error", 5e-3 / to_m, to_m, nonnegative=True),
+        section.number("position_sigma", 2e-3 / to_m, to_m, positive=True),
+    )  # fmt: skip
+
+
 def _static_camera(section: Fields, to_m: float, to_rad: float) -> StaticCameraSetup:
     board = section.sub("board")
     corners = board.vector("corners", 2)
@@ -449,8 +510,9 @@ def load_cell(path: str | Path) -> Cell:
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
     static = _static_camera(doc.sub("static_camera"), to_m, to_rad) if doc.has("static_camera") else None
+    contact = _contact(doc.sub("contact"), robot, to_m, to_rad) if doc.has("contact") else None
     setups = [key for key, setup in (("camera", camera), ("touch", touch), ("ballbar", ballbar),
-              ("static_camera", static)) if setup is not None]  # fmt: skip
+              ("static_camera", static), ("contact", contact)) if setup is not None]  # fmt: skip
     if len(setups) > 1:
         raise doc.error(setups[1], f"a cell has one of camera, touch, ballbar and static_camera; got {setups}")
     noise = doc.sub("noise", {})
@@ -468,7 +530,7 @@ def load_cell(path: str | Path) -> Cell:
 
     motion = _motion_truth(doc, robot.n_joints, to_rad)
     if motion is not None:
-        if touch is not None or ballbar is not None or static is not None:
+        if touch is not None or ballbar is not None or static is not None or contact is not None:
             raise doc.error("motion_history", "is simulated in tracker and flange-camera cells only")
         robot = robot.with_model("DH,s,e,h")
 
@@ -506,6 +568,8 @@ def load_cell(path: str | Path) -> Cell:
         ballbar=ballbar,
         distance_sigma_m=noise.number("distance_sigma", 2e-6 / to_m, to_m, nonnegative=True),
         static_camera=static,
+        contact=contact,
+        contact_sigma_m=noise.number("contact_sigma", 5e-6 / to_m, to_m, nonnegative=True),
         motion=motion,
         # A tracker section declares one; a cell with no other instrument is a tracker cell.
         has_tracker=doc.has("tracker") or not setups,

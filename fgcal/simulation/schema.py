@@ -121,6 +121,34 @@ class Ballbar(Schema):
     between_configurations: Between = None
 
 
+class ContactBall(Schema):
+    name: str
+    tip: str = Field(description="the robot's tip (or flange) the ball is on")
+    xyz: vector(3) = Field(description=f"the ball's centre on its tip (the drawing's), {LENGTH}")
+    radius: Number = Field(gt=0, description=LENGTH)
+
+
+class ContactPlane(Schema):
+    name: str
+    normal: vector(3) = Field(description="its nominal normal in W, towards the robot")
+    offset: Number = Field(description=f"its nominal distance from W's origin along the normal, {LENGTH}")
+
+
+class Contact(Schema):
+    """Contact elements (balls on the tips of a tree) touching each other and planes of the cell."""
+
+    elements: list[ContactBall] = Field(description="at least one; self-contacts join the first two")
+    planes: list[ContactPlane] = None
+    self_contacts: int = Field(40, ge=0, le=MAX_CONFIGURATIONS // 2, description="contacts of the first two balls")
+    plane_contacts: int = Field(12, ge=0, le=1000, description="contacts of each ball with each plane")
+    centre_error: Number = Field(None, ge=0, description=f"the true centres off the drawing's, {LENGTH} (default 1 mm)")
+    plane_angle_error: Number = Field(
+        None, ge=0, description=f"the true planes' tilt off nominal, {ANGLE} (default 1 deg)"
+    )
+    plane_offset_error: Number = Field(None, ge=0, description=f"the true planes off nominal, {LENGTH} (default 5 mm)")
+    position_sigma: Number = Field(None, gt=0, description=f"the dataset's prior on a centre, {LENGTH} (default 2 mm)")
+
+
 class StaticBoard(Schema):
     mount: Pose = Field(None, description="the board on the flange")
     corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2")
@@ -146,6 +174,9 @@ class CellNoise(Schema):
     touch_sigma: Number = Field(None, ge=0, description=f"{LENGTH} (default 10 um)")
     spacing_sigma: Number = Field(None, ge=0, description=f"{LENGTH} (default 5 um)")
     distance_sigma: Number = Field(None, ge=0, description=f"{LENGTH} (default 2 um)")
+    contact_sigma: Number = Field(
+        None, ge=0, description=f"{LENGTH}: how far from touching a contact closes (default 5 um)"
+    )
 
 
 class Perturbation(Schema):
@@ -199,6 +230,7 @@ class CellFile(Schema):
     touch: Touch = None
     ballbar: Ballbar = None
     static_camera: StaticCamera = None
+    contact: Contact = None
     noise: CellNoise = None
     perturbation: Perturbation = None
     motion_history: MotionHistory = None
