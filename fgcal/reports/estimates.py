@@ -44,6 +44,9 @@ SECTIONS = {
     "touch_points": "points",
     "pivots": "points",
     "intrinsics": "vector",
+    "contact_centres": "points",
+    "contact_radii": "vector",
+    "contact_planes": "vector",
 }
 INTRINSICS = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3")
 
@@ -116,6 +119,8 @@ def load_estimates(path: str | Path) -> dict:
             out[key] = pose_from_xyz_rpy(np.zeros(3), section.vector("rpy", 3))[:3, :3]
         elif kind == "points":
             out[key] = {str(name): section.sub(str(name)).vector("xyz", 3) for name in section.data}
-        else:
+        elif key == "intrinsics":
             out[key] = np.array([section.number(name) for name in INTRINSICS])
+        else:  # named entries, in the file's order
+            out[key] = np.array([section.number(str(name)) for name in section.data if name != "sigma"])
     return out

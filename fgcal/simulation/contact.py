@@ -136,9 +136,15 @@ def contact_design(
                 break
             q = _starts(robot, 4 * missing + 16, design_rng)
             targets, ok = targets_of(q)
-            for (tip, k), target in zip(moves, targets, strict=True):
-                q, converged = reach(robot, true_params, q, tip, truth.centres[k], target, own_joints(robot, tips, tip))
-                ok &= converged
+            # Moving one arm bends the torso under the arm's weight, which moves the other ball
+            # a little: the arms take turns until both stay (compliant robots).
+            for _ in range(3 if len(moves) > 1 else 1):
+                reached = np.ones(len(q), dtype=bool)
+                for (tip, k), target in zip(moves, targets, strict=True):
+                    joints = own_joints(robot, tips, tip)
+                    q, converged = reach(robot, true_params, q, tip, truth.centres[k], target, joints)
+                    reached &= converged
+            ok &= reached
             found += list(q[ok][:missing])
         if len(found) < count:
             raise InputError(

@@ -119,7 +119,7 @@ class Planes(Formulation):
             mine = observations.planes == k
             planes[k, 2] = np.mean(balls[mine] @ normal - radii[observations.elements[mine]])
         prior = _plane_prior(dataset, observations.plane_names)
-        aux[PLANES] = Auxiliary("vector", planes.reshape(-1), observations.plane_names, *prior)
+        aux[PLANES] = Auxiliary("vector", planes.reshape(-1), plane_labels(observations.plane_names), *prior)
         return State(params, aux)
 
     def measurement_sets(
@@ -171,8 +171,15 @@ class Planes(Formulation):
             normal = np.asarray(normal) / np.linalg.norm(normal)
             # The chart's coordinates of the true normal: n0 + B a is parallel to it.
             planes.append([*(complement_basis(n0).T @ normal / (n0 @ normal)), offset])
-        aux[PLANES] = Auxiliary("vector", np.array(planes, dtype=float).reshape(-1), observations.plane_names)
+        labels = plane_labels(observations.plane_names)
+        aux[PLANES] = Auxiliary("vector", np.array(planes, dtype=float).reshape(-1), labels)
         return robot, State(robot.parameter_vector(truth.parameters), aux)
+
+
+def plane_labels(names: tuple[str, ...]) -> tuple[str, ...]:
+    """A plane's three entries: its normal's tilt off the nominal in the chart's two directions
+    (about rad for small tilts) and its offset (m)."""
+    return tuple(f"{name}.{entry}" for name in names for entry in ("tilt_1", "tilt_2", "offset_m"))
 
 
 def _nominal_normals(dataset: Dataset, names: tuple[str, ...]) -> np.ndarray:
