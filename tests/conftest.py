@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import fgcal
 
@@ -123,3 +124,44 @@ def random_urdf(path: Path, rng: np.random.Generator, n_joints: int = 6, prismat
     parts += [fixed("tool0_joint", "flange", "tool0"), "</robot>"]
     path.write_text("\n".join(parts), encoding="utf-8")
     return path
+
+
+def merge_datasets(sources: dict[str, Path], out: Path) -> Path:
+    """One dataset folder holding the tables of several simulated datasets of the same robot (a
+    cell measured by several instruments): each one's configuration ids prefixed with its key
+    (``tracker/c0000``), its tables and noise merged; the first one's payload. No truth."""
+    import csv
+
+    out.mkdir(parents=True, exist_ok=True)
+    header: dict = {}
+    rows: list[list[str]] = []
+    tables: dict[str, list[list[str]]] = {}
+    for key, source in sources.items():
+        doc = yaml.safe_load((source / "dataset.yaml").read_text())
+        if not header:
+            header = {k: v for k, v in doc.items() if k not in ("files", "measured", "noise", "source")}
+            header.update(measured=[], files={"configurations": "configurations.csv"}, noise={})
+        header["noise"].update(doc.get("noise") or {})
+        header.update({k: v for k, v in doc.items() if k == "tracker"})
+        with open(source / "configurations.csv") as f:
+            lines = list(csv.reader(f))
+        rows = rows or [lines[0]]
+        rows += [[f"{key}/{line[0]}", *line[1:]] for line in lines[1:]]
+        for table in doc["measured"]:
+            with open(source / doc["files"][table]) as f:
+                lines = list(csv.reader(f))
+            columns = [i for i, name in enumerate(lines[0]) if name.startswith("config")]
+            body = [[f"{key}/{v}" if i in columns else v for i, v in enumerate(line)] for line in lines[1:]]
+            tables.setdefault(table, [lines[0]]).extend(body)
+            if table not in header["measured"]:
+                header["measured"].append(table)
+                header["files"][table] = f"{table}.csv"
+        for name in doc["files"]:
+            if name not in doc["measured"] and name != "configurations" and not (out / doc["files"][name]).exists():
+                header["files"][name] = doc["files"][name]
+                (out / doc["files"][name]).write_bytes((source / doc["files"][name]).read_bytes())
+    for table, lines in {"configurations": rows, **tables}.items():
+        with open(out / f"{table}.csv", "w", newline="") as f:
+            csv.writer(f).writerows(lines)
+    (out / "dataset.yaml").write_text(yaml.safe_dump(header, sort_keys=False))
+    return out

@@ -15,7 +15,7 @@ from ..core.schema import validate
 from ..core.units import Units, parse_units
 from ..data.dataset import MEASUREMENTS
 from ..model.parameters import MASS_KIND
-from .formulations import NAMES, from_measured
+from .formulations import NAMES, REGISTRY, from_measured
 from .priors import Priors, parse_priors
 from .schema import CalibrationConfig as ConfigSchema
 from .schema import Identifiability, Pairs, PriorSigma, Robust, Solver, Validation
@@ -32,6 +32,23 @@ SEED_STAGES = (
      "lm", "lv", MASS_KIND),
 )  # fmt: skip
 ONE_SHOT = (SEED_STAGES[-1],)
+
+
+@dataclass(frozen=True)
+class SetConfig:
+    """One measurement set of a config with several (``sets:``): its name, registered formulation,
+    use (fit or validation), and what its formulation reads (noise, robust losses, options)."""
+
+    name: str
+    formulation: str
+    use: str
+    measurement: MeasurementSettings
+    pixels_from: str = "table"
+    stated_options: frozenset[str] = frozenset()
+
+
+# The top-level fields a config with sets: states per set instead.
+PER_SET = ("formulation", "noise", "robust", "pairs", "fixture_orientation", "pixels_from", "intrinsics")
 
 
 @dataclass(frozen=True)
@@ -77,6 +94,8 @@ class CalibrationConfig:
     # the calibrate command runs every fold and the fit on all (calibration.cross_validation).
     folds: int | None = None
     fold: int | None = None
+    # Several measurement sets (sets:); empty: the one formulation of the fields above.
+    sets: tuple[SetConfig, ...] = ()
 
     @property
     def noise(self):
@@ -145,15 +164,68 @@ def _formulation(config: ConfigSchema, source: Path, header: Path, dataset: dict
     return readers[0], f"not given: the dataset's measured tables ({', '.join(map(str, measured))}){others}"
 
 
-def _robust(robust: Robust, source: Path) -> dict[str, tuple[str, float] | None]:
+def _robust(robust: Robust, source: Path, prefix: str = "") -> dict[str, tuple[str, float] | None]:
     """Each measurement kind's loss: (huber|cauchy, threshold in robust sigmas), or None (null or
     none: least squares)."""
     out = {}
     for key in ROBUST_DEFAULTS:
         loss = getattr(robust, key)
         off = loss is None or loss == "none"
-        out[key] = None if off else (str(loss[0]), to_float(loss[1], source, f"robust.{key}[1]"))
+        out[key] = None if off else (str(loss[0]), to_float(loss[1], source, f"{prefix}robust.{key}[1]"))
     return out
+
+
+def _measurement(section, units: Units, source: Path, prefix: str = "", tool_points=None) -> tuple:
+    """What a config (or one of its sets, ``prefix`` ``sets[i].``) says about its measurements:
+    the MeasurementSettings and the formulation-specific options it states (dotted)."""
+    noise = stated_noise(section.noise.model_dump(exclude_unset=True) if section.noise else None, units, source,
+                         f"{prefix}noise")  # fmt: skip
+    pairs = section.pairs or Pairs()
+    measurement = MeasurementSettings(
+        source=source,
+        noise=Noise.stated(noise),
+        noise_stated=noise,
+        robust=_robust(section.robust or Robust(), source, prefix),
+        fixture_orientation=section.fixture_orientation,
+        pairs=PairSettings(pairs.partner, pairs.seed, pairs.group_images, pairs.points_from),
+        intrinsics_prior_sigmas=_intrinsics(section.intrinsics),
+        validation_tool_points=tool_points or {},
+    )
+    given = {key for key in ("pairs", "fixture_orientation", "intrinsics") if key in section.model_fields_set}
+    given |= {f"noise.{key}" for key in (section.noise.model_fields_set if section.noise else ())}
+    given |= {f"robust.{key}" for key in (section.robust.model_fields_set if section.robust else ())}
+    return measurement, frozenset(given)
+
+
+def _sets(config: ConfigSchema, units: Units, source: Path, dataset: dict, tool_points) -> tuple[SetConfig, ...]:
+    """The config's measurement sets (sets:), checked: names unique, at least one fitting set,
+    each one's table among the dataset's measured ones, its options ones its formulation reads."""
+    if config.sets is None:
+        return ()
+    for key in PER_SET:
+        if key in config.model_fields_set:
+            raise InputError(source, key, f"a config with sets: states it per set (sets[i].{key})")
+    measured = dataset.get("measured") if isinstance(dataset.get("measured"), list) else None
+    out, names = [], set()
+    for i, entry in enumerate(config.sets):
+        where = f"sets[{i}]"
+        if entry.name in names:
+            raise InputError(source, f"{where}.name", f"{entry.name!r}: another set has this name")
+        names.add(entry.name)
+        formulation = REGISTRY[entry.formulation]
+        if measured is not None and entry.pixels_from == "table" and formulation.kind not in measured:
+            raise InputError(source, f"{where}.formulation", f"{entry.formulation} reads {formulation.kind}, and the "
+                             f"dataset measured {', '.join(map(str, measured)) or 'nothing'}")  # fmt: skip
+        measurement, given = _measurement(entry, units, source, f"{where}.", tool_points)
+        unread = sorted(given - set(formulation.settings_read) - {f"robust.{formulation.kind}"})
+        if entry.pixels_from == "images" and "pixels_from" not in formulation.settings_read:
+            unread.insert(0, "pixels_from")
+        if unread:
+            raise InputError(source, f"{where}.{unread[0]}", f"the {entry.formulation} formulation does not read it")
+        out.append(SetConfig(entry.name, entry.formulation, entry.use, measurement, entry.pixels_from, given))
+    if not any(s.use == "fit" for s in out):
+        raise InputError(source, "sets", "no set is fitted (use: fit): validation sets score a calibration")
+    return tuple(out)
 
 
 def _intrinsics(intrinsics: IntrinsicsSchema | None) -> tuple[float, ...] | None:
@@ -181,7 +253,7 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
         units, units_source = (stated, "the dataset's units: the config states none") if stated else (
             Units(), "SI: neither the config nor the dataset states units"
         )  # fmt: skip
-    formulation, formulation_source = _formulation(config, source, header, dataset_doc)
+    formulation, formulation_source = (None, "") if config.sets else _formulation(config, source, header, dataset_doc)
     schedule, stages = _stages(config, source)
     # None: the seed's joints 1-3 that the robot has (resolved when the robot is known).
     joints = tuple(config.compliant_joints) if config.compliant_joints is not None else None
@@ -203,22 +275,13 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     holdout = validation.holdout if validation.holdout is not None else (
         0.0 if validation_datasets or validation.folds else 0.25
     )  # fmt: skip
-    noise = stated_noise(config.noise.model_dump(exclude_unset=True) if config.noise else None, units, source)
-    pairs = config.pairs or Pairs()
-    measurement = MeasurementSettings(
-        source=source,
-        noise=Noise.stated(noise),
-        noise_stated=noise,
-        robust=_robust(config.robust or Robust(), source),
-        fixture_orientation=config.fixture_orientation,
-        pairs=PairSettings(pairs.partner, pairs.seed, pairs.group_images, pairs.points_from),
-        intrinsics_prior_sigmas=_intrinsics(config.intrinsics),
-        validation_tool_points=validation_tool_points,
-    )
-    given = {key for key in ("pairs", "fixture_orientation", "intrinsics") if key in config.model_fields_set}
-    given |= {f"noise.{key}" for key in (config.noise.model_fields_set if config.noise else ())}
-    given |= {f"robust.{key}" for key in (config.robust.model_fields_set if config.robust else ())}
+    measurement, given = _measurement(config, units, source, "", validation_tool_points)
+    sets = _sets(config, units, source, dataset_doc, validation_tool_points)
+    if sets:
+        formulation, formulation_source = "sets", "the config's sets"
+        measurement = sets[[s.use for s in sets].index("fit")].measurement
     return CalibrationConfig(
+        sets=sets,
         stated_options=frozenset(given),
         path=source,
         dataset=(base / config.dataset),

@@ -18,9 +18,10 @@ import gtsam
 import numpy as np
 
 from ..factors import MeasurementSet, ParameterBoundFactor, RobustLoss, gaussian
+
+__all__ = ["StageGraph", "build_graph", "robust_scale"]
 from .batch import BatchKinematics
-from .goodness import chi_median
-from .problem import Keys, Problem, keys_of, values_of
+from .problem import Keys, Problem, keys_of, robust_scale, values_of
 from .state import State
 
 
@@ -33,7 +34,8 @@ class StageGraph:
     released: list[str]
     state: State  # the state the stage starts from (kinds and labels of the unknowns)
     measurements: list[MeasurementSet]  # the first is the formulation's main set
-    robust_scale: float | None = None  # scale of the robust loss's threshold, when there is one
+    # Scale of the robust loss's threshold, when there is one (per set of a config's sets).
+    robust_scale: float | tuple[float, ...] | None = None
 
     def forget(self) -> None:
         """Free the evaluations cached for this graph, tens of MB at thousands of
@@ -81,26 +83,11 @@ def build_graph(problem: Problem, released: Sequence[str], state: State) -> Stag
 
     measurements = measurement_sets(None)
     stage = StageGraph(graph, values, kinematics, keys, list(released), state, measurements)
-    robust = problem.settings.robust.get(problem.formulation.kind)
+    robust = problem.formulation.robust_loss(problem, measurements, values)
     if robust is not None:
         # The loss's threshold is in units of the residuals' robust scale at the stage's start.
-        kind, threshold = robust
-        stage.robust_scale = robust_scale(measurements[:1], values)
-        stage.measurements = measurement_sets(RobustLoss(kind, threshold * stage.robust_scale))
+        loss, stage.robust_scale = robust
+        stage.measurements = measurement_sets(loss)
     for measurements_set in stage.measurements:
         graph.add(measurements_set.factor().factor)
     return stage
-
-
-def robust_scale(measurements: list[MeasurementSet], values: gtsam.Values) -> float:
-    """Robust scale of the whitened residuals, at least 1: the median norm of the robust
-    units over the median of a chi distribution of their dimension (1.4826 MAD for 1-D).
-
-    A robust loss's threshold is in units of this scale: while the model is still far off,
-    residuals are many sigmas and a fixed 3-sigma threshold would treat them all as
-    outliers; once the model fits, the scale returns to 1 and the threshold to k sigma.
-    """
-    scaled = [m.unit_norms(values) / chi_median(m.unit_dims) for m in measurements]
-    if not scaled:
-        return 1.0
-    return max(1.0, float(np.median(np.concatenate(scaled))))

@@ -37,6 +37,7 @@ from ..factors import MeasurementSet, RobustLoss
 from ..model.parameters import MASS_KIND, MOTION_KINDS, default_compliant_joints, split_name
 from ..model.robot import Robot
 from .batch import BatchKinematics
+from .goodness import chi_median
 from .plan_model import Planning
 from .priors import Priors
 from .settings import MeasurementSettings
@@ -251,6 +252,24 @@ class HeldOut:
     configs: np.ndarray  # (K,)
 
 
+@dataclass(frozen=True)
+class Part:
+    """One measurement set of a calibration (fgcal.calibration.formulations.sets): its name
+    (None: a config's one formulation), its formulation, the problem as that formulation sees it
+    (its settings and observations), its use (fit or validation) and its index (the ``part`` tag of
+    its measurement sets)."""
+
+    name: str | None
+    formulation: Formulation
+    problem: Problem
+    use: str = "fit"
+    index: int = 0
+
+    def sets_of(self, measurements: Sequence[MeasurementSet]) -> list[MeasurementSet]:
+        """This part's among a graph's measurement sets (the first is its main set)."""
+        return [m for m in measurements if getattr(m, "part", 0) == self.index]
+
+
 # -- the formulation protocol -------------------------------------------------------------------
 
 
@@ -351,6 +370,22 @@ class Formulation(ABC):
         candidates are drawn, their whitened rows, the auxiliary unknowns' labels and prior
         sigmas, the scored point and the gauge. None: not planned yet (whatever the settings)."""
         return None
+
+    def parts(self, problem: Problem) -> list[Part]:
+        """The measurement sets of the calibration (a config's ``sets:``); one formulation is one."""
+        return [Part(None, self, problem)]
+
+    def robust_loss(
+        self, problem: Problem, measurements: list[MeasurementSet], values: gtsam.Values
+    ) -> tuple[RobustLoss, float] | None:
+        """The robust loss :meth:`measurement_sets` takes, with its threshold in units of the
+        main set's robust scale at ``values`` (robust_scale), and that scale; None: least squares."""
+        robust = problem.settings.robust.get(self.kind)
+        if robust is None:
+            return None
+        kind, threshold = robust
+        scale = robust_scale(measurements[:1], values)
+        return RobustLoss(kind, threshold * scale), scale
 
     # -- held-out scores and their prediction --------------------------------------------
 
@@ -504,6 +539,20 @@ def main_set(
     sets = problem.formulation.measurement_sets(problem, observations, kinematics, keys, state, None)
     values = values_of(state, keys, kinematics.base[kinematics.index])
     return sets[0], sets[0].read(values)
+
+
+def robust_scale(measurements: list[MeasurementSet], values: gtsam.Values) -> float:
+    """Robust scale of the whitened residuals, at least 1: the median norm of the robust
+    units over the median of a chi distribution of their dimension (1.4826 MAD for 1-D).
+
+    A robust loss's threshold is in units of this scale: while the model is still far off,
+    residuals are many sigmas and a fixed 3-sigma threshold would treat them all as
+    outliers; once the model fits, the scale returns to 1 and the threshold to k sigma.
+    """
+    scaled = [m.unit_norms(values) / chi_median(m.unit_dims) for m in measurements]
+    if not scaled:
+        return 1.0
+    return max(1.0, float(np.median(np.concatenate(scaled))))
 
 
 def through(J: np.ndarray, covariance: np.ndarray) -> np.ndarray:

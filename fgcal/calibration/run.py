@@ -21,6 +21,7 @@ from .by_tip import measured_by_tip
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
+from .formulations.sets import Combined, Member, combined
 from .graph import StageGraph, build_graph, robust_scale
 from .identifiability import Identifiability, analyse, evidence_against_fixing, motion_warning
 from .models import compare_models
@@ -49,7 +50,8 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     """The problem a config poses on a dataset: its formulation, the split into fitting and
     held-out configurations (a separate validation set held out too), the candidate
     parameters and the fitting observations."""
-    formulation = registered(config.formulation)
+    formulation = combined([Member(s.name, registered(s.formulation), s.measurement, s.use) for s in config.sets]) \
+        if config.sets else registered(config.formulation)  # fmt: skip
     if config.residual_model != "none":
         check_residual_model(formulation, config.path)
     robot = dataset.robot.with_model(config.model)
@@ -64,7 +66,7 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     detection = None
     if config.pixels_from == "images" and "pixels_from" not in formulation.settings_read:
         raise InputError(config.path, "pixels_from", f"images: the {formulation.name} formulation reads no pixels")
-    if config.pixels_from == "images":
+    if config.pixels_from == "images" or any(s.pixels_from == "images" for s in config.sets):
         from ..data.images import detect_images
 
         detections = detect_images(dataset, progress=say)
@@ -72,9 +74,10 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         detection = Detection(len(dataset.configs), detections.corners, detections.rejected, tuple(detections.skipped))
     # The noise in effect: fgcal's defaults, what the instrument states (the dataset), what the
     # config states, the later winning.
-    settings = dataclasses.replace(
-        config.measurement, noise=Noise.stated(dataset.noise, config.measurement.noise_stated)
-    )
+    settings = _in_effect(config.measurement, dataset)
+    if config.sets:
+        formulation = combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
+                                for s in config.sets])  # fmt: skip
     if config.folds is not None and len(dataset.configs) < 2 * config.folds:  # a fold of one, and the rest
         raise InputError(config.path, "validation.folds", f"{config.folds} folds of {len(dataset.configs)} "
                          "configurations: at least two configurations a fold")  # fmt: skip
@@ -96,6 +99,10 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     config.priors.check_names(robot.parameter_names, robot.name)
     _check_stage_names(config, robot)
     test = np.concatenate([test, *(indices for _, indices in validation_sets)]).astype(int)
+    if isinstance(formulation, Combined):
+        observations = formulation.observations(dataset, fit, test)
+    else:
+        observations = formulation.fit_observations(dataset, settings, fit)
     return Problem(
         formulation=formulation,
         settings=settings,
@@ -104,12 +111,18 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
         fit=fit,
         test=test,
         candidates=tuple(candidate_parameters(robot, config.model, config.compliant_joints)),
-        observations=formulation.fit_observations(dataset, settings, fit),
+        observations=observations,
         priors=config.priors,
         max_iterations=config.max_iterations,
         detection=detection,
         validation_sets=tuple(validation_sets),
     )
+
+
+def _in_effect(measurement, dataset: Dataset):
+    """The noise in effect: fgcal's defaults, what the instrument states (the dataset), what the
+    config (or the set) states, the later winning."""
+    return dataclasses.replace(measurement, noise=Noise.stated(dataset.noise, measurement.noise_stated))
 
 
 def _check_enough(problem: Problem, state: State, candidates: list[str]) -> None:
@@ -137,18 +150,25 @@ def _check_first_stage(problem: Problem, report: StageReport, stage: StageGraph,
     """Refuse to go on when the first stage leaves the typical residual (the median over the
     observations of their RMS per coordinate: a few gross misreads are the robust loss's job)
     far above both the declared noise and anything a kinematic error explains (GROSS_RESIDUAL,
-    GROSS_SIGMAS)."""
+    GROSS_SIGMAS); each fitting set on its own."""
+    for part in problem.formulation.parts(problem):
+        if part.use == "fit":
+            _check_part(part.problem, report, part.sets_of(stage.measurements)[0], values, part.name)
+
+
+def _check_part(problem: Problem, report: StageReport, main, values, name: str | None) -> None:
     formulation = problem.formulation
     unit = formulation.unit
     sigma = formulation.sigma(problem.settings)
-    typical = float(np.median(stage.measurements[0].unit_rms(values))) * sigma
+    typical = float(np.median(main.unit_rms(values))) * sigma
     if typical <= GROSS_RESIDUAL[unit] or typical <= GROSS_SIGMAS * sigma:
         return
     size = f"{typical:.3g} px" if unit == "px" else f"{typical * 1e3:.4g} mm"
     raise InputError(
         problem.dataset.path,
         None,
-        f"the data cannot be explained: after stage {report.name} the typical residual is {size} per "
+        f"the data cannot be explained: after stage {report.name} the typical residual "
+        f"{'' if name is None else f'of set {name!r} '}is {size} per "
         f"coordinate, {typical / sigma:.3g} times the declared noise and beyond any kinematic error "
         f"({GROSS_RESIDUAL[unit]:g} {unit}). No robot was written. Likely causes: {formulation.likely_causes}.",
     )

@@ -219,6 +219,30 @@ def _bounds(value: Any) -> Any:
     return value
 
 
+class MeasurementSet(Schema):
+    """One measurement set of a config with several (docs/calibration.md, "Several measurement
+    sets"): a registered formulation with its own noise, robust losses and settings; the sets share
+    the robot's parameters and keep their own auxiliary unknowns."""
+
+    name: str = Field(
+        pattern=r"^[A-Za-z][A-Za-z0-9_-]*$",
+        description="the set's name: its report keys; its auxiliary unknowns are named NAME/unknown",
+    )
+    formulation: Literal[NAMES] = Field(description="a registered formulation")
+    use: Literal["fit", "validation"] = Field(
+        "fit",
+        description="fit: in the calibration; validation: measured, "
+        "never fitted, scored (its own unknowns registered on its fitting "
+        "configurations with the robot held at the calibration)",
+    )
+    noise: NoiseSection = Field(None, description="the set's sigmas (win over the dataset's)")
+    robust: Robust = None
+    fixture_orientation: Literal["known", "estimate"] = "known"
+    pairs: Pairs = None
+    pixels_from: Literal["table", "images"] = "table"
+    intrinsics: Intrinsics = None
+
+
 class CalibrationConfig(Schema):
     """A calibration config (fgcal calibrate)."""
 
@@ -227,8 +251,8 @@ class CalibrationConfig(Schema):
     formulation: Literal[NAMES] = Field(None, description="default: the one that reads the dataset's measured tables")
     model: Literal[(*MODELS, "auto")] = Field("DH,s,e", description="the error model; auto: compare and pick")
     compliant_joints: list[Annotated[int, Field(ge=1)]] = Field(
-        None, description="1-based joints with a compliance (default 1-3; on a tree every revolute joint carrying "
-        "a mass)"
+        None,
+        description="1-based joints with a compliance (default 1-3; on a tree every revolute joint carrying a mass)",
     )
     fixture_orientation: Literal["known", "estimate"] = "known"
     schedule: Literal["staged", "one_shot", "custom"] = "staged"
@@ -248,4 +272,10 @@ class CalibrationConfig(Schema):
     intrinsics: Intrinsics = None
     compare_models: bool = False
     residual_model: Literal["none", "gp"] = "none"
+    sets: list[MeasurementSet] = Field(
+        None,
+        min_length=1,
+        description="several measurement sets in one calibration, in place of formulation, "
+        "noise, robust, pairs, fixture_orientation, pixels_from and intrinsics",
+    )
     notes: Any = None

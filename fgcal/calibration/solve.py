@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 
 from ..model.parameters import kind_label
-from .graph import StageGraph, build_graph, robust_scale
+from .graph import StageGraph, build_graph
 from .problem import Problem, read_state
 from .results import StageReport
 from .state import State
@@ -84,8 +84,8 @@ def solve_stage(
     for _ in range(5):
         if stage.robust_scale is None:
             break
-        new_scale = robust_scale(stage.measurements[:1], result)
-        if new_scale > 0.9 * stage.robust_scale:
+        retaken = problem.formulation.robust_loss(problem, stage.measurements, result)
+        if retaken is None or np.all(np.asarray(retaken[1]) > 0.9 * np.asarray(stage.robust_scale)):
             break
         stage = build_graph(problem, released, new_state)
         result, more = optimise(stage, problem.max_iterations)
