@@ -13,7 +13,7 @@ from .base import (
     gaussian,
     point_jacobian,
 )
-from .contact import PlaneContacts, SelfContacts
+from .contact import PlaneContacts, SelfContacts, TipDistances
 from .kinematics import Kinematics
 from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
@@ -41,6 +41,7 @@ __all__ = [
     "SelfContacts",
     "SocketSpacings",
     "StaticProjections",
+    "TipDistances",
     "TouchPoints",
     "TrackerPoints",
     "gaussian",

@@ -86,6 +86,7 @@ class SelfContacts(MeasurementSet):
             self.variables.append((radii_key, "vector", self.n_elements))
         self.sigma = np.full(len(self.rows_a), float(sigma_m))
         self.unit_starts = np.arange(len(self.rows_a))
+        self.readings = np.zeros(len(self.rows_a))  # a gauge's (TipDistances)
         # The configuration of each contact (scores), when the rows are frame-major.
         self.configs = self.rows_a % len(kinematics.q) if hasattr(kinematics, "q") else self.rows_a
         super().__init__(robust)
@@ -102,7 +103,7 @@ class SelfContacts(MeasurementSet):
         p_b = np.einsum("oij,oj->oi", T_b[:, :3, :3], c_b) + T_b[:, :3, 3]
         delta = p_a - p_b
         length = np.linalg.norm(delta, axis=1)
-        residual = length - radii[self.elements_a] - radii[self.elements_b]
+        residual = length - radii[self.elements_a] - radii[self.elements_b] - self.readings
         if not jacobians:
             return Evaluation(residual, [])
         u = delta / np.maximum(length, 1e-300)[:, None]
@@ -124,6 +125,37 @@ class SelfContacts(MeasurementSet):
                 + _element_blocks(n, self.elements_b, ones, self.n_elements, 1)
             )
         return Evaluation(residual, blocks)
+
+
+class TipDistances(SelfContacts):
+    """``r_o = |X_a(P, q_j) c_ea - X_b(P, q_j) c_eb| - L_o``  (m), per reading o.
+
+    A gauge between two tips (a ballbar whose cups sit on ball ea of tip a and ball eb of tip b,
+    or a known distance) reads L_o at configuration j: the centres, tips and rows as in
+    :class:`SelfContacts` (the balls' radii do not enter). What gives a self-contained
+    calibration its scale. The robust unit is one reading.
+    """
+
+    def __init__(
+        self,
+        kinematics: Kinematics,
+        params_key: int | None,
+        centres_key: int,
+        n_elements: int,
+        rows_a: np.ndarray,
+        rows_b: np.ndarray,
+        elements_a: np.ndarray,
+        elements_b: np.ndarray,
+        readings_m: np.ndarray,
+        sigma_m: float,
+        robust: RobustLoss | None = None,
+    ) -> None:
+        readings = np.asarray(readings_m, dtype=float).reshape(-1)
+        if len(readings) != len(np.atleast_1d(rows_a)):
+            raise ValueError("one reading per pair of rows")
+        super().__init__(kinematics, params_key, centres_key, None, n_elements, rows_a, rows_b, elements_a,
+                         elements_b, sigma_m, robust, radii=np.zeros(int(n_elements)))  # fmt: skip
+        self.readings = readings
 
 
 class PlaneContacts(MeasurementSet):

@@ -25,6 +25,7 @@ from fgcal.factors import (
     SelfContacts,
     SocketSpacings,
     StaticProjections,
+    TipDistances,
     TouchPoints,
     TrackerPoints,
     gaussian,
@@ -174,6 +175,9 @@ def _measurement_sets():
         sets.append((SelfContacts(model, key, 9, 10, 3, rows_a, rows_b, elements_a, elements_b, 1e-4, robust), values))
         sets.append((SelfContacts(model, key, 9, None, 3, rows_a, rows_b, elements_a, elements_b, 1e-4, robust,
                                   radii=np.array([0.02, 0.025, 0.015])), values))  # fmt: skip
+        readings = np.array([0.3, 0.28, 0.31, 0.29])
+        sets.append((TipDistances(model, key, 9, 3, rows_a, rows_b, elements_a, elements_b, readings, 1e-6, robust),
+                     values))  # fmt: skip
         normals = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
         rows, elements, planes = np.array([0, 1, 2, 2]), np.array([0, 1, 2, 0]), np.array([0, 1, 1, 0])
         sets.append((PlaneContacts(model, key, 9, 10, 11, 3, normals, rows, elements, planes, 1e-4, robust), values))

@@ -35,6 +35,7 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 - tool_distances: ``config_a, config_b, distance`` (between the tool ball at two configurations)
 - contacts: ``config, element_a, element_b`` (two contact elements of dataset.yaml contact touch)
 - plane_contacts: ``config, element, plane`` (a contact element touches a plane of dataset.yaml contact)
+- tip_distances: ``config, element_a, element_b, distance`` (a gauge between two contact elements' centres)
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ TABLES = {
     "tool_distances": (("config_a", "config_b"), ("distance",), "length"),
     "contacts": (("config", "element_a", "element_b"), (), "length"),
     "plane_contacts": (("config", "element", "plane"), (), "length"),
+    "tip_distances": (("config", "element_a", "element_b"), ("distance",), "length"),
 }
 MEASUREMENTS = MEASURED  # the tables a dataset may list as measured (data.schema: one list)
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
@@ -331,7 +333,7 @@ def _table(path: Path, name: str, units: Units) -> Table:
 # The id columns that name one measurement (a point of the drawing is named by its point alone);
 # a distance between a and b is the distance between b and a.
 KEY_COLUMNS = {"points": ("point",)}
-UNORDERED = ("point_distances", "tool_distances", "contacts")
+UNORDERED = ("point_distances", "tool_distances", "contacts", "tip_distances")
 
 
 def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
@@ -420,7 +422,7 @@ def load_dataset(path: str | Path) -> Dataset:
         _check_distances(dataset, _inside(root, files, "point_distances"))
     if "tracker_poses" in dataset.tables:
         _check_poses(dataset, _inside(root, files, "tracker_poses"))
-    for name in ("distances", "tool_distances"):
+    for name in ("distances", "tool_distances", "tip_distances"):
         if name in dataset.tables:
             bad = np.flatnonzero(~(dataset.tables[name].values[:, 0] > 0))
             if len(bad):
@@ -447,7 +449,7 @@ def load_dataset(path: str | Path) -> Dataset:
             )
     if doc.has("contact"):
         dataset.contact = _contact(doc.sub("contact"), units, dataset.robot)
-    for name in ("contacts", "plane_contacts"):
+    for name in ("contacts", "plane_contacts", "tip_distances"):
         if name in dataset.tables:
             _check_contacts(dataset, name, _inside(root, files, name), doc)
     if doc.has("camera"):
@@ -557,17 +559,17 @@ def _check_contacts(dataset: Dataset, name: str, path: Path, doc: Fields) -> Non
     if dataset.contact is None:
         raise doc.error("contact", f"the {name} table needs the contact section (its elements and planes)")
     table = dataset.tables[name]
-    columns = ("element_a", "element_b") if name == "contacts" else ("element",)
+    columns = ("element",) if name == "plane_contacts" else ("element_a", "element_b")
     for column in columns:
         for line, element in enumerate(table.ids[column], start=2):
             if element not in dataset.contact.elements:
                 known = ", ".join(sorted(dataset.contact.elements))
                 raise InputError(path, f"line {line}, column {column}", f"element {element!r} is not in "
                                  f"dataset.yaml contact.elements ({known})")  # fmt: skip
-    if name == "contacts":
+    if name != "plane_contacts":
         for line, (a, b) in enumerate(zip(table.ids["element_a"], table.ids["element_b"], strict=True), start=2):
             if a == b:
-                raise InputError(path, f"line {line}", f"a contact joins two different elements, got {a!r} twice")
+                raise InputError(path, f"line {line}", f"joins two different elements, got {a!r} twice")
     else:
         for line, plane in enumerate(table.ids["plane"], start=2):
             if plane not in dataset.contact.planes:

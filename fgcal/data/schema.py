@@ -16,7 +16,8 @@ from ..model.schema import Camera, RobotReference
 DATASET_FORMAT = "fgcal-dataset/1"
 IMPORT_FORMAT = "fgcal-import/1"
 MEASURED = ("camera_points", "pixels", "tracker_points", "tracker_references", "touch_points", "point_distances",
-            "tracker_poses", "distances", "tool_distances", "contacts", "plane_contacts")  # fmt: skip
+            "tracker_poses", "distances", "tool_distances", "contacts", "plane_contacts",
+            "tip_distances")  # fmt: skip
 ORDER = "the configurations' order: measured (the rows are the measurement order; motion history) or unknown"
 
 
@@ -36,6 +37,7 @@ class Files(Schema):
     tool_distances: str = None
     contacts: str = Field(None, description="config, element_a, element_b: two contact elements touch")
     plane_contacts: str = Field(None, description="config, element, plane: a contact element touches a plane")
+    tip_distances: str = Field(None, description="config, element_a, element_b, distance: a gauge between two balls")
 
 
 class Board(Schema):

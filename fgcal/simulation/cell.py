@@ -177,11 +177,15 @@ class ContactCellSetup:
     plane_angle_error_rad: float
     plane_offset_error_m: float
     position_sigma_m: float
+    gauge_length_m: float = 0.0  # a ballbar between the first two balls (0: none)
+    gauge_travel_m: float = 0.0
+    gauge_readings: int = 0
 
 
 # What can measure in a cell, the more specific first: a 6D probe is a tracker's too, and a
 # camera cell has a tracker besides; a robot touching itself carries a tracker for validation.
-INSTRUMENTS = ("static_camera", "touch", "ballbar", "self_contact", "planes", "tracker_probe", "camera", "tracker")
+INSTRUMENTS = ("static_camera", "touch", "ballbar", "self_contact", "planes", "tip_gauge", "tracker_probe", "camera",
+               "tracker")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -228,6 +232,7 @@ class Cell:
             "ballbar": self.ballbar is not None,
             "self_contact": self.contact is not None and self.contact.self_contacts > 0,
             "planes": self.contact is not None and self.contact.plane_contacts > 0 and bool(self.contact.plane_names),
+            "tip_gauge": self.contact is not None and self.contact.gauge_readings > 0,
             "tracker_probe": self.tracker_probe is not None,
             "camera": self.camera is not None,
             "tracker": self.has_tracker,
@@ -406,6 +411,13 @@ def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> Conta
     self_contacts = section.integer("self_contacts", 40, minimum=0)
     if self_contacts and (len(names) < 2 or tips[0] == tips[1]):
         raise section.error("self_contacts", "join the first two balls, which must be on two different tips")
+    gauge = section.sub("gauge") if section.has("gauge") else None
+    if gauge is not None and (len(names) < 2 or tips[0] == tips[1]):
+        raise section.error("gauge", "joins the first two balls, which must be on two different tips")
+    gauge_values = (
+        (gauge.number("length", scale=to_m, positive=True), gauge.number("travel", scale=to_m, positive=True),
+         gauge.integer("readings", 100, minimum=1)) if gauge is not None else (0.0, 0.0, 0)
+    )  # fmt: skip
     return ContactCellSetup(
         tuple(names), tuple(tips), np.array(centres), np.array(radii), tuple(plane_names),
         np.array(normals).reshape(-1, 3), np.array(offsets), self_contacts,
@@ -414,6 +426,7 @@ def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> Conta
         section.number("plane_angle_error", np.radians(1.0) / to_rad, to_rad, nonnegative=True),
         section.number("plane_offset_error", 5e-3 / to_m, to_m, nonnegative=True),
         section.number("position_sigma", 2e-3 / to_m, to_m, positive=True),
+        *gauge_values,
     )  # fmt: skip
 
 

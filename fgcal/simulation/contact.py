@@ -53,6 +53,9 @@ class ContactDesign:
     plane_rows: list[tuple[int, str, str]]  # (configuration, element, plane)
     self_noise: np.ndarray  # (S,) m: the gap each self-contact closes at
     plane_noise: np.ndarray  # (P,)
+    gauge_rows: list[tuple[int, str, str]]  # (configuration, element a, element b)
+    gauge_true: np.ndarray  # (G,) m: the true distance of the balls' centres
+    gauge_noise: np.ndarray  # (G,) m: the reading's error
 
 
 def contact_truth(cell: Cell, rng: np.random.Generator) -> ContactTruth:
@@ -152,30 +155,43 @@ def contact_design(
             )
         return found
 
-    if setup.self_contacts:
-        (a, b), count = (0, 1), setup.self_contacts
-        gaps = noise_rng.normal(0.0, cell.contact_sigma_m, count)
-        queue = list(gaps)
+    def between(count: int, distance: Callable[[int], np.ndarray], what: str) -> list[np.ndarray]:
+        """``count`` configurations of the first two balls' centres ``distance(n)`` apart."""
+        a, b = 0, 1
 
-        def meet(q: np.ndarray) -> list[np.ndarray]:
+        def meet(q: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
             p_a = _ball(robot, true_params, q, tips[a], truth.centres[a])
             p_b = _ball(robot, true_params, q, tips[b], truth.centres[b])
             u = p_b - p_a
             u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
-            middle = (p_a + p_b) / 2
-            gap = np.resize(np.array(queue), len(q))
-            half = (truth.radii[a] + truth.radii[b] + gap)[:, None] / 2
+            middle, half = (p_a + p_b) / 2, distance(len(q))[:, None] / 2
             return [middle - half * u, middle + half * u], np.ones(len(q), dtype=bool)
 
-        # The gap each configuration found closes at, measured on the true robot.
-        found = solve(count, meet, [(tips[a], a), (tips[b], b)], "self-contacts")
-        for q in found:
-            p_a = _ball(robot, true_params, q[None], tips[a], truth.centres[a])[0]
-            p_b = _ball(robot, true_params, q[None], tips[b], truth.centres[b])[0]
-            self_noise.append(np.linalg.norm(p_a - p_b) - truth.radii[a] - truth.radii[b])
-            self_rows.append((len(q_all), setup.names[a], setup.names[b]))
+        return solve(count, meet, [(tips[a], a), (tips[b], b)], what)
+
+    def centres_apart(q: np.ndarray) -> float:
+        p_a = _ball(robot, true_params, q[None], tips[0], truth.centres[0])[0]
+        p_b = _ball(robot, true_params, q[None], tips[1], truth.centres[1])[0]
+        return float(np.linalg.norm(p_a - p_b))
+
+    if setup.self_contacts:
+        touching = truth.radii[0] + truth.radii[1]
+        count = setup.self_contacts
+        gaps = noise_rng.normal(0.0, cell.contact_sigma_m, count)
+        for q in between(count, lambda n: touching + np.resize(gaps, n), "self-contacts"):
+            # The gap each configuration found closes at, measured on the true robot.
+            self_noise.append(centres_apart(q) - touching)
+            self_rows.append((len(q_all), setup.names[0], setup.names[1]))
             q_all.append(q)
-        say(f"  {count} self-contacts of {setup.names[a]} and {setup.names[b]}")
+        say(f"  {count} self-contacts of {setup.names[0]} and {setup.names[1]}")
+    gauge_rows, gauge_true = [], []
+    if setup.gauge_readings:
+        count, length, travel = setup.gauge_readings, setup.gauge_length_m, setup.gauge_travel_m
+        for q in between(count, lambda n: length + design_rng.uniform(-travel / 2, travel / 2, n), "gauge readings"):
+            gauge_true.append(centres_apart(q))
+            gauge_rows.append((len(q_all), setup.names[0], setup.names[1]))
+            q_all.append(q)
+        say(f"  {count} gauge readings between {setup.names[0]} and {setup.names[1]}")
     for k, (tip, name) in enumerate(zip(tips, setup.names, strict=True)):
         for p, plane in enumerate(setup.plane_names):
             normal, offset = truth.normals[p], truth.offsets[p]
@@ -207,6 +223,9 @@ def contact_design(
         [(int(position[j]), e, p) for j, e, p in plane_rows],
         np.array(self_noise),
         np.array(plane_noise),
+        [(int(position[j]), a, b) for j, a, b in gauge_rows],
+        np.array(gauge_true),
+        noise_rng.normal(0.0, cell.distance_sigma_m, len(gauge_rows)),
     )
 
 
@@ -224,6 +243,21 @@ def write_contact_tables(out: Path, design: ContactDesign, config_ids: list[str]
         write_csv(out / "truth" / f"{name}_gap.csv", [*columns, "gap"],
                   [[config_ids[rows[i][0]], rows[i][1], rows[i][2], float(noise[i])] for i in order])  # fmt: skip
         counts[name] = len(rows)
+    if design.gauge_rows:
+        rows, readings = design.gauge_rows, design.gauge_true + design.gauge_noise
+        order = np.argsort([j for j, _, _ in rows], kind="stable")
+        columns = ["config", "element_a", "element_b", "distance"]
+        write_csv(
+            out / "tip_distances.csv",
+            columns,
+            [[config_ids[rows[i][0]], rows[i][1], rows[i][2], float(readings[i])] for i in order],
+        )
+        write_csv(
+            out / "truth" / "tip_distances_noise.csv",
+            columns,
+            [[config_ids[rows[i][0]], rows[i][1], rows[i][2], float(design.gauge_noise[i])] for i in order],
+        )
+        counts["tip_distances"] = len(rows)  # fmt: skip
     return counts
 
 

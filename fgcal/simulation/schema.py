@@ -134,6 +134,14 @@ class ContactPlane(Schema):
     offset: Number = Field(description=f"its nominal distance from W's origin along the normal, {LENGTH}")
 
 
+class TipGauge(Schema):
+    """A ballbar between the first two balls (the hands hold it), read at many configurations."""
+
+    length: Number = Field(gt=0, description=f"the bar's length at the middle of its travel, {LENGTH}")
+    travel: Number = Field(gt=0, description=f"its full travel, {LENGTH}")
+    readings: int = Field(100, ge=1, le=MAX_CONFIGURATIONS // 2)
+
+
 class Contact(Schema):
     """Contact elements (balls on the tips of a tree) touching each other and planes of the cell."""
 
@@ -147,6 +155,7 @@ class Contact(Schema):
     )
     plane_offset_error: Number = Field(None, ge=0, description=f"the true planes off nominal, {LENGTH} (default 5 mm)")
     position_sigma: Number = Field(None, gt=0, description=f"the dataset's prior on a centre, {LENGTH} (default 2 mm)")
+    gauge: TipGauge = Field(None, description="a ballbar between the first two balls (tip_distances)")
 
 
 class StaticBoard(Schema):

@@ -274,7 +274,11 @@ def simulate(
             **({"touch_m": cell.touch_sigma_m, "spacing_m": cell.spacing_sigma_m} if cell.touch is not None else {}),
             **({"tracker_angle_rad": cell.tracker_angle_sigma_rad} if cell.tracker_probe is not None else {}),
             **({"distance_m": cell.distance_sigma_m} if cell.ballbar is not None else {}),
-            **({"contact_m": cell.contact_sigma_m} if cell.contact is not None else {}),
+            **(
+                {"contact_m": cell.contact_sigma_m, "distance_m": cell.distance_sigma_m}
+                if cell.contact is not None
+                else {}
+            ),
         },
         deviation_before_calibration_m={"mean": float(deviation.mean()), "max": float(deviation.max())},
         drift=(
@@ -461,6 +465,7 @@ def stated_noise(cell: Cell, measured: list[str]) -> dict[str, float]:
         "tool_distances": {"distance_m": cell.distance_sigma_m},
         "contacts": {"contact_m": cell.contact_sigma_m},
         "plane_contacts": {"contact_m": cell.contact_sigma_m},
+        "tip_distances": {"distance_m": cell.distance_sigma_m},
     }
     out: dict[str, float] = {}
     for table in measured:
@@ -483,7 +488,7 @@ def _write_header(
     )
     if cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None or cell.contact is not None:
         if cell.contact is not None:
-            noise_text = f"contacts {cell.contact_sigma_m} m" + (
+            noise_text = f"contacts {cell.contact_sigma_m} m, gauge {cell.distance_sigma_m} m" + (
                 f", tracker {cell.tracker_sigma_m} m (validation)" if cell.has_tracker else ""
             )
         elif cell.touch is not None:

@@ -12,6 +12,7 @@ from .poses import MeasuredPoses
 from .projection import Projection
 from .self_contact import SelfContact
 from .static_camera import StaticCamera
+from .tip_gauge import TipGauge
 from .touch import Touch
 from .tracker import Tracker
 
@@ -27,6 +28,7 @@ REGISTRY: dict[str, type[Formulation]] = {
         StaticCamera,
         SelfContact,
         Planes,
+        TipGauge,
     )
 }
 NAMES = tuple(REGISTRY)

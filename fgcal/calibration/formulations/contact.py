@@ -43,20 +43,22 @@ def frame_rows(frames: tuple[str, ...], tips: tuple[str, ...], elements: np.ndar
     return tip[elements] * n_configs + configs
 
 
-def element_state(dataset: Dataset, names: tuple[str, ...]) -> dict[str, Auxiliary]:
-    """The elements' centres and radii, started at the drawing's values, with its priors."""
+def element_state(dataset: Dataset, names: tuple[str, ...], radii: bool = True) -> dict[str, Auxiliary]:
+    """The elements' centres (and radii, where the measurements see them), started at the
+    drawing's values, with its priors."""
     setup = dataset.contact
     centres = np.array([setup.elements[n].centre for n in names], dtype=float).reshape(-1, 3)
-    radii = np.array([setup.elements[n].radius for n in names], dtype=float)
-    return {
-        CENTRES: Auxiliary(
-            "points", centres, names, centres.reshape(-1), np.full(centres.size, setup.position_sigma_m)
-        ),
-        RADII: Auxiliary("vector", radii, names, radii.copy(), np.full(len(radii), setup.radius_sigma_m)),
+    out = {
+        CENTRES: Auxiliary("points", centres, names, centres.reshape(-1), np.full(centres.size, setup.position_sigma_m))
     }
+    if radii:
+        values = np.array([setup.elements[n].radius for n in names], dtype=float)
+        out[RADII] = Auxiliary("vector", values, names, values.copy(), np.full(len(values), setup.radius_sigma_m))
+    return out
 
 
 def true_elements(truth: Truth, names: tuple[str, ...], like: dict[str, Auxiliary]) -> dict[str, Auxiliary]:
+    """The truth's values of the unknowns ``like`` (element_state's)."""
     missing = [n for n in names if n not in truth.contact_elements]
     if missing:
         raise InputError(
@@ -64,10 +66,10 @@ def true_elements(truth: Truth, names: tuple[str, ...], like: dict[str, Auxiliar
         )
     centres = np.array([truth.contact_elements[n][0] for n in names], dtype=float).reshape(-1, 3)
     radii = np.array([truth.contact_elements[n][1] for n in names], dtype=float)
-    return {
-        CENTRES: Auxiliary("points", centres, names, like[CENTRES].prior_mean, like[CENTRES].prior_sigmas),
-        RADII: Auxiliary("vector", radii, names, like[RADII].prior_mean, like[RADII].prior_sigmas),
-    }
+    out = {CENTRES: Auxiliary("points", centres, names, like[CENTRES].prior_mean, like[CENTRES].prior_sigmas)}
+    if RADII in like:
+        out[RADII] = Auxiliary("vector", radii, names, like[RADII].prior_mean, like[RADII].prior_sigmas)
+    return out
 
 
 def scored_elements(problem: Problem, state: State, tips: tuple[str, ...]) -> Scored:

@@ -151,8 +151,11 @@ class Combined(Formulation):
         return head.formulation.sigma(head.settings)
 
     def gauge(self, settings: MeasurementSettings) -> str:
-        head = self.members[self.headline]
-        return head.formulation.gauge(head.settings)
+        """The gauge of the truth score, which measures the first fitting set's points
+        (:meth:`scored`): that set's (a self-contained fit does not fix W, whatever a
+        validation instrument does)."""
+        first = self.members[self.first_fit]
+        return first.formulation.gauge(first.settings)
 
     def frames(self, problem: Problem) -> str | tuple[str, ...]:
         return self.members[self.first_fit].formulation.frames(self.view(problem, self.first_fit))
