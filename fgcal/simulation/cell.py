@@ -222,6 +222,7 @@ class Cell:
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
     contact: ContactCellSetup | None = None  # balls on the tips touching each other and planes
     contact_sigma_m: float = 0.0
+    validation: tuple[str, ...] = ()  # instruments (INSTRUMENTS) measured for validation only
 
     @property
     def instruments(self) -> list[str]:
@@ -556,7 +557,7 @@ def load_cell(path: str | Path) -> Cell:
         design_kind = "touch" if touch is not None else "ballbar"
     if camera is None and design_kind == "seed":
         raise design.error("kind", "the seed design looks at the objects: a tracker cell (no camera) is space_filling")
-    return Cell(
+    cell = Cell(
         name=doc.string("name"),
         source=str(path),
         robot_reference=robot_ref,
@@ -608,6 +609,15 @@ def load_cell(path: str | Path) -> Cell:
             max_view_angle_rad=design.number("max_view_angle", 30.0 * np.pi / 180 / to_rad, to_rad, positive=True),
         ),
     )
+    validation = tuple(str(v) for v in doc.items("validation", []))
+    for name in validation:
+        if name not in cell.instruments:
+            raise doc.error(
+                "validation", f"{name!r} is not one of the cell's instruments ({', '.join(cell.instruments)})"
+            )
+    if validation and set(validation) >= set(cell.instruments):
+        raise doc.error("validation", "leaves no instrument to calibrate with")
+    return replace(cell, validation=validation)
 
 
 def _tracker_targets(

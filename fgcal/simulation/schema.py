@@ -240,6 +240,11 @@ class CellFile(Schema):
     ballbar: Ballbar = None
     static_camera: StaticCamera = None
     contact: Contact = None
+    validation: list[str] = Field(
+        None,
+        description="instruments measured for validation only: the suggested config fits the cell's other "
+        "instruments as one set each and scores on these (e.g. [tracker])",
+    )
     noise: CellNoise = None
     perturbation: Perturbation = None
     motion_history: MotionHistory = None
