@@ -180,6 +180,8 @@ class ContactCellSetup:
     gauge_length_m: float = 0.0  # a ballbar between the first two balls (0: none)
     gauge_travel_m: float = 0.0
     gauge_readings: int = 0
+    held: tuple[int, ...] = ()  # 0-based q columns held still
+    held_at: tuple[float, ...] = ()  # rad or m
 
 
 # What can measure in a cell, the more specific first: a 6D probe is a tracker's too, and a
@@ -419,6 +421,15 @@ def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> Conta
         (gauge.number("length", scale=to_m, positive=True), gauge.number("travel", scale=to_m, positive=True),
          gauge.integer("readings", 100, minimum=1)) if gauge is not None else (0.0, 0.0, 0)
     )  # fmt: skip
+    held, held_at = (), ()
+    if section.has("hold"):
+        hold = section.sub("hold")
+        held = tuple(int(j) for j in hold.items("joints"))
+        for j in held:
+            if not 1 <= j <= robot.n_joints:
+                raise hold.error("joints", f"joint {j} does not exist: {robot.name} has q1 to q{robot.n_joints}")
+        held_at = tuple(hold.vector("at", len(held), scale=to_rad))
+        held = tuple(j - 1 for j in held)
     return ContactCellSetup(
         tuple(names), tuple(tips), np.array(centres), np.array(radii), tuple(plane_names),
         np.array(normals).reshape(-1, 3), np.array(offsets), self_contacts,
@@ -428,6 +439,8 @@ def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> Conta
         section.number("plane_offset_error", 5e-3 / to_m, to_m, nonnegative=True),
         section.number("position_sigma", 2e-3 / to_m, to_m, positive=True),
         *gauge_values,
+        held,
+        held_at,
     )  # fmt: skip
 
 

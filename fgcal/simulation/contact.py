@@ -82,33 +82,39 @@ def own_joints(robot: Robot, tips: tuple[str, ...], tip: str) -> np.ndarray:
 
 def reach(
     robot: Robot, params: np.ndarray, q0: np.ndarray, tip: str, point: np.ndarray, targets: np.ndarray,
-    joints: np.ndarray, iterations: int = 100, tol: float = 1e-10,
+    joints: np.ndarray, iterations: int = 60, tol: float = 1e-10,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Joint angles (N, n) that put ``point`` (on ``tip``) at ``targets`` (N, 3) moving only
     ``joints`` from ``q0`` (damped least squares), and whether each converged within the limits."""
     names = [f"q{j + 1}" for j in joints]
     q = q0.copy()
+    active = np.arange(len(q))
     for _ in range(iterations):
-        data = kinematics.forward(robot, params, q)
-        p = transform_points(kinematics.frame_pose(robot, data, tip), point)
-        error = targets - p
-        if np.all(np.linalg.norm(error, axis=1) < tol):
+        data = kinematics.forward(robot, params, q[active])
+        error = targets[active] - transform_points(kinematics.frame_pose(robot, data, tip), point)
+        moving = np.linalg.norm(error, axis=1) >= tol  # the converged rows stop
+        if not moving.any():
             break
-        J = kinematics.jacobian(robot, data, names, frame=tip, point=point)  # (N, 3, m)
+        J = kinematics.jacobian(robot, data, names, frame=tip, point=point)[moving]  # (N, 3, m)
+        active, error = active[moving], error[moving]
         JJt = J @ np.swapaxes(J, 1, 2) + 1e-6 * np.eye(3)
         step = (np.swapaxes(J, 1, 2) @ np.linalg.solve(JJt, error[..., None]))[..., 0]
         norm = np.linalg.norm(step, axis=1, keepdims=True)
-        q[:, joints] += step * np.minimum(1.0, 0.3 / np.maximum(norm, 1e-12))
+        q[np.ix_(active, joints)] += step * np.minimum(1.0, 0.3 / np.maximum(norm, 1e-12))
     p = transform_points(kinematics.frame_pose(robot, kinematics.forward(robot, params, q), tip), point)
     wrapped = wrap_into_limits(robot.limits, q, robot.prismatic)
     within = np.all((wrapped >= robot.limits[:, 0]) & (wrapped <= robot.limits[:, 1]), axis=1)
     return wrapped, within & (np.linalg.norm(targets - p, axis=1) < 1e-8)
 
 
-def _starts(robot: Robot, count: int, rng: np.random.Generator) -> np.ndarray:
+def _starts(cell: Cell, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Random configurations in the middle of the joints' ranges, the held joints where held."""
+    robot = cell.robot
     low, high = robot.limits[:, 0], robot.limits[:, 1]
     centre, half = (low + high) / 2, MIDDLE * (high - low) / 2
-    return rng.uniform(centre - half, centre + half, (count, robot.n_joints))
+    q = rng.uniform(centre - half, centre + half, (count, robot.n_joints))
+    q[:, list(cell.contact.held)] = cell.contact.held_at
+    return q
 
 
 def _ball(robot: Robot, params: np.ndarray, q: np.ndarray, tip: str, centre: np.ndarray) -> np.ndarray:
@@ -137,14 +143,14 @@ def contact_design(
             missing = count - len(found)
             if missing <= 0:
                 break
-            q = _starts(robot, 4 * missing + 16, design_rng)
+            q = _starts(cell, 4 * missing + 16, design_rng)
             targets, ok = targets_of(q)
             # Moving one arm bends the torso under the arm's weight, which moves the other ball
             # a little: the arms take turns until both stay (compliant robots).
             for _ in range(3 if len(moves) > 1 else 1):
                 reached = np.ones(len(q), dtype=bool)
                 for (tip, k), target in zip(moves, targets, strict=True):
-                    joints = own_joints(robot, tips, tip)
+                    joints = np.setdiff1d(own_joints(robot, tips, tip), setup.held)
                     q, converged = reach(robot, true_params, q, tip, truth.centres[k], target, joints)
                     reached &= converged
             ok &= reached

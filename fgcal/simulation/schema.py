@@ -142,6 +142,14 @@ class TipGauge(Schema):
     readings: int = Field(100, ge=1, le=MAX_CONFIGURATIONS // 2)
 
 
+class Hold(Schema):
+    """Joints held still while the robot touches itself (a torso locked: its errors are then one
+    rigid motion of both arms, which self-contact cannot see and its score removes)."""
+
+    joints: list[int] = Field(description="1-based joint numbers (the configurations' q columns)")
+    at: numbers() = Field(description=f"their values, one per joint, {ANGLE}")
+
+
 class Contact(Schema):
     """Contact elements (balls on the tips of a tree) touching each other and planes of the cell."""
 
@@ -156,6 +164,7 @@ class Contact(Schema):
     plane_offset_error: Number = Field(None, ge=0, description=f"the true planes off nominal, {LENGTH} (default 5 mm)")
     position_sigma: Number = Field(None, gt=0, description=f"the dataset's prior on a centre, {LENGTH} (default 2 mm)")
     gauge: TipGauge = Field(None, description="a ballbar between the first two balls (tip_distances)")
+    hold: Hold = None
 
 
 class StaticBoard(Schema):

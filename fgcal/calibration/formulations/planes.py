@@ -203,8 +203,10 @@ def _observations(
     """The plane contacts at configurations ``subset`` of the elements ``names`` with the planes
     ``plane_names`` (None: those they touch, sorted; others left out)."""
     table = dataset.tables["plane_contacts"]
-    position = {int(c): i for i, c in enumerate(subset)}
     index_of = dataset.config_index(table.ids["config"])
+    # Only the configurations of this table: the kinematics are evaluated at each.
+    subset = np.asarray(subset, dtype=int)[np.isin(subset, index_of)]
+    position = {int(c): i for i, c in enumerate(subset)}
     rows = [(position[int(c)], e, p) for c, e, p in zip(index_of, table.ids["element"], table.ids["plane"],
                                                         strict=True) if int(c) in position]  # fmt: skip
     if names is None:

@@ -138,8 +138,10 @@ def _observations(dataset: Dataset, subset: np.ndarray, names: tuple[str, ...] |
     """The readings at configurations ``subset`` between the elements ``names`` (None: every
     element they name, sorted; others left out)."""
     table = dataset.tables["tip_distances"]
-    position = {int(c): i for i, c in enumerate(subset)}
     index_of = dataset.config_index(table.ids["config"])
+    # Only the configurations of this table: the kinematics are evaluated at each.
+    subset = np.asarray(subset, dtype=int)[np.isin(subset, index_of)]
+    position = {int(c): i for i, c in enumerate(subset)}
     rows = [(position[int(c)], a, b, float(d)) for c, a, b, d in zip(
         index_of, table.ids["element_a"], table.ids["element_b"], table.values[:, 0], strict=True
     ) if int(c) in position]  # fmt: skip
