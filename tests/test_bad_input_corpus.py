@@ -101,6 +101,32 @@ def _drop(path: str):
     return change
 
 
+def _contact(tables: dict[str, str], change: Callable[[dict], None] = lambda doc: None):
+    """The seed dataset with contact elements (two balls on the flange, a table plane) and the
+    contact tables ``tables`` (name -> CSV text), its header then changed by ``change``."""
+
+    def apply(root: Path) -> None:
+        doc = yaml.safe_load((root / "data" / "dataset.yaml").read_text(encoding="utf-8"))
+        doc["contact"] = {
+            "elements": {"a": {"tip": "flange", "xyz": [0, 0, 0.05], "radius": 0.01},
+                         "b": {"tip": "flange", "xyz": [0, 0.1, 0.05], "radius": 0.01}},
+            "planes": {"table": {"normal": [0, 0, 1], "offset": 0.2}},
+        }  # fmt: skip
+        for name, text in tables.items():
+            (root / "data" / f"{name}.csv").write_text(text, encoding="utf-8")
+            doc["measured"].append(name)
+            doc["files"][name] = f"{name}.csv"
+        change(doc)
+        (root / "data" / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return apply
+
+
+CONTACTS = "config,element_a,element_b\nc0000,a,b\nc0001,a,b\n"
+PLANE_CONTACTS = "config,element,plane\nc0000,a,table\nc0001,b,table\n"
+TIP_DISTANCES = "config,element_a,element_b,distance\nc0000,a,b,0.3\nc0001,a,b,0.31\n"
+
+
 def _cell_file(change: Callable[[dict], None]):
     return lambda root: _edit_yaml(root / "cell.yaml", change)
 
@@ -342,6 +368,34 @@ CASES = [
         "config",
     ),
     ("tracker_text_value", _cell("tracker_points.csv", 2, "x", "1.2.3"), CALIBRATE, "tracker_points.csv", "column x"),
+    # contacts.csv, plane_contacts.csv, tip_distances.csv and dataset.yaml contact (a robot measuring itself)
+    ("contacts_unknown_element", _contact({"contacts": CONTACTS.replace("c0001,a,b", "c0001,a,zz")}), CALIBRATE,
+     "contacts.csv", "line 3, column element_b"),
+    ("contacts_same_element", _contact({"contacts": CONTACTS.replace("c0001,a,b", "c0001,a,a")}), CALIBRATE,
+     "contacts.csv", "line 3"),
+    ("contacts_twice", _contact({"contacts": CONTACTS + "c0001,b,a\n"}), CALIBRATE, "contacts.csv", "lines 3 and 4"),
+    ("contacts_unknown_config", _contact({"contacts": CONTACTS.replace("c0001", "c-1")}), CALIBRATE, "contacts.csv",
+     "config"),
+    ("contacts_no_section", _contact({"contacts": CONTACTS}, _drop("contact")), CALIBRATE, "dataset.yaml", "contact"),
+    ("contact_unknown_tip", _contact({"contacts": CONTACTS}, _set("contact.elements.a.tip", "elbow")), CALIBRATE,
+     "dataset.yaml", "contact.elements.a.tip"),
+    ("contact_zero_radius", _contact({"contacts": CONTACTS}, _set("contact.elements.b.radius", 0)), CALIBRATE,
+     "dataset.yaml", "contact.elements.b.radius"),
+    ("contact_zero_normal",
+     _contact({"plane_contacts": PLANE_CONTACTS}, _set("contact.planes.table.normal", [0, 0, 0])), CALIBRATE,
+     "dataset.yaml", "contact.planes.table.normal"),
+    ("plane_contacts_unknown_plane", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "b,wall")}),
+     CALIBRATE, "plane_contacts.csv", "line 3, column plane"),
+    ("plane_contacts_unknown_element", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "z,table")}),
+     CALIBRATE, "plane_contacts.csv", "line 3, column element"),
+    ("plane_contacts_no_column", _contact({"plane_contacts": PLANE_CONTACTS.replace("plane\n", "surface\n")}),
+     CALIBRATE, "plane_contacts.csv", "plane"),
+    ("tip_distances_negative", _contact({"tip_distances": TIP_DISTANCES.replace("0.31", "-0.31")}), CALIBRATE,
+     "tip_distances.csv", "line 3, column distance"),
+    ("tip_distances_text", _contact({"tip_distances": TIP_DISTANCES.replace("0.31", "far")}), CALIBRATE,
+     "tip_distances.csv", "column distance"),
+    ("tip_distances_same_element", _contact({"tip_distances": TIP_DISTANCES.replace("c0001,a,b", "c0001,b,b")}),
+     CALIBRATE, "tip_distances.csv", "line 3"),
     # calibration config
     (
         "config_malformed",
