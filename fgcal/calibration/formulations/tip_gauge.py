@@ -18,7 +18,18 @@ from ...data.truth import Truth
 from ...factors import MeasurementSet, RobustLoss, TipDistances
 from ...model.robot import Robot
 from ..batch import BatchKinematics
-from ..problem import Formulation, Keys, Observations, Problem, Rejection, Scored, measured_table, subset_of, take
+from ..problem import (
+    Formulation,
+    Keys,
+    Observations,
+    Problem,
+    Rejection,
+    Scored,
+    measured_table,
+    refuse_unstarted,
+    subset_of,
+    take,
+)
 from ..settings import MeasurementSettings
 from ..state import State
 from .contact import CENTRES, contact_setup, element_state, element_tips, frame_rows, scored_elements, tips_of
@@ -85,6 +96,17 @@ class TipGauge(Formulation):
                 raise InputError(path, "element_a", f"element {name!r} has {counts[k]} readings in the fitting set: "
                                  "each needs many, in clearly different configurations")  # fmt: skip
         return observations
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's tip_distances of the elements (and planes) the run started with."""
+        table = measured_table(dataset, "tip_distances", self.name)
+        rows = np.isin(dataset.config_index(table.ids["config"]), subset)
+        path = dataset.path / "tip_distances.csv"
+        for column in ("element_a", "element_b"):
+            refuse_unstarted(table.ids[column][rows], like.names, path, column, "element", "it is not estimated")
+        return _observations(dataset, subset, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = _observations(problem.dataset, problem.test, problem.observations.names)
