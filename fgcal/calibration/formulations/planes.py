@@ -29,13 +29,22 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
-    refuse_unstarted,
     subset_of,
     take,
 )
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
-from .contact import CENTRES, RADII, contact_setup, element_state, element_tips, frame_rows, scored_elements, tips_of
+from .contact import (
+    CENTRES,
+    NOT_ONLINE,
+    RADII,
+    contact_setup,
+    element_state,
+    element_tips,
+    frame_rows,
+    scored_elements,
+    tips_of,
+)
 from .contact import true_elements as true_contact_elements
 
 PLANES = "contact_planes"
@@ -78,6 +87,7 @@ class Planes(Formulation):
         "nominal normal pointing away from the side the robot touches, joint angles in other units than units: declares"
     )
     instrument = "planes"
+    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.contact_m
@@ -105,18 +115,6 @@ class Planes(Formulation):
                         "many, in clearly different configurations",
                     )  # fmt: skip
         return observations
-
-    def online_observations(
-        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
-    ) -> Observations:
-        """A configuration's plane_contacts of the elements (and planes) the run started with."""
-        table = measured_table(dataset, "plane_contacts", self.name)
-        rows = np.isin(dataset.config_index(table.ids["config"]), subset)
-        path = dataset.path / "plane_contacts.csv"
-        for column in ("element",):
-            refuse_unstarted(table.ids[column][rows], like.names, path, column, "element", "it is not estimated")
-        refuse_unstarted(table.ids["plane"][rows], like.plane_names, path, "plane", "plane", "it is not estimated")
-        return _observations(dataset, subset, like.names, like.plane_names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         fitted = problem.observations

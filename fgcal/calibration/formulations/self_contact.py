@@ -29,13 +29,22 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
-    refuse_unstarted,
     subset_of,
     take,
 )
 from ..settings import MeasurementSettings
 from ..state import State
-from .contact import CENTRES, RADII, contact_setup, element_state, element_tips, frame_rows, scored_elements, tips_of
+from .contact import (
+    CENTRES,
+    NOT_ONLINE,
+    RADII,
+    contact_setup,
+    element_state,
+    element_tips,
+    frame_rows,
+    scored_elements,
+    tips_of,
+)
 from .contact import true_elements as true_contact_elements
 
 
@@ -75,6 +84,7 @@ class SelfContact(Formulation):
         "elements' tips or drawings wrong in dataset.yaml contact, joint angles in other units than units: declares"
     )
     instrument = "self_contact"
+    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.contact_m
@@ -100,17 +110,6 @@ class SelfContact(Formulation):
                     "contacts, in clearly different configurations",
                 )  # fmt: skip
         return observations
-
-    def online_observations(
-        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
-    ) -> Observations:
-        """A configuration's contacts of the elements (and planes) the run started with."""
-        table = measured_table(dataset, "contacts", self.name)
-        rows = np.isin(dataset.config_index(table.ids["config"]), subset)
-        path = dataset.path / "contacts.csv"
-        for column in ("element_a", "element_b"):
-            refuse_unstarted(table.ids[column][rows], like.names, path, column, "element", "it is not estimated")
-        return _observations(dataset, subset, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = _observations(problem.dataset, problem.test, problem.observations.names)

@@ -26,13 +26,21 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
-    refuse_unstarted,
     subset_of,
     take,
 )
 from ..settings import MeasurementSettings
 from ..state import State
-from .contact import CENTRES, contact_setup, element_state, element_tips, frame_rows, scored_elements, tips_of
+from .contact import (
+    CENTRES,
+    NOT_ONLINE,
+    contact_setup,
+    element_state,
+    element_tips,
+    frame_rows,
+    scored_elements,
+    tips_of,
+)
 from .contact import true_elements as true_contact_elements
 
 
@@ -73,6 +81,7 @@ class TipGauge(Formulation):
         "of its full length, the balls swapped between tips, joint angles in other units than units: declares"
     )
     instrument = "tip_gauge"
+    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.distance_m
@@ -96,17 +105,6 @@ class TipGauge(Formulation):
                 raise InputError(path, "element_a", f"element {name!r} has {counts[k]} readings in the fitting set: "
                                  "each needs many, in clearly different configurations")  # fmt: skip
         return observations
-
-    def online_observations(
-        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
-    ) -> Observations:
-        """A configuration's tip_distances of the elements (and planes) the run started with."""
-        table = measured_table(dataset, "tip_distances", self.name)
-        rows = np.isin(dataset.config_index(table.ids["config"]), subset)
-        path = dataset.path / "tip_distances.csv"
-        for column in ("element_a", "element_b"):
-            refuse_unstarted(table.ids[column][rows], like.names, path, column, "element", "it is not estimated")
-        return _observations(dataset, subset, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = _observations(problem.dataset, problem.test, problem.observations.names)
