@@ -17,7 +17,7 @@ from .contact import PlaneContacts, SelfContacts, TipDistances
 from .kinematics import Kinematics
 from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
-from .projection import BehindCameraError, Projections, StaticProjections, project
+from .projection import BehindCameraError, LinkProjections, Projections, StaticProjections, project
 from .touch import SocketSpacings, TouchPoints
 from .tracker import Distances, Poses, TrackerPoints
 
@@ -28,6 +28,7 @@ __all__ = [
     "Evaluation",
     "FactorError",
     "Kinematics",
+    "LinkProjections",
     "MeasurementFactor",
     "MeasurementSet",
     "OutsideModelError",

@@ -13,6 +13,7 @@ from fgcal.factors import (
     CheckedFactor,
     Distances,
     FactorError,
+    LinkProjections,
     MeasurementFactor,
     MeasurementSet,
     ParameterBoundFactor,
@@ -104,6 +105,23 @@ def _measurement_sets():
         static = StaticProjections(model, key, 5, 4, configs, points, pixels, 0.5, intrinsics_key=3, robust=robust)
         sets.append((static, values))
         sets.append((StaticProjections(model, key, 5, 4, configs, points, pixels, 0.5, intrinsics=intrinsics), values))
+
+        # Self-observation: two cameras on the link of configurations 0 and 1 (rows 0, 1), each
+        # 0.5 m from a board on row 2's frame, whose points they see.
+        values = gtsam.Values()
+        model = _kinematics(values)
+        poses = model.poses(values.atVector(P_KEY))
+        values.insert(20, gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), RNG.normal(0, 0.05, 3)))  # board
+        board_W = gtsam.Pose3(poses[2]).compose(values.atPose3(20))
+        for mount, row in ((21, 0), (22, 1)):
+            camera_W = board_W.compose(gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.2, 3)), [0.02, -0.03, -0.5]))
+            values.insert(mount, gtsam.Pose3(poses[row]).inverse().compose(camera_W))
+        intrinsics = np.array([[1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05],
+                               [1200.0, 1210.0, 600.0, 500.0, 0.1, -0.05, 0.0, 1e-3, 0.0]])  # fmt: skip
+        link = LinkProjections(model, key, [21, 22], [20], np.array([0, 0, 1, 1]), np.array([2, 2, 2, 2]),
+                               np.array([0, 0, 1, 1]), np.zeros(4, dtype=int), RNG.normal(0, 0.03, (4, 3)),
+                               RNG.uniform(300, 900, (4, 2)), 0.5, intrinsics, robust=robust)  # fmt: skip
+        sets.append((link, values))
 
         values = gtsam.Values()
         model = _kinematics(values)
