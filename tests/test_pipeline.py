@@ -30,6 +30,8 @@ CELLS = REPO / "datasets" / "cells"
 SELF_CONTAINED = {
     "contact": {"self_contacts": 260, "plane_contacts": 70, "gauge": {"readings": 280},
                 "hold": {"joints": [1, 2, 3], "at": [0, 0, 0]}},
+    "self_observation": {"views": 150},
+    "noise": {"pixel_sigma_px": 0.05},
     "perturbation": {"length": 0, "compliance": [0, 0], "distortion": 0, "mass_scale": 0},
 }  # fmt: skip
 FAST = {
@@ -43,12 +45,14 @@ FAST = {
     "touch": ("seven_axis_touch", {"touch": {"touches_per_point": 16}},
               {"compliant_joints": [2, 4], "noise": {"touch_sigma": 5e-6, "spacing_sigma": 3e-6}}),
     "static_camera": ("irb120_static_camera", {"design": {"n_configurations": 40}}, {"noise": {"pixel_sigma_px": 0.1}}),
-    # A robot measuring itself: one dataset for the three (simulated once). Contacts alone have no
-    # scale but a ball's radius, and self-contact and the hands' gauge cannot see the torso: here
-    # the lengths are the drawing's and the torso is held (docs/model.md, "Contact").
+    # A robot measuring itself: one dataset for the four (simulated once). Contacts alone have no
+    # scale but a ball's radius, and self-contact, the hands' gauge and the torso's cameras cannot
+    # see the torso: here the lengths are the drawing's and the torso is held (docs/model.md, "A
+    # robot measuring itself").
     "self_contact": ("dual_arm_selfcontained", SELF_CONTAINED, {"model": "DH"}),
     "planes": ("dual_arm_selfcontained", SELF_CONTAINED, {"model": "DH"}),
     "tip_gauge": ("dual_arm_selfcontained", SELF_CONTAINED, {"model": "DH"}),
+    "self_observation": ("dual_arm_selfcontained", SELF_CONTAINED, {"model": "DH"}),
 }  # fmt: skip
 
 

@@ -36,6 +36,7 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
 - contacts: ``config, element_a, element_b`` (two contact elements of dataset.yaml contact touch)
 - plane_contacts: ``config, element, plane`` (a contact element touches a plane of dataset.yaml contact)
 - tip_distances: ``config, element_a, element_b, distance`` (a gauge between two contact elements' centres)
+- observed_pixels: ``config, camera, board, point, u, v`` (a camera on a link sees a board's point on a tip)
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,7 @@ TABLES = {
     "contacts": (("config", "element_a", "element_b"), (), "length"),
     "plane_contacts": (("config", "element", "plane"), (), "length"),
     "tip_distances": (("config", "element_a", "element_b"), ("distance",), "length"),
+    "observed_pixels": (("config", "camera", "board", "point"), ("u", "v"), "pixel"),
 }
 MEASUREMENTS = MEASURED  # the tables a dataset may list as measured (data.schema: one list)
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
@@ -122,6 +124,33 @@ class ContactSetup:
     plane_offset_sigma_m: float | None = None
 
 
+@dataclass(frozen=True)
+class LinkCamera:
+    """A camera on a link (dataset.yaml self_observation.cameras); the link's frame is the
+    robot's tip of the camera's name (added to the dataset's robot)."""
+
+    joint: int  # 0-based; -1 the base
+    mounting: np.ndarray  # nominal T_link_C
+    camera: Camera
+
+
+@dataclass(frozen=True)
+class TipBoard:
+    """A checkerboard on a tip (dataset.yaml self_observation.boards)."""
+
+    tip: str
+    pose: np.ndarray  # nominal T_tip_B
+    points: np.ndarray  # (m, 3) its inner corners in its frame (z = 0, frame at the centre)
+    point_names: tuple[str, ...]
+
+
+def board_corners(columns: int, rows: int, square: float) -> tuple[np.ndarray, tuple[str, ...]]:
+    """A checkerboard's inner corners (m, 3) in its frame (at its centre) and their names."""
+    points = np.array([[c * square, r * square, 0.0] for r in range(rows) for c in range(columns)])
+    points[:, :2] -= points[:, :2].mean(axis=0)
+    return points, tuple(f"c{r:02d}{c:02d}" for r in range(rows) for c in range(columns))
+
+
 @dataclass
 class Dataset:
     path: Path
@@ -143,6 +172,8 @@ class Dataset:
     # listed in tracker.tips): dataset.yaml tip; None: the flange.
     tip: str | None = None
     contact: ContactSetup | None = None  # dataset.yaml contact (contact elements and planes)
+    link_cameras: dict[str, LinkCamera] = field(default_factory=dict)  # dataset.yaml self_observation
+    tip_boards: dict[str, TipBoard] = field(default_factory=dict)
 
     @property
     def motion_history(self) -> MotionHistory:
@@ -452,6 +483,10 @@ def load_dataset(path: str | Path) -> Dataset:
     for name in ("contacts", "plane_contacts", "tip_distances"):
         if name in dataset.tables:
             _check_contacts(dataset, name, _inside(root, files, name), doc)
+    if doc.has("self_observation"):
+        _self_observation(dataset, doc.sub("self_observation"), units)
+    if "observed_pixels" in dataset.tables:
+        _check_observed(dataset, _inside(root, files, "observed_pixels"), doc)
     if doc.has("camera"):
         cam = doc.sub("camera")
         dataset.camera = parse_camera(cam)
@@ -576,6 +611,60 @@ def _check_contacts(dataset: Dataset, name: str, path: Path, doc: Fields) -> Non
                 known = ", ".join(sorted(dataset.contact.planes)) or "none"
                 raise InputError(path, f"line {line}, column plane", f"plane {plane!r} is not in "
                                  f"dataset.yaml contact.planes ({known})")  # fmt: skip
+
+
+def _self_observation(dataset: Dataset, section: Fields, units: Units) -> None:
+    """dataset.yaml self_observation: each camera's link becomes a tip of the dataset's robot (of
+    the camera's name), each board's tip is one of the robot's."""
+    robot = dataset.robot
+    cameras, tips = section.sub("cameras"), list(robot.tips)
+    for name in cameras.data:
+        camera = cameras.sub(str(name))
+        joint = camera.integer("joint", minimum=0)
+        if joint > robot.n_links:
+            raise camera.error("joint", f"{robot.name} has joints 1 to {robot.n_links} (0: the base)")
+        if str(name) in robot.tip_names:
+            raise cameras.error(str(name), f"a camera's name names its link's frame: {name!r} is a tip already")
+        dataset.link_cameras[str(name)] = LinkCamera(joint - 1, _pose(camera.sub("mounting"), units),
+                                                     parse_camera(camera))  # fmt: skip
+        tips.append((str(name), joint - 1, np.eye(4)))
+    if not dataset.link_cameras:
+        raise section.error("cameras", "no camera")
+    boards = section.sub("boards")
+    for name in boards.data:
+        board = boards.sub(str(name))
+        tip = board.string("tip")
+        if robot.tip_error(tip):
+            raise board.error("tip", robot.tip_error(tip))
+        corners = board.vector("corners", 2)
+        if np.any(corners < 2) or np.any(corners != np.round(corners)):
+            raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
+        points, names = board_corners(int(corners[0]), int(corners[1]),
+                                      board.number("square", scale=units.to_m, positive=True))  # fmt: skip
+        pose = _pose(board.sub("pose"), units)
+        dataset.tip_boards[str(name)] = TipBoard(robot.flange_name if tip == "flange" else tip, pose, points, names)
+    if not dataset.tip_boards:
+        raise section.error("boards", "no board")
+    dataset.robot = replace(robot, tips=tuple(tips))
+
+
+def _check_observed(dataset: Dataset, path: Path, doc: Fields) -> None:
+    """Observed pixels name the cameras, boards and points of self_observation."""
+    if not dataset.link_cameras:
+        raise doc.error("self_observation", "the observed_pixels table needs the self_observation section")
+    table = dataset.tables["observed_pixels"]
+    for line, (camera, board, point) in enumerate(
+        zip(table.ids["camera"], table.ids["board"], table.ids["point"], strict=True), start=2
+    ):
+        if camera not in dataset.link_cameras:
+            raise InputError(path, f"line {line}, column camera", f"camera {camera!r} is not in dataset.yaml "
+                             f"self_observation.cameras ({', '.join(dataset.link_cameras)})")  # fmt: skip
+        if board not in dataset.tip_boards:
+            raise InputError(path, f"line {line}, column board", f"board {board!r} is not in dataset.yaml "
+                             f"self_observation.boards ({', '.join(dataset.tip_boards)})")  # fmt: skip
+        if point not in dataset.tip_boards[board].point_names:
+            raise InputError(path, f"line {line}, column point", f"board {board!r} has no point {point!r} (its inner "
+                             "corners are c<row><column>, c0000 to the last)")  # fmt: skip
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:

@@ -11,13 +11,13 @@ from pydantic import Field
 from ..core.noise import NoiseSection
 from ..core.schema import Label, Number, Pose, Schema, Units, checked, choice, constant, one_or_more, refuse, vector
 from ..model.boards import DICTIONARY
-from ..model.schema import Camera, RobotReference
+from ..model.schema import Camera, Intrinsics, RobotReference
 
 DATASET_FORMAT = "fgcal-dataset/1"
 IMPORT_FORMAT = "fgcal-import/1"
 MEASURED = ("camera_points", "pixels", "tracker_points", "tracker_references", "touch_points", "point_distances",
             "tracker_poses", "distances", "tool_distances", "contacts", "plane_contacts",
-            "tip_distances")  # fmt: skip
+            "tip_distances", "observed_pixels")  # fmt: skip
 ORDER = "the configurations' order: measured (the rows are the measurement order; motion history) or unknown"
 
 
@@ -38,6 +38,7 @@ class Files(Schema):
     contacts: str = Field(None, description="config, element_a, element_b: two contact elements touch")
     plane_contacts: str = Field(None, description="config, element, plane: a contact element touches a plane")
     tip_distances: str = Field(None, description="config, element_a, element_b, distance: a gauge between two balls")
+    observed_pixels: str = Field(None, description="config, camera, board, point, u, v: a link camera sees a board")
 
 
 class Board(Schema):
@@ -97,6 +98,32 @@ class Contact(Schema):
     )
 
 
+class LinkCamera(Schema):
+    """A camera on a link of the robot (self-observation): its image and intrinsics (known)."""
+
+    joint: int = Field(ge=0, description="the link (1-based joint number; 0 the base) whose frame carries it")
+    mounting: Pose = Field(description="its nominal pose on the link (T_link_C): the calibration's start")
+    image_size: vector(2) = Field(description="width and height, px")
+    intrinsics: Intrinsics
+    distortion: vector(5) = Field([0.0] * 5, description="OpenCV's k1, k2, p1, p2, k3")
+
+
+class TipBoard(Schema):
+    """A checkerboard on a tip of the robot (self-observation)."""
+
+    tip: str = Field(description="the robot's tip (or flange) carrying it")
+    pose: Pose = Field(description="its nominal pose on the tip (T_tip_B, its frame at its centre): the start")
+    corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2; points c00, c01, ...")
+    square: Number = Field(gt=0, description="a square's side")
+
+
+class SelfObservation(Schema):
+    """Cameras on links of the robot seeing boards on its tips (the observed_pixels table)."""
+
+    cameras: dict[str, LinkCamera]
+    boards: dict[str, TipBoard]
+
+
 class DatasetPayload(Schema):
     mass: Number = Field(ge=0, description="kg")
     com: vector(3) = Field([0.0, 0.0, 0.0], description="on the flange, the dataset's length unit")
@@ -119,6 +146,7 @@ class DatasetHeader(Schema):
     markers: Markers = Field(None, description="the ChArUco boards the images show (with images)")
     tracker: Tracker = None
     contact: Contact = Field(None, description="contact elements (balls on tips) and planes (contacts tables)")
+    self_observation: SelfObservation = Field(None, description="cameras on links seeing boards on tips")
     tip: str = Field(None, description="the robot's tip that carries the measured point(s); default the flange")
     noise: NoiseSection = Field(None, description="what the instrument states")
     order: Literal["measured", "unknown"] = Field("measured", description=ORDER)

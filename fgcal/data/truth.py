@@ -13,6 +13,7 @@ SI throughout; poses as ``{xyz, rpy}`` in the file, 4x4 here::
     ballbar: {ball: [3], pivots: {name: [3]}}
     static_camera: {pose: {xyz, rpy}, board_mount: {xyz, rpy}}   # T_W_C, T_n_B
     contact: {elements: {name: {xyz: [3], radius}}, planes: {name: {normal: [3], offset}}}  # tip frames; W
+    self_observation: {cameras: {name: {xyz, rpy}}, boards: {name: {xyz, rpy}}}  # T_link_C, T_tip_B
     noise_sigma: {...}, deviation_before_calibration_m: {mean, max}, drift: {...}
 """
 
@@ -59,6 +60,9 @@ class Truth:
     # Contact elements: name -> (centre on its tip (3,), radius); planes: name -> (unit normal in W, offset).
     contact_elements: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
     contact_planes: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
+    # Self-observation: each camera's mounting on its link (T_link_C), each board's pose on its tip (T_tip_B).
+    link_cameras: dict[str, np.ndarray] = field(default_factory=dict)
+    tip_boards: dict[str, np.ndarray] = field(default_factory=dict)
     # How the simulator reached each configuration (fgcal.model.motion): id -> (joints before, rad or
     # m, NaN: unknown; speed factor). Scores against the truth use it, not the dataset's copy.
     motion_history: dict[str, tuple[np.ndarray, float]] | None = None
@@ -103,6 +107,11 @@ class Truth:
             doc["contact"] = {
                 "elements": {n: {"xyz": _vector(c), "radius": float(r)} for n, (c, r) in self.contact_elements.items()},
                 "planes": {n: {"normal": _vector(v), "offset": float(d)} for n, (v, d) in self.contact_planes.items()},
+            }
+        if self.link_cameras:
+            doc["self_observation"] = {
+                "cameras": {n: _pose_doc(T) for n, T in self.link_cameras.items()},
+                "boards": {n: _pose_doc(T) for n, T in self.tip_boards.items()},
             }
         doc["noise_sigma"] = dict(self.noise_sigma)
         doc["deviation_before_calibration_m"] = dict(self.deviation_before_calibration_m)
@@ -151,6 +160,11 @@ def load_truth(dataset_dir: str | Path) -> Truth | None:
         optional["contact_planes"] = {
             str(n): (planes.sub(str(n)).vector("normal", 3), planes.sub(str(n)).number("offset")) for n in planes.data
         }
+    if doc.has("self_observation"):
+        seen = doc.sub("self_observation")
+        cameras, boards = seen.sub("cameras", {}), seen.sub("boards", {})
+        optional["link_cameras"] = {str(n): _pose(cameras.sub(str(n))) for n in cameras.data}
+        optional["tip_boards"] = {str(n): _pose(boards.sub(str(n))) for n in boards.data}
     return Truth(
         seed=doc.integer("seed"),
         cell=doc.string("cell", ""),

@@ -184,10 +184,29 @@ class ContactCellSetup:
     held_at: tuple[float, ...] = ()  # rad or m
 
 
+@dataclass(frozen=True)
+class SelfObservationSetup:
+    """Cameras on links seeing checkerboards on tips (SI; the drawing's poses)."""
+
+    camera_names: tuple[str, ...]
+    joints: tuple[int, ...]  # 1-based link numbers (0: the base)
+    mountings: np.ndarray  # (c, 4, 4) T_link_C
+    cameras: tuple[Camera, ...]
+    board_names: tuple[str, ...]
+    tips: tuple[str, ...]
+    poses: np.ndarray  # (b, 4, 4) T_tip_B
+    corners: tuple[tuple[int, int], ...]
+    squares: tuple[float, ...]
+    views: int
+    length_error_m: float
+    angle_error_rad: float
+    max_view_angle_rad: float
+
+
 # What can measure in a cell, the more specific first: a 6D probe is a tracker's too, and a
 # camera cell has a tracker besides; a robot touching itself carries a tracker for validation.
-INSTRUMENTS = ("static_camera", "touch", "ballbar", "self_contact", "planes", "tip_gauge", "tracker_probe", "camera",
-               "tracker")  # fmt: skip
+INSTRUMENTS = ("static_camera", "touch", "ballbar", "self_contact", "planes", "tip_gauge", "self_observation",
+               "tracker_probe", "camera", "tracker")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -225,6 +244,7 @@ class Cell:
     contact: ContactCellSetup | None = None  # balls on the tips touching each other and planes
     contact_sigma_m: float = 0.0
     validation: tuple[str, ...] = ()  # instruments (INSTRUMENTS) measured for validation only
+    self_observation: SelfObservationSetup | None = None  # cameras on a link seeing boards on the tips
 
     @property
     def instruments(self) -> list[str]:
@@ -236,6 +256,7 @@ class Cell:
             "self_contact": self.contact is not None and self.contact.self_contacts > 0,
             "planes": self.contact is not None and self.contact.plane_contacts > 0 and bool(self.contact.plane_names),
             "tip_gauge": self.contact is not None and self.contact.gauge_readings > 0,
+            "self_observation": self.self_observation is not None,
             "tracker_probe": self.tracker_probe is not None,
             "camera": self.camera is not None,
             "tracker": self.has_tracker,
@@ -444,6 +465,39 @@ def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> Conta
     )  # fmt: skip
 
 
+def _self_observation(section: Fields, robot: Robot, to_m: float, to_rad: float) -> SelfObservationSetup:
+    cameras = section.sub_list("cameras")
+    boards = section.sub_list("boards")
+    for camera in cameras:
+        if camera.integer("joint", minimum=0) > robot.n_links:
+            raise camera.error("joint", f"{robot.name} has joints 1 to {robot.n_links} (0: the base)")
+    tips = []
+    for board in boards:
+        tip = board.string("tip")
+        if robot.tip_error(tip):
+            raise board.error("tip", robot.tip_error(tip))
+        tips.append(robot.flange_name if tip == "flange" else tip)
+        corners = board.vector("corners", 2)
+        if np.any(corners < 2) or np.any(corners != np.round(corners)):
+            raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
+    names = [c.string("name") for c in cameras] + [b.string("name") for b in boards]
+    if len(set(names)) != len(names) or set(names) & set(robot.tip_names):
+        raise section.error("cameras", f"names must differ from each other and from the robot's tips: {names}")
+    error = section.vector("mounting_error", 2, [2e-3 / to_m, np.radians(1.0) / to_rad])
+    angle = section.number("max_view_angle", np.radians(60.0) / to_rad, to_rad, positive=True)
+    if angle >= np.pi / 2:
+        raise section.error("max_view_angle", "a camera sees a board's face: below 90 deg")
+    return SelfObservationSetup(
+        tuple(c.string("name") for c in cameras), tuple(c.integer("joint") for c in cameras),
+        np.array([_pose(c, "mounting", to_m, to_rad) for c in cameras]).reshape(-1, 4, 4),
+        tuple(parse_camera(c) for c in cameras), tuple(b.string("name") for b in boards), tuple(tips),
+        np.array([_pose(b, "pose", to_m, to_rad) for b in boards]).reshape(-1, 4, 4),
+        tuple((int(b.vector("corners", 2)[0]), int(b.vector("corners", 2)[1])) for b in boards),
+        tuple(b.number("square", scale=to_m, positive=True) for b in boards), section.integer("views", 200, minimum=1),
+        float(error[0] * to_m), float(error[1] * to_rad), float(angle),
+    )  # fmt: skip
+
+
 def _static_camera(section: Fields, to_m: float, to_rad: float) -> StaticCameraSetup:
     board = section.sub("board")
     corners = board.vector("corners", 2)
@@ -538,6 +592,9 @@ def load_cell(path: str | Path) -> Cell:
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
     static = _static_camera(doc.sub("static_camera"), to_m, to_rad) if doc.has("static_camera") else None
     contact = _contact(doc.sub("contact"), robot, to_m, to_rad) if doc.has("contact") else None
+    seen = _self_observation(doc.sub("self_observation"), robot, to_m, to_rad) if doc.has("self_observation") else None
+    if seen is not None and contact is None:
+        raise doc.error("self_observation", "is simulated in a cell of contacts (a robot measuring itself) only")
     setups = [key for key, setup in (("camera", camera), ("touch", touch), ("ballbar", ballbar),
               ("static_camera", static), ("contact", contact)) if setup is not None]  # fmt: skip
     if len(setups) > 1:
@@ -596,6 +653,7 @@ def load_cell(path: str | Path) -> Cell:
         distance_sigma_m=noise.number("distance_sigma", 2e-6 / to_m, to_m, nonnegative=True),
         static_camera=static,
         contact=contact,
+        self_observation=seen,
         contact_sigma_m=noise.number("contact_sigma", 5e-6 / to_m, to_m, nonnegative=True),
         motion=motion,
         # A tracker section declares one; a cell with no other instrument is a tracker cell.

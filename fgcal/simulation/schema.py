@@ -167,6 +167,34 @@ class Contact(Schema):
     hold: Hold = None
 
 
+class LinkCamera(Schema):
+    name: str
+    joint: int = Field(ge=0, description="the link (1-based joint; 0 the base) whose frame carries it")
+    mounting: Pose = Field(description="its pose on the link (the drawing's)")
+    image_size: vector(2) = Field(description="px")
+    intrinsics: Intrinsics
+    distortion: vector(5) = [0.0] * 5
+
+
+class TipBoard(Schema):
+    name: str
+    tip: str = Field(description="the robot's tip (or flange) carrying it")
+    pose: Pose = Field(description="its pose on the tip (the drawing's), its frame at its centre")
+    corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2")
+    square: Number = Field(gt=0, description=LENGTH)
+
+
+class SelfObservation(Schema):
+    """Cameras on a link seeing checkerboards on the tips (observed_pixels)."""
+
+    cameras: list[LinkCamera]
+    boards: list[TipBoard]
+    views: int = Field(200, ge=1, le=MAX_CONFIGURATIONS // 2, description="configurations where a camera sees a board")
+    mounting_error: vector(2) = Field(None, description=f"the true mountings and boards off the drawing's: [{LENGTH}, "
+                                      f"{ANGLE}] (default 2 mm, 1 deg)")  # fmt: skip
+    max_view_angle: Number = Field(None, gt=0, description=f"{ANGLE} (default 60 deg)")
+
+
 class StaticBoard(Schema):
     mount: Pose = Field(None, description="the board on the flange")
     corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2")
@@ -249,6 +277,7 @@ class CellFile(Schema):
     ballbar: Ballbar = None
     static_camera: StaticCamera = None
     contact: Contact = None
+    self_observation: SelfObservation = None
     validation: list[str] = Field(
         None,
         description="instruments measured for validation only: the suggested config fits the cell's other "

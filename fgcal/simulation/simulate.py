@@ -23,6 +23,7 @@ from .ballbar import ballbar_design, ballbar_file_design, pairs_design, write_ba
 from .cell import Cell, load_cell
 from .contact import contact_design, contact_header, contact_truth, write_contact_tables
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
+from .self_observation import observation_design, observation_header, observation_truth, write_observed_pixels
 from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
 from .touch import touch_design, touch_file_design, write_touch_tables
 from .truth import perturb_parameters
@@ -139,6 +140,7 @@ def simulate(
     )
     true_params = perturb_parameters(robot, cell.perturbation, truth_rng)
     contact_true = contact_truth(cell, truth_rng) if cell.contact is not None else None  # after: the robot's stay
+    seen_true = observation_truth(cell, truth_rng) if cell.self_observation is not None else None
     if cell.motion is not None:
         true_params |= cell.motion.parameters()
     if render and cell.motion is not None:
@@ -189,6 +191,10 @@ def simulate(
     elif cell.contact is not None:
         contacts = contact_design(cell, robot.parameter_vector(true_params), contact_true, design_rng, noise_rng, say)
         views = [View(qi, None, ()) for qi in contacts.q]
+        if seen_true is not None:  # after the contacts' draws, which stay as they were
+            seeing = observation_design(cell, robot.parameter_vector(true_params), seen_true, design_rng, noise_rng)
+            views += [View(qi, None, ()) for qi in seeing.q]
+            say(f"  {len(seeing.q)} configurations where a camera sees a board ({len(seeing.rows)} pixels)")
     elif cell.static_camera is not None:
         views = static_camera_design(cell, true_params, design_rng)
     elif cell.camera is None:
@@ -232,6 +238,8 @@ def simulate(
     elif cell.contact is not None:
         _write_configurations(out, cell, q, config_ids)
         counts = write_contact_tables(out, contacts, config_ids)
+        if seen_true is not None:
+            counts |= write_observed_pixels(out, seeing, config_ids[len(contacts.q) :])
         if cell.has_tracker:  # the validation's reflectors, after the contacts' draws
             counts |= _write_tracker_points(out, cell, q, config_ids, true_params, noise_rng)
     elif cell.static_camera is not None:
@@ -267,6 +275,8 @@ def simulate(
         static_camera_board_mount=cell.static_camera.board_mount if cell.static_camera is not None else None,
         contact_elements=contact_true.elements(cell) if contact_true is not None else {},
         contact_planes=contact_true.planes(cell) if contact_true is not None else {},
+        link_cameras=seen_true.documents(cell)[0] if seen_true is not None else {},
+        tip_boards=seen_true.documents(cell)[1] if seen_true is not None else {},
         noise_sigma={
             "camera_point_m": cell.camera_point_sigma_m,
             "pixel_px": cell.pixel_sigma_px,
@@ -279,6 +289,7 @@ def simulate(
                 if cell.contact is not None
                 else {}
             ),
+            **({"pixel_px": cell.pixel_sigma_px} if cell.self_observation is not None else {}),
         },
         deviation_before_calibration_m={"mean": float(deviation.mean()), "max": float(deviation.max())},
         drift=(
@@ -466,6 +477,7 @@ def stated_noise(cell: Cell, measured: list[str]) -> dict[str, float]:
         "contacts": {"contact_m": cell.contact_sigma_m},
         "plane_contacts": {"contact_m": cell.contact_sigma_m},
         "tip_distances": {"distance_m": cell.distance_sigma_m},
+        "observed_pixels": {"pixel_px": cell.pixel_sigma_px},
     }
     out: dict[str, float] = {}
     for table in measured:
@@ -488,8 +500,10 @@ def _write_header(
     )
     if cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None or cell.contact is not None:
         if cell.contact is not None:
-            noise_text = f"contacts {cell.contact_sigma_m} m, gauge {cell.distance_sigma_m} m" + (
-                f", tracker {cell.tracker_sigma_m} m (validation)" if cell.has_tracker else ""
+            noise_text = (
+                f"contacts {cell.contact_sigma_m} m, gauge {cell.distance_sigma_m} m"
+                + (f", pixels {cell.pixel_sigma_px} px" if cell.self_observation is not None else "")
+                + (f", tracker {cell.tracker_sigma_m} m (validation)" if cell.has_tracker else "")
             )
         elif cell.touch is not None:
             noise_text = f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m"
@@ -512,6 +526,7 @@ def _write_header(
                 },
                 **({"camera": cell.static_camera.camera.to_document()} if cell.static_camera is not None else {}),
                 **({"contact": contact_header(cell)} if cell.contact is not None else {}),
+                **({"self_observation": observation_header(cell)} if cell.self_observation is not None else {}),
                 **({"tracker": _tracker_header(cell)} if "tracker_points" in counts else {}),
                 "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
                 **_tip_entry(cell),

@@ -11,6 +11,7 @@ from .planes import Planes
 from .poses import MeasuredPoses
 from .projection import Projection
 from .self_contact import SelfContact
+from .self_observation import SelfObservation
 from .static_camera import StaticCamera
 from .tip_gauge import TipGauge
 from .touch import Touch
@@ -29,6 +30,7 @@ REGISTRY: dict[str, type[Formulation]] = {
         SelfContact,
         Planes,
         TipGauge,
+        SelfObservation,
     )
 }
 NAMES = tuple(REGISTRY)
