@@ -48,6 +48,9 @@ SECTIONS = {
     "contact_radii": "vector",
     "contact_planes": "vector",
 }
+# Sections named by a prefix and a name of the dataset's (self-observation: each camera's mounting
+# on its link, T_link_C, and each board's pose on its tip, T_tip_B): poses.
+PREFIXED = ("mounting.", "board.")
 INTRINSICS = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3")
 
 
@@ -99,7 +102,8 @@ def load_estimates(path: str | Path) -> dict:
     rotation (3x3) and the intrinsics (9,), whichever it holds; InputError on a damaged file."""
     path = Path(path)
     doc = Fields(read_yaml(path), path)
-    doc.check_keys(("format", "units", "camera_mounting", *SECTIONS))
+    named = [str(k) for k in doc.data if any(str(k).startswith(p) and len(str(k)) > len(p) for p in PREFIXED)]
+    doc.check_keys(("format", "units", "camera_mounting", *SECTIONS, *named))
     if doc.string("format") != FORMAT:
         raise doc.error("format", f"expected {FORMAT!r}")
 
@@ -109,6 +113,7 @@ def load_estimates(path: str | Path) -> dict:
         return pose_from_xyz_rpy(inner.vector("xyz", 3), inner.vector("rpy", 3))
 
     out: dict = {"camera_mounting": pose(doc.sub("camera_mounting"))}
+    out.update({key: pose(doc.sub(key)) for key in named})
     for key, kind in SECTIONS.items():
         if not doc.has(key):
             continue

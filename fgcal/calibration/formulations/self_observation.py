@@ -3,8 +3,8 @@ others (the hands), ``z = project(K, (Y(P, q) M)^-1 X(P, q) B p)`` (fgcal.factor
 projection through both chains. Unknowns besides P: each camera's mounting on its link M and each
 board's pose on its tip B (started at dataset.yaml self_observation's nominal values); the
 intrinsics are known (the cameras' own calibration). Scored against held-out pixels by the
-reprojection error in the board's plane; against the truth by the first board's origin in W, the
-rigid motion removed (nothing here fixes W)."""
+reprojection error in the board's plane; against the truth by the origins of the boards' tips in W,
+the rigid motion removed (nothing here fixes W)."""
 
 from __future__ import annotations
 
@@ -157,10 +157,14 @@ class SelfObservation(Formulation):
         return {"reprojection_px": HeldOut(pixels, np.asarray(main.configs))}
 
     def scored(self, problem: Problem, state: State) -> Scored:
-        # The first board's origin, in W.
-        first = problem.observations.board_names[0]
-        tip = problem.frame.index(problem.dataset.tip_boards[first].tip)
-        return Scored(state.value(BOARD + first)[None, :3, 3], points_from=BOARD + first, tips=np.array([tip]))
+        """The origins of the boards' tips (the hands), in W: points on the robot that the
+        estimate and the truth share (a board's own pose is an unknown of its own)."""
+        tips = []
+        for board in problem.observations.board_names:
+            tip = problem.frame.index(problem.dataset.tip_boards[board].tip)
+            if tip not in tips:
+                tips.append(tip)
+        return Scored(np.zeros((len(tips), 3)), tips=np.array(tips, dtype=int))
 
     def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
         robot = problem.dataset.robot.with_model(truth.model)
