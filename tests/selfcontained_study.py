@@ -24,7 +24,8 @@ import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 CELL = REPO / "datasets" / "cells" / "dual_arm_selfcontained.yaml"
-KINDS = ("self_contact", "planes", "tip_gauge")  # the cell's self-contained kinds, as its sets name them
+# The cell's self-contained kinds, as its sets name them.
+KINDS = ("self_contact", "planes", "tip_gauge", "self_observation")
 
 
 @dataclass(frozen=True)

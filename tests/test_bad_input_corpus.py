@@ -127,6 +127,29 @@ PLANE_CONTACTS = "config,element,plane\nc0000,a,table\nc0001,b,table\n"
 TIP_DISTANCES = "config,element_a,element_b,distance\nc0000,a,b,0.3\nc0001,a,b,0.31\n"
 
 
+def _observed(text: str, change: Callable[[dict], None] = lambda doc: None):
+    """The seed dataset with a camera on link 3 seeing a board on the flange (self_observation)
+    and the observed_pixels table ``text``, its header then changed by ``change``."""
+
+    def apply(root: Path) -> None:
+        doc = yaml.safe_load((root / "data" / "dataset.yaml").read_text(encoding="utf-8"))
+        doc["self_observation"] = {
+            "cameras": {"eye": {"joint": 3, "mounting": {"xyz": [0, 0, 0.1]}, "image_size": [640, 480],
+                                "intrinsics": {"fx": 500, "fy": 500, "cx": 320, "cy": 240}}},
+            "boards": {"hand": {"tip": "flange", "pose": {"xyz": [0, 0, 0.05]}, "corners": [3, 2], "square": 0.02}},
+        }  # fmt: skip
+        (root / "data" / "observed_pixels.csv").write_text(text, encoding="utf-8")
+        doc["measured"].append("observed_pixels")
+        doc["files"]["observed_pixels"] = "observed_pixels.csv"
+        change(doc)
+        (root / "data" / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return apply
+
+
+OBSERVED = "config,camera,board,point,u,v\nc0000,eye,hand,c0000,300,200\nc0000,eye,hand,c0102,340,230\n"
+
+
 def _cell_file(change: Callable[[dict], None]):
     return lambda root: _edit_yaml(root / "cell.yaml", change)
 
@@ -396,6 +419,25 @@ CASES = [
      "tip_distances.csv", "column distance"),
     ("tip_distances_same_element", _contact({"tip_distances": TIP_DISTANCES.replace("c0001,a,b", "c0001,b,b")}),
      CALIBRATE, "tip_distances.csv", "line 3"),
+    # observed_pixels.csv and dataset.yaml self_observation (cameras on a link seeing boards on the tips)
+    ("observed_unknown_camera", _observed(OBSERVED.replace("c0000,eye,hand,c0102", "c0000,nose,hand,c0102")),
+     CALIBRATE, "observed_pixels.csv", "line 3, column camera"),
+    ("observed_unknown_board", _observed(OBSERVED.replace("eye,hand,c0102", "eye,foot,c0102")), CALIBRATE,
+     "observed_pixels.csv", "line 3, column board"),
+    ("observed_unknown_point", _observed(OBSERVED.replace("c0102", "c0909")), CALIBRATE, "observed_pixels.csv",
+     "line 3, column point"),
+    ("observed_text_pixel", _observed(OBSERVED.replace("340", "3x4")), CALIBRATE, "observed_pixels.csv",
+     "column u"),
+    ("observed_no_section", _observed(OBSERVED, _drop("self_observation")), CALIBRATE, "dataset.yaml",
+     "self_observation"),
+    ("observed_camera_joint", _observed(OBSERVED, _set("self_observation.cameras.eye.joint", 9)), CALIBRATE,
+     "dataset.yaml", "self_observation.cameras.eye.joint"),
+    ("observed_board_tip", _observed(OBSERVED, _set("self_observation.boards.hand.tip", "elbow")), CALIBRATE,
+     "dataset.yaml", "self_observation.boards.hand.tip"),
+    ("observed_board_corners", _observed(OBSERVED, _set("self_observation.boards.hand.corners", [1, 2])), CALIBRATE,
+     "dataset.yaml", "self_observation.boards.hand.corners"),
+    ("observed_camera_named_as_tip", _observed(OBSERVED, lambda doc: doc["self_observation"]["cameras"].update(
+        flange=doc["self_observation"]["cameras"]["eye"])), CALIBRATE, "dataset.yaml", "self_observation.cameras"),
     # calibration config
     (
         "config_malformed",
