@@ -2,11 +2,12 @@
 dual_arm_selfcontained, scored on the laser tracker that validates it.
 
 For each seed, the cell is simulated once (as fgcal simulate does); then every self-contained
-kind alone, every pair and all together are calibrated as sets of one config (sets:), each with
-the tracker as its validation set (use: validation: measured, never fitted, its own pose and
-reflectors registered with the robot held). Each row gives the tracker's held-out RMS before
-(the nominal robot) and after, its prediction, and the truth's score of the fitted balls
-(gauge removed). A combination that cannot calibrate (too few measurements for its unknowns)
+kind alone, every pair, the contacts and cameras without the gauge, and all together are
+calibrated as sets of one config (sets:), each with the tracker as its validation set (use:
+validation: measured, never fitted, its own pose and reflectors registered with the robot
+held). Each row gives the tracker's held-out RMS before (the nominal robot) and after, its
+prediction, and the truth's score of the first set's points (the balls, or the boards' tips;
+gauge removed). A combination that cannot calibrate (too few measurements for its unknowns)
 is reported with the reason.
 
 Run: ``python tests/selfcontained_study.py [seeds...]`` (prints the table), or through
@@ -45,8 +46,10 @@ class Row:
 
 
 def combinations() -> list[tuple[str, ...]]:
-    """Every kind alone, every pair, and all together."""
-    return [c for n in (1, 2, len(KINDS)) for c in itertools.combinations(KINDS, n)]
+    """Every kind alone, every pair, the contacts and the cameras without the gauge (no length
+    but the balls' radii and the boards' squares), and all together."""
+    pairs = [c for n in (1, 2) for c in itertools.combinations(KINDS, n)]
+    return [*pairs, ("self_contact", "planes", "self_observation"), KINDS]
 
 
 def simulate_cell(seed: int, out: Path) -> dict:
