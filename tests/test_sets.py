@@ -5,6 +5,7 @@ near its prediction through the registration of its own unknowns."""
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
 import gtsam
 import numpy as np
@@ -14,11 +15,13 @@ from conftest import merge_datasets
 
 from fgcal.calibration.config import load_config
 from fgcal.calibration.formulations import REGISTRY
+from fgcal.calibration.formulations.sets import Combined
 from fgcal.calibration.problem import Keys
 from fgcal.calibration.run import calibrate
 from fgcal.calibration.settings import Noise
 from fgcal.core.errors import InputError
 from fgcal.factors import ParameterBoundFactor
+from fgcal.reports.headline import warnings
 
 
 @pytest.fixture(scope="module")
@@ -96,6 +99,15 @@ def test_two_sets_give_the_estimate_of_the_graph_built_by_hand(two_sets):
             np.testing.assert_allclose(result.state.value(f"{name}/{aux_name}"), mine, atol=1e-7)
     assert {"tracker/tool_point", "bar/distance", "tool_point"} <= set(result.validation["after"])
 
+    # Each set's residuals against its own noise: a tracker sigma declared 20x too small is said.
+    members = problem.formulation.members
+    small = dataclasses.replace(members[0].settings.noise, tracker_m=members[0].settings.noise.tracker_m / 20)
+    wrong = Combined([dataclasses.replace(members[0], settings=dataclasses.replace(members[0].settings, noise=small)),
+                      members[1]])  # fmt: skip
+    said = warnings(dataclasses.replace(result, problem=dataclasses.replace(problem, formulation=wrong)))
+    assert not any("declared noise" in w for w in warnings(result))
+    assert len(said) == 1 and said[0].startswith("set tracker's residuals are"), said
+
 
 @pytest.mark.parametrize(
     ("sets", "extra", "field"),
@@ -111,3 +123,93 @@ def test_bad_sets_are_refused_naming_the_field(two_sets, sets, extra, field):
     with pytest.raises(InputError) as error:
         _config(two_sets.parent, sets, **extra)
     assert error.value.field == field
+
+
+def _validation_run_fit_ids(data):
+    """The fitting configurations' ids of the default split of ``data``."""
+    from fgcal.calibration.problem import split
+    from fgcal.data.dataset import load_dataset
+
+    dataset = load_dataset(data)
+    fit, _ = split(len(dataset.configs), 0.25, 0)
+    return dataset.configs[fit]
+
+
+def _validation_run(root):
+    sets = [{"name": "tracker", "formulation": "tracker"},
+            {"name": "bar", "formulation": "distances", "use": "validation"}]  # fmt: skip
+    return calibrate(_config(root, sets, schedule="one_shot"))
+
+
+def test_a_validation_set_is_scored_not_fitted_within_its_prediction(two_sets, tmp_path):
+    """A tracker set fits, a ballbar set validates: the ballbar's readings are not in the fit
+    (neither its rows nor its unknowns), its ball and pivots are registered on its fitting
+    configurations with the robot held at the calibration, and its held-out RMS lies within 1.5x
+    of the prediction through that registration (the headline's score: the validation set's). A
+    tracker reading 5 mm off is rejected, in the tracker set's own robust units."""
+    shutil.copytree(two_sets, tmp_path / "data")
+    table = tmp_path / "data" / "tracker_points.csv"
+    lines = table.read_text().splitlines()
+    fitted = {str(c) for c in _validation_run_fit_ids(two_sets)}
+    row = next(i for i, line in enumerate(lines[1:], 1) if line.split(",")[0] in fitted)
+    cells = lines[row].split(",")
+    cells[2] = repr(float(cells[2]) + 0.005)
+    lines[row] = ",".join(cells)
+    table.write_text("\n".join(lines) + "\n")
+    result = _validation_run(tmp_path)
+    problem = result.problem
+    assert [(r.config, r.kind, r.name) for r in problem.rejected] == [(cells[0], "tracker_points", cells[1])]
+    tracker = problem.formulation.parts(problem)[0]
+    assert problem.n_residuals == tracker.problem.n_residuals
+    assert set(result.state.aux) == {"tracker/tracker", "tracker/tool_points"}
+    after, before = result.validation["after"]["distance"], result.validation["before"]["distance"]
+    assert after.rms == result.validation["after"]["bar/distance"].rms
+    assert "tool_point" not in result.validation["after"]
+    assert after.rms < before.rms / 10
+    assert 1 / 1.5 <= after.rms / result.prediction.rms <= 1.5, (after.rms, result.prediction)
+
+
+@pytest.mark.study
+def test_a_validation_sets_score_lies_within_its_prediction_over_seeds(tmp_path):
+    """The same on four seeds, the two cells carrying the same payload (one true robot): the
+    ballbar's held-out RMS over the seeds within 1.5x of its predicted RMS over them (one seed's
+    ratio spreads: its parameter error is one draw)."""
+    from conftest import REPO
+
+    from fgcal.simulation.simulate import simulate
+
+    cells = REPO / "datasets" / "cells"
+    tracker = yaml.safe_load((cells / "irb120_tracker.yaml").read_text())
+    bar = yaml.safe_load((cells / "irb120_ballbar.yaml").read_text())
+    bar["payload"] = tracker["payload"]
+    measured, predicted = [], []
+    for seed in (3, 4, 5, 6):
+        root = tmp_path / str(seed)
+        root.mkdir()
+        sources = {}
+        for name, doc in (("tracker", tracker), ("bar", bar)):
+            (root / f"{name}.yaml").write_text(yaml.safe_dump(doc))
+            simulate(root / f"{name}.yaml", root / name, seed=seed)
+            sources[name] = root / name
+        merge_datasets(sources, root / "data")
+        result = _validation_run(root)
+        measured.append(result.validation["after"]["distance"].rms)
+        predicted.append(result.prediction.rms)
+    ratio = np.sqrt(np.mean(np.square(measured)) / np.mean(np.square(predicted)))
+    assert 1 / 1.5 <= ratio <= 1.5, (measured, predicted)
+
+
+@pytest.mark.study
+def test_a_validation_set_held_out_whole_is_registered_on_its_held_out_configurations(bundled_sim, tmp_path):
+    """The tracker's configurations last and the run's last quarter held out (split: ordered): the
+    split leaves the validation set no fitting configuration, so its unknowns are registered on
+    its held-out ones, which the report says; its score still lies within 1.5x of its
+    prediction, which counts the registration's fit to the same rows."""
+    merge_datasets({"bar": bundled_sim("irb120_ballbar", 2), "tracker": bundled_sim("irb120_tracker", 2)},
+                   tmp_path / "data")  # fmt: skip
+    sets = [{"name": "bar", "formulation": "distances"},
+            {"name": "tracker", "formulation": "tracker", "use": "validation"}]  # fmt: skip
+    result = calibrate(_config(tmp_path, sets, validation={"split": "ordered", "holdout": 0.25}))
+    assert result.problem.observations.registered_on == ("", "held-out")
+    after = result.validation["after"]["tool_point"]
+    assert 1 / 1.5 <= after.rms / result.prediction.rms <= 1.5, (after.rms, result.prediction)

@@ -39,9 +39,9 @@ def chain_sigmas(result: CalibrationResult) -> dict | None:
         mine = [k for k, name in enumerate(released) if name in on_path[tip] or is_mass(name)]
         J_p, J_aux = _whitened(result, observations.select(units == tip))
         names = [released[k] for k in mine]
-        by_tip[tip] = _sigmas(J_p[:, mine], J_aux, names, moments, result.config.min_information)
+        by_tip[tip] = parameter_sigmas(J_p[:, mine], J_aux, names, moments, result.config.min_information)
     J_p, J_aux = _whitened(result, observations)
-    everything = _sigmas(J_p, J_aux, released, moments, result.config.min_information)
+    everything = parameter_sigmas(J_p, J_aux, released, moments, result.config.min_information)
     shared = [k for k, name in enumerate(released) if is_mass(name) or sum(name in on_path[tip] for tip in tips) > 1]
     return {
         "tips": tips,
@@ -67,7 +67,7 @@ def _whitened(result: CalibrationResult, observations: Observations) -> tuple[np
     return J_p, J_aux[:, np.linalg.norm(J_aux, axis=0) > 0.0]
 
 
-def _sigmas(
+def parameter_sigmas(
     J_p: np.ndarray, J_aux: np.ndarray, names: list[str], moments: np.ndarray, min_information: float
 ) -> dict[str, float]:
     """Sigma of each parameter these rows identify, the auxiliary unknowns projected out."""

@@ -206,13 +206,17 @@ def _sets(config: ConfigSchema, units: Units, source: Path, dataset: dict, tool_
         if key in config.model_fields_set:
             raise InputError(source, key, f"a config with sets: states it per set (sets[i].{key})")
     measured = dataset.get("measured") if isinstance(dataset.get("measured"), list) else None
-    out, names = [], set()
+    out, names, tables = [], set(), {}
     for i, entry in enumerate(config.sets):
         where = f"sets[{i}]"
         if entry.name in names:
             raise InputError(source, f"{where}.name", f"{entry.name!r}: another set has this name")
         names.add(entry.name)
         formulation = REGISTRY[entry.formulation]
+        if formulation.kind in tables:  # the same measurements twice would count twice
+            raise InputError(source, f"{where}.formulation", f"{entry.formulation} reads {formulation.kind}, as "
+                             f"sets[{tables[formulation.kind]}] does: each table is one set's")  # fmt: skip
+        tables[formulation.kind] = i
         if measured is not None and entry.pixels_from == "table" and formulation.kind not in measured:
             raise InputError(source, f"{where}.formulation", f"{entry.formulation} reads {formulation.kind}, and the "
                              f"dataset measured {', '.join(map(str, measured)) or 'nothing'}")  # fmt: skip

@@ -40,9 +40,20 @@ class StageGraph:
     def forget(self) -> None:
         """Free the evaluations cached for this graph, tens of MB at thousands of
         configurations, while another graph is in use; a later use evaluates again."""
-        self.kinematics.forget()
+        for kinematics in self.every_kinematics():
+            kinematics.forget()
         for measurements in self.measurements:
             measurements.forget()
+
+    def every_kinematics(self) -> list[BatchKinematics]:
+        """The graph's kinematics and those of its measurement sets that have their own (each
+        set of a config's sets: evaluates its own frames)."""
+        out = [self.kinematics]
+        for measurements in self.measurements:
+            own = getattr(measurements, "kinematics", None)
+            if isinstance(own, BatchKinematics) and all(own is not k for k in out):
+                out.append(own)
+        return out
 
     @property
     def dims(self) -> dict[str, tuple[int, int]]:

@@ -297,6 +297,8 @@ class Formulation(ABC):
     instrument: ClassVar[str]
     # Why online recalibration (fgcal.online) cannot take it one configuration at a time; None: it can.
     not_incremental: ClassVar[str | None] = None
+    # The measurement set whose held-out score the headline gives (a config's sets:); None: the one.
+    headline_name: ClassVar[str | None] = None
 
     # -- what the setup measures --------------------------------------------------------
 

@@ -21,7 +21,7 @@ from .by_tip import measured_by_tip
 from .config import CalibrationConfig
 from .covariance import joint_covariance
 from .formulations import formulation as registered
-from .formulations.sets import Combined, Member, combined
+from .formulations.sets import Combined, Member
 from .graph import StageGraph, build_graph, robust_scale
 from .identifiability import Identifiability, analyse, evidence_against_fixing, motion_warning
 from .models import compare_models
@@ -50,8 +50,9 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     """The problem a config poses on a dataset: its formulation, the split into fitting and
     held-out configurations (a separate validation set held out too), the candidate
     parameters and the fitting observations."""
-    formulation = combined([Member(s.name, registered(s.formulation), s.measurement, s.use) for s in config.sets]) \
-        if config.sets else registered(config.formulation)  # fmt: skip
+    # A config's sets: the composite of their formulations, each with the noise in effect for it.
+    formulation = Combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
+                            for s in config.sets]) if config.sets else registered(config.formulation)  # fmt: skip
     if config.residual_model != "none":
         check_residual_model(formulation, config.path)
     robot = dataset.robot.with_model(config.model)
@@ -75,9 +76,6 @@ def build_problem(dataset: Dataset, config: CalibrationConfig, say: Say | None =
     # The noise in effect: fgcal's defaults, what the instrument states (the dataset), what the
     # config states, the later winning.
     settings = _in_effect(config.measurement, dataset)
-    if config.sets:
-        formulation = combined([Member(s.name, registered(s.formulation), _in_effect(s.measurement, dataset), s.use)
-                                for s in config.sets])  # fmt: skip
     if config.folds is not None and len(dataset.configs) < 2 * config.folds:  # a fold of one, and the rest
         raise InputError(config.path, "validation.folds", f"{config.folds} folds of {len(dataset.configs)} "
                          "configurations: at least two configurations a fold")  # fmt: skip
@@ -152,8 +150,9 @@ def _check_first_stage(problem: Problem, report: StageReport, stage: StageGraph,
     far above both the declared noise and anything a kinematic error explains (GROSS_RESIDUAL,
     GROSS_SIGMAS); each fitting set on its own."""
     for part in problem.formulation.parts(problem):
-        if part.use == "fit":
-            _check_part(part.problem, report, part.sets_of(stage.measurements)[0], values, part.name)
+        own = part.sets_of(stage.measurements)
+        if part.use == "fit" and own:
+            _check_part(part.problem, report, own[0], values, part.name)
 
 
 def _check_part(problem: Problem, report: StageReport, main, values, name: str | None) -> None:
@@ -231,6 +230,10 @@ def calibrate_dataset(dataset: Dataset, config: CalibrationConfig, progress: Say
     )
     if config.formulation_source != "the config":
         say(f"  formulation {formulation.name}: {config.formulation_source}")
+    for part in formulation.parts(problem):
+        if part.name is not None:
+            rows = f"{part.problem.n_residuals} residuals" if part.use == "fit" else "not fitted, scored"
+            say(f"  set {part.name}: {part.formulation.name} formulation, {part.use}: {rows}")
     if problem.detection is not None:
         d = problem.detection
         say(
@@ -456,6 +459,8 @@ def held_out_summary(result: CalibrationResult) -> str | None:
     (key, before), (_, after) = scores
     predicted = f" (predicted {result.prediction.rms * 1e3:.4g} mm)" if result.prediction is not None else ""
     reference = "the simulation's truth" if result.truth is not None else "the held-out measurements"
+    headline = result.problem.formulation.headline_name
+    reference += "" if headline is None or result.truth is not None else f" of set {headline}"
     return (
         f"  held-out {SCORES[key]} against {reference}: before {before.rms * 1e3:.4g} mm RMS, "
         f"after {after.rms * 1e3:.4g} mm RMS{predicted}"

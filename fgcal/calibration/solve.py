@@ -107,5 +107,6 @@ def solve_stage(
         f"{report.time_s:.2f} s")  # fmt: skip
     # What later steps ask of a solved stage is at its solution (covariance, rejection): the
     # optimiser's trial points go, tens of MB each at thousands of configurations.
-    stage.kinematics.keep_only(result.atVector(stage.keys.params) if stage.keys.params is not None else None)
+    for kinematics in stage.every_kinematics():
+        kinematics.keep_only(result.atVector(stage.keys.params) if stage.keys.params is not None else None)
     return new_state, report, stage, result

@@ -14,6 +14,7 @@ from ..calibration.goodness import Fit
 from ..calibration.identifiability import motion_warning
 from ..calibration.prediction import workspace_map
 from ..calibration.results import SCORES, CalibrationResult, primary_score, stats
+from ..calibration.set_report import set_summary
 from ..calibration.solve import releasable
 from ..core import strict_json
 from ..core.memory import release_freed_memory
@@ -25,6 +26,7 @@ from ..model.robot_io import save_robot
 from .diagnostics import motion_terms, plot_residual_diagnostics
 from .estimates import write_estimates
 from .headline import figure, headline, iso9283, predicted_sigma, validation_protocol, warnings, worst_configurations
+from .sets import set_lines
 
 
 def report_dict(result: CalibrationResult) -> dict:
@@ -152,6 +154,7 @@ def report_dict(result: CalibrationResult) -> dict:
         "motion_history_warning": motion_warning(result.final_identifiability),
         "motion_history": motion_terms(result),
         "chains": chain_sigmas(result),
+        "sets": set_summary(result),
         "residual_model": result.residual_model.as_dict() if result.residual_model is not None else None,
         "identifiability": {
             "min_information": config.min_information,
@@ -840,4 +843,5 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
     lines += _motion_lines(doc["motion_history"], plots.get("residual_diagnostics"))
     lines += _residual_model_lines(doc["residual_model"])
     lines += _chain_lines(doc["chains"])
+    lines += set_lines(doc.get("sets"), lambda unit: _units(unit)[1])
     return "\n".join(lines) + "\n"

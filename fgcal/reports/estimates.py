@@ -102,8 +102,16 @@ def load_estimates(path: str | Path) -> dict:
     rotation (3x3) and the intrinsics (9,), whichever it holds; InputError on a damaged file."""
     path = Path(path)
     doc = Fields(read_yaml(path), path)
-    named = [str(k) for k in doc.data if any(str(k).startswith(p) and len(str(k)) > len(p) for p in PREFIXED)]
-    doc.check_keys(("format", "units", "camera_mounting", *SECTIONS, *named))
+    # A calibration with several measurement sets names each set's unknowns SET/section; a
+    # self-observation's are mounting.CAMERA and board.BOARD.
+    sections = dict(SECTIONS)
+    for key in map(str, doc.data):
+        base = key.split("/", 1)[-1]
+        if base in SECTIONS:
+            sections[key] = SECTIONS[base]
+        elif any(base.startswith(p) and len(base) > len(p) for p in PREFIXED):
+            sections[key] = "pose3"
+    doc.check_keys(("format", "units", "camera_mounting", *sections))
     if doc.string("format") != FORMAT:
         raise doc.error("format", f"expected {FORMAT!r}")
 
@@ -113,8 +121,7 @@ def load_estimates(path: str | Path) -> dict:
         return pose_from_xyz_rpy(inner.vector("xyz", 3), inner.vector("rpy", 3))
 
     out: dict = {"camera_mounting": pose(doc.sub("camera_mounting"))}
-    out.update({key: pose(doc.sub(key)) for key in named})
-    for key, kind in SECTIONS.items():
+    for key, kind in sections.items():
         if not doc.has(key):
             continue
         section = doc.sub(key)
@@ -124,7 +131,7 @@ def load_estimates(path: str | Path) -> dict:
             out[key] = pose_from_xyz_rpy(np.zeros(3), section.vector("rpy", 3))[:3, :3]
         elif kind == "points":
             out[key] = {str(name): section.sub(str(name)).vector("xyz", 3) for name in section.data}
-        elif key == "intrinsics":
+        elif key.split("/", 1)[-1] == "intrinsics":
             out[key] = np.array([section.number(name) for name in INTRINSICS])
         else:  # named entries, in the file's order
             out[key] = np.array([section.number(str(name)) for name in section.data if name != "sigma"])

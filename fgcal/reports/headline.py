@@ -13,6 +13,7 @@ import numpy as np
 
 from ..calibration.identifiability import EVIDENCE_SIGMAS
 from ..calibration.results import SCORES, CalibrationResult, ErrorStats, primary_score
+from ..calibration.set_report import noise_ratios
 
 WORST = 10  # held-out configurations the report lists
 
@@ -89,7 +90,8 @@ def warnings(result: CalibrationResult) -> list[str]:
     units came from."""
     out = []
     fit, problem, config = result.fit, result.problem, result.config
-    if fit is not None and fit.dof > 0 and result.stages:
+    by_set = noise_ratios(result)  # several measurement sets: each against its own noise, below
+    if fit is not None and fit.dof > 0 and result.stages and not by_set:
         ratio = float(np.sqrt(fit.chi2_per_dof))
         if not 1 / NOISE_MISMATCH <= ratio <= NOISE_MISMATCH:
             unit = problem.formulation.unit
@@ -104,6 +106,11 @@ def warnings(result: CalibrationResult) -> list[str]:
                 f"angles in {config.units.angle} ({config.units_source}): check noise: and units:; every "
                 "sigma and prediction of this report depends on them"
             )
+    for name, ratio in by_set.items():
+        if not 1 / NOISE_MISMATCH <= ratio <= NOISE_MISMATCH:
+            side = "larger" if ratio > 1 else "smaller"
+            out.append(f"set {name}'s residuals are {max(ratio, 1 / ratio):.3g} times {side} than its declared noise: "
+                       f"check its noise: and the units ({config.units.length}, {config.units.angle})")  # fmt: skip
     # Not a parameter the auxiliary unknowns take whole at the start (a base tilt under the
     # tracker's pose): what moves it at the solution is the gravity direction the estimated
     # compliances turn, a model effect report.json keeps (moved_if_released_sigmas), not a
@@ -154,10 +161,15 @@ def headline(result: CalibrationResult) -> dict | None:
     if after is None:
         return None
     key, stat = after
+    # With several measurement sets, whose held-out measurements (the headline's set).
+    named = result.problem.formulation.headline_name
+    own = "" if named is None else f" of set {named}"
     out = {
         "score": SCORES[key],
-        "reference": "ground truth" if result.truth is not None else "held-out measurements",
-        "n_configurations": validation_protocol(result)["n_held_out"],
+        "reference": "ground truth" if result.truth is not None else f"held-out measurements{own}",
+        # With several sets, the held-out configurations the headline's set measures.
+        "n_configurations": validation_protocol(result)["n_held_out"] if named is None or stat.configs is None
+        else len(np.unique(stat.configs)),
         "validation_protocol": validation_protocol(result),
         "warnings": warnings(result),
         "after_m": _triple(stat),

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...core.errors import InputError
 from ...factors import MeasurementSet
 from ..problem import (
     JointCovariance,
@@ -39,6 +40,14 @@ def register(problem: Problem, params: np.ndarray) -> State:
     at ``params``: its start from the data, then Levenberg-Marquardt on its graph with nothing
     released."""
     start = problem.formulation.initial_state(problem).with_params(params)
+    if not start.n_auxiliary:
+        return start
+    if problem.n_residuals < 2 * start.n_auxiliary:
+        raise InputError(
+            problem.dataset.path, None, f"the {problem.formulation.name} validation set has {problem.n_residuals} "
+            f"residuals to register its {start.n_auxiliary} unknowns (the instrument's frame, its points) on: at least "
+            "twice as many needed",
+        )  # fmt: skip
     state, _, stage, _ = solve_stage(problem, "registration", [], start)
     stage.forget()
     return state

@@ -106,6 +106,7 @@ class Combined(Formulation):
         # The headline score: the first validation set's, else the first fitting set's.
         self.headline = members.index((validating or fitting)[0])
         self.first_fit = members.index(fitting[0])
+        self.headline_name = members[self.headline].name
         head = members[self.headline].formulation
         self.unit, self.score, self.score_vectors = head.unit, head.score, head.score_vectors
         self.settings_read = tuple(sorted({o for m in members for o in m.formulation.settings_read}))
@@ -151,9 +152,8 @@ class Combined(Formulation):
         return head.formulation.sigma(head.settings)
 
     def gauge(self, settings: MeasurementSettings) -> str:
-        """The gauge of the truth score, which measures the first fitting set's points
-        (:meth:`scored`): that set's (a self-contained fit does not fix W, whatever a
-        validation instrument does)."""
+        """The gauge of the first fitting set, whose points a score against the truth measures
+        (:meth:`scored`)."""
         first = self.members[self.first_fit]
         return first.formulation.gauge(first.settings)
 
@@ -234,7 +234,8 @@ class Combined(Formulation):
             )
             for s in sets:
                 s.part = k
-            out += sets
+            # A set on P alone while nothing is released (stage 0 of the others' unknowns) has no variable.
+            out += [s for s in sets if s.variables]
         return out
 
     def robust_loss(self, problem: Problem, measurements: list[MeasurementSet], values: gtsam.Values):
@@ -258,6 +259,8 @@ class Combined(Formulation):
             if part.use != "fit":
                 continue
             own = part.sets_of(sets)
+            if not own:
+                continue
             outcome = part.formulation.reject(part.problem, own, values, robust_scale(own, values))
             if outcome is not None:
                 observations = observations.with_part(part.index, outcome[0])
@@ -343,7 +346,3 @@ class Combined(Formulation):
             if own:
                 out[part.name] = own
         return {"sets_details": out} if out else {}
-
-
-def combined(members: list[Member]) -> Combined:
-    return Combined(members)
