@@ -13,10 +13,11 @@ from .base import (
     gaussian,
     point_jacobian,
 )
+from .contact import PlaneContacts, SelfContacts, TipDistances
 from .kinematics import Kinematics
 from .point_pair import PointPairs, helmert
 from .priors import ParameterBoundFactor, RandomWalkFactor
-from .projection import BehindCameraError, Projections, StaticProjections, project
+from .projection import BehindCameraError, LinkProjections, Projections, StaticProjections, project
 from .touch import SocketSpacings, TouchPoints
 from .tracker import Distances, Poses, TrackerPoints
 
@@ -27,17 +28,21 @@ __all__ = [
     "Evaluation",
     "FactorError",
     "Kinematics",
+    "LinkProjections",
     "MeasurementFactor",
     "MeasurementSet",
     "OutsideModelError",
     "ParameterBoundFactor",
+    "PlaneContacts",
     "PointPairs",
     "Poses",
     "Projections",
     "RandomWalkFactor",
     "RobustLoss",
+    "SelfContacts",
     "SocketSpacings",
     "StaticProjections",
+    "TipDistances",
     "TouchPoints",
     "TrackerPoints",
     "gaussian",

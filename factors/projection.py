@@ -226,3 +226,109 @@ class StaticProjections(MeasurementSet):
         if self.intrinsics is None:
             blocks.append(d_intrinsics.reshape(-1, 9))
         return Evaluation((pixel - self.measured).reshape(-1), blocks)
+
+
+class LinkProjections(MeasurementSet):
+    """``r_o = project(K_c, (Y(P, q_j) M_c)^-1 X(P, q_j) B_k p_o) - z_o``  (px).
+
+    Self-observation: camera c, mounted on a link of one chain (the link's pose Y in W from the
+    kinematics, the camera on it ``M_c`` = T_link_C), sees point ``p_o`` of board k, carried by a
+    tip of another chain (its pose X, the board on it ``B_k`` = T_tip_B), at pixel ``z_o``:
+    projection through both chains. Every camera's mounting and every board's pose are Pose3
+    variables (in that order, after P); the intrinsics of each camera are constants. The robust
+    unit is one pixel observation.
+
+    ``rows_camera``, ``rows_board`` (O,): the rows of the camera's link and of the board's tip
+    among the kinematics' (frame-major) poses; ``cameras``, ``boards`` (O,): their indices.
+    """
+
+    row_unit = "px"
+
+    def __init__(
+        self,
+        kinematics: Kinematics,
+        params_key: int | None,
+        mounting_keys: list[int],
+        board_keys: list[int],
+        rows_camera: np.ndarray,
+        rows_board: np.ndarray,
+        cameras: np.ndarray,
+        boards: np.ndarray,
+        points_B: np.ndarray,
+        measured_px: np.ndarray,
+        sigma_px: float,
+        intrinsics: np.ndarray,
+        robust: RobustLoss | None = None,
+    ) -> None:
+        self.kinematics = kinematics
+        self.params_key = params_key
+        self.rows_camera, self.rows_board = np.asarray(rows_camera, dtype=int), np.asarray(rows_board, dtype=int)
+        self.cameras, self.boards = np.asarray(cameras, dtype=int), np.asarray(boards, dtype=int)
+        self.points = np.asarray(points_B, dtype=float).reshape(-1, 3)
+        self.measured = np.asarray(measured_px, dtype=float).reshape(-1, 2)
+        self.intrinsics = np.asarray(intrinsics, dtype=float).reshape(-1, 9)
+        n = len(self.rows_camera)
+        if not n or len({n, len(self.rows_board), len(self.cameras), len(self.boards), len(self.points),
+                         len(self.measured)}) != 1:  # fmt: skip
+            raise ValueError("a camera row, a board row, a camera, a board, a point and a pixel per observation")
+        if len(self.intrinsics) != len(mounting_keys):
+            raise ValueError("one set of intrinsics per camera")
+        self.n_cameras, self.n_boards = len(mounting_keys), len(board_keys)
+        self.variables = [
+            *params_variable(params_key, kinematics),
+            *((key, "pose3", None) for key in mounting_keys),
+            *((key, "pose3", None) for key in board_keys),
+        ]
+        self.sigma = np.full(2 * n, float(sigma_px))
+        self.unit_starts = row_starts([2] * n)
+        self.configs = self.rows_camera % len(kinematics.q) if hasattr(kinematics, "q") else self.rows_camera
+        super().__init__(robust)
+
+    def camera_points(self, inputs: list) -> tuple[np.ndarray, ...]:
+        """The link and tip poses (O, 4, 4), each observation's mounting and board (O, 4, 4), and
+        its point on the tip, in W, on the link and in the camera (O, 3)."""
+        params = inputs[0] if self.params_key is not None else None
+        first = 1 if self.params_key is not None else 0
+        mountings = np.array([m.matrix() for m in inputs[first : first + self.n_cameras]])
+        boards = np.array([b.matrix() for b in inputs[first + self.n_cameras : first + self.n_cameras + self.n_boards]])
+        poses = self.kinematics.poses(params)
+        Y, X = poses[self.rows_camera], poses[self.rows_board]
+        M, B = mountings[self.cameras], boards[self.boards]
+        p_tip = np.einsum("oij,oj->oi", B[:, :3, :3], self.points) + B[:, :3, 3]
+        p_W = np.einsum("oij,oj->oi", X[:, :3, :3], p_tip) + X[:, :3, 3]
+        p_L = np.einsum("oji,oj->oi", Y[:, :3, :3], p_W - Y[:, :3, 3])
+        p_C = np.einsum("oji,oj->oi", M[:, :3, :3], p_L - M[:, :3, 3])
+        return Y, X, M, B, p_tip, p_W, p_L, p_C
+
+    def compute(self, inputs: list, jacobians: bool) -> Evaluation:
+        Y, X, M, B, p_tip, _, p_L, p_C = self.camera_points(inputs)
+        _in_front(p_C, self.configs, "board point", "the camera mounting or the board's pose")
+        n = len(p_C)
+        pixel = np.empty((n, 2))
+        d_point = np.empty((n, 2, 3))
+        for c in range(self.n_cameras):
+            mine = self.cameras == c
+            if jacobians:
+                pixel[mine], d_point[mine], _ = project(self.intrinsics[c], p_C[mine], True)
+            else:
+                pixel[mine] = project(self.intrinsics[c], p_C[mine])
+        residual = (pixel - self.measured).reshape(-1)
+        if not jacobians:
+            return Evaluation(residual, [])
+        d_link = d_point @ np.swapaxes(M[:, :3, :3], 1, 2)  # d pixel / d p_L
+        d_world = d_link @ np.swapaxes(Y[:, :3, :3], 1, 2)  # d pixel / d p_W
+        blocks = []
+        if self.params_key is not None:
+            J = self.kinematics.jacobians(inputs[0])
+            # Y Exp(xi): p_L -> p_L + p_L x omega - v; X Exp(xi): p_W -> p_W + R_X (omega x p_tip + v).
+            through_link = np.concatenate([d_link @ skew(p_L), -d_link], axis=2) @ J[self.rows_camera]
+            through_tip = d_world @ point_jacobian(X[:, :3, :3], p_tip) @ J[self.rows_board]
+            blocks.append((through_link + through_tip).reshape(-1, J.shape[2]))
+        # M Exp(eta): p_C -> p_C + p_C x omega - v.
+        d_mounting = np.concatenate([d_point @ skew(p_C), -d_point], axis=2)
+        for c in range(self.n_cameras):
+            blocks.append((d_mounting * (self.cameras == c)[:, None, None]).reshape(-1, 6))
+        d_board = d_world @ X[:, :3, :3] @ point_jacobian(B[:, :3, :3], self.points)
+        for k in range(self.n_boards):
+            blocks.append((d_board * (self.boards == k)[:, None, None]).reshape(-1, 6))
+        return Evaluation(residual, blocks)

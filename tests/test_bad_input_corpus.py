@@ -101,6 +101,55 @@ def _drop(path: str):
     return change
 
 
+def _contact(tables: dict[str, str], change: Callable[[dict], None] = lambda doc: None):
+    """The seed dataset with contact elements (two balls on the flange, a table plane) and the
+    contact tables ``tables`` (name -> CSV text), its header then changed by ``change``."""
+
+    def apply(root: Path) -> None:
+        doc = yaml.safe_load((root / "data" / "dataset.yaml").read_text(encoding="utf-8"))
+        doc["contact"] = {
+            "elements": {"a": {"tip": "flange", "xyz": [0, 0, 0.05], "radius": 0.01},
+                         "b": {"tip": "flange", "xyz": [0, 0.1, 0.05], "radius": 0.01}},
+            "planes": {"table": {"normal": [0, 0, 1], "offset": 0.2}},
+        }  # fmt: skip
+        for name, text in tables.items():
+            (root / "data" / f"{name}.csv").write_text(text, encoding="utf-8")
+            doc["measured"].append(name)
+            doc["files"][name] = f"{name}.csv"
+        change(doc)
+        (root / "data" / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return apply
+
+
+CONTACTS = "config,element_a,element_b\nc0000,a,b\nc0001,a,b\n"
+PLANE_CONTACTS = "config,element,plane\nc0000,a,table\nc0001,b,table\n"
+TIP_DISTANCES = "config,element_a,element_b,distance\nc0000,a,b,0.3\nc0001,a,b,0.31\n"
+
+
+def _observed(text: str, change: Callable[[dict], None] = lambda doc: None):
+    """The seed dataset with a camera on link 3 seeing a board on the flange (self_observation)
+    and the observed_pixels table ``text``, its header then changed by ``change``."""
+
+    def apply(root: Path) -> None:
+        doc = yaml.safe_load((root / "data" / "dataset.yaml").read_text(encoding="utf-8"))
+        doc["self_observation"] = {
+            "cameras": {"eye": {"joint": 3, "mounting": {"xyz": [0, 0, 0.1]}, "image_size": [640, 480],
+                                "intrinsics": {"fx": 500, "fy": 500, "cx": 320, "cy": 240}}},
+            "boards": {"hand": {"tip": "flange", "pose": {"xyz": [0, 0, 0.05]}, "corners": [3, 2], "square": 0.02}},
+        }  # fmt: skip
+        (root / "data" / "observed_pixels.csv").write_text(text, encoding="utf-8")
+        doc["measured"].append("observed_pixels")
+        doc["files"]["observed_pixels"] = "observed_pixels.csv"
+        change(doc)
+        (root / "data" / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return apply
+
+
+OBSERVED = "config,camera,board,point,u,v\nc0000,eye,hand,c0000,300,200\nc0000,eye,hand,c0102,340,230\n"
+
+
 def _cell_file(change: Callable[[dict], None]):
     return lambda root: _edit_yaml(root / "cell.yaml", change)
 
@@ -374,6 +423,53 @@ CASES = [
         "config",
     ),
     ("tracker_text_value", _cell("tracker_points.csv", 2, "x", "1.2.3"), CALIBRATE, "tracker_points.csv", "column x"),
+    # contacts.csv, plane_contacts.csv, tip_distances.csv and dataset.yaml contact (a robot measuring itself)
+    ("contacts_unknown_element", _contact({"contacts": CONTACTS.replace("c0001,a,b", "c0001,a,zz")}), CALIBRATE,
+     "contacts.csv", "line 3, column element_b"),
+    ("contacts_same_element", _contact({"contacts": CONTACTS.replace("c0001,a,b", "c0001,a,a")}), CALIBRATE,
+     "contacts.csv", "line 3"),
+    ("contacts_twice", _contact({"contacts": CONTACTS + "c0001,b,a\n"}), CALIBRATE, "contacts.csv", "lines 3 and 4"),
+    ("contacts_unknown_config", _contact({"contacts": CONTACTS.replace("c0001", "c-1")}), CALIBRATE, "contacts.csv",
+     "config"),
+    ("contacts_no_section", _contact({"contacts": CONTACTS}, _drop("contact")), CALIBRATE, "dataset.yaml", "contact"),
+    ("contact_unknown_tip", _contact({"contacts": CONTACTS}, _set("contact.elements.a.tip", "elbow")), CALIBRATE,
+     "dataset.yaml", "contact.elements.a.tip"),
+    ("contact_zero_radius", _contact({"contacts": CONTACTS}, _set("contact.elements.b.radius", 0)), CALIBRATE,
+     "dataset.yaml", "contact.elements.b.radius"),
+    ("contact_zero_normal",
+     _contact({"plane_contacts": PLANE_CONTACTS}, _set("contact.planes.table.normal", [0, 0, 0])), CALIBRATE,
+     "dataset.yaml", "contact.planes.table.normal"),
+    ("plane_contacts_unknown_plane", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "b,wall")}),
+     CALIBRATE, "plane_contacts.csv", "line 3, column plane"),
+    ("plane_contacts_unknown_element", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "z,table")}),
+     CALIBRATE, "plane_contacts.csv", "line 3, column element"),
+    ("plane_contacts_no_column", _contact({"plane_contacts": PLANE_CONTACTS.replace("plane\n", "surface\n")}),
+     CALIBRATE, "plane_contacts.csv", "plane"),
+    ("tip_distances_negative", _contact({"tip_distances": TIP_DISTANCES.replace("0.31", "-0.31")}), CALIBRATE,
+     "tip_distances.csv", "line 3, column distance"),
+    ("tip_distances_text", _contact({"tip_distances": TIP_DISTANCES.replace("0.31", "far")}), CALIBRATE,
+     "tip_distances.csv", "column distance"),
+    ("tip_distances_same_element", _contact({"tip_distances": TIP_DISTANCES.replace("c0001,a,b", "c0001,b,b")}),
+     CALIBRATE, "tip_distances.csv", "line 3"),
+    # observed_pixels.csv and dataset.yaml self_observation (cameras on a link seeing boards on the tips)
+    ("observed_unknown_camera", _observed(OBSERVED.replace("c0000,eye,hand,c0102", "c0000,nose,hand,c0102")),
+     CALIBRATE, "observed_pixels.csv", "line 3, column camera"),
+    ("observed_unknown_board", _observed(OBSERVED.replace("eye,hand,c0102", "eye,foot,c0102")), CALIBRATE,
+     "observed_pixels.csv", "line 3, column board"),
+    ("observed_unknown_point", _observed(OBSERVED.replace("c0102", "c0909")), CALIBRATE, "observed_pixels.csv",
+     "line 3, column point"),
+    ("observed_text_pixel", _observed(OBSERVED.replace("340", "3x4")), CALIBRATE, "observed_pixels.csv",
+     "column u"),
+    ("observed_no_section", _observed(OBSERVED, _drop("self_observation")), CALIBRATE, "dataset.yaml",
+     "self_observation"),
+    ("observed_camera_joint", _observed(OBSERVED, _set("self_observation.cameras.eye.joint", 9)), CALIBRATE,
+     "dataset.yaml", "self_observation.cameras.eye.joint"),
+    ("observed_board_tip", _observed(OBSERVED, _set("self_observation.boards.hand.tip", "elbow")), CALIBRATE,
+     "dataset.yaml", "self_observation.boards.hand.tip"),
+    ("observed_board_corners", _observed(OBSERVED, _set("self_observation.boards.hand.corners", [1, 2])), CALIBRATE,
+     "dataset.yaml", "self_observation.boards.hand.corners"),
+    ("observed_camera_named_as_tip", _observed(OBSERVED, lambda doc: doc["self_observation"]["cameras"].update(
+        flange=doc["self_observation"]["cameras"]["eye"])), CALIBRATE, "dataset.yaml", "self_observation.cameras"),
     # calibration config
     (
         "config_malformed",

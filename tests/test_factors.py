@@ -13,16 +13,20 @@ from fgcal.factors import (
     CheckedFactor,
     Distances,
     FactorError,
+    LinkProjections,
     MeasurementFactor,
     MeasurementSet,
     ParameterBoundFactor,
+    PlaneContacts,
     PointPairs,
     Poses,
     Projections,
     RandomWalkFactor,
     RobustLoss,
+    SelfContacts,
     SocketSpacings,
     StaticProjections,
+    TipDistances,
     TouchPoints,
     TrackerPoints,
     gaussian,
@@ -102,6 +106,23 @@ def _measurement_sets():
         sets.append((static, values))
         sets.append((StaticProjections(model, key, 5, 4, configs, points, pixels, 0.5, intrinsics=intrinsics), values))
 
+        # Self-observation: two cameras on the link of configurations 0 and 1 (rows 0, 1), each
+        # 0.5 m from a board on row 2's frame, whose points they see.
+        values = gtsam.Values()
+        model = _kinematics(values)
+        poses = model.poses(values.atVector(P_KEY))
+        values.insert(20, gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.3, 3)), RNG.normal(0, 0.05, 3)))  # board
+        board_W = gtsam.Pose3(poses[2]).compose(values.atPose3(20))
+        for mount, row in ((21, 0), (22, 1)):
+            camera_W = board_W.compose(gtsam.Pose3(gtsam.Rot3.Expmap(RNG.normal(0, 0.2, 3)), [0.02, -0.03, -0.5]))
+            values.insert(mount, gtsam.Pose3(poses[row]).inverse().compose(camera_W))
+        intrinsics = np.array([[1500.0, 1450.0, 640.0, 480.0, -0.2, 0.15, 1e-3, -2e-3, -0.05],
+                               [1200.0, 1210.0, 600.0, 500.0, 0.1, -0.05, 0.0, 1e-3, 0.0]])  # fmt: skip
+        link = LinkProjections(model, key, [21, 22], [20], np.array([0, 0, 1, 1]), np.array([2, 2, 2, 2]),
+                               np.array([0, 0, 1, 1]), np.zeros(4, dtype=int), RNG.normal(0, 0.03, (4, 3)),
+                               RNG.uniform(300, 900, (4, 2)), 0.5, intrinsics, robust=robust)  # fmt: skip
+        sets.append((link, values))
+
         values = gtsam.Values()
         model = _kinematics(values)
         values.insert(1, _pose())
@@ -163,6 +184,23 @@ def _measurement_sets():
         sets.append((touches, values))
         if released:  # the spacings have no P: once is enough
             sets.append((SocketSpacings(8, 3, np.array([[0, 1], [2, 0]]), np.array([0.4, 0.7]), 1e-4, robust), values))
+        # Self-contact (balls on two tips touching) and contacts with planes, radii estimated or known.
+        values.insert(9, RNG.normal(0, 0.1, 9))  # three balls' centres on their tips
+        values.insert(10, RNG.uniform(0.01, 0.03, 3))  # their radii
+        values.insert(11, np.r_[RNG.normal(0, 0.1, 2), 0.4, RNG.normal(0, 0.1, 2), -0.3])  # two planes (a1, a2, d)
+        rows_a, rows_b = np.array([0, 1, 2, 2]), np.array([1, 2, 0, 1])
+        elements_a, elements_b = np.array([0, 1, 2, 0]), np.array([1, 2, 0, 2])
+        sets.append((SelfContacts(model, key, 9, 10, 3, rows_a, rows_b, elements_a, elements_b, 1e-4, robust), values))
+        sets.append((SelfContacts(model, key, 9, None, 3, rows_a, rows_b, elements_a, elements_b, 1e-4, robust,
+                                  radii=np.array([0.02, 0.025, 0.015])), values))  # fmt: skip
+        readings = np.array([0.3, 0.28, 0.31, 0.29])
+        sets.append((TipDistances(model, key, 9, 3, rows_a, rows_b, elements_a, elements_b, readings, 1e-6, robust),
+                     values))  # fmt: skip
+        normals = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+        rows, elements, planes = np.array([0, 1, 2, 2]), np.array([0, 1, 2, 0]), np.array([0, 1, 1, 0])
+        sets.append((PlaneContacts(model, key, 9, 10, 11, 3, normals, rows, elements, planes, 1e-4, robust), values))
+        sets.append((PlaneContacts(model, key, 9, None, 11, 3, normals, rows, elements, planes, 1e-4, robust,
+                                   radii=np.array([0.02, 0.025, 0.015])), values))  # fmt: skip
     return sets
 
 

@@ -84,6 +84,7 @@ def stats(errors: np.ndarray, configs: np.ndarray | None = None) -> ErrorStats:
 SCORES = {
     "tool_point": "position error",
     "distance": "distance error",
+    "contact": "contact error",
     "point_pair": "point-pair error",
     "reprojection": "reprojection error",
 }

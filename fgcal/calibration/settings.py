@@ -28,6 +28,7 @@ class Noise:
     pose_m: float = NOISE["pose_m"][2]
     pose_rad: float = NOISE["pose_rad"][2]
     distance_m: float = NOISE["distance_m"][2]
+    contact_m: float = NOISE["contact_m"][2]
 
     @staticmethod
     def stated(*statements: dict[str, float]) -> Noise:
@@ -46,6 +47,8 @@ ROBUST_DEFAULTS: dict[str, tuple[str, float] | None] = {
     "touch_points": ("huber", 3.0),
     "tracker_poses": ("huber", 3.0),
     "distances": ("huber", 3.0),
+    "contacts": ("huber", 3.0),
+    "plane_contacts": ("huber", 3.0),
     "pixels": ("cauchy", 3.0),
 }
 

@@ -39,18 +39,40 @@ def _read_noise(formulation: str, noise: dict) -> dict:
     return {key: value for key, value in noise.items() if f"noise.{key}" in read}
 
 
+def _reader(instrument: str) -> str | None:
+    """The first registered formulation that reads an instrument."""
+    return next((name for name, cls in REGISTRY.items() if cls.instrument == instrument), None)
+
+
 def suggested_config(cell: Cell, dataset: Dataset) -> dict:
+    """One formulation, that of the cell's own instrument; or, in a cell that names instruments
+    for validation only, one set per instrument (docs/calibration.md, "Several measurement
+    sets"): the others fitted together, those scored (use: validation)."""
     joints = [j for j in cell.perturbation.compliant_joints if j <= dataset.robot.n_links]
     units = _units(dataset)
-    formulation = suggested_formulation(cell)
-    return {
+    noise = noise_document(dataset.noise, units)
+    common = {
         "dataset": ".",
-        "formulation": formulation,
         "model": "DH,s,e,h" if cell.motion is not None else "DH,s,e",
         "compliant_joints": joints,
         "units": {"length": units.length, "angle": units.angle},
-        "noise": _read_noise(formulation, noise_document(dataset.noise, units)),
     }
+    if not cell.validation:
+        formulation = suggested_formulation(cell)
+        return {"dataset": ".", "formulation": formulation, **common, "noise": _read_noise(formulation, noise)}
+    sets = []
+    for instrument in cell.instruments:
+        formulation = _reader(instrument)
+        if formulation is None:
+            continue
+        entry = {"name": instrument, "formulation": formulation}
+        if instrument in cell.validation:
+            entry["use"] = "validation"
+        own = _read_noise(formulation, noise)
+        if own:
+            entry["noise"] = own
+        sets.append(entry)
+    return {**common, "sets": sets}
 
 
 def dataset_config(dataset: Dataset) -> dict:
@@ -88,8 +110,9 @@ def write_suggested_config(cell: Cell, dataset: Dataset) -> Path:
     """``calibration.yaml`` in the dataset's directory (its path)."""
     path = Path(dataset.path) / "calibration.yaml"
     note = (
-        f"# Suggested by fgcal simulate for {Path(cell.source).name}: the formulation of the cell's instrument, the\n"
-        "# compliant joints of its true robot and the noise its instruments state. docs/calibration.md\n"
+        f"# Suggested by fgcal simulate for {Path(cell.source).name}: the formulation of the cell's instrument (or a\n"
+        "# set per instrument, those the cell measures for validation only scored), the compliant joints of its\n"
+        "# true robot and the noise its instruments state. docs/calibration.md\n"
     )
     write_text(path, note + yaml.safe_dump(suggested_config(cell, dataset), sort_keys=False))
     return path

@@ -24,6 +24,7 @@ NOISE = {
     "pose_m": ("pose_sigma", "length", 2e-5),  # a measured pose's position, per coordinate
     "pose_rad": ("pose_angle_sigma", "angle", 1e-4),  # a measured pose's orientation, about each axis
     "distance_m": ("distance_sigma", "length", 5e-6),  # a ballbar's (1D gauge's) reading
+    "contact_m": ("contact_sigma", "length", 1e-5),  # how far from touching a contact closes (ball on ball, on a plane)
 }
 KEYS = tuple(key for key, _, _ in NOISE.values())
 # A sigma outside these (SI) is a typo: the best interferometer reads to 1 nm, and below about

@@ -33,6 +33,10 @@ Tables (first row is the header; ``config`` refers to ``configurations.csv``):
   or a board's pose in a camera: position and unit quaternion)
 - distances: ``config, pivot, distance`` (a ballbar from the tool ball to the fixed pivot)
 - tool_distances: ``config_a, config_b, distance`` (between the tool ball at two configurations)
+- contacts: ``config, element_a, element_b`` (two contact elements of dataset.yaml contact touch)
+- plane_contacts: ``config, element, plane`` (a contact element touches a plane of dataset.yaml contact)
+- tip_distances: ``config, element_a, element_b, distance`` (a gauge between two contact elements' centres)
+- observed_pixels: ``config, camera, board, point, u, v`` (a camera on a link sees a board's point on a tip)
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +79,10 @@ TABLES = {
     "tracker_poses": (("config",), ("x", "y", "z", "qw", "qx", "qy", "qz"), ("length",) * 3 + ("unitless",) * 4),
     "distances": (("config", "pivot"), ("distance",), "length"),
     "tool_distances": (("config_a", "config_b"), ("distance",), "length"),
+    "contacts": (("config", "element_a", "element_b"), (), "length"),
+    "plane_contacts": (("config", "element", "plane"), (), "length"),
+    "tip_distances": (("config", "element_a", "element_b"), ("distance",), "length"),
+    "observed_pixels": (("config", "camera", "board", "point"), ("u", "v"), "pixel"),
 }
 MEASUREMENTS = MEASURED  # the tables a dataset may list as measured (data.schema: one list)
 # Largest magnitude a value of each kind may have (SI): far beyond any robot cell, far below
@@ -93,6 +101,54 @@ class Table:
 
     def __len__(self) -> int:
         return len(self.values)
+
+
+@dataclass(frozen=True)
+class ContactElement:
+    """A ball on a tip (dataset.yaml contact.elements), its drawing's values (SI)."""
+
+    tip: str
+    centre: np.ndarray  # (3,) in the tip's frame
+    radius: float
+
+
+@dataclass(frozen=True)
+class ContactSetup:
+    """dataset.yaml contact: the elements and planes (nominal, SI) and the priors' sigmas."""
+
+    elements: dict[str, ContactElement]
+    planes: dict[str, tuple[np.ndarray, float]]  # name -> (unit normal in W, offset)
+    position_sigma_m: float = 2e-3
+    radius_sigma_m: float = 2e-6
+    plane_angle_sigma_rad: float | None = None
+    plane_offset_sigma_m: float | None = None
+
+
+@dataclass(frozen=True)
+class LinkCamera:
+    """A camera on a link (dataset.yaml self_observation.cameras); the link's frame is the
+    robot's tip of the camera's name (added to the dataset's robot)."""
+
+    joint: int  # 0-based; -1 the base
+    mounting: np.ndarray  # nominal T_link_C
+    camera: Camera
+
+
+@dataclass(frozen=True)
+class TipBoard:
+    """A checkerboard on a tip (dataset.yaml self_observation.boards)."""
+
+    tip: str
+    pose: np.ndarray  # nominal T_tip_B
+    points: np.ndarray  # (m, 3) its inner corners in its frame (z = 0, frame at the centre)
+    point_names: tuple[str, ...]
+
+
+def board_corners(columns: int, rows: int, square: float) -> tuple[np.ndarray, tuple[str, ...]]:
+    """A checkerboard's inner corners (m, 3) in its frame (at its centre) and their names."""
+    points = np.array([[c * square, r * square, 0.0] for r in range(rows) for c in range(columns)])
+    points[:, :2] -= points[:, :2].mean(axis=0)
+    return points, tuple(f"c{r:02d}{c:02d}" for r in range(rows) for c in range(columns))
 
 
 @dataclass
@@ -115,6 +171,9 @@ class Dataset:
     # The tip of a tree that carries what is measured (a probe, a ball, a board, reflectors not
     # listed in tracker.tips): dataset.yaml tip; None: the flange.
     tip: str | None = None
+    contact: ContactSetup | None = None  # dataset.yaml contact (contact elements and planes)
+    link_cameras: dict[str, LinkCamera] = field(default_factory=dict)  # dataset.yaml self_observation
+    tip_boards: dict[str, TipBoard] = field(default_factory=dict)
 
     @property
     def motion_history(self) -> MotionHistory:
@@ -305,7 +364,7 @@ def _table(path: Path, name: str, units: Units) -> Table:
 # The id columns that name one measurement (a point of the drawing is named by its point alone);
 # a distance between a and b is the distance between b and a.
 KEY_COLUMNS = {"points": ("point",)}
-UNORDERED = ("point_distances", "tool_distances")
+UNORDERED = ("point_distances", "tool_distances", "contacts", "tip_distances")
 
 
 def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
@@ -394,7 +453,7 @@ def load_dataset(path: str | Path) -> Dataset:
         _check_distances(dataset, _inside(root, files, "point_distances"))
     if "tracker_poses" in dataset.tables:
         _check_poses(dataset, _inside(root, files, "tracker_poses"))
-    for name in ("distances", "tool_distances"):
+    for name in ("distances", "tool_distances", "tip_distances"):
         if name in dataset.tables:
             bad = np.flatnonzero(~(dataset.tables[name].values[:, 0] > 0))
             if len(bad):
@@ -419,6 +478,15 @@ def load_dataset(path: str | Path) -> Dataset:
                 "target",
                 f"target {bad[0]!r} is not in dataset.yaml tracker.targets ({', '.join(sorted(declared))})",
             )
+    if doc.has("contact"):
+        dataset.contact = _contact(doc.sub("contact"), units, dataset.robot)
+    for name in ("contacts", "plane_contacts", "tip_distances"):
+        if name in dataset.tables:
+            _check_contacts(dataset, name, _inside(root, files, name), doc)
+    if doc.has("self_observation"):
+        _self_observation(dataset, doc.sub("self_observation"), units)
+    if "observed_pixels" in dataset.tables:
+        _check_observed(dataset, _inside(root, files, "observed_pixels"), doc)
     if doc.has("camera"):
         cam = doc.sub("camera")
         dataset.camera = parse_camera(cam)
@@ -479,6 +547,124 @@ def target_tips(tips: Fields, declared: set[str], robot: Robot) -> dict[str, str
             raise tips.error(str(target), robot.tip_error(tip))
         out[str(target)] = robot.flange_name if tip == "flange" else tip
     return out
+
+
+def _contact(section: Fields, units: Units, robot: Robot) -> ContactSetup:
+    """dataset.yaml contact: elements on tips of the robot, planes with a nonzero normal (SI)."""
+    elements = {}
+    listed = section.sub("elements")
+    for name in listed.data:
+        element = listed.sub(str(name))
+        tip = element.string("tip")
+        if robot.tip_error(tip):
+            raise element.error("tip", robot.tip_error(tip))
+        elements[str(name)] = ContactElement(
+            robot.flange_name if tip == "flange" else tip,
+            element.vector("xyz", 3, scale=units.to_m),
+            element.number("radius", scale=units.to_m, positive=True),
+        )
+    if not elements:
+        raise section.error("elements", "no contact element")
+    planes = {}
+    if section.has("planes"):
+        listed = section.sub("planes")
+        for name in listed.data:
+            plane = listed.sub(str(name))
+            normal = plane.vector("normal", 3)
+            if not np.linalg.norm(normal) > 1e-9:
+                raise plane.error("normal", "a plane's normal must not be zero")
+            planes[str(name)] = (normal / np.linalg.norm(normal), plane.number("offset", scale=units.to_m))
+    optional = {
+        key: section.number(key, None, scale, positive=True) if section.has(key) else None
+        for key, scale in (("position_sigma", units.to_m), ("radius_sigma", units.to_m),
+                           ("plane_angle_sigma", units.to_rad), ("plane_offset_sigma", units.to_m))
+    }  # fmt: skip
+    return ContactSetup(
+        elements,
+        planes,
+        optional["position_sigma"] or ContactSetup.position_sigma_m,
+        optional["radius_sigma"] or ContactSetup.radius_sigma_m,
+        optional["plane_angle_sigma"],
+        optional["plane_offset_sigma"],
+    )
+
+
+def _check_contacts(dataset: Dataset, name: str, path: Path, doc: Fields) -> None:
+    """Contacts name elements (and planes) of dataset.yaml contact; a ball never touches itself."""
+    if dataset.contact is None:
+        raise doc.error("contact", f"the {name} table needs the contact section (its elements and planes)")
+    table = dataset.tables[name]
+    columns = ("element",) if name == "plane_contacts" else ("element_a", "element_b")
+    for column in columns:
+        for line, element in enumerate(table.ids[column], start=2):
+            if element not in dataset.contact.elements:
+                known = ", ".join(sorted(dataset.contact.elements))
+                raise InputError(path, f"line {line}, column {column}", f"element {element!r} is not in "
+                                 f"dataset.yaml contact.elements ({known})")  # fmt: skip
+    if name != "plane_contacts":
+        for line, (a, b) in enumerate(zip(table.ids["element_a"], table.ids["element_b"], strict=True), start=2):
+            if a == b:
+                raise InputError(path, f"line {line}", f"joins two different elements, got {a!r} twice")
+    else:
+        for line, plane in enumerate(table.ids["plane"], start=2):
+            if plane not in dataset.contact.planes:
+                known = ", ".join(sorted(dataset.contact.planes)) or "none"
+                raise InputError(path, f"line {line}, column plane", f"plane {plane!r} is not in "
+                                 f"dataset.yaml contact.planes ({known})")  # fmt: skip
+
+
+def _self_observation(dataset: Dataset, section: Fields, units: Units) -> None:
+    """dataset.yaml self_observation: each camera's link becomes a tip of the dataset's robot (of
+    the camera's name), each board's tip is one of the robot's."""
+    robot = dataset.robot
+    cameras, tips = section.sub("cameras"), list(robot.tips)
+    for name in cameras.data:
+        camera = cameras.sub(str(name))
+        joint = camera.integer("joint", minimum=0)
+        if joint > robot.n_links:
+            raise camera.error("joint", f"{robot.name} has joints 1 to {robot.n_links} (0: the base)")
+        if str(name) in robot.tip_names:
+            raise cameras.error(str(name), f"a camera's name names its link's frame: {name!r} is a tip already")
+        dataset.link_cameras[str(name)] = LinkCamera(joint - 1, _pose(camera.sub("mounting"), units),
+                                                     parse_camera(camera))  # fmt: skip
+        tips.append((str(name), joint - 1, np.eye(4)))
+    if not dataset.link_cameras:
+        raise section.error("cameras", "no camera")
+    boards = section.sub("boards")
+    for name in boards.data:
+        board = boards.sub(str(name))
+        tip = board.string("tip")
+        if robot.tip_error(tip):
+            raise board.error("tip", robot.tip_error(tip))
+        corners = board.vector("corners", 2)
+        if np.any(corners < 2) or np.any(corners != np.round(corners)):
+            raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
+        points, names = board_corners(int(corners[0]), int(corners[1]),
+                                      board.number("square", scale=units.to_m, positive=True))  # fmt: skip
+        pose = _pose(board.sub("pose"), units)
+        dataset.tip_boards[str(name)] = TipBoard(robot.flange_name if tip == "flange" else tip, pose, points, names)
+    if not dataset.tip_boards:
+        raise section.error("boards", "no board")
+    dataset.robot = replace(robot, tips=tuple(tips))
+
+
+def _check_observed(dataset: Dataset, path: Path, doc: Fields) -> None:
+    """Observed pixels name the cameras, boards and points of self_observation."""
+    if not dataset.link_cameras:
+        raise doc.error("self_observation", "the observed_pixels table needs the self_observation section")
+    table = dataset.tables["observed_pixels"]
+    for line, (camera, board, point) in enumerate(
+        zip(table.ids["camera"], table.ids["board"], table.ids["point"], strict=True), start=2
+    ):
+        if camera not in dataset.link_cameras:
+            raise InputError(path, f"line {line}, column camera", f"camera {camera!r} is not in dataset.yaml "
+                             f"self_observation.cameras ({', '.join(dataset.link_cameras)})")  # fmt: skip
+        if board not in dataset.tip_boards:
+            raise InputError(path, f"line {line}, column board", f"board {board!r} is not in dataset.yaml "
+                             f"self_observation.boards ({', '.join(dataset.tip_boards)})")  # fmt: skip
+        if point not in dataset.tip_boards[board].point_names:
+            raise InputError(path, f"line {line}, column point", f"board {board!r} has no point {point!r} (its inner "
+                             "corners are c<row><column>, c0000 to the last)")  # fmt: skip
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:

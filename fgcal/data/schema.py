@@ -11,12 +11,13 @@ from pydantic import Field
 from ..core.noise import NoiseSection
 from ..core.schema import Label, Number, Pose, Schema, Units, checked, choice, constant, one_or_more, refuse, vector
 from ..model.boards import DICTIONARY
-from ..model.schema import Camera, RobotReference
+from ..model.schema import Camera, Intrinsics, RobotReference
 
 DATASET_FORMAT = "fgcal-dataset/1"
 IMPORT_FORMAT = "fgcal-import/1"
 MEASURED = ("camera_points", "pixels", "tracker_points", "tracker_references", "touch_points", "point_distances",
-            "tracker_poses", "distances", "tool_distances")  # fmt: skip
+            "tracker_poses", "distances", "tool_distances", "contacts", "plane_contacts",
+            "tip_distances", "observed_pixels")  # fmt: skip
 ORDER = "the configurations' order: measured (the rows are the measurement order; motion history) or unknown"
 
 
@@ -34,6 +35,10 @@ class Files(Schema):
     tracker_poses: str = None
     distances: str = None
     tool_distances: str = None
+    contacts: str = Field(None, description="config, element_a, element_b: two contact elements touch")
+    plane_contacts: str = Field(None, description="config, element, plane: a contact element touches a plane")
+    tip_distances: str = Field(None, description="config, element_a, element_b, distance: a gauge between two balls")
+    observed_pixels: str = Field(None, description="config, camera, board, point, u, v: a link camera sees a board")
 
 
 class Board(Schema):
@@ -58,6 +63,67 @@ class Tracker(Schema):
     tips: dict[str, str] = Field(None, description="a tree: {target: tip} for targets not on the dataset's tip")
 
 
+class ContactElement(Schema):
+    """A ball on a tip of the robot (its drawing's values: the calibration's priors)."""
+
+    tip: str = Field(description="the robot's tip (or flange) the ball is fixed to")
+    xyz: vector(3) = Field(description="the ball's centre in the tip's frame")
+    radius: Number = Field(gt=0, description="the ball's radius")
+
+
+class ContactPlane(Schema):
+    """A plane of the cell a contact element touches (a table, a wall): ``n . x = offset`` in W,
+    the ball on the side ``normal`` points to."""
+
+    normal: vector(3) = Field(description="its nominal normal in W (normalised)")
+    offset: Number = Field(description="its nominal distance from W's origin along the normal")
+
+
+class Contact(Schema):
+    """The contact elements and planes of a robot measuring itself by contact."""
+
+    elements: dict[str, ContactElement] = Field(description="by name: the contacts tables' elements")
+    planes: dict[str, ContactPlane] = Field(None, description="by name: the plane_contacts table's planes")
+    position_sigma: Number = Field(
+        None, gt=0, description="prior sigma of an element's centre about its drawing's (default 2 mm)"
+    )
+    radius_sigma: Number = Field(
+        None, gt=0, description="prior sigma of a radius about its drawing's (default 2 um: a gauge ball's tolerance)"
+    )
+    plane_angle_sigma: Number = Field(
+        None, gt=0, description="prior sigma of a plane's normal about the nominal, angle unit (default: no prior)"
+    )
+    plane_offset_sigma: Number = Field(
+        None, gt=0, description="prior sigma of a plane's offset about the nominal (default: no prior)"
+    )
+
+
+class LinkCamera(Schema):
+    """A camera on a link of the robot (self-observation): its image and intrinsics (known)."""
+
+    joint: int = Field(ge=0, description="the link (1-based joint number; 0 the base) whose frame carries it")
+    mounting: Pose = Field(description="its nominal pose on the link (T_link_C): the calibration's start")
+    image_size: vector(2) = Field(description="width and height, px")
+    intrinsics: Intrinsics
+    distortion: vector(5) = Field([0.0] * 5, description="OpenCV's k1, k2, p1, p2, k3")
+
+
+class TipBoard(Schema):
+    """A checkerboard on a tip of the robot (self-observation)."""
+
+    tip: str = Field(description="the robot's tip (or flange) carrying it")
+    pose: Pose = Field(description="its nominal pose on the tip (T_tip_B, its frame at its centre): the start")
+    corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2; points c00, c01, ...")
+    square: Number = Field(gt=0, description="a square's side")
+
+
+class SelfObservation(Schema):
+    """Cameras on links of the robot seeing boards on its tips (the observed_pixels table)."""
+
+    cameras: dict[str, LinkCamera]
+    boards: dict[str, TipBoard]
+
+
 class DatasetPayload(Schema):
     mass: Number = Field(ge=0, description="kg")
     com: vector(3) = Field([0.0, 0.0, 0.0], description="on the flange, the dataset's length unit")
@@ -79,6 +145,8 @@ class DatasetHeader(Schema):
     images: str = Field(None, description="folder of the camera images, <config>.png")
     markers: Markers = Field(None, description="the ChArUco boards the images show (with images)")
     tracker: Tracker = None
+    contact: Contact = Field(None, description="contact elements (balls on tips) and planes (contacts tables)")
+    self_observation: SelfObservation = Field(None, description="cameras on links seeing boards on tips")
     tip: str = Field(None, description="the robot's tip that carries the measured point(s); default the flange")
     noise: NoiseSection = Field(None, description="what the instrument states")
     order: Literal["measured", "unknown"] = Field("measured", description=ORDER)
@@ -104,8 +172,11 @@ def _not_found(value: Any) -> Any:
 
 NotFound = checked(
     _not_found,
-    {"type": "array", "items": {"type": ["string", "number"]},
-     "description": "cell texts that mean 'not measured' (-999, NaN), besides the empty cell"},
+    {
+        "type": "array",
+        "items": {"type": ["string", "number"]},
+        "description": "cell texts that mean 'not measured' (-999, NaN), besides the empty cell",
+    },
 )
 
 

@@ -12,6 +12,8 @@ SI throughout; poses as ``{xyz, rpy}`` in the file, 4x4 here::
     tracker_probe: {xyz, rpy}            # T_n_E of a 6D probe
     ballbar: {ball: [3], pivots: {name: [3]}}
     static_camera: {pose: {xyz, rpy}, board_mount: {xyz, rpy}}   # T_W_C, T_n_B
+    contact: {elements: {name: {xyz: [3], radius}}, planes: {name: {normal: [3], offset}}}  # tip frames; W
+    self_observation: {cameras: {name: {xyz, rpy}}, boards: {name: {xyz, rpy}}}  # T_link_C, T_tip_B
     noise_sigma: {...}, deviation_before_calibration_m: {mean, max}, drift: {...}
 """
 
@@ -55,6 +57,12 @@ class Truth:
     static_camera_pose: np.ndarray | None = None  # T_W_C
     static_camera_board_mount: np.ndarray | None = None  # T_n_B
     drift: dict | None = None
+    # Contact elements: name -> (centre on its tip (3,), radius); planes: name -> (unit normal in W, offset).
+    contact_elements: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
+    contact_planes: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
+    # Self-observation: each camera's mounting on its link (T_link_C), each board's pose on its tip (T_tip_B).
+    link_cameras: dict[str, np.ndarray] = field(default_factory=dict)
+    tip_boards: dict[str, np.ndarray] = field(default_factory=dict)
     # How the simulator reached each configuration (fgcal.model.motion): id -> (joints before, rad or
     # m, NaN: unknown; speed factor). Scores against the truth use it, not the dataset's copy.
     motion_history: dict[str, tuple[np.ndarray, float]] | None = None
@@ -95,6 +103,16 @@ class Truth:
                 "pose": _pose_doc(self.static_camera_pose),
                 "board_mount": _pose_doc(self.static_camera_board_mount),
             }
+        if self.contact_elements:
+            doc["contact"] = {
+                "elements": {n: {"xyz": _vector(c), "radius": float(r)} for n, (c, r) in self.contact_elements.items()},
+                "planes": {n: {"normal": _vector(v), "offset": float(d)} for n, (v, d) in self.contact_planes.items()},
+            }
+        if self.link_cameras:
+            doc["self_observation"] = {
+                "cameras": {n: _pose_doc(T) for n, T in self.link_cameras.items()},
+                "boards": {n: _pose_doc(T) for n, T in self.tip_boards.items()},
+            }
         doc["noise_sigma"] = dict(self.noise_sigma)
         doc["deviation_before_calibration_m"] = dict(self.deviation_before_calibration_m)
         if self.drift is not None:
@@ -132,6 +150,21 @@ def load_truth(dataset_dir: str | Path) -> Truth | None:
         camera = doc.sub("static_camera")
         optional["static_camera_pose"] = _pose(camera.sub("pose"))
         optional["static_camera_board_mount"] = _pose(camera.sub("board_mount"))
+    if doc.has("contact"):
+        contact = doc.sub("contact")
+        elements, planes = contact.sub("elements", {}), contact.sub("planes", {})
+        optional["contact_elements"] = {
+            str(n): (elements.sub(str(n)).vector("xyz", 3), elements.sub(str(n)).number("radius"))
+            for n in elements.data
+        }
+        optional["contact_planes"] = {
+            str(n): (planes.sub(str(n)).vector("normal", 3), planes.sub(str(n)).number("offset")) for n in planes.data
+        }
+    if doc.has("self_observation"):
+        seen = doc.sub("self_observation")
+        cameras, boards = seen.sub("cameras", {}), seen.sub("boards", {})
+        optional["link_cameras"] = {str(n): _pose(cameras.sub(str(n))) for n in cameras.data}
+        optional["tip_boards"] = {str(n): _pose(boards.sub(str(n))) for n in boards.data}
     return Truth(
         seed=doc.integer("seed"),
         cell=doc.string("cell", ""),

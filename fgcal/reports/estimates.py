@@ -44,7 +44,13 @@ SECTIONS = {
     "touch_points": "points",
     "pivots": "points",
     "intrinsics": "vector",
+    "contact_centres": "points",
+    "contact_radii": "vector",
+    "contact_planes": "vector",
 }
+# Sections named by a prefix and a name of the dataset's (self-observation: each camera's mounting
+# on its link, T_link_C, and each board's pose on its tip, T_tip_B): poses.
+PREFIXED = ("mounting.", "board.")
 INTRINSICS = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3")
 
 
@@ -96,9 +102,15 @@ def load_estimates(path: str | Path) -> dict:
     rotation (3x3) and the intrinsics (9,), whichever it holds; InputError on a damaged file."""
     path = Path(path)
     doc = Fields(read_yaml(path), path)
-    # A calibration with several measurement sets names each set's unknowns SET/section.
-    named = {key: str(key).split("/", 1)[1] for key in doc.data if "/" in str(key)}
-    sections = {**SECTIONS, **{key: SECTIONS[base] for key, base in named.items() if base in SECTIONS}}
+    # A calibration with several measurement sets names each set's unknowns SET/section; a
+    # self-observation's are mounting.CAMERA and board.BOARD.
+    sections = dict(SECTIONS)
+    for key in map(str, doc.data):
+        base = key.split("/", 1)[-1]
+        if base in SECTIONS:
+            sections[key] = SECTIONS[base]
+        elif any(base.startswith(p) and len(base) > len(p) for p in PREFIXED):
+            sections[key] = "pose3"
     doc.check_keys(("format", "units", "camera_mounting", *sections))
     if doc.string("format") != FORMAT:
         raise doc.error("format", f"expected {FORMAT!r}")
@@ -119,6 +131,8 @@ def load_estimates(path: str | Path) -> dict:
             out[key] = pose_from_xyz_rpy(np.zeros(3), section.vector("rpy", 3))[:3, :3]
         elif kind == "points":
             out[key] = {str(name): section.sub(str(name)).vector("xyz", 3) for name in section.data}
-        else:
+        elif key.split("/", 1)[-1] == "intrinsics":
             out[key] = np.array([section.number(name) for name in INTRINSICS])
+        else:  # named entries, in the file's order
+            out[key] = np.array([section.number(str(name)) for name in section.data if name != "sigma"])
     return out

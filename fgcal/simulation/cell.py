@@ -159,9 +159,54 @@ class StaticCameraSetup:
     max_view_angle_rad: float  # between the board's normal and the line of sight
 
 
+@dataclass(frozen=True)
+class ContactCellSetup:
+    """Balls on the tips of a tree touching each other and planes of the cell (SI): the drawing's
+    (nominal) values, how far the truth is off them, and how many contacts are made."""
+
+    names: tuple[str, ...]
+    tips: tuple[str, ...]
+    centres: np.ndarray  # (k, 3) on their tips, nominal
+    radii: np.ndarray  # (k,)
+    plane_names: tuple[str, ...]
+    normals: np.ndarray  # (p, 3) unit, nominal, in W
+    offsets: np.ndarray  # (p,)
+    self_contacts: int
+    plane_contacts: int  # per ball and plane
+    centre_error_m: float
+    plane_angle_error_rad: float
+    plane_offset_error_m: float
+    position_sigma_m: float
+    gauge_length_m: float = 0.0  # a ballbar between the first two balls (0: none)
+    gauge_travel_m: float = 0.0
+    gauge_readings: int = 0
+    held: tuple[int, ...] = ()  # 0-based q columns held still
+    held_at: tuple[float, ...] = ()  # rad or m
+
+
+@dataclass(frozen=True)
+class SelfObservationSetup:
+    """Cameras on links seeing checkerboards on tips (SI; the drawing's poses)."""
+
+    camera_names: tuple[str, ...]
+    joints: tuple[int, ...]  # 1-based link numbers (0: the base)
+    mountings: np.ndarray  # (c, 4, 4) T_link_C
+    cameras: tuple[Camera, ...]
+    board_names: tuple[str, ...]
+    tips: tuple[str, ...]
+    poses: np.ndarray  # (b, 4, 4) T_tip_B
+    corners: tuple[tuple[int, int], ...]
+    squares: tuple[float, ...]
+    views: int
+    length_error_m: float
+    angle_error_rad: float
+    max_view_angle_rad: float
+
+
 # What can measure in a cell, the more specific first: a 6D probe is a tracker's too, and a
-# camera cell has a tracker besides.
-INSTRUMENTS = ("static_camera", "touch", "ballbar", "tracker_probe", "camera", "tracker")
+# camera cell has a tracker besides; a robot touching itself carries a tracker for validation.
+INSTRUMENTS = ("static_camera", "touch", "ballbar", "self_contact", "planes", "tip_gauge", "self_observation",
+               "tracker_probe", "camera", "tracker")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -199,6 +244,10 @@ class Cell:
     link_radii_m: np.ndarray | None = None
     tip: str = "flange"  # the tree's tip carrying the probe, ball, board or reflectors (cell tip:)
     motion: MotionTruth | None = None  # the true robot's lost motion (its model is then DH,s,e,h)
+    contact: ContactCellSetup | None = None  # balls on the tips touching each other and planes
+    contact_sigma_m: float = 0.0
+    validation: tuple[str, ...] = ()  # instruments (INSTRUMENTS) measured for validation only
+    self_observation: SelfObservationSetup | None = None  # cameras on a link seeing boards on the tips
 
     @property
     def instruments(self) -> list[str]:
@@ -207,6 +256,10 @@ class Cell:
             "static_camera": self.static_camera is not None,
             "touch": self.touch is not None,
             "ballbar": self.ballbar is not None,
+            "self_contact": self.contact is not None and self.contact.self_contacts > 0,
+            "planes": self.contact is not None and self.contact.plane_contacts > 0 and bool(self.contact.plane_names),
+            "tip_gauge": self.contact is not None and self.contact.gauge_readings > 0,
+            "self_observation": self.self_observation is not None,
             "tracker_probe": self.tracker_probe is not None,
             "camera": self.camera is not None,
             "tracker": self.has_tracker,
@@ -407,6 +460,95 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
     )
 
 
+def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> ContactCellSetup:
+    names, tips, centres, radii = [], [], [], []
+    for ball in section.sub_list("elements"):
+        tip = ball.string("tip")
+        if robot.tip_error(tip):
+            raise ball.error("tip", robot.tip_error(tip))
+        names.append(ball.string("name"))
+        tips.append(robot.flange_name if tip == "flange" else tip)
+        centres.append(ball.vector("xyz", 3, scale=to_m))
+        radii.append(ball.number("radius", scale=to_m, positive=True))
+    plane_names, normals, offsets = [], [], []
+    for plane in section.sub_list("planes") if section.has("planes") else []:
+        normal = plane.vector("normal", 3)
+        if not np.linalg.norm(normal) > 1e-9:
+            raise plane.error("normal", "a plane's normal must not be zero")
+        plane_names.append(plane.string("name"))
+        normals.append(normal / np.linalg.norm(normal))
+        offsets.append(plane.number("offset", scale=to_m))
+    for what, labels in (("elements", names), ("planes", plane_names)):
+        if len(set(labels)) != len(labels):
+            raise section.error(what, f"duplicate name among {labels}")
+    if not names:
+        raise section.error("elements", "at least one ball")
+    self_contacts = section.integer("self_contacts", 40, minimum=0)
+    if self_contacts and (len(names) < 2 or tips[0] == tips[1]):
+        raise section.error("self_contacts", "join the first two balls, which must be on two different tips")
+    gauge = section.sub("gauge") if section.has("gauge") else None
+    if gauge is not None and (len(names) < 2 or tips[0] == tips[1]):
+        raise section.error("gauge", "joins the first two balls, which must be on two different tips")
+    gauge_values = (
+        (gauge.number("length", scale=to_m, positive=True), gauge.number("travel", scale=to_m, positive=True),
+         gauge.integer("readings", 100, minimum=1)) if gauge is not None else (0.0, 0.0, 0)
+    )  # fmt: skip
+    held, held_at = (), ()
+    if section.has("hold"):
+        hold = section.sub("hold")
+        held = tuple(int(j) for j in hold.items("joints"))
+        for j in held:
+            if not 1 <= j <= robot.n_joints:
+                raise hold.error("joints", f"joint {j} does not exist: {robot.name} has q1 to q{robot.n_joints}")
+        held_at = tuple(hold.vector("at", len(held), scale=to_rad))
+        held = tuple(j - 1 for j in held)
+    return ContactCellSetup(
+        tuple(names), tuple(tips), np.array(centres), np.array(radii), tuple(plane_names),
+        np.array(normals).reshape(-1, 3), np.array(offsets), self_contacts,
+        section.integer("plane_contacts", 12, minimum=0),
+        section.number("centre_error", 1e-3 / to_m, to_m, nonnegative=True),
+        section.number("plane_angle_error", np.radians(1.0) / to_rad, to_rad, nonnegative=True),
+        section.number("plane_offset_error", 5e-3 / to_m, to_m, nonnegative=True),
+        section.number("position_sigma", 2e-3 / to_m, to_m, positive=True),
+        *gauge_values,
+        held,
+        held_at,
+    )  # fmt: skip
+
+
+def _self_observation(section: Fields, robot: Robot, to_m: float, to_rad: float) -> SelfObservationSetup:
+    cameras = section.sub_list("cameras")
+    boards = section.sub_list("boards")
+    for camera in cameras:
+        if camera.integer("joint", minimum=0) > robot.n_links:
+            raise camera.error("joint", f"{robot.name} has joints 1 to {robot.n_links} (0: the base)")
+    tips = []
+    for board in boards:
+        tip = board.string("tip")
+        if robot.tip_error(tip):
+            raise board.error("tip", robot.tip_error(tip))
+        tips.append(robot.flange_name if tip == "flange" else tip)
+        corners = board.vector("corners", 2)
+        if np.any(corners < 2) or np.any(corners != np.round(corners)):
+            raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
+    names = [c.string("name") for c in cameras] + [b.string("name") for b in boards]
+    if len(set(names)) != len(names) or set(names) & set(robot.tip_names):
+        raise section.error("cameras", f"names must differ from each other and from the robot's tips: {names}")
+    error = section.vector("mounting_error", 2, [2e-3 / to_m, np.radians(1.0) / to_rad])
+    angle = section.number("max_view_angle", np.radians(60.0) / to_rad, to_rad, positive=True)
+    if angle >= np.pi / 2:
+        raise section.error("max_view_angle", "a camera sees a board's face: below 90 deg")
+    return SelfObservationSetup(
+        tuple(c.string("name") for c in cameras), tuple(c.integer("joint") for c in cameras),
+        np.array([_pose(c, "mounting", to_m, to_rad) for c in cameras]).reshape(-1, 4, 4),
+        tuple(parse_camera(c) for c in cameras), tuple(b.string("name") for b in boards), tuple(tips),
+        np.array([_pose(b, "pose", to_m, to_rad) for b in boards]).reshape(-1, 4, 4),
+        tuple((int(b.vector("corners", 2)[0]), int(b.vector("corners", 2)[1])) for b in boards),
+        tuple(b.number("square", scale=to_m, positive=True) for b in boards), section.integer("views", 200, minimum=1),
+        float(error[0] * to_m), float(error[1] * to_rad), float(angle),
+    )  # fmt: skip
+
+
 def _static_camera(section: Fields, to_m: float, to_rad: float) -> StaticCameraSetup:
     board = section.sub("board")
     corners = board.vector("corners", 2)
@@ -500,8 +642,12 @@ def load_cell(path: str | Path) -> Cell:
     touch = _touch(doc.sub("touch"), to_m, to_rad) if doc.has("touch") else None
     ballbar = _ballbar(doc.sub("ballbar"), to_m, to_rad) if doc.has("ballbar") else None
     static = _static_camera(doc.sub("static_camera"), to_m, to_rad) if doc.has("static_camera") else None
+    contact = _contact(doc.sub("contact"), robot, to_m, to_rad) if doc.has("contact") else None
+    seen = _self_observation(doc.sub("self_observation"), robot, to_m, to_rad) if doc.has("self_observation") else None
+    if seen is not None and contact is None:
+        raise doc.error("self_observation", "is simulated in a cell of contacts (a robot measuring itself) only")
     setups = [key for key, setup in (("camera", camera), ("touch", touch), ("ballbar", ballbar),
-              ("static_camera", static)) if setup is not None]  # fmt: skip
+              ("static_camera", static), ("contact", contact)) if setup is not None]  # fmt: skip
     if len(setups) > 1:
         raise doc.error(setups[1], f"a cell has one of camera, touch, ballbar and static_camera; got {setups}")
     noise = doc.sub("noise", {})
@@ -519,7 +665,7 @@ def load_cell(path: str | Path) -> Cell:
 
     motion = _motion_truth(doc, robot.n_joints, to_rad)
     if motion is not None:
-        if touch is not None or ballbar is not None or static is not None:
+        if touch is not None or ballbar is not None or static is not None or contact is not None:
             raise doc.error("motion_history", "is simulated in tracker and flange-camera cells only")
         robot = robot.with_model("DH,s,e,h")
 
@@ -532,7 +678,7 @@ def load_cell(path: str | Path) -> Cell:
         design_kind = "touch" if touch is not None else "ballbar"
     if camera is None and design_kind == "seed":
         raise design.error("kind", "the seed design looks at the objects: a tracker cell (no camera) is space_filling")
-    return Cell(
+    cell = Cell(
         name=doc.string("name"),
         source=str(path),
         robot_reference=robot_ref,
@@ -558,6 +704,9 @@ def load_cell(path: str | Path) -> Cell:
         ballbar=ballbar,
         distance_sigma_m=noise.number("distance_sigma", 2e-6 / to_m, to_m, nonnegative=True),
         static_camera=static,
+        contact=contact,
+        self_observation=seen,
+        contact_sigma_m=noise.number("contact_sigma", 5e-6 / to_m, to_m, nonnegative=True),
         motion=motion,
         # A tracker section declares one; a cell with no other instrument is a tracker cell.
         has_tracker=doc.has("tracker") or not setups,
@@ -583,6 +732,15 @@ def load_cell(path: str | Path) -> Cell:
             max_view_angle_rad=design.number("max_view_angle", 30.0 * np.pi / 180 / to_rad, to_rad, positive=True),
         ),
     )
+    validation = tuple(str(v) for v in doc.items("validation", []))
+    for name in validation:
+        if name not in cell.instruments:
+            raise doc.error(
+                "validation", f"{name!r} is not one of the cell's instruments ({', '.join(cell.instruments)})"
+            )
+    if validation and set(validation) >= set(cell.instruments):
+        raise doc.error("validation", "leaves no instrument to calibrate with")
+    return replace(cell, validation=validation)
 
 
 def _tracker_targets(

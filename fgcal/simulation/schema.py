@@ -126,6 +126,80 @@ class Ballbar(Schema):
     between_configurations: Between = None
 
 
+class ContactBall(Schema):
+    name: str
+    tip: str = Field(description="the robot's tip (or flange) the ball is on")
+    xyz: vector(3) = Field(description=f"the ball's centre on its tip (the drawing's), {LENGTH}")
+    radius: Number = Field(gt=0, description=LENGTH)
+
+
+class ContactPlane(Schema):
+    name: str
+    normal: vector(3) = Field(description="its nominal normal in W, towards the robot")
+    offset: Number = Field(description=f"its nominal distance from W's origin along the normal, {LENGTH}")
+
+
+class TipGauge(Schema):
+    """A ballbar between the first two balls (the hands hold it), read at many configurations."""
+
+    length: Number = Field(gt=0, description=f"the bar's length at the middle of its travel, {LENGTH}")
+    travel: Number = Field(gt=0, description=f"its full travel, {LENGTH}")
+    readings: int = Field(100, ge=1, le=MAX_CONFIGURATIONS // 2)
+
+
+class Hold(Schema):
+    """Joints held still while the robot touches itself (a torso locked: its errors are then one
+    rigid motion of both arms, which self-contact cannot see and its score removes)."""
+
+    joints: list[int] = Field(description="1-based joint numbers (the configurations' q columns)")
+    at: numbers() = Field(description=f"their values, one per joint, {ANGLE}")
+
+
+class Contact(Schema):
+    """Contact elements (balls on the tips of a tree) touching each other and planes of the cell."""
+
+    elements: list[ContactBall] = Field(description="at least one; self-contacts join the first two")
+    planes: list[ContactPlane] = None
+    self_contacts: int = Field(40, ge=0, le=MAX_CONFIGURATIONS // 2, description="contacts of the first two balls")
+    plane_contacts: int = Field(12, ge=0, le=1000, description="contacts of each ball with each plane")
+    centre_error: Number = Field(None, ge=0, description=f"the true centres off the drawing's, {LENGTH} (default 1 mm)")
+    plane_angle_error: Number = Field(
+        None, ge=0, description=f"the true planes' tilt off nominal, {ANGLE} (default 1 deg)"
+    )
+    plane_offset_error: Number = Field(None, ge=0, description=f"the true planes off nominal, {LENGTH} (default 5 mm)")
+    position_sigma: Number = Field(None, gt=0, description=f"the dataset's prior on a centre, {LENGTH} (default 2 mm)")
+    gauge: TipGauge = Field(None, description="a ballbar between the first two balls (tip_distances)")
+    hold: Hold = None
+
+
+class LinkCamera(Schema):
+    name: str
+    joint: int = Field(ge=0, description="the link (1-based joint; 0 the base) whose frame carries it")
+    mounting: Pose = Field(description="its pose on the link (the drawing's)")
+    image_size: vector(2) = Field(description="px")
+    intrinsics: Intrinsics
+    distortion: vector(5) = [0.0] * 5
+
+
+class TipBoard(Schema):
+    name: str
+    tip: str = Field(description="the robot's tip (or flange) carrying it")
+    pose: Pose = Field(description="its pose on the tip (the drawing's), its frame at its centre")
+    corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2")
+    square: Number = Field(gt=0, description=LENGTH)
+
+
+class SelfObservation(Schema):
+    """Cameras on a link seeing checkerboards on the tips (observed_pixels)."""
+
+    cameras: list[LinkCamera]
+    boards: list[TipBoard]
+    views: int = Field(200, ge=1, le=MAX_CONFIGURATIONS // 2, description="configurations where a camera sees a board")
+    mounting_error: vector(2) = Field(None, description=f"the true mountings and boards off the drawing's: [{LENGTH}, "
+                                      f"{ANGLE}] (default 2 mm, 1 deg)")  # fmt: skip
+    max_view_angle: Number = Field(None, gt=0, description=f"{ANGLE} (default 60 deg)")
+
+
 class StaticBoard(Schema):
     mount: Pose = Field(None, description="the board on the flange")
     corners: vector(2) = Field(description="inner corners (columns, rows), integers >= 2")
@@ -151,6 +225,9 @@ class CellNoise(Schema):
     touch_sigma: Number = Field(None, ge=0, description=f"{LENGTH} (default 10 um)")
     spacing_sigma: Number = Field(None, ge=0, description=f"{LENGTH} (default 5 um)")
     distance_sigma: Number = Field(None, ge=0, description=f"{LENGTH} (default 2 um)")
+    contact_sigma: Number = Field(
+        None, ge=0, description=f"{LENGTH}: how far from touching a contact closes (default 5 um)"
+    )
 
 
 class Perturbation(Schema):
@@ -204,6 +281,13 @@ class CellFile(Schema):
     touch: Touch = None
     ballbar: Ballbar = None
     static_camera: StaticCamera = None
+    contact: Contact = None
+    self_observation: SelfObservation = None
+    validation: list[str] = Field(
+        None,
+        description="instruments measured for validation only: the suggested config fits the cell's other "
+        "instruments as one set each and scores on these (e.g. [tracker])",
+    )
     noise: CellNoise = None
     perturbation: Perturbation = None
     motion_history: MotionHistory = None

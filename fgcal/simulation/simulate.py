@@ -21,7 +21,9 @@ from ..model.motion import MotionHistory, features
 from ..model.robot_io import embed_robot
 from .ballbar import ballbar_design, ballbar_file_design, pairs_design, write_ballbar_table, write_pairs_table
 from .cell import Cell, load_cell
+from .contact import contact_design, contact_header, contact_truth, write_contact_tables
 from .design import View, file_design, joint_space_design, seed_design, space_filling_design
+from .self_observation import observation_design, observation_header, observation_truth, write_observed_pixels
 from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
 from .touch import touch_design, touch_file_design, write_touch_tables
 from .truth import perturb_parameters
@@ -101,7 +103,8 @@ def simulate(
                 n_configurations=n_configurations or cell.design.n_configurations,
             ),
         )
-    sized = cell.touch is None and cell.ballbar is None and (cell.camera is None or cell.design.kind == "space_filling")
+    sized = (cell.touch is None and cell.ballbar is None and cell.contact is None
+             and (cell.camera is None or cell.design.kind == "space_filling"))  # fmt: skip
     if n_configurations is not None and configurations is None and not sized:  # it was read and ignored
         what = ("a touch or ballbar cell's configurations are its readings" if cell.camera is None
                 else "the cell's seed design has its own viewpoints: add --design space_filling")  # fmt: skip
@@ -113,8 +116,8 @@ def simulate(
     # A touch or ballbar plan (--configurations) names each one's point or pivot.
     if cell.ballbar is not None and configurations is not None and cell.ballbar.pairs:
         raise InputError(cell.source, "ballbar", "a plan of readings between configurations is not simulated yet")
-    for setup, what in ((cell.touch, "touch"), (cell.ballbar, "ballbar")):
-        if setup is not None and (design is not None or drift is not None):
+    for setup, what in ((cell.touch, "touch"), (cell.ballbar, "ballbar"), (cell.contact, "contact")):
+        if setup is not None and (design is not None or drift is not None or (what == "contact" and configurations)):
             raise InputError(
                 cell.source, what, f"a {what} cell's configurations are its readings: no other design or drift"
             )
@@ -136,6 +139,8 @@ def simulate(
         np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)
     )
     true_params = perturb_parameters(robot, cell.perturbation, truth_rng)
+    contact_true = contact_truth(cell, truth_rng) if cell.contact is not None else None  # after: the robot's stay
+    seen_true = observation_truth(cell, truth_rng) if cell.self_observation is not None else None
     if cell.motion is not None:
         true_params |= cell.motion.parameters()
     if render and cell.motion is not None:
@@ -183,6 +188,13 @@ def simulate(
         if cell.ballbar.pairs:  # after the readings to pivots: their configurations stay as they were
             q_bar = np.vstack([q_bar, pairs_design(cell, robot.parameter_vector(true_params), design_rng, say)])
         views = [View(qi, None, ()) for qi in q_bar]
+    elif cell.contact is not None:
+        contacts = contact_design(cell, robot.parameter_vector(true_params), contact_true, design_rng, noise_rng, say)
+        views = [View(qi, None, ()) for qi in contacts.q]
+        if seen_true is not None:  # after the contacts' draws, which stay as they were
+            seeing = observation_design(cell, robot.parameter_vector(true_params), seen_true, design_rng, noise_rng)
+            views += [View(qi, None, ()) for qi in seeing.q]
+            say(f"  {len(seeing.q)} configurations where a camera sees a board ({len(seeing.rows)} pixels)")
     elif cell.static_camera is not None:
         views = static_camera_design(cell, true_params, design_rng)
     elif cell.camera is None:
@@ -223,6 +235,13 @@ def simulate(
         if cell.ballbar.pairs:
             ball_W = transform_points(robot.fk(q[n_pivot:], true_params, tip=cell.tip), cell.ballbar.ball)
             counts |= write_pairs_table(out, cell, config_ids[n_pivot:], ball_W, noise_rng)
+    elif cell.contact is not None:
+        _write_configurations(out, cell, q, config_ids)
+        counts = write_contact_tables(out, contacts, config_ids)
+        if seen_true is not None:
+            counts |= write_observed_pixels(out, seeing, config_ids[len(contacts.q) :])
+        if cell.has_tracker:  # the validation's reflectors, after the contacts' draws
+            counts |= _write_tracker_points(out, cell, q, config_ids, true_params, noise_rng)
     elif cell.static_camera is not None:
         _write_configurations(out, cell, q, config_ids)
         counts = write_static_camera_tables(out, cell, q, config_ids, true_params, noise_rng)
@@ -254,6 +273,10 @@ def simulate(
         ),
         static_camera_pose=cell.static_camera.pose if cell.static_camera is not None else None,
         static_camera_board_mount=cell.static_camera.board_mount if cell.static_camera is not None else None,
+        contact_elements=contact_true.elements(cell) if contact_true is not None else {},
+        contact_planes=contact_true.planes(cell) if contact_true is not None else {},
+        link_cameras=seen_true.documents(cell)[0] if seen_true is not None else {},
+        tip_boards=seen_true.documents(cell)[1] if seen_true is not None else {},
         noise_sigma={
             "camera_point_m": cell.camera_point_sigma_m,
             "pixel_px": cell.pixel_sigma_px,
@@ -261,6 +284,12 @@ def simulate(
             **({"touch_m": cell.touch_sigma_m, "spacing_m": cell.spacing_sigma_m} if cell.touch is not None else {}),
             **({"tracker_angle_rad": cell.tracker_angle_sigma_rad} if cell.tracker_probe is not None else {}),
             **({"distance_m": cell.distance_sigma_m} if cell.ballbar is not None else {}),
+            **(
+                {"contact_m": cell.contact_sigma_m, "distance_m": cell.distance_sigma_m}
+                if cell.contact is not None
+                else {}
+            ),
+            **({"pixel_px": cell.pixel_sigma_px} if cell.self_observation is not None else {}),
         },
         deviation_before_calibration_m={"mean": float(deviation.mean()), "max": float(deviation.max())},
         drift=(
@@ -445,6 +474,10 @@ def stated_noise(cell: Cell, measured: list[str]) -> dict[str, float]:
         "point_distances": {"spacing_m": cell.spacing_sigma_m},
         "distances": {"distance_m": cell.distance_sigma_m},
         "tool_distances": {"distance_m": cell.distance_sigma_m},
+        "contacts": {"contact_m": cell.contact_sigma_m},
+        "plane_contacts": {"contact_m": cell.contact_sigma_m},
+        "tip_distances": {"distance_m": cell.distance_sigma_m},
+        "observed_pixels": {"pixel_px": cell.pixel_sigma_px},
     }
     out: dict[str, float] = {}
     for table in measured:
@@ -465,8 +498,14 @@ def _write_header(
         f"fgcal simulate {Path(cell.source).name} --seed {seed} ({cell.design.kind} design, "
         f"{n_configurations} configurations); noise sigma: "
     )
-    if cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None:
-        if cell.touch is not None:
+    if cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None or cell.contact is not None:
+        if cell.contact is not None:
+            noise_text = (
+                f"contacts {cell.contact_sigma_m} m, gauge {cell.distance_sigma_m} m"
+                + (f", pixels {cell.pixel_sigma_px} px" if cell.self_observation is not None else "")
+                + (f", tracker {cell.tracker_sigma_m} m (validation)" if cell.has_tracker else "")
+            )
+        elif cell.touch is not None:
             noise_text = f"touch {cell.touch_sigma_m} m, known distances {cell.spacing_sigma_m} m"
         elif cell.ballbar is not None:
             noise_text = f"ballbar {cell.distance_sigma_m} m"
@@ -486,6 +525,9 @@ def _write_header(
                     **files,
                 },
                 **({"camera": cell.static_camera.camera.to_document()} if cell.static_camera is not None else {}),
+                **({"contact": contact_header(cell)} if cell.contact is not None else {}),
+                **({"self_observation": observation_header(cell)} if cell.self_observation is not None else {}),
+                **({"tracker": _tracker_header(cell)} if "tracker_points" in counts else {}),
                 "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
                 **_tip_entry(cell),
                 "noise": noise,
@@ -520,15 +562,17 @@ def _write_header(
         **({"camera": {**cell.camera.to_document(), "mounting": _pose_doc(robot.tool_pose)}} if camera else {}),
         "payload": {"mass": float(robot.payload_mass), "com": [float(v) for v in robot.payload_com]},
         **({"fixture": _pose_doc(cell.fixture_pose)} if camera else {}),
-        "tracker": {
-            "targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))],
-            **(
-                {"tips": {f"t{i + 1}": tip for i, tip in enumerate(cell.tracker_target_tips)}}
-                if cell.tracker_target_tips
-                else {}
-            ),
-        },
+        "tracker": _tracker_header(cell),
         "noise": noise,
         "source": source + f"{camera_noise}tracker {cell.tracker_sigma_m} m",
     }
     write_header(out, header)
+
+
+def _tracker_header(cell: Cell) -> dict:
+    """dataset.yaml tracker: the reflectors' names and, on a tree, their tips."""
+    tips = cell.tracker_target_tips
+    return {
+        "targets": [f"t{i + 1}" for i in range(len(cell.tracker_targets))],
+        **({"tips": {f"t{i + 1}": tip for i, tip in enumerate(tips)}} if tips else {}),
+    }

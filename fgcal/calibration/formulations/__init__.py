@@ -7,14 +7,31 @@ from __future__ import annotations
 from ..problem import Formulation
 from .distances import DistanceReadings
 from .pairs import Pairs
+from .planes import Planes
 from .poses import MeasuredPoses
 from .projection import Projection
+from .self_contact import SelfContact
+from .self_observation import SelfObservation
 from .static_camera import StaticCamera
+from .tip_gauge import TipGauge
 from .touch import Touch
 from .tracker import Tracker
 
 REGISTRY: dict[str, type[Formulation]] = {
-    cls.name: cls for cls in (Pairs, Tracker, Projection, Touch, MeasuredPoses, DistanceReadings, StaticCamera)
+    cls.name: cls
+    for cls in (
+        Pairs,
+        Tracker,
+        Projection,
+        Touch,
+        MeasuredPoses,
+        DistanceReadings,
+        StaticCamera,
+        SelfContact,
+        Planes,
+        TipGauge,
+        SelfObservation,
+    )
 }
 NAMES = tuple(REGISTRY)
 
