@@ -18,15 +18,18 @@ CELLS = sorted(p.stem for p in (REPO / "datasets" / "cells").glob("*.yaml"))
 
 @pytest.mark.parametrize("cell", CELLS)
 def test_the_config_simulate_writes_states_only_what_its_formulation_reads(cell, tmp_path, capsys):
-    sized = cell.startswith(("irb120_tracker", "dual", "robot_positioner", "irb120_static", "positioner_static",
-                             "humanoid"))
+    sized = cell.startswith(("irb120_tracker", "dual_arm_tracker", "robot_positioner", "irb120_static",
+                             "positioner_static", "humanoid"))
     size = ["--n", "12"] if sized else []
     assert main(["simulate", cell, "--out", str(tmp_path / "sim"), "--seed", "1", *size]) == 0
     capsys.readouterr()
     config = load_config(tmp_path / "sim" / "calibration.yaml")
-    formulation = registered(config.formulation)
-    unread = config.stated_options - set(formulation.settings_read) - {f"robust.{formulation.kind}"}
-    assert not unread, (cell, sorted(unread))
+    # One formulation, or several sets (each states what its own formulation reads).
+    stated = [(s.formulation, s.stated_options) for s in config.sets] or [(config.formulation, config.stated_options)]
+    for name, options in stated:
+        formulation = registered(name)
+        unread = options - set(formulation.settings_read) - {f"robust.{formulation.kind}"}
+        assert not unread, (cell, name, sorted(unread))
 
 
 def test_settings_another_formulation_reads_are_said(tmp_path, capsys):

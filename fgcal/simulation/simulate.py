@@ -106,7 +106,7 @@ def simulate(
     sized = (cell.touch is None and cell.ballbar is None and cell.contact is None
              and (cell.camera is None or cell.design.kind == "space_filling"))  # fmt: skip
     if n_configurations is not None and configurations is None and not sized:  # it was read and ignored
-        what = ("a touch or ballbar cell's configurations are its readings" if cell.camera is None
+        what = ("a touch, ballbar or contact cell's configurations are its readings" if cell.camera is None
                 else "the cell's seed design has its own viewpoints: add --design space_filling")  # fmt: skip
         raise InputError(None, "--n", f"sets the size of a space-filling design; {what}")
     if configurations is not None:
