@@ -32,8 +32,9 @@ import numpy as np
 
 from ..calibration.formulations import formulation as registered
 from ..calibration.graph import build_graph
-from ..calibration.identifiability import analyse
+from ..calibration.identifiability import analyse, reduced_jacobian
 from ..calibration.priors import Priors
+from ..calibration.solve import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, solve_stage
 from ..calibration.problem import Keys, Observations, Problem, candidate_parameters
 from ..calibration.settings import MeasurementSettings, Noise
 from ..calibration.state import State
@@ -186,8 +187,40 @@ class FormulationCalibrator:
             ) from None  # fmt: skip
         state = self.formulation.initial_state(problem)
         state = state.with_params(self.start)
-        stage = build_graph(problem, self._candidates(), state)
-        return analyse(stage).identifiable
+        at_start = analyse(build_graph(problem, self._candidates(), state)).identifiable
+        if not at_start:
+            return at_start
+        # Again at the reference data's solution, as the batch calibration does: at the start
+        # the model error (mm) lends a direction that the auxiliary unknowns absorb exactly at the
+        # solution (the touch cell's base rotations theta1, ry1 against its points in W) an
+        # information it does not have. Released online, such a near-gauge direction is held
+        # by the prior alone and drifts tens of sigmas (docs/online.md).
+        solved, _, _, _ = solve_stage(problem, "reference", at_start, state)
+        released = analyse(build_graph(problem, at_start, solved)).identifiable
+        return self._determined(problem, released, solved)
+
+    def _determined(self, problem: Problem, released: list[str], solved: State) -> list[str]:
+        """Of ``released``, those the reference data determine: at the reference solution, with
+        the online prior on the parameters, a marginal sigma at most ``determined_fraction`` of
+        the prior sigma. A parameter the data barely inform (the touch cell's base tilts rx1, ry1
+        against its points in W: 0.25 of the prior) is a near-gauge direction the prior holds:
+        online its frozen linearisations, each at another point along that rotation, lend it
+        information it does not have, and the estimate ended 36-99 sigmas from the batch
+        solution of the same graph (docs/online.md)."""
+        fraction = self.settings.determined_fraction
+        if fraction is None:
+            return released
+        while released:
+            J_p, J_aux = reduced_jacobian(build_graph(problem, released, solved))
+            prior = np.array([self.settings.by_kind(n, "prior") for n in released])
+            J = np.hstack([J_p * prior[None, :], J_aux])  # the parameters in prior units
+            information = J.T @ J
+            information[: len(released), : len(released)] += np.eye(len(released))
+            ratio = np.sqrt(np.diag(np.linalg.pinv(information))[: len(released)])
+            if ratio.max() <= fraction:
+                return released
+            released = [n for n, r in zip(released, ratio, strict=True) if r <= fraction]
+        return released
 
     def _problem(self, dataset: Dataset, fit: np.ndarray, observations: Observations | None = None) -> Problem:
         if observations is None:
@@ -328,6 +361,12 @@ class FormulationCalibrator:
         except InputError:
             return False
         state = self.formulation.initial_state(problem)
+        # The start must determine its unknowns by itself, as a batch calibration's data must:
+        # with fewer rows than unknowns the auxiliary unknowns (a ballbar's pivots) rest on the
+        # nominal model's guess and the prior, and Gauss-Newton steps from there diverged
+        # (irb120_ballbar: 22 readings for 26 parameters and 12 coordinates, docs/online.md).
+        if problem.observations.n_residuals < len(self.released) + state.n_auxiliary:
+            return False
         self.state = state.with_params(self.start)
         self.like = problem.observations
         self._once = problem, self.formulation.online_once(problem)
@@ -395,6 +434,13 @@ class FormulationCalibrator:
                 values.insert(self.keys[name], aux.to_gtsam())
             self._cycle_label = cycle
             graph.push_back(self._once_factors(P))
+            # iSAM2 takes one Gauss-Newton step per update, and what leaves the window is frozen
+            # where it stands: the start's batch is solved first (Levenberg-Marquardt, as the
+            # batch calibration), so that iSAM2 starts at its solution.
+            start = gtsam.NonlinearFactorGraph(graph)
+            for g in per_reading:
+                start.push_back(g)
+            values = _solved(start, values)
         elif new_cycle:
             elapsed = max(1, cycle - self._cycle_label) if cycle is not None and self._cycle_label is not None else 1
             sigmas = self._walk_sigmas(cycle)
@@ -610,6 +656,18 @@ def _append(tables: dict, name: str, row: dict[str, str], values: np.ndarray) ->
     ids, stack = tables.get(name, ({k: [] for k in row}, np.zeros((0, len(values)))))
     ids = {k: [*ids.get(k, []), row[k]] for k in row}
     tables[name] = (ids, np.vstack([stack, np.asarray(values, dtype=float)[None, :]]))
+
+
+def _solved(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
+    """``graph`` minimised from ``values`` by Levenberg-Marquardt, as the batch calibration's
+    stages (fgcal.calibration.solve.optimise)."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setLinearSolverType("MULTIFRONTAL_QR")
+    params.setDiagonalDamping(True)
+    params.setMaxIterations(100)
+    params.setRelativeErrorTol(RELATIVE_TOLERANCE)
+    params.setAbsoluteErrorTol(ABSOLUTE_TOLERANCE)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
 
 
 def _subset(values: gtsam.Values, keys) -> gtsam.Values:
