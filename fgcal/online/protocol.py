@@ -34,9 +34,9 @@ from ..calibration.formulations import formulation as registered
 from ..calibration.graph import build_graph
 from ..calibration.identifiability import analyse, reduced_jacobian
 from ..calibration.priors import Priors
-from ..calibration.solve import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, solve_stage
 from ..calibration.problem import Keys, Observations, Problem, candidate_parameters
 from ..calibration.settings import MeasurementSettings, Noise
+from ..calibration.solve import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, solve_stage
 from ..calibration.state import State
 from ..core.errors import InputError
 from ..data.dataset import Dataset, Table
