@@ -313,6 +313,7 @@ class OnlineCalibrator:
         """Merge the marginal factors of the images that left the window (compression.merge_marginals)."""
         self._marginals, self._scanned = merge_marginals(self.smoother, self._marginals, self._scanned)
 
+
     def image_measurements(self, P: int, row: int, observations: list[tuple[str, np.ndarray]]) -> Projections:
         """The image's projections on (p_c, O): one factor for all its points, which keeps its
         Jacobians (the gate and iSAM2's later updates linearise it at the same point)."""

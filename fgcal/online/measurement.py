@@ -86,7 +86,9 @@ class Measurement:
 
     @property
     def n_observations(self) -> int:
-        return sum(len(m.pixels) + sum(len(values) for _, _, values in m.observations) for m in self.configurations)
+        return sum(
+            len(m.pixels) + sum(len(values) for _, _, values in m.observations) for m in self.configurations
+        )
 
     def readings(self) -> list[Reading]:
         """What fgcal.online.protocol folds in, one reading per configuration."""

@@ -43,14 +43,10 @@ class OnlineSetup(Schema):
     """An online setup (fgcal online --setup)."""
 
     dataset: str = Field(description="the calibration's dataset folder, relative to the setup")
-    formulation: Literal[NAMES] = Field(
-        None,
-        description="what the inbox's files measure, any registered "
-        "formulation's (fgcal.online.protocol); absent: a flange camera's images",
-    )
-    model: Literal[MODELS] = Field(
-        None, description="the model refined online, with formulation (default: the dataset's robot's)"
-    )
+    formulation: Literal[NAMES] = Field(None, description="what the inbox's files measure, any registered "
+                                         "formulation's (fgcal.online.protocol); absent: a flange camera's images")
+    model: Literal[MODELS] = Field(None, description="the model refined online, with formulation (default: the "
+                                   "dataset's robot's)")
     robot: RobotReference = None
     released: list[str] = Field(None, description="the parameters recalibrated online (default: the calibration's)")
     settings: Settings = None

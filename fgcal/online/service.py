@@ -381,7 +381,8 @@ class OnlineService:
             f"{measurement.name}: measurement {update.n_images}, cycle {cycle}, "
             f"{measurement.n_observations} observations, {update.update_s * 1e3:.1f} ms; predicted RMS flange sigma "
             f"{predicted['rms_m'] * 1e3:#.3g} mm; largest step {name} {human(name, estimate[i] - self._previous[i])} "
-            f"({step[i]:+.2f} sigma)" + (f"; {len(update.rejected_points)} gated" if update.rejected_points else "")
+            f"({step[i]:+.2f} sigma)"
+            + (f"; {len(update.rejected_points)} gated" if update.rejected_points else "")
         )
         self._previous = estimate
 
