@@ -66,10 +66,11 @@ class OnlineSettings:
     # and not folded in; None: no gate (the default: on touch and ballbar cells the protocol's
     # estimate is not yet consistent enough for it, docs/online.md).
     outlier_gate_sigma: float | None = None
-    # Released by the formulations' calibrator (fgcal.online.protocol) only when the reference
-    # data determine them: marginal sigma at the reference solution at most this fraction of
-    # the prior sigma (None: every identifiable parameter, however weakly).
-    determined_fraction: float | None = 0.4
+    # A geometric parameter (m, rad) is released by the formulations' calibrator
+    # (fgcal.online.protocol, without a released list) only when the reference data determine
+    # it: marginal sigma at their solution at most this fraction of the prior sigma (None: every
+    # identifiable parameter, however weakly; docs/online.md).
+    determined_fraction: float | None = 0.1
     # Measurements held back and folded in together before the first update (formulations
     # other than the camera's, fgcal.online.protocol): they start the auxiliary unknowns.
     start_measurements: int = 10
