@@ -244,7 +244,8 @@ def test_the_smoke_matrix_covers_every_formulation():
 @pytest.mark.parametrize("formulation", sorted(SMOKE))
 def test_every_incremental_formulation_runs_online(formulation, bundled_sim, tmp_path):
     data = bundled_sim(SMOKE[formulation])
-    fed = feed_dataset(data, tmp_path / "inbox", n=30, cycle_size=10)
+    # A ballbar's start needs a reading per unknown (24 parameters and 12 coordinates): 40.
+    fed = feed_dataset(data, tmp_path / "inbox", n=40 if formulation == "distances" else 30, cycle_size=10)
     setup = tmp_path / "setup.yaml"
     setup.write_text(
         yaml.safe_dump({"dataset": str(data), "formulation": formulation, "settings": {"prior_sigma_compliance": 1e-4}})
@@ -406,7 +407,9 @@ def test_readings_between_two_configurations_join_once_both_arrived(bundled_sim,
     from fgcal.online.protocol import Reading
 
     data = bundled_sim("irb120_ball_pairs")
-    fed = feed_dataset(data, tmp_path / "inbox", n=40, cycle_size=10)
+    # Its start needs a reading per unknown (26 parameters and the ball's 3 coordinates): 29
+    # readings, the 58 configurations of their ends.
+    fed = feed_dataset(data, tmp_path / "inbox", n=70, cycle_size=10)
     setup = tmp_path / "setup.yaml"
     setup.write_text(yaml.safe_dump({"dataset": str(data), "formulation": "distances",
                                      "settings": {"prior_sigma_compliance": 1e-4}}))  # fmt: skip
@@ -414,9 +417,9 @@ def test_readings_between_two_configurations_join_once_both_arrived(bundled_sim,
     service.run(once=True)
     service.close()
     report = json.loads((tmp_path / "state" / "report.json").read_text())
-    assert report["n_logged"] == fed == 40 and report["n_images"] == 20 and not report["skipped"], report
+    assert report["n_logged"] == fed == 70 and report["n_images"] == 35 and not report["skipped"], report
     released = [e for e in report["parameters"].values() if e["status"] == "released"]
-    assert min(e["sigma"] / e["prior_sigma"] for e in released) < 0.1  # measured 0.012 (20 readings)
+    assert min(e["sigma"] / e["prior_sigma"] for e in released) < 0.1
     # A reading that arrives before its other configuration waits for it.
     measurements = dataset_measurements(data)
     calibrator = FormulationCalibrator(load_dataset(data), "distances", TRACKER_SETTINGS, released=["a2", "d4"])
