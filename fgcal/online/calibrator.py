@@ -71,7 +71,7 @@ class OnlineSettings:
     # (fgcal.online.protocol, without a released list) only when the reference data determine
     # it: marginal sigma at their solution at most this fraction of the prior sigma (None: every
     # identifiable parameter, however weakly; docs/online.md).
-    determined_fraction: float | None = 0.1
+    determined_fraction: float | None = 0.05
     # Measurements held back and folded in together before the first update (formulations
     # other than the camera's, fgcal.online.protocol): they start the auxiliary unknowns.
     start_measurements: int = 10

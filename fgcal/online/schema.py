@@ -35,7 +35,7 @@ class Settings(Schema):
     determined_fraction: Number = Field(None, gt=0, description="with formulation and no released list: "
                                         "a geometric parameter (m, rad) is released when its sigma at the "
                                         "reference data's solution is at most this fraction of its prior sigma "
-                                        "(default 0.1)")  # fmt: skip
+                                        "(default 0.05)")  # fmt: skip
     start_measurements: int = Field(None, ge=1, description="measurements held back and folded in together before "
                                     "the first update, a formulation's (default 10)")  # fmt: skip
     compliant_joints: list[int] = Field(None, description="1-based joints with a compliance (default 1-3)")
