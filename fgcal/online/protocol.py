@@ -9,17 +9,21 @@ observations (``online_observations``) and gives its measurement sets on the gra
 Graph, as the camera's (fgcal.online.calibrator): a parameter vector ``p_c`` per work cycle,
 tied by a random walk, a prior on ``p_0`` around the starting model, and the formulation's
 auxiliary unknowns (a tracker's pose, the reflectors on the flange, ...), constant. The first
-``start_measurements`` measurements are held back: together they are a small batch problem
-whose ``initial_state`` starts the auxiliary unknowns (as a batch calibration starts them,
-from the data at the nominal model), and they enter iSAM2 in one update, where they determine
-the auxiliary unknowns; later measurements enter one at a time. Measurements older than the
+``start_measurements`` measurements, and at least as many residual rows as the start's
+unknowns, are held back: together they are a small batch problem whose ``initial_state``
+starts the auxiliary unknowns (as a batch calibration starts them, from the data at the
+nominal model), solved by Levenberg-Marquardt, and they enter iSAM2 in one update at that
+solution; later measurements enter one at a time. Measurements older than the
 window are frozen into linear factors (what marginalising leaves), so memory stays bounded.
 A motion history travels with a measurement (the joints before its last move and the move's
 speed), so that a model with the history's terms (DH,s,e,h) is refined online.
 
 Released parameters: the setup's list, or the batch identifiability analysis
 (fgcal.calibration.identifiability.analyse) of the formulation's graph over the reference
-dataset's own measurements (the calibration the online run refines), at the starting model.
+dataset's own measurements (the calibration the online run refines), at the starting model and
+again at that data's solution, and of those the geometric parameters the data determine (sigma
+at most ``determined_fraction`` of the prior): a near-gauge direction held by the prior drifts
+online, as its frozen linearisations lend it information (docs/online.md).
 """
 
 from __future__ import annotations
@@ -74,7 +78,7 @@ class Reading:
 
 
 # A reference fit whose chi2 per degree of freedom exceeds this is a model that cannot fit the
-# cell (a chi2 this large at 100 degrees of freedom has probability below 1e-7).
+# cell (a chi2 this large at 100 degrees of freedom has probability 1e-8).
 MISFIT = 2.0
 
 # Id columns that name configurations by their labels: a reading between two configurations.
