@@ -63,9 +63,15 @@ class OnlineSettings:
     outlier_gate_px: float = 3.0
     # A formulation's measurement (fgcal.online.protocol) whose residual at the current estimate
     # exceeds this many of its predicted sigmas (noise and the estimate's uncertainty) is logged
-    # and not folded in; None: no gate (the default: on touch and ballbar cells the protocol's
-    # estimate is not yet consistent enough for it, docs/online.md).
+    # and not folded in; None: no gate (the default: it passes every good measurement of the
+    # bundled cells, but a real step change of the robot is gated as outliers too and never
+    # reaches the drift test; docs/online.md).
     outlier_gate_sigma: float | None = None
+    # A geometric parameter (m, rad) is released by the formulations' calibrator
+    # (fgcal.online.protocol, without a released list) only when the reference data determine
+    # it: marginal sigma at their solution at most this fraction of the prior sigma (None: every
+    # identifiable parameter, however weakly; docs/online.md).
+    determined_fraction: float | None = 0.05
     # Measurements held back and folded in together before the first update (formulations
     # other than the camera's, fgcal.online.protocol): they start the auxiliary unknowns.
     start_measurements: int = 10

@@ -32,6 +32,10 @@ class Settings(Schema):
     outlier_gate_sigma: Number = Field(None, gt=0, description="a formulation's measurement whose residual at the "
                                        "current estimate exceeds this many predicted sigmas is not folded in "
                                        "(default: no gate; 5 on a tracker, docs/online.md)")  # fmt: skip
+    determined_fraction: Number = Field(None, gt=0, description="with formulation and no released list: "
+                                        "a geometric parameter (m, rad) is released when its sigma at the "
+                                        "reference data's solution is at most this fraction of its prior sigma "
+                                        "(default 0.05)")  # fmt: skip
     start_measurements: int = Field(None, ge=1, description="measurements held back and folded in together before "
                                     "the first update, a formulation's (default 10)")  # fmt: skip
     compliant_joints: list[int] = Field(None, description="1-based joints with a compliance (default 1-3)")
