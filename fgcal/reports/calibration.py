@@ -84,9 +84,10 @@ def report_dict(result: CalibrationResult) -> dict:
                 entry["flag"] = "negative, but within 2 sigma of zero"
             elif angles[name] > PLAUSIBLE_JOINT_DEFLECTION_RAD and split_name(name)[1] - 1 not in elastic:
                 entry["flag"] = (
-                    f"implausible: it deflects its joint by up to {angles[name] * 1e3:.3g} mrad under gravity, beyond "
-                    f"the {PLAUSIBLE_JOINT_DEFLECTION_RAD * 1e3:g} mrad any industrial joint bends; an effective "
-                    "correction absorbing other errors, not a stiffness"
+                    f"implausible for an industrial joint: it deflects it by up to {angles[name] * 1e3:.3g} mrad "
+                    f"under gravity, beyond the {PLAUSIBLE_JOINT_DEFLECTION_RAD * 1e3:g} mrad any industrial joint "
+                    "bends; on an industrial arm an effective correction absorbing other errors, not a stiffness (an "
+                    "elastic joint, a lightweight arm's or a humanoid's, may bend so)"
                 )
         if is_motion(name) and name in sigmas and split_name(name)[0] == "lm":
             # The sign says which way (fgcal.model.motion): negative is short of the command, the
@@ -647,7 +648,9 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
                 if "reprojection_error_m" in val["after"]
                 else f"Reference: {val['reference']}; {GAUGE_WORDS[val['gauge_removed']]}"
                 + (
-                    f" Scored point in the {val['scored_point_frame']} frame: "
+                    f" Scored: set {doc['sets']['headline_set']}'s held-out measurements, at its own points."
+                    if doc.get("sets") and val["reference"] != "ground truth"
+                    else f" Scored point in the {val['scored_point_frame']} frame: "
                     f"({', '.join(f'{v * 1e3:.3f}' for v in val['scored_point_m'])}) mm."
                     if val["scored_point_m"]
                     else ""
@@ -846,5 +849,6 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
     lines += _motion_lines(doc["motion_history"], plots.get("residual_diagnostics"))
     lines += _residual_model_lines(doc["residual_model"])
     lines += _chain_lines(doc["chains"])
-    lines += set_lines(doc.get("sets"), lambda unit: _units(unit)[1])
+    against_truth = (doc.get("validation") or {}).get("reference") == "ground truth"
+    lines += set_lines(doc.get("sets"), lambda unit: _units(unit)[1], against_truth)
     return "\n".join(lines) + "\n"

@@ -17,14 +17,20 @@ def _value(value: float | None, unit: str) -> str:
     return f"{figure(value * scale)} {shown}"
 
 
-def set_lines(sets: dict | None, sigma_units) -> list[str]:
+def set_lines(sets: dict | None, sigma_units, against_truth: bool = False) -> list[str]:
     """The "Measurement sets" section of report.md (empty without sets); ``sigma_units(name)`` is
-    the format of a parameter's sigma (the report's)."""
+    the format of a parameter's sigma (the report's); ``against_truth``: the headline scores
+    against a simulation's truth, not against a set's measurements."""
     if sets is None:
         return []
+    headline = (
+        "The headline scores against the simulation's ground truth; against measurements, the held-out score "
+        f"reported first is set {sets['headline_set']}'s" if against_truth
+        else f"The headline's held-out score is set {sets['headline_set']}'s"
+    )  # fmt: skip
     lines = [
         "", "## Measurement sets", "",
-        f"The headline's held-out score is set {sets['headline_set']}'s (the first validation set, else the first "
+        f"{headline} (the first validation set, else the first "
         "fitting set). Per set: its rows, its residual RMS at the estimate in its own unit, its chi2 over its "
         "degrees of freedom (its rows less its share of the unknowns: about 1 when its declared noise is right), and "
         "its held-out score after calibration with its prediction. A validation set is never fitted: its own "
@@ -51,7 +57,9 @@ def set_lines(sets: dict | None, sigma_units) -> list[str]:
         lines += [
             "", "Each released parameter's sigma from each fitting set alone (its own unknowns estimated alongside) "
             "and from all of them, at the estimate under the declared noise (mm, mdeg, urad/(N m), mass scales as "
-            "factors); -: not identifiable from that set alone.", "",
+            "factors); -: not identifiable from that set alone. A set alone holds the parameters it cannot determine "
+            "at the estimate, so its sigmas of the others are conditional on them: where all sets together estimate "
+            "such a parameter, a sigma from all can exceed one from a set alone.", "",
             "| parameter | " + " | ".join(f"{name} alone" for name in fitting) + " | all |",
             "|---|" + "---|" * (len(fitting) + 1),
         ]  # fmt: skip
