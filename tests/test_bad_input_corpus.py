@@ -414,6 +414,7 @@ CASES = [
     # pixels.csv (projection)
     ("pixels_unknown_point", _cell("pixels.csv", 2, "point", "Z+z_nowhere"), CALIBRATE, "pixels.csv", "point"),
     ("pixels_nan", _cell("pixels.csv", 2, "v", "NaN"), CALIBRATE, "pixels.csv", "column v"),
+    ("pixels_outside_image", _cell("pixels.csv", 2, "u", "5000"), CALIBRATE, "pixels.csv", "column u"),
     # tracker_points.csv
     (
         "tracker_unknown_config",
@@ -460,6 +461,10 @@ CASES = [
      "line 3, column point"),
     ("observed_text_pixel", _observed(OBSERVED.replace("340", "3x4")), CALIBRATE, "observed_pixels.csv",
      "column u"),
+    ("observed_outside_image", _observed(OBSERVED.replace("340,230", "5000,230")), CALIBRATE, "observed_pixels.csv",
+     "line 3, column u"),
+    ("observed_negative_v", _observed(OBSERVED.replace("340,230", "340,-3")), CALIBRATE, "observed_pixels.csv",
+     "line 3, column v"),
     ("observed_no_section", _observed(OBSERVED, _drop("self_observation")), CALIBRATE, "dataset.yaml",
      "self_observation"),
     ("observed_camera_joint", _observed(OBSERVED, _set("self_observation.cameras.eye.joint", 9)), CALIBRATE,
