@@ -21,6 +21,7 @@ from test_bad_input import alarm, set_cell, set_header  # noqa: F401 (alarm is a
 from fgcal.commands.cli import main
 
 ROBOT = REPO / "datasets" / "robots" / "abb_irb120.yaml"
+SELFCONTAINED_CELL = REPO / "datasets" / "cells" / "dual_arm_selfcontained.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -440,6 +441,12 @@ CASES = [
     ("contact_zero_normal",
      _contact({"plane_contacts": PLANE_CONTACTS}, _set("contact.planes.table.normal", [0, 0, 0])), CALIBRATE,
      "dataset.yaml", "contact.planes.table.normal"),
+    ("contact_nonunit_normal",
+     _contact({"plane_contacts": PLANE_CONTACTS}, _set("contact.planes.table.normal", [0, 0, 2])), CALIBRATE,
+     "dataset.yaml", "contact.planes.table.normal"),
+    ("cell_plane_nonunit_normal",
+     _text("cell.yaml", SELFCONTAINED_CELL.read_text(encoding="utf-8").replace("[0, 0, 1]", "[0, 0, 2]")),
+     SIMULATE, "cell.yaml", "contact.planes[0].normal"),
     ("plane_contacts_unknown_plane", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "b,wall")}),
      CALIBRATE, "plane_contacts.csv", "line 3, column plane"),
     ("plane_contacts_unknown_element", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "z,table")}),

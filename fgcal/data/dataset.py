@@ -574,10 +574,7 @@ def _contact(section: Fields, units: Units, robot: Robot) -> ContactSetup:
         listed = section.sub("planes")
         for name in listed.data:
             plane = listed.sub(str(name))
-            normal = plane.vector("normal", 3)
-            if not np.linalg.norm(normal) > 1e-9:
-                raise plane.error("normal", "a plane's normal must not be zero")
-            planes[str(name)] = (normal / np.linalg.norm(normal), plane.number("offset", scale=units.to_m))
+            planes[str(name)] = (plane_normal(plane), plane.number("offset", scale=units.to_m))
     optional = {
         key: section.number(key, None, scale, positive=True) if section.has(key) else None
         for key, scale in (("position_sigma", units.to_m), ("radius_sigma", units.to_m),
@@ -683,6 +680,27 @@ def _check_in_image(table: Table, rows: np.ndarray, camera: Camera, path: Path, 
             raise InputError(path, f"line {bad[0] + 2}, column {column}", f"{column} = {values[bad[0]]:g} px is "
                              f"outside the image of {whose} ({camera.width} x {camera.height} px: -0.5 to "
                              f"{size - 0.5:g})")  # fmt: skip
+
+
+# A plane's normal is a unit vector to this (its offset is along it: a normal of norm 2 would
+# halve the offset meant, so none is normalised here); 1e-6 passes 8 printed digits.
+NORMAL_TOLERANCE = 1e-6
+
+
+def plane_normal(plane: Fields) -> np.ndarray:
+    """A plane's ``normal``: a unit vector (within NORMAL_TOLERANCE, then normalised), refused
+    otherwise with its norm (the plane ``n . x = offset`` would depend on the normal's length)."""
+    normal = plane.vector("normal", 3)
+    norm = float(np.linalg.norm(normal))
+    if not norm > 1e-9:
+        raise plane.error("normal", "a plane's normal must not be zero")
+    if abs(norm - 1.0) > NORMAL_TOLERANCE:
+        raise plane.error(
+            "normal",
+            f"a plane's normal must be a unit vector (its norm is {norm:.9g}): the offset is the distance along "
+            "it, so a longer one would say another plane; divide both by the norm",
+        )
+    return normal / norm
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:
