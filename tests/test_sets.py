@@ -213,3 +213,28 @@ def test_a_validation_set_held_out_whole_is_registered_on_its_held_out_configura
     assert result.problem.observations.registered_on == ("", "held-out")
     after = result.validation["after"]["tool_point"]
     assert 1 / 1.5 <= after.rms / result.prediction.rms <= 1.5, (after.rms, result.prediction)
+
+
+def test_a_ballbar_cell_with_a_tracker_simulates_both_and_its_config_runs(tmp_path):
+    """Issue 39 trial: irb120_ballbar.yaml with a tracker: block simulated the ballbar only, without a word, and
+    with validation: [tracker] wrote a config whose tracker set failed at calibrate (exit 2). The tracker's
+    reflectors are simulated at the same configurations, and the suggested config runs, the tracker scored."""
+    from conftest import REPO
+
+    from fgcal.calibration.suggest import write_suggested_config
+    from fgcal.data.dataset import load_dataset
+    from fgcal.simulation.cell import load_cell
+    from fgcal.simulation.simulate import simulate
+
+    cells = REPO / "datasets" / "cells"
+    cell = yaml.safe_load((cells / "irb120_ballbar.yaml").read_text())
+    cell["tracker"] = yaml.safe_load((cells / "irb120_tracker.yaml").read_text())["tracker"]
+    cell["validation"] = ["tracker"]
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(cell))
+    simulated = simulate(tmp_path / "cell.yaml", tmp_path / "sim", seed=1)
+    assert simulated.n_observations["tracker_points"] == simulated.n_configurations * len(cell["tracker"]["targets"])
+    config = write_suggested_config(load_cell(tmp_path / "cell.yaml"), load_dataset(tmp_path / "sim"))
+    assert [s["use"] for s in yaml.safe_load(config.read_text())["sets"] if s["name"] == "tracker"] == ["validation"]
+    result = calibrate(load_config(config))
+    before, after = (result.validation[k]["tracker/tool_point"].rms for k in ("before", "after"))
+    assert after < before / 5, (before, after)
