@@ -123,6 +123,22 @@ def _contact(tables: dict[str, str], change: Callable[[dict], None] = lambda doc
     return apply
 
 
+def _truth_without(cell: str, section: str, formulation: str | None = None):
+    """A simulation of the bundled ``cell`` in place of the seed's, its truth's ``section`` removed
+    (calibrated by ``formulation``, else the dataset's own)."""
+
+    def apply(root: Path) -> None:
+        from fgcal.simulation.simulate import simulate
+
+        shutil.rmtree(root / "data")
+        simulate(REPO / "datasets" / "cells" / f"{cell}.yaml", root / "data", seed=1)
+        _edit_yaml(root / "data" / "truth" / "ground_truth.yaml", lambda doc: doc.pop(section))
+        if formulation is not None:
+            (root / "calibration.yaml").write_text(f"dataset: data\nformulation: {formulation}\n", encoding="utf-8")
+
+    return apply
+
+
 CONTACTS = "config,element_a,element_b\nc0000,a,b\nc0001,a,b\n"
 PLANE_CONTACTS = "config,element,plane\nc0000,a,table\nc0001,b,table\n"
 TIP_DISTANCES = "config,element_a,element_b,distance\nc0000,a,b,0.3\nc0001,a,b,0.31\n"
@@ -459,6 +475,15 @@ CASES = [
      "tip_distances.csv", "column distance"),
     ("tip_distances_same_element", _contact({"tip_distances": TIP_DISTANCES.replace("c0001,a,b", "c0001,b,b")}),
      CALIBRATE, "tip_distances.csv", "line 3"),
+    # truth/ground_truth.yaml of a simulation (scored by fgcal calibrate): a section the score needs removed
+    ("truth_without_ballbar", _truth_without("irb120_ballbar", "ballbar"), CALIBRATE, "ground_truth.yaml",
+     "ballbar.ball"),
+    ("truth_without_touch_probe", _truth_without("seven_axis_touch", "touch_probe"), CALIBRATE,
+     "ground_truth.yaml", "touch_probe"),
+    ("truth_without_static_camera", _truth_without("irb120_static_camera", "static_camera"), CALIBRATE,
+     "ground_truth.yaml", "static_camera.pose"),
+    ("truth_without_tracker_probe", _truth_without("irb120_tracker6d", "tracker_probe", "poses"), CALIBRATE,
+     "ground_truth.yaml", "tracker_probe"),
     # observed_pixels.csv and dataset.yaml self_observation (cameras on a link seeing boards on the tips)
     ("observed_unknown_camera", _observed(OBSERVED.replace("c0000,eye,hand,c0102", "c0000,nose,hand,c0102")),
      CALIBRATE, "observed_pixels.csv", "line 3, column camera"),
