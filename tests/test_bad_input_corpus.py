@@ -21,6 +21,7 @@ from test_bad_input import alarm, set_cell, set_header  # noqa: F401 (alarm is a
 from fgcal.commands.cli import main
 
 ROBOT = REPO / "datasets" / "robots" / "abb_irb120.yaml"
+SELFCONTAINED_CELL = REPO / "datasets" / "cells" / "dual_arm_selfcontained.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +119,22 @@ def _contact(tables: dict[str, str], change: Callable[[dict], None] = lambda doc
             doc["files"][name] = f"{name}.csv"
         change(doc)
         (root / "data" / "dataset.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return apply
+
+
+def _truth_without(cell: str, section: str, formulation: str | None = None):
+    """A simulation of the bundled ``cell`` in place of the seed's, its truth's ``section`` removed
+    (calibrated by ``formulation``, else the dataset's own)."""
+
+    def apply(root: Path) -> None:
+        from fgcal.simulation.simulate import simulate
+
+        shutil.rmtree(root / "data")
+        simulate(REPO / "datasets" / "cells" / f"{cell}.yaml", root / "data", seed=1)
+        _edit_yaml(root / "data" / "truth" / "ground_truth.yaml", lambda doc: doc.pop(section))
+        if formulation is not None:
+            (root / "calibration.yaml").write_text(f"dataset: data\nformulation: {formulation}\n", encoding="utf-8")
 
     return apply
 
@@ -414,6 +431,7 @@ CASES = [
     # pixels.csv (projection)
     ("pixels_unknown_point", _cell("pixels.csv", 2, "point", "Z+z_nowhere"), CALIBRATE, "pixels.csv", "point"),
     ("pixels_nan", _cell("pixels.csv", 2, "v", "NaN"), CALIBRATE, "pixels.csv", "column v"),
+    ("pixels_outside_image", _cell("pixels.csv", 2, "u", "5000"), CALIBRATE, "pixels.csv", "column u"),
     # tracker_points.csv
     (
         "tracker_unknown_config",
@@ -439,6 +457,12 @@ CASES = [
     ("contact_zero_normal",
      _contact({"plane_contacts": PLANE_CONTACTS}, _set("contact.planes.table.normal", [0, 0, 0])), CALIBRATE,
      "dataset.yaml", "contact.planes.table.normal"),
+    ("contact_nonunit_normal",
+     _contact({"plane_contacts": PLANE_CONTACTS}, _set("contact.planes.table.normal", [0, 0, 2])), CALIBRATE,
+     "dataset.yaml", "contact.planes.table.normal"),
+    ("cell_plane_nonunit_normal",
+     _text("cell.yaml", SELFCONTAINED_CELL.read_text(encoding="utf-8").replace("[0, 0, 1]", "[0, 0, 2]")),
+     SIMULATE, "cell.yaml", "contact.planes[0].normal"),
     ("plane_contacts_unknown_plane", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "b,wall")}),
      CALIBRATE, "plane_contacts.csv", "line 3, column plane"),
     ("plane_contacts_unknown_element", _contact({"plane_contacts": PLANE_CONTACTS.replace("b,table", "z,table")}),
@@ -451,6 +475,15 @@ CASES = [
      "tip_distances.csv", "column distance"),
     ("tip_distances_same_element", _contact({"tip_distances": TIP_DISTANCES.replace("c0001,a,b", "c0001,b,b")}),
      CALIBRATE, "tip_distances.csv", "line 3"),
+    # truth/ground_truth.yaml of a simulation (scored by fgcal calibrate): a section the score needs removed
+    ("truth_without_ballbar", _truth_without("irb120_ballbar", "ballbar"), CALIBRATE, "ground_truth.yaml",
+     "ballbar.ball"),
+    ("truth_without_touch_probe", _truth_without("seven_axis_touch", "touch_probe"), CALIBRATE,
+     "ground_truth.yaml", "touch_probe"),
+    ("truth_without_static_camera", _truth_without("irb120_static_camera", "static_camera"), CALIBRATE,
+     "ground_truth.yaml", "static_camera.pose"),
+    ("truth_without_tracker_probe", _truth_without("irb120_tracker6d", "tracker_probe", "poses"), CALIBRATE,
+     "ground_truth.yaml", "tracker_probe"),
     # observed_pixels.csv and dataset.yaml self_observation (cameras on a link seeing boards on the tips)
     ("observed_unknown_camera", _observed(OBSERVED.replace("c0000,eye,hand,c0102", "c0000,nose,hand,c0102")),
      CALIBRATE, "observed_pixels.csv", "line 3, column camera"),
@@ -460,6 +493,10 @@ CASES = [
      "line 3, column point"),
     ("observed_text_pixel", _observed(OBSERVED.replace("340", "3x4")), CALIBRATE, "observed_pixels.csv",
      "column u"),
+    ("observed_outside_image", _observed(OBSERVED.replace("340,230", "5000,230")), CALIBRATE, "observed_pixels.csv",
+     "line 3, column u"),
+    ("observed_negative_v", _observed(OBSERVED.replace("340,230", "340,-3")), CALIBRATE, "observed_pixels.csv",
+     "line 3, column v"),
     ("observed_no_section", _observed(OBSERVED, _drop("self_observation")), CALIBRATE, "dataset.yaml",
      "self_observation"),
     ("observed_camera_joint", _observed(OBSERVED, _set("self_observation.cameras.eye.joint", 9)), CALIBRATE,

@@ -5,13 +5,18 @@ pytest -m study; a small self-contained calibration runs by default."""
 
 from __future__ import annotations
 
+import copy
+
+import numpy as np
 import pytest
 import yaml
 from selfcontained_study import CELL, KINDS, combinations, study, table
 
 from fgcal.calibration import scoring
 from fgcal.calibration.config import load_config
-from fgcal.calibration.run import calibrate
+from fgcal.calibration.run import calibrate, calibrate_dataset
+from fgcal.data.dataset import load_dataset
+from fgcal.reports.calibration import write_report
 from fgcal.simulation.simulate import simulate
 
 # The bundled cell cut down (fewer contacts and readings, no compliance, distortion or mass
@@ -63,3 +68,35 @@ def test_the_self_contained_study_meets_the_acceptance():
         assert everything.after_m * 20 <= everything.before_m, everything
         singles = [r.after_m for kinds, r in mine.items() if len(kinds) == 1 and r.failed is None]
         assert everything.after_m <= min(singles), (everything, singles)
+
+
+def test_a_gross_pixel_and_a_gross_gauge_reading_are_rejected_and_named(tmp_path):
+    """Issue 39 trial: observed_pixels and tip_distances had no robust loss, so no rejection (one
+    corner moved far gave chi2/dof 190,469). A pixel 60 px off (600 sigma) and a gauge reading
+    1 mm off (200 sigma) in the fitting set are named in report.json's rejected measurements,
+    and the estimate comes back near the clean one (against the truth)."""
+    cell = tmp_path / "cell.yaml"
+    cell.write_text(yaml.safe_dump(_merge(yaml.safe_load(CELL.read_text()), SMALL)))
+    simulate(cell, tmp_path / "data", seed=4)
+    sets = [{"name": kind, "formulation": kind} for kind in KINDS]
+    config_path = tmp_path / "calibration.yaml"
+    config_path.write_text(yaml.safe_dump({"dataset": "data", "model": "DH", "sets": sets}))
+    config = load_config(config_path)
+    dataset = load_dataset(tmp_path / "data")
+    clean = calibrate_dataset(dataset, config)
+    fit = {str(c) for c in np.asarray(dataset.configs)[clean.problem.fit]}
+    damaged = copy.deepcopy(dataset)
+    injected = set()
+    for kind, shift in (("observed_pixels", np.array([60.0, 0.0])), ("tip_distances", np.array([1e-3]))):
+        table = damaged.tables[kind]
+        row = next(k for k, c in enumerate(table.ids["config"]) if str(c) in fit and k > 10)
+        table.values[row] += shift
+        injected.add((kind, str(table.ids["config"][row])))
+    result = calibrate_dataset(damaged, config)
+    doc = write_report(result, tmp_path / "report", plots=False)
+    named = {(r["kind"], r["config"]) for r in doc["rejected_measurements"]}
+    assert injected <= named, (injected, doc["rejected_measurements"])
+    truth_clean, truth_damaged = (
+        scoring.score_with_truth(r).validation["after"]["tool_point"].rms for r in (clean, result)
+    )
+    assert truth_damaged <= 1.3 * truth_clean, (truth_clean, truth_damaged)

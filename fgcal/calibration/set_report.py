@@ -58,6 +58,8 @@ def set_summary(result: CalibrationResult) -> dict | None:
                          chi2_per_dof=chi2 / dof if dof > 0 else None)  # fmt: skip
         else:
             registered_on = problem.observations.registered_on[part.index]
+            if result.test_observations is not None:  # "all": nothing of it held out, scored where registered
+                registered_on = result.test_observations.registered_on[part.index]
             entry["registered_on"] = registered_on
         scores = result.measured  # against the held-out measurements (validation: the truth, when scored)
         entry["held_out"] = {label: _own(scores.get(label, {}), part.name) for label in ("before", "after")}

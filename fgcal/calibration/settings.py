@@ -50,6 +50,8 @@ ROBUST_DEFAULTS: dict[str, tuple[str, float] | None] = {
     "contacts": ("huber", 3.0),
     "plane_contacts": ("huber", 3.0),
     "pixels": ("cauchy", 3.0),
+    "tip_distances": ("huber", 3.0),
+    "observed_pixels": ("cauchy", 3.0),
 }
 
 

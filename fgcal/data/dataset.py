@@ -494,6 +494,10 @@ def load_dataset(path: str | Path) -> Dataset:
         # camera may be fixed in the cell (static_camera) and the tool stays at the flange.
         dataset.camera_mounting = _pose(cam.sub("mounting"), units) if cam.has("mounting") else None
         dataset.robot = dataset.robot.with_tool(_pose(cam.sub("mounting", {}), units))
+        if "pixels" in dataset.tables:
+            table = dataset.tables["pixels"]
+            _check_in_image(table, np.ones(len(table), dtype=bool), dataset.camera, _inside(root, files, "pixels"),
+                            "dataset.yaml camera")  # fmt: skip
     if doc.has("tip"):
         tip = doc.string("tip")
         if dataset.robot.tip_error(tip):
@@ -570,10 +574,7 @@ def _contact(section: Fields, units: Units, robot: Robot) -> ContactSetup:
         listed = section.sub("planes")
         for name in listed.data:
             plane = listed.sub(str(name))
-            normal = plane.vector("normal", 3)
-            if not np.linalg.norm(normal) > 1e-9:
-                raise plane.error("normal", "a plane's normal must not be zero")
-            planes[str(name)] = (normal / np.linalg.norm(normal), plane.number("offset", scale=units.to_m))
+            planes[str(name)] = (plane_normal(plane), plane.number("offset", scale=units.to_m))
     optional = {
         key: section.number(key, None, scale, positive=True) if section.has(key) else None
         for key, scale in (("position_sigma", units.to_m), ("radius_sigma", units.to_m),
@@ -665,6 +666,41 @@ def _check_observed(dataset: Dataset, path: Path, doc: Fields) -> None:
         if point not in dataset.tip_boards[board].point_names:
             raise InputError(path, f"line {line}, column point", f"board {board!r} has no point {point!r} (its inner "
                              "corners are c<row><column>, c0000 to the last)")  # fmt: skip
+    for camera, link_camera in dataset.link_cameras.items():
+        _check_in_image(table, table.ids["camera"] == camera, link_camera.camera, path, f"camera {camera!r}")
+
+
+def _check_in_image(table: Table, rows: np.ndarray, camera: Camera, path: Path, whose: str) -> None:
+    """The pixels of ``rows`` lie in ``camera``'s image: -0.5 to width - 0.5 in u (pixel centres
+    at integers, OpenCV's convention), alike in v; one outside is no measurement of this camera."""
+    for column, j, size in (("u", 0, camera.width), ("v", 1, camera.height)):
+        values = table.values[:, j]
+        bad = np.flatnonzero(rows & ((values < -0.5) | (values > size - 0.5)))
+        if len(bad):
+            raise InputError(path, f"line {bad[0] + 2}, column {column}", f"{column} = {values[bad[0]]:g} px is "
+                             f"outside the image of {whose} ({camera.width} x {camera.height} px: -0.5 to "
+                             f"{size - 0.5:g})")  # fmt: skip
+
+
+# A plane's normal is a unit vector to this (its offset is along it: a normal of norm 2 would
+# halve the offset meant, so none is normalised here); 1e-6 passes 8 printed digits.
+NORMAL_TOLERANCE = 1e-6
+
+
+def plane_normal(plane: Fields) -> np.ndarray:
+    """A plane's ``normal``: a unit vector (within NORMAL_TOLERANCE, then normalised), refused
+    otherwise with its norm (the plane ``n . x = offset`` would depend on the normal's length)."""
+    normal = plane.vector("normal", 3)
+    norm = float(np.linalg.norm(normal))
+    if not norm > 1e-9:
+        raise plane.error("normal", "a plane's normal must not be zero")
+    if abs(norm - 1.0) > NORMAL_TOLERANCE:
+        raise plane.error(
+            "normal",
+            f"a plane's normal must be a unit vector (its norm is {norm:.9g}): the offset is the distance along "
+            "it, so a longer one would say another plane; divide both by the norm",
+        )
+    return normal / norm
 
 
 def _check_poses(dataset: Dataset, path: Path) -> None:

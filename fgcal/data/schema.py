@@ -75,7 +75,7 @@ class ContactPlane(Schema):
     """A plane of the cell a contact element touches (a table, a wall): ``n . x = offset`` in W,
     the ball on the side ``normal`` points to."""
 
-    normal: vector(3) = Field(description="its nominal normal in W (normalised)")
+    normal: vector(3) = Field(description="its nominal normal in W: a unit vector (within 1e-6)")
     offset: Number = Field(description="its nominal distance from W's origin along the normal")
 
 

@@ -67,6 +67,15 @@ class Truth:
     # m, NaN: unknown; speed factor). Scores against the truth use it, not the dataset's copy.
     motion_history: dict[str, tuple[np.ndarray, float]] | None = None
 
+    def need(self, attribute: str, field: str) -> np.ndarray:
+        """A part of the truth a score needs (``field``: its place in the file); a truth without
+        it (damaged, or of another cell) is refused, naming the file and the field."""
+        value = getattr(self, attribute)
+        if value is None:
+            raise InputError(FILE, field, f"the truth has no {field}, which a score of this dataset's measurements "
+                             "needs: the file was edited, or comes from another cell's simulation")  # fmt: skip
+        return value
+
     def history_of(self, config_ids, q: np.ndarray) -> MotionHistory | None:
         """The true history of these configurations (None: the truth has none, or does not
         know one of them)."""

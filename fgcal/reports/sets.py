@@ -34,7 +34,8 @@ def set_lines(sets: dict | None, sigma_units, against_truth: bool = False) -> li
         "fitting set). Per set: its rows, its residual RMS at the estimate in its own unit, its chi2 over its "
         "degrees of freedom (its rows less its share of the unknowns: about 1 when its declared noise is right), and "
         "its held-out score after calibration with its prediction. A validation set is never fitted: its own "
-        "unknowns are registered with the robot held at the calibration, on its fitting configurations.", "",
+        "unknowns are registered with the robot held at the calibration, on its fitting configurations (on all of them "
+        "when nothing of it is held out, and scored there).", "",
         "| set | formulation | use | rows | residual RMS | chi2/dof | held out before | after | predicted |",
         "|---|---|---|---|---|---|---|---|---|",
     ]  # fmt: skip
@@ -46,7 +47,11 @@ def set_lines(sets: dict | None, sigma_units, against_truth: bool = False) -> li
         main = next(iter(after), None)
         unit = main.rsplit("_", 1)[-1] if main else "m"
         before = entry["held_out"]["before"].get(main) if main else None
-        use = entry["use"] + (f" (registered on {entry['registered_on']})" if entry.get("registered_on") else "")
+        on = entry.get("registered_on")
+        use = entry["use"] + (
+            " (nothing held out: registered and scored on all its configurations)" if on == "all"
+            else f" (registered on {on})" if on else ""
+        )  # fmt: skip
         lines.append(
             f"| {entry['name']} | {entry['formulation']} | {use} | {entry.get('n_rows', '-')} | {residual} | "
             f"{'-' if chi2 is None else f'{chi2:.3g}'} | {_value(before, unit)} | "

@@ -14,6 +14,7 @@ from ..core.fields import Fields, read_yaml, to_float
 from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, transform_points
 from ..core.units import parse_units
+from ..data.dataset import plane_normal
 from ..model.camera import Camera, parse_camera
 from ..model.motion import MotionHistory
 from ..model.parameters import default_compliant_joints
@@ -472,11 +473,9 @@ def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> Conta
         radii.append(ball.number("radius", scale=to_m, positive=True))
     plane_names, normals, offsets = [], [], []
     for plane in section.sub_list("planes") if section.has("planes") else []:
-        normal = plane.vector("normal", 3)
-        if not np.linalg.norm(normal) > 1e-9:
-            raise plane.error("normal", "a plane's normal must not be zero")
+        normal = plane_normal(plane)
         plane_names.append(plane.string("name"))
-        normals.append(normal / np.linalg.norm(normal))
+        normals.append(normal)
         offsets.append(plane.number("offset", scale=to_m))
     for what, labels in (("elements", names), ("planes", plane_names)):
         if len(set(labels)) != len(labels):

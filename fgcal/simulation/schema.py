@@ -135,7 +135,7 @@ class ContactBall(Schema):
 
 class ContactPlane(Schema):
     name: str
-    normal: vector(3) = Field(description="its nominal normal in W, towards the robot")
+    normal: vector(3) = Field(description="its nominal normal in W, towards the robot: a unit vector (within 1e-6)")
     offset: Number = Field(description=f"its nominal distance from W's origin along the normal, {LENGTH}")
 
 

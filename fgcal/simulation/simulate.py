@@ -245,7 +245,11 @@ def simulate(
     elif cell.static_camera is not None:
         _write_configurations(out, cell, q, config_ids)
         counts = write_static_camera_tables(out, cell, q, config_ids, true_params, noise_rng)
-    else:
+    if cell.has_tracker and (cell.touch is not None or cell.ballbar is not None or cell.static_camera is not None):
+        # A tracker besides (to fit with or validate on): its reflectors at the same configurations,
+        # after the instrument's draws, which stay as they were.
+        counts |= _write_tracker_points(out, cell, q, config_ids, true_params, noise_rng)
+    if cell.touch is None and cell.ballbar is None and cell.contact is None and cell.static_camera is None:
         counts = _write_measurements(out, cell, views, q, config_ids, true_params, noise_rng, drift, history, motion)
     deviation = positioning_deviation(cell, q, true_params)
     boards = None
@@ -511,6 +515,8 @@ def _write_header(
             noise_text = f"ballbar {cell.distance_sigma_m} m"
         else:
             noise_text = f"pixels {cell.pixel_sigma_px} px (a static camera watching a board on the flange)"
+        if cell.contact is None and "tracker_points" in counts:
+            noise_text += f", tracker {cell.tracker_sigma_m} m"
         files = {k: f"{k}.csv" for k in counts}
         write_header(
             out,

@@ -167,7 +167,8 @@ class DistanceReadings(Formulation):
 
     def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
         robot = problem.dataset.robot.with_model(truth.model)
-        aux = {"tool_points": Auxiliary("points", np.asarray(truth.ballbar_ball)[None, :], ("ball",))}
+        ball = np.asarray(truth.need("ballbar_ball", "ballbar.ball"))
+        aux = {"tool_points": Auxiliary("points", ball[None, :], ("ball",))}
         names = problem.observations.names
         if names:
             aux["pivots"] = Auxiliary("points", named_points(truth.ballbar_pivots, names, "ballbar_pivots"), names)

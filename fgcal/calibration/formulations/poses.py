@@ -143,7 +143,7 @@ class MeasuredPoses(Formulation):
         robot = problem.dataset.robot.with_model(truth.model)
         aux = {
             "tracker": Auxiliary("pose3", inverse(truth.tracker_pose)),
-            "tool_frame": Auxiliary("pose3", truth.tracker_probe),
+            "tool_frame": Auxiliary("pose3", truth.need("tracker_probe", "tracker_probe")),
         }
         return robot, State(robot.parameter_vector(truth.parameters), aux)
 

@@ -11,7 +11,8 @@ observations, and the state and keys under its own names. Nothing here knows a f
 A set with ``use: validation`` is measured, never fitted: its own unknowns (a tracker's pose and
 its reflectors on the flange) are registered with the robot held at the calibration, on the set's
 configurations of the fitting split (on its held-out ones when the split leaves it none), and it
-is scored on its held-out configurations (fgcal.calibration.formulations.registration).
+is scored on its held-out configurations (fgcal.calibration.formulations.registration), or on
+all of them when none is held out (registered on the same rows).
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ class SetObservations(Observations):
     """Per set its observations (None: none at these configurations). ``config_ids`` and ``q``
     are the first set's (every set's observations index the same configurations). A validation
     set's fitting observations are those its unknowns are registered on, never fitted;
-    ``registered_on`` says per set on which (fit, held-out, or empty for a fitting set)."""
+    ``registered_on`` says per set on which (fit, held-out, all: nothing of it held out, scored
+    on the same rows; empty for a fitting set)."""
 
     parts: tuple[Observations | None, ...] = ()
     fitted: tuple[bool, ...] = ()
@@ -171,7 +173,8 @@ class Combined(Formulation):
         for k, m in enumerate(self.members):
             try:
                 parts.append(m.formulation.fit_observations(dataset, m.settings, fit))
-                registered_on.append("" if m.use == "fit" else "fit")
+                # Nothing held out: a validation set (never fitted) is scored on the rows it is registered on.
+                registered_on.append("" if m.use == "fit" else "fit" if len(test) else "all")
             except InputError as error:
                 if m.use == "fit":
                     raise InputError(
@@ -189,18 +192,25 @@ class Combined(Formulation):
         )
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
-        parts, flagged = [], []
+        """Each set's held-out observations; a validation set with none held out (holdout 0, or
+        none of its configurations in the held-out split) is scored on all its own, the rows its
+        unknowns are registered on (never fitted: held out from the calibration all the same)."""
+        fit = problem.observations
+        parts, flagged, registered_on = [], [], list(fit.registered_on)
         for k, m in enumerate(self.members):
             view = self.view(problem, k)
             own = self.own_state(state, k) if m.use == "fit" else register(view, state.params)
             observations, rejected = m.formulation.test_observations(view, own)
+            if observations is None and m.use == "validation" and fit.parts[k] is not None:
+                observations, rejected, registered_on[k] = fit.parts[k], [], "all"
             parts.append(observations)
             flagged += rejected
         if all(p is None for p in parts):
             return None, flagged
         first = next(p for p in parts if p is not None)
-        fit = problem.observations
-        return dataclasses.replace(fit, config_ids=first.config_ids, q=first.q, parts=tuple(parts)), flagged
+        return dataclasses.replace(
+            fit, config_ids=first.config_ids, q=first.q, parts=tuple(parts), registered_on=tuple(registered_on)
+        ), flagged
 
     def initial_state(self, problem: Problem) -> State:
         params, aux = None, {}
@@ -312,7 +322,7 @@ class Combined(Formulation):
             return member.formulation.predicted_held_out(
                 view, own, self.own_state(state, index), self.own_covariance(covariance, index), factor
             )
-        same = problem.observations.registered_on[index] == "held-out"
+        same = observations.registered_on[index] in ("held-out", "all")
         return registered_prediction(view, own, register(view, state.params), covariance, factor, same)
 
     # -- against a simulation's truth, and what the calibration hands on ------------------------------

@@ -124,7 +124,7 @@ class StaticCamera(Formulation):
     def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
         robot = problem.dataset.robot.with_model(truth.model)
         aux = {
-            "static_camera": Auxiliary("pose3", inverse(truth.static_camera_pose)),
-            "tool_frame": Auxiliary("pose3", truth.static_camera_board_mount),
+            "static_camera": Auxiliary("pose3", inverse(truth.need("static_camera_pose", "static_camera.pose"))),
+            "tool_frame": Auxiliary("pose3", truth.need("static_camera_board_mount", "static_camera.board_mount")),
         }
         return robot, State(robot.parameter_vector(truth.parameters), aux)

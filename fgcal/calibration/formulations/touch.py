@@ -239,8 +239,9 @@ class Touch(Formulation):
     def true_state(self, problem: Problem, truth: Truth) -> tuple[Robot, State]:
         robot = problem.dataset.robot.with_model(truth.model)
         names = problem.observations.names
+        probe = np.asarray(truth.need("touch_probe", "touch_probe"))
         aux = {
-            "tool_points": Auxiliary("points", np.asarray(truth.touch_probe)[None, :], ("probe",)),
+            "tool_points": Auxiliary("points", probe[None, :], ("probe",)),
             "touch_points": Auxiliary("points", named_points(truth.touch_points, names, "touch_points"), names),
         }
         return robot, State(robot.parameter_vector(truth.parameters), aux)
