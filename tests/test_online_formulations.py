@@ -208,7 +208,16 @@ def test_the_smoke_matrix_covers_every_formulation():
     assert set(SMOKE) | {n for n, cls in REGISTRY.items() if cls.not_incremental} == set(REGISTRY)
 
 
-@pytest.mark.parametrize("formulation", sorted(SMOKE))
+# Three of the robot's own kinds through the service are a study (-m study, 3-6 s each: the
+# service writes the 18-joint robot's model after every measurement): the protocol path of each
+# runs by default (test_a_robot_measuring_itself_online_ends_near_lm_on_the_same_graph), and
+# self_contact (contacts with no value columns) through the service.
+SMOKE_STUDY = {"planes", "tip_gauge", "self_observation"}
+
+
+@pytest.mark.parametrize(
+    "formulation", [pytest.param(f, marks=pytest.mark.study) if f in SMOKE_STUDY else f for f in sorted(SMOKE)]
+)
 def test_every_incremental_formulation_runs_online(formulation, bundled_sim, request, tmp_path):
     from fgcal.commands.online_feed import feed
 
