@@ -453,3 +453,32 @@ def test_an_element_the_run_did_not_start_with_is_refused(selfcontained):
     with pytest.raises(InputError, match="element 'third_ball' is not one the online calibration started with"):
         calibrator.fold(stranger)
     assert np.array_equal(calibrator.current_params(), before) and calibrator.n_images == 12
+
+
+@pytest.mark.study
+def test_the_robot_measuring_itself_online_on_the_full_cell(bundled_sim):
+    """The bundled dual_arm_selfcontained (seed 1: 400 contacts, 480 plane contacts, 400 gauge
+    readings, 150 views among 1500 configurations), each kind online alone in cycles of 10
+    configurations, model DH, against LM on the same graph (run to convergence; its marginals
+    are not computed: GTSAM's Cholesky finds the planes' and the gauge's graphs indeterminate at
+    LM's solution). Measured: self_contact 15 sigma (theta13), planes 8.5 (a2), tip_gauge 18
+    (theta9), self_observation 0.025 (d14). The bounds hold those figures (the iSAM2 consistency
+    of scalar contacts and readings is docs/online.md's open problem), not the goal of 0.1."""
+    from fgcal.commands.online_feed import one_table
+
+    data = bundled_sim("dual_arm_selfcontained")
+    bounds = {"self_contact": 20.0, "planes": 12.0, "tip_gauge": 25.0, "self_observation": 0.1}
+    for formulation, bound in bounds.items():
+        calibrator = FormulationCalibrator(load_dataset(data), formulation, TRACKER_SETTINGS, model="DH",
+                                           keep_graph=True)  # fmt: skip
+        fold_all(calibrator, one_table(dataset_measurements(data, cycle_size=10), FED_TABLE[formulation], data))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setLinearSolverType("MULTIFRONTAL_QR")
+        params.setDiagonalDamping(True)
+        params.setMaxIterations(1000)
+        params.setRelativeErrorTol(1e-10)
+        batch = gtsam.LevenbergMarquardtOptimizer(calibrator.graph, calibrator.batch_initial(), params).optimize()
+        online = calibrator.current_params()[calibrator.model.index]
+        distance = np.abs(online - batch.atVector(params_key(calibrator.cycle))) / calibrator.sigmas
+        print(f"{formulation}: {distance.max():.3g} sigma ({calibrator.released[int(np.argmax(distance))]})")
+        assert distance.max() < bound, (formulation, distance.max())
