@@ -208,7 +208,7 @@ def test_the_smoke_matrix_covers_every_formulation():
     assert set(SMOKE) | {n for n, cls in REGISTRY.items() if cls.not_incremental} == set(REGISTRY)
 
 
-# Three of the robot's own kinds through the service are a study (-m study, 3-6 s each: the
+# Three of the robot's own kinds through the service are a study (-m study, 1-5 s each: the
 # service writes the 18-joint robot's model after every measurement): the protocol path of each
 # runs by default (test_a_robot_measuring_itself_online_ends_near_lm_on_the_same_graph), and
 # self_contact (contacts with no value columns) through the service.
