@@ -615,6 +615,8 @@ CASES = [
     ("feed_n_zero", _argv("online-feed", "data", "--inbox", "in", "--n", "0"), "fgcal online-feed", "--n"),
     ("feed_cycle_zero", _argv("online-feed", "data", "--inbox", "in", "--cycle-size", "0"), "fgcal online-feed",
      "--cycle-size"),
+    ("feed_table_not_in_the_dataset", _argv("online-feed", "data", "--inbox", "in", "--table", "contacts"), "data",
+     "no table 'contacts'"),
     # fgcal fk, bench, demo: their numbers
     ("fk_q_nan", _argv("fk", "abb_irb120", "0", "0", "0", "0", "0", "nan"), "fgcal fk", "q"),
     ("fk_q_huge", _argv("fk", "abb_irb120", "0", "0", "0", "0", "0", "1e400"), "fgcal fk", "q"),

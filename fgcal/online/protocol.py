@@ -458,6 +458,8 @@ class FormulationCalibrator:
             values.insert(P, self._p)
             for name, aux in self.state.aux.items():
                 values.insert(self.keys[name], aux.to_gtsam())
+                if aux.prior_sigmas is not None:  # the batch graph's (build_graph): a drawing's balls, planes
+                    graph.add(gtsam.PriorFactorVector(self.keys[name], aux.prior_mean, gaussian(aux.prior_sigmas)))
             self._cycle_label = cycle
             graph.push_back(self._once_factors(P))
             # iSAM2 takes one Gauss-Newton step per update, and what leaves the window is frozen

@@ -15,11 +15,6 @@ from ...data.truth import FILE, Truth
 from ..problem import Problem, Scored
 from ..state import Auxiliary, State
 
-# Why online recalibration does not take them (fgcal.online): not built yet.
-NOT_ONLINE = (
-    "a robot measuring itself (contacts, planes, the hands' gauge) is not recalibrated online yet: calibrate it in "
-    "a batch"
-)
 CENTRES = "contact_centres"
 RADII = "contact_radii"
 

@@ -29,6 +29,7 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
+    refuse_unstarted,
     subset_of,
     take,
 )
@@ -36,7 +37,6 @@ from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
 from .contact import (
     CENTRES,
-    NOT_ONLINE,
     RADII,
     contact_setup,
     element_state,
@@ -87,7 +87,6 @@ class Planes(Formulation):
         "nominal normal pointing away from the side the robot touches, joint angles in other units than units: declares"
     )
     instrument = "planes"
-    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.contact_m
@@ -115,6 +114,19 @@ class Planes(Formulation):
                         "many, in clearly different configurations",
                     )  # fmt: skip
         return observations
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's contacts of the elements with the planes the run started with (the
+        elements' centres and radii and the planes are its unknowns)."""
+        table = measured_table(dataset, "plane_contacts", self.name)
+        mine = np.isin(dataset.config_index(table.ids["config"]), subset)
+        path = dataset.path / "plane_contacts.csv"
+        refuse_unstarted(table.ids["element"][mine], like.names, path, "element", "element",
+                         "its centre is not estimated")  # fmt: skip
+        refuse_unstarted(table.ids["plane"][mine], like.plane_names, path, "plane", "plane", "it is not estimated")
+        return _observations(dataset, subset, like.names, like.plane_names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         fitted = problem.observations

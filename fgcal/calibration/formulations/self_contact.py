@@ -29,6 +29,7 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
+    refuse_unstarted,
     subset_of,
     take,
 )
@@ -36,7 +37,6 @@ from ..settings import MeasurementSettings
 from ..state import State
 from .contact import (
     CENTRES,
-    NOT_ONLINE,
     RADII,
     contact_setup,
     element_state,
@@ -84,7 +84,6 @@ class SelfContact(Formulation):
         "elements' tips or drawings wrong in dataset.yaml contact, joint angles in other units than units: declares"
     )
     instrument = "self_contact"
-    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.contact_m
@@ -110,6 +109,18 @@ class SelfContact(Formulation):
                     "contacts, in clearly different configurations",
                 )  # fmt: skip
         return observations
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's contacts between the elements the run started with (their centres
+        and radii are its unknowns)."""
+        table = measured_table(dataset, "contacts", self.name)
+        mine = np.isin(dataset.config_index(table.ids["config"]), subset)
+        seen = [*table.ids["element_a"][mine], *table.ids["element_b"][mine]]
+        refuse_unstarted(seen, like.names, dataset.path / "contacts.csv", "element_a", "element",
+                         "its centre is not estimated")  # fmt: skip
+        return _observations(dataset, subset, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = _observations(problem.dataset, problem.test, problem.observations.names)

@@ -27,12 +27,12 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
+    refuse_unstarted,
     subset_of,
     take,
 )
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
-from .contact import NOT_ONLINE
 
 MOUNTING, BOARD = "mounting.", "board."
 
@@ -76,7 +76,6 @@ class SelfObservation(Formulation):
         "wrong in dataset.yaml self_observation, joint angles in other units than units: declares"
     )
     instrument = "self_observation"
-    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.pixel_px
@@ -103,6 +102,20 @@ class SelfObservation(Formulation):
                         "fitting set: each needs several, in clearly different configurations",
                     )  # fmt: skip
         return observations
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's pixels of the cameras and boards the run started with (their
+        mountings and poses are its unknowns)."""
+        table = measured_table(dataset, "observed_pixels", self.name)
+        mine = np.isin(dataset.config_index(table.ids["config"]), subset)
+        path = dataset.path / "observed_pixels.csv"
+        refuse_unstarted(table.ids["camera"][mine], like.camera_names, path, "camera", "camera",
+                         "its mounting is not estimated")  # fmt: skip
+        refuse_unstarted(table.ids["board"][mine], like.board_names, path, "board", "board",
+                         "its pose on its tip is not estimated")  # fmt: skip
+        return _observations(dataset, subset, like.camera_names, like.board_names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         fitted = problem.observations

@@ -26,6 +26,7 @@ from ..problem import (
     Rejection,
     Scored,
     measured_table,
+    refuse_unstarted,
     subset_of,
     take,
 )
@@ -33,7 +34,6 @@ from ..settings import MeasurementSettings
 from ..state import State
 from .contact import (
     CENTRES,
-    NOT_ONLINE,
     contact_setup,
     element_state,
     element_tips,
@@ -81,7 +81,6 @@ class TipGauge(Formulation):
         "of its full length, the balls swapped between tips, joint angles in other units than units: declares"
     )
     instrument = "tip_gauge"
-    not_incremental = NOT_ONLINE
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.distance_m
@@ -105,6 +104,18 @@ class TipGauge(Formulation):
                 raise InputError(path, "element_a", f"element {name!r} has {counts[k]} readings in the fitting set: "
                                  "each needs many, in clearly different configurations")  # fmt: skip
         return observations
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's gauge readings between the elements the run started with (their
+        centres are its unknowns)."""
+        table = measured_table(dataset, "tip_distances", self.name)
+        mine = np.isin(dataset.config_index(table.ids["config"]), subset)
+        seen = [*table.ids["element_a"][mine], *table.ids["element_b"][mine]]
+        refuse_unstarted(seen, like.names, dataset.path / "tip_distances.csv", "element_a", "element",
+                         "its centre is not estimated")  # fmt: skip
+        return _observations(dataset, subset, like.names)
 
     def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
         observations = _observations(problem.dataset, problem.test, problem.observations.names)
