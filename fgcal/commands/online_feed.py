@@ -1,4 +1,4 @@
-"""``fgcal online-feed``: a dataset's images written as measurement files into an inbox."""
+"""``fgcal online-feed``: a dataset's measurements written as files into an inbox, one configuration each."""
 
 from __future__ import annotations
 
@@ -52,14 +52,20 @@ def cmd_online_feed(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("online-feed", help="write a dataset's images as measurement files into an inbox")
-    p.add_argument("dataset", help="dataset directory with pixels")
+    p = sub.add_parser(
+        "online-feed", help="write a dataset's measurements as files into an inbox, one configuration each"
+    )
+    p.add_argument("dataset", help="the dataset directory (a simulated cell's, or a measured one)")
     p.add_argument("--inbox", required=True, help="the inbox folder fgcal online watches (created)")
     p.add_argument(
         "--first", type=integer(0, 10**9, "configurations"), default=0, help="first configuration (default 0)"
     )
-    p.add_argument("--n", type=integer(1, 10**9, "images"), help="number of images (default all)")
-    p.add_argument("--cycle-size", type=integer(1, 10**9, "images"), help="images per work cycle (default: no cycles)")
+    p.add_argument("--n", type=integer(1, 10**9, "configurations"), help="number of configurations (default all)")
+    p.add_argument(
+        "--cycle-size",
+        type=integer(1, 10**9, "configurations"),
+        help="configurations per work cycle (default: no cycles)",
+    )
     p.add_argument(
         "--table",
         help="only this table's observations, and the configurations that have it (default: every table). A cell "
