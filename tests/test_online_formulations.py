@@ -560,13 +560,14 @@ def test_the_robot_measuring_itself_online_on_the_full_cell(bundled_sim):
     readings, 150 views among 1500 configurations), each kind online alone in cycles of 10
     configurations, model DH, against LM on the same graph (run to convergence; its marginals
     are not computed: GTSAM's Cholesky finds the planes' and the gauge's graphs indeterminate at
-    LM's solution). Measured: self_contact 15 sigma (theta13), planes 8.5 (a2), tip_gauge 18
-    (theta9), self_observation 0.025 (d14). The bounds hold those figures (the iSAM2 consistency
-    of scalar contacts and readings is docs/online.md's open problem), not the goal of 0.1."""
+    LM's solution). Measured: self_contact 15.1 sigma (d16), planes 9.5 (alpha3), tip_gauge 12.3
+    (alpha18), self_observation 0.033 (d14): model DH does not describe the cell's bending arms, and
+    the scalar kinds' online estimate is then not LM's (docs/online.md's open problem). The bounds
+    hold those figures, not the goal of 0.1."""
     from fgcal.commands.online_feed import one_table
 
     data = bundled_sim("dual_arm_selfcontained")
-    bounds = {"self_contact": 20.0, "planes": 12.0, "tip_gauge": 25.0, "self_observation": 0.1}
+    bounds = {"self_contact": 20.0, "planes": 12.0, "tip_gauge": 15.0, "self_observation": 0.1}
     for formulation, bound in bounds.items():
         calibrator = FormulationCalibrator(load_dataset(data), formulation, TRACKER_SETTINGS, model="DH",
                                            keep_graph=True)  # fmt: skip
