@@ -400,6 +400,27 @@ def test_a_gross_error_is_gated_and_not_folded_in(tracker300, tracker_released):
     assert calibrator.n_images == 21 and not update.rejected_points
 
 
+@pytest.mark.parametrize("dz", [50.0, 1.0, 0.01])
+def test_one_gross_reading_is_gated_by_default_and_leaves_no_trace(tracker300, tracker_released, dz):
+    """Issue 41: one reflector's z off by 50 m, 1 m or 10 mm (measurement 26 of 40, cycles of 10),
+    with the default settings. Before (no gate by default): folded in, d4 -574 m 60 measurements
+    later (50 m); now gated, no alarm, and the run ends where the clean run without that
+    measurement does (measured 0; with it 0.27 sigma at 60, theta2: one measurement's weight)."""
+    measurements = dataset_measurements(tracker300, cycle_size=10)[:40]
+    table, ids, values = measurements[25].observations[0]
+    gross = values.copy()
+    gross[0, 2] += dz
+    bad = [*measurements[:25], replace(measurements[25], observations=((table, ids, gross),)), *measurements[26:]]
+    calibrator = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS, tracker_released)
+    updates = [calibrator.fold(m) for m in bad]
+    assert [i for i, u in enumerate(updates) if u.rejected_points] == [25]
+    assert not any(u.alarms for u in updates) and calibrator.n_images == 39
+    clean = FormulationCalibrator(load_dataset(tracker300), "tracker", TRACKER_SETTINGS, tracker_released)
+    fold_all(clean, measurements[:25] + measurements[26:])
+    distance = np.abs(calibrator.current_params() - clean.current_params())[clean.model.index] / clean.sigmas
+    assert distance.max() < 0.1, (clean.released[int(np.argmax(distance))], distance.max())
+
+
 def test_a_cycles_batch_in_one_file_folds_in_as_its_measurements_do(tracker300, tracker_released, tmp_path):
     """Issue 41: an inbox file may carry a work cycle's configurations (``configurations``);
     folded in together they end where the same measurements one file each do (0.1 sigma; three
@@ -445,6 +466,33 @@ def test_the_service_logs_a_gated_measurement_and_reports_it(tracker300, tracker
     assert report["n_logged"] == 16 and report["n_images"] == 15, report
     assert [s["name"] for s in report["skipped"]] == [measurements[15].name]
     assert "gated (configuration 1: " in report["skipped"][0]["reason"]
+
+
+def test_an_absurd_estimate_is_a_headline_warning_of_the_report(tracker300, tracker_released, tmp_path):
+    """Issue 41: a reflector 50 m off folded in (the gate opened wide, as it was off by default)
+    left d4 at -574 m and the report said nothing; now a step beyond 1000 sigmas and a parameter
+    moved more than 10 prior sigmas head report.md."""
+    from fgcal.online.measurement import write_measurement
+
+    measurements = dataset_measurements(tracker300)[:16]
+    table, ids, values = measurements[15].observations[0]
+    gross = values.copy()
+    gross[0, 2] += 50.0
+    measurements[15] = replace(measurements[15], observations=((table, ids, gross),))
+    for m in measurements:
+        write_measurement(tmp_path / "inbox", m)
+    setup = tmp_path / "setup.yaml"
+    settings = {"prior_sigma_compliance": 1e-4, "outlier_gate_sigma": 1e8}
+    setup.write_text(yaml.safe_dump({"dataset": str(tracker300), "formulation": "tracker", "released": tracker_released,
+                                     "settings": settings}))  # fmt: skip
+    service = OnlineService(tmp_path / "state", tmp_path / "inbox", setup)
+    service.run(once=True)
+    service.close()
+    report = json.loads((tmp_path / "state" / "report.json").read_text())
+    assert report["n_images"] == 16 and report["implausible"], report["implausible"]
+    assert any("in one measurement: the estimate is not to be trusted" in p for p in report["problems"])
+    text = (tmp_path / "state" / "report.md").read_text()
+    assert text.split("\n")[2].startswith("**Warning: this estimate is not to be trusted**"), text[:400]
 
 
 def test_the_touch_spacings_are_folded_in_once_at_the_start(bundled_sim, monkeypatch):

@@ -63,10 +63,13 @@ class OnlineSettings:
     outlier_gate_px: float = 3.0
     # A formulation's measurement (fgcal.online.protocol) whose residual at the current estimate
     # exceeds this many of its predicted sigmas (noise and the estimate's uncertainty) is logged
-    # and not folded in; None: no gate (the default: it passes every good measurement of the
-    # bundled cells, but a real step change of the robot is gated as outliers too and never
-    # reaches the drift test; docs/online.md).
-    outlier_gate_sigma: float | None = None
+    # and not folded in; None: no gate. On by default: one gross reading folded in ruined the
+    # estimate for good (issue 41: a reflector 50 m off, d4 -574 m 60 measurements later).
+    outlier_gate_sigma: float | None = 5.0
+    # ``gate_run`` consecutive gated configurations are a change of the robot, not the
+    # instrument erring: a drift alarm (a change point, every released parameter restarting from
+    # its prior sigma) and they are folded in (docs/online.md).
+    gate_run: int = 3
     # A geometric parameter (m, rad) is released by the formulations' calibrator
     # (fgcal.online.protocol, without a released list) only when the reference data determine
     # it: marginal sigma at their solution at most this fraction of the prior sigma (None: every

@@ -51,7 +51,7 @@ from ..model.parameters import unit_of
 from ..model.robot import Robot
 from .calibrator import OnlineSettings, OnlineUpdate, params_key
 from .compression import copy_value, merge_marginals
-from .drift import DriftTest
+from .drift import Alarm, DriftTest
 from .growing import GrowingKinematics
 
 # Units of the parameters the online graph releases (a mass scale needs many configurations'
@@ -163,6 +163,7 @@ class FormulationCalibrator:
         self._sigmas = self.prior_sigmas.copy()
         self._covariance = np.diag(self.prior_sigmas**2)
         self._pending: list[tuple[Reading, int | None]] = []
+        self._gated_run: list[Reading] = []  # the last consecutive gated configurations
         # Labelled configurations that arrived: label -> (q, before, speed); and readings between
         # two configurations waiting for one of them: (table, {id column: value}, values).
         self._arrived: dict[str, tuple[np.ndarray, np.ndarray | None, float]] = {}
@@ -435,17 +436,33 @@ class FormulationCalibrator:
             out.append(graph)
         return out
 
-    def _fold(self, readings: list[Reading], cycle: int | None, started: float) -> OnlineUpdate:
+    def _fold(
+        self, readings: list[Reading], cycle: int | None, started: float, change_point: bool = False
+    ) -> OnlineUpdate:
         new_cycle = self.n_images > 0 and (bool(self._jump) or (cycle is not None and cycle != self._cycle_label))
         P = params_key(self.cycle + (1 if new_cycle else 0))
         first_row = self.model._next
         per_reading = self.factors(readings, first_row, P)  # an InputError here changes nothing
         gated: list[str] = []
-        if self.n_images and self.settings.outlier_gate_sigma is not None:  # the start's batch is not gated
+        gate = self.settings.outlier_gate_sigma
+        if self.n_images and gate is not None and not change_point:  # the start's batch is not gated
             z = self._innovations(per_reading, P, self._walk_sigmas(cycle) if new_cycle else None)
-            gated = [f"configuration {i + 1}: {value:.1f} sigma" for i, value in enumerate(z)
-                     if value > self.settings.outlier_gate_sigma]  # fmt: skip
-            keep = [i for i, value in enumerate(z) if value <= self.settings.outlier_gate_sigma]
+            gated = [f"configuration {i + 1}: {value:.1f} sigma" for i, value in enumerate(z) if value > gate]
+            keep = [i for i, value in enumerate(z) if value <= gate]
+            # A run of gated configurations (the last ones, with those gated just before) is
+            # the robot changing, not the instrument erring: a change point (docs/online.md).
+            run, carried = [], list(self._gated_run)
+            for i, value in enumerate(z):
+                if value > gate:
+                    run.append(i)
+                else:
+                    run, carried = [], []
+            if len(carried) + len(run) >= self.settings.gate_run:
+                self._gated_run = []
+                return self._change_point(
+                    [*carried, *(readings[i] for i in keep), *(readings[i] for i in run)], cycle, started, gated
+                )
+            self._gated_run = [*carried, *(readings[i] for i in run)]
             readings, per_reading = [readings[i] for i in keep], [per_reading[i] for i in keep]
             if not readings:  # nothing folded in: the estimate and the cycle stay
                 update = self._update(started, [], {"gated": gated})
@@ -504,12 +521,40 @@ class FormulationCalibrator:
         self._sigmas = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
         self._covariance = covariance
         self.n_images += len(readings)
-        alarms = self.drift.check(self.n_images - 1, self.drift_time, self._p, self._sigmas)
+        if change_point:  # the alarm is the change point's (_change_point); the test starts again
+            self.drift.reset()
+            self.drift.check(self.n_images - 1, self.drift_time, self._p, self._sigmas)
+            alarms = []
+        else:
+            alarms = self.drift.check(self.n_images - 1, self.drift_time, self._p, self._sigmas)
         if alarms:
             self._jump = {self.released.index(a.parameter) for a in alarms}
             self.drift.reset()
         update = self._update(started, alarms, {"gated": gated} if gated else None)
         update.rejected_points = gated
+        return update
+
+    def _change_point(
+        self, readings: list[Reading], cycle: int | None, started: float, gated: list[str]
+    ) -> OnlineUpdate:
+        """``gate_run`` consecutive configurations gated: the robot changed. Every released
+        parameter starts a new parameter vector whose random-walk sigma is its prior sigma (the
+        drift alarm's change point; which parameter moved, a few configurations cannot tell),
+        and the gated configurations are folded in with it. The alarm lists the parameters that
+        moved by more than the drift test's threshold in sigmas before the change (at least the
+        one that moved most)."""
+        before, sigmas = self._p.copy(), self._sigmas.copy()
+        self._jump = set(range(len(self.released)))
+        update = self._fold(readings, cycle, started, change_point=True)
+        z = (self._p - before) / sigmas
+        order = [int(i) for i in np.argsort(-np.abs(z))]
+        flagged = [i for i in order if abs(z[i]) > self.drift.threshold] or order[:1]
+        update.alarms = [
+            Alarm(self.n_images - 1, self.released[i], float(z[i]), float(self._p[i] - before[i]), self.drift.threshold)
+            for i in flagged
+        ]
+        update.extra = {**update.extra, "change_point": len(readings), "gated": gated}
+        update.rejected_points = []
         return update
 
     def _once_factors(self, P: int) -> gtsam.NonlinearFactorGraph:

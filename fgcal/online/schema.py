@@ -31,7 +31,9 @@ class Settings(Schema):
     outlier_gate_px: Number = Field(None, gt=0, description="px (default 3)")
     outlier_gate_sigma: Number = Field(None, gt=0, description="a formulation's measurement whose residual at the "
                                        "current estimate exceeds this many predicted sigmas is not folded in "
-                                       "(default: no gate; 5 on a tracker, docs/online.md)")  # fmt: skip
+                                       "(default 5, docs/online.md)")  # fmt: skip
+    gate_run: int = Field(None, ge=2, description="this many consecutive gated configurations are a change of the "
+                          "robot: a drift alarm, and they are folded in (default 3)")  # fmt: skip
     determined_fraction: Number = Field(None, gt=0, description="with formulation and no released list: "
                                         "a geometric parameter (m, rad) is released when its sigma at the "
                                         "reference data's solution is at most this fraction of its prior sigma "
