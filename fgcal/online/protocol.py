@@ -64,7 +64,8 @@ class Reading:
     """One measurement: a configuration (rad), its observations in the formulation's tables
     (per table, the id columns other than ``config`` and the values, SI), and how it was
     reached (the joints before its last move, rad, and the move's speed factor; None: not
-    given)."""
+    given, then the previous configuration's joints, as in a dataset; the first of a run's:
+    unknown, as a dataset's first row)."""
 
     q: np.ndarray
     tables: dict[str, tuple[dict[str, list[str]], np.ndarray]]
@@ -164,6 +165,9 @@ class FormulationCalibrator:
         self._covariance = np.diag(self.prior_sigmas**2)
         self._pending: list[tuple[Reading, int | None]] = []
         self._gated_run: list[Reading] = []  # the last consecutive gated configurations
+        # The joints of the last configuration that arrived: the approach of a measurement without
+        # its own (before_joints), as a dataset's row is reached from the row before.
+        self._last_q: np.ndarray | None = None
         # Labelled configurations that arrived: label -> (q, before, speed); and readings between
         # two configurations waiting for one of them: (table, {id column: value}, values).
         self._arrived: dict[str, tuple[np.ndarray, np.ndarray | None, float]] = {}
@@ -311,11 +315,17 @@ class FormulationCalibrator:
         several configurations); before the start they are held back as :meth:`add`'s."""
         started = time.perf_counter()
         checked = []
+        previous = self._last_q
         for reading in readings:
             q = self.robot.check_q(reading.q)[0]
             if not reading.n_observations and reading.label is None:
                 raise InputError(None, "observations", "a measurement needs at least one observation")
+            if reading.before is None:  # the batch's rule (configurations.csv): from the one before
+                reading = replace(reading, before=previous)
             checked.append(replace(reading, q=q))
+            previous = q
+        # The robot was there, whether or not the measurement folds in: the next one's approach.
+        self._last_q = previous
         latest = next((c for _, c in reversed(self._pending) if c is not None), self._cycle_label)
         if cycle is not None and latest is not None and cycle < latest:
             raise InputError(None, "cycle", f"cycle {cycle} is before the current cycle {latest}")
