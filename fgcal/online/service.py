@@ -271,18 +271,29 @@ class OnlineService:
         """The log's records with each damaged one recovered from its measurement file in
         processed/ (the files moved there whose names the log lacks, in name order, which is
         the order they were logged in) or, failing that, quarantined; the log is rewritten."""
-        if not contents.damaged:
-            return contents.records
         names = {r.get("name") for r in contents.records}
+        processed = sorted((self.state.path / "processed").glob("*.json"))
+        if not contents.damaged and contents.truncated is None and all(p.name in names for p in processed):
+            return contents.records
         robot = self.calibrator.robot
         recovered = []
-        for path in sorted((self.state.path / "processed").glob("*.json")):
+        for path in processed:
             if path.name not in names:
                 try:
                     recovered.append(read_measurement(path, robot.n_joints, limits=robot.limits).to_record())
                 except InputError as error:
                     self.say(f"warning: cannot recover from {path}: {error}")
         records = list(contents.records)
+        # The files left after the damaged records' are the log's lost last records: a truncated
+        # last record (its file in processed/ means it was acknowledged: the file moves only
+        # after the record is fsync'ed, so it was damaged on disk since), or one cut off by an
+        # earlier start before this rule. A truncated record without its file was never
+        # acknowledged: its file is still in the inbox and comes in again.
+        for tail in recovered[len(contents.damaged) :]:
+            records.append(tail)
+            message = f"lost last log record recovered from processed/{tail['name']}"
+            self.say(f"warning: {message}")
+            self.problems.append(message)
         quarantine = self.state.path / "quarantine"
         for i, (position, raw) in reversed(list(enumerate(contents.damaged))):
             if i < len(recovered):
