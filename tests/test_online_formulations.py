@@ -514,6 +514,28 @@ def test_an_absurd_estimate_is_a_headline_warning_of_the_report(tracker300, trac
     assert text.split("\n")[2].startswith("**Warning: this estimate is not to be trusted**"), text[:400]
 
 
+def test_a_file_naming_a_reflector_twice_is_rejected_by_the_service(tracker300, tracker_released, tmp_path):
+    """Issue 41: one clear line naming the file and the field; the file goes to rejected/."""
+    measurements = dataset_measurements(tracker300)[:12]
+    table, ids, values = measurements[11].observations[0]
+    twice = {k: (*v, v[0]) for k, v in ids.items()}
+    measurements[11] = replace(measurements[11], observations=((table, twice, np.vstack([values, values[:1]])),))
+    from fgcal.online.measurement import write_measurement
+
+    for m in measurements:
+        write_measurement(tmp_path / "inbox", m)
+    setup = tmp_path / "setup.yaml"
+    setup.write_text(yaml.safe_dump({"dataset": str(tracker300), "formulation": "tracker", "released": tracker_released,
+                                     "settings": {"prior_sigma_compliance": 1e-4}}))  # fmt: skip
+    service = OnlineService(tmp_path / "state", tmp_path / "inbox", setup)
+    service.run(once=True)
+    service.close()
+    name = measurements[11].name
+    assert service.calibrator.n_images == 11 and (tmp_path / "state" / "rejected" / name).exists()
+    error = (tmp_path / "state" / "rejected" / f"{name}.error.txt").read_text()
+    assert f"observations.{table}[3].target" in error and "given twice" in error, error
+
+
 def test_the_touch_spacings_are_folded_in_once_at_the_start(bundled_sim, monkeypatch):
     """Issue 41: a drawing's known distances between touched points (point_distances) are no
     configuration's: online_once folds them in when the run starts. Measured on seven_axis_touch
