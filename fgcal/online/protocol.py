@@ -78,6 +78,12 @@ class Reading:
         return sum(len(values) for _, values in self.tables.values())
 
 
+# The compliance prior (rad/(N m)) when the setup states none: wider than plausible compliances
+# (a light arm's 1e-5 to 8.4e-5: the IRB 120 cells, the touch cell's 30-84 urad/(N m)), so that
+# it does not pull them to zero; the batch calibration puts no prior on them unless stated. The
+# former 1e-6 did (14 false drift alarms on the touch cell with its documented setup; docs/online.md).
+PRIOR_SIGMA_COMPLIANCE = 1e-4
+
 # A reference fit whose chi2 per degree of freedom exceeds this is a model that cannot fit the
 # cell (a chi2 this large at 100 degrees of freedom has probability 1e-8).
 MISFIT = 2.0
@@ -118,7 +124,10 @@ class FormulationCalibrator:
         model: str | None = None,
         keep_graph: bool = False,
     ) -> None:
-        self.settings = s = settings or OnlineSettings()
+        s = settings or OnlineSettings()
+        if s.prior_sigma_compliance is None:
+            s = replace(s, prior_sigma_compliance=PRIOR_SIGMA_COMPLIANCE)
+        self.settings = s
         if s.marginalise_every < 1 or s.window_images < 2 * s.marginalise_every:
             raise InputError(
                 None,

@@ -19,7 +19,8 @@ class Settings(Schema):
     pixel_sigma_px: Number = Field(None, gt=0, description="px (default 0.1)")
     prior_sigma_m: Number = Field(None, gt=0, description="m (default 5e-3)")
     prior_sigma_rad: Number = Field(None, gt=0, description="rad (default 5e-3)")
-    prior_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) (default 1e-6)")
+    prior_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) (default 1e-4 with formulation, "
+                                         "1e-6 for a flange camera's images)")  # fmt: skip
     drift_sigma_m: Number = Field(None, gt=0, description="m per cycle (default 1e-6)")
     drift_sigma_rad: Number = Field(None, gt=0, description="rad per cycle (default 1e-6)")
     drift_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) per cycle (default 1e-10)")
