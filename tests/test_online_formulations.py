@@ -653,10 +653,11 @@ def test_an_element_the_run_did_not_start_with_is_refused(selfcontained):
     fold_all(calibrator, measurements[:12])
     table, ids, values = measurements[12].observations[0]
     stranger = replace(measurements[12], observations=((table, {**ids, "element_b": ("third_ball",)}, values),))
-    before = calibrator.current_params().copy()
+    # (With only a10, d10 released the default gate takes 2 of the 12 for outliers: n_images 10.)
+    before, folded = calibrator.current_params().copy(), calibrator.n_images
     with pytest.raises(InputError, match="element 'third_ball' is not one the online calibration started with"):
         calibrator.fold(stranger)
-    assert np.array_equal(calibrator.current_params(), before) and calibrator.n_images == 12
+    assert np.array_equal(calibrator.current_params(), before) and calibrator.n_images == folded
 
 
 @pytest.mark.study
