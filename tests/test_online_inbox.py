@@ -167,3 +167,24 @@ def test_a_batch_file_round_trips_with_its_labels():
     assert measurement.n_observations == 1
     again = parse_measurement(measurement.to_record(), "b.json", "log", 6)
     assert again.to_record() == measurement.to_record()
+
+
+@pytest.mark.parametrize(
+    ("table", "rows", "field"),
+    [
+        ("tracker_points", [{"target": "t1", "value": [1, 2, 3]}, {"target": "t2", "value": [1, 2, 4]},
+                            {"target": "t1", "value": [1, 2, 3]}], "observations.tracker_points[2].target"),
+        ("tool_distances", [{"config_a": "c1", "config_b": "c2", "value": [0.05]},
+                            {"config_a": "c2", "config_b": "c1", "value": [0.05]}], "observations.tool_distances[1]"),
+    ],
+    ids=["reflector", "distance_either_way"],
+)  # fmt: skip
+def test_a_measurement_named_twice_in_one_configuration_is_refused(table, rows, field):
+    """Issue 41: a reflector named twice in one file was folded in twice (double weight). Refused
+    as a dataset's table refuses it, naming the field."""
+    from fgcal.core.errors import InputError
+    from fgcal.online.measurement import FORMAT, parse_measurement
+
+    with pytest.raises(InputError) as error:
+        parse_measurement({"format": FORMAT, "joints": [0.1] * 6, "observations": {table: rows}}, "x.json", "x.json", 6)
+    assert (error.value.field or "").startswith(field) and "given twice" in error.value.message, error.value

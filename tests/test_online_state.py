@@ -221,6 +221,32 @@ def test_a_damaged_record_is_recovered_from_its_file_or_quarantined(small_case, 
     assert len(list((state / "quarantine").iterdir())) == 1
 
 
+def test_a_truncated_last_record_whose_file_was_processed_is_recovered(small_case, tmp_path):
+    """Issue 41: the log's last record cut short while processed/ holds its file (acknowledged,
+    then damaged on disk), with a damaged record before it: the run warned "records were lost"
+    and replayed one measurement fewer for good. Now recovered from processed/ as the middle ones."""
+    inbox, state = _fed(small_case, tmp_path, 8), tmp_path / "state"
+    service = _service(small_case, state, inbox)
+    service.run(once=True)
+    service.close()
+    expected = _estimate(state)
+    lines = (state / LOG).read_bytes().splitlines(keepends=True)
+    names = [json.loads(line[9:])["name"] for line in lines]
+    lines[3] = lines[3].replace(b'"joints":[', b'"joints":[9,')  # checksum no longer matches
+    lines[-1] = lines[-1][: len(lines[-1]) // 2]  # truncated
+    (state / LOG).write_bytes(b"".join(lines))
+    service = _service(small_case, state, inbox)
+    assert any("lost last log record recovered from processed/" + names[-1] in p for p in service.problems)
+    assert service.calibrator.n_images == 8, service.problems
+    assert not any("shorter than the checkpoint" in p for p in service.problems), service.problems
+    service.close()
+    with StateDir(state) as locked:
+        contents = locked.read_log()
+        assert [r["name"] for r in contents.records] == names and not contents.problems  # repaired in place
+    estimate, sigma = _estimate(state)
+    assert np.all(np.abs(estimate - expected[0]) <= 1e-6 * sigma)
+
+
 @pytest.mark.parametrize(
     "damage",
     [

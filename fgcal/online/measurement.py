@@ -50,9 +50,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.fields import Fields, check_name
+from ..core.fields import Fields, check_name, first_repeat
 from ..core.outputs import output_dir, write_text
 from ..core.units import parse_units
+from ..data.dataset import KEY_COLUMNS, UNORDERED
 from .inbox import read_regular
 from .protocol import Reading
 
@@ -211,8 +212,26 @@ def _observations(tables: Fields) -> tuple:
             if not isinstance(value, list) or width > 16:  # a touch has none
                 raise row.error("value", f"expected a list of numbers, got {value!r}")
             values.append(row.vector("value", width))
+        _refuse_duplicates(str(table), rows, ids)
         out.append((str(table), {k: tuple(v) for k, v in ids.items()}, np.array(values).reshape(len(rows), -1)))
     return tuple(out)
+
+
+def _refuse_duplicates(table: str, rows: list[Fields], ids: dict[str, list[str]]) -> None:
+    """A measurement named twice in one configuration would count twice (a reflector's point
+    folded in with double weight): refused, as a dataset's table refuses it
+    (fgcal.data.dataset: the same id columns, a distance's ends in either order)."""
+    columns = [c for c in KEY_COLUMNS.get(table, tuple(ids)) if c in ids]
+    if not columns:
+        return
+    keys = zip(*(ids[c] for c in columns), strict=True)
+    repeat = first_repeat((i, tuple(sorted(key)) if table in UNORDERED else key) for i, key in enumerate(keys))
+    if repeat is not None:
+        first, i, key = repeat
+        raise rows[i].error(
+            columns[0], f"{', '.join(columns)} {' '.join(map(repr, key))} given twice in one configuration (rows "
+            f"{first} and {i} of {table}): each measurement once (repeated readings: give each its own configuration)",
+        )  # fmt: skip
 
 
 MAX_BYTES = 1 << 20  # an image's joints and pixels take a few kB

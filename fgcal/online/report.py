@@ -58,9 +58,20 @@ def write_final_report(state: Path, report: dict) -> None:
     plot = plot_sigmas(state, report)
     rule = report["stopping_rule"]
     accuracy = report["predicted_accuracy"]
-    lines = [
-        f"# Online calibration of {report['robot']}",
-        "",
+    lines = [f"# Online calibration of {report['robot']}", ""]
+    steps = [p for p in report["problems"] if "in one measurement: the estimate is not to be trusted" in p]
+    if report.get("implausible") or steps:
+        moved = report.get("implausible") or []
+        why = [f"moved more than 10 prior sigmas from the start: {', '.join(moved)}"] if moved else []
+        if steps:
+            why.append(f"{len(steps)} step(s) beyond 1000 sigmas in one measurement, the first {steps[0]}")
+        lines += [
+            "**Warning: this estimate is not to be trusted** ("
+            + "; ".join(why)
+            + "): check the measurements and the gate (outlier_gate_sigma) before using calibrated_robot.yaml.",
+            "",
+        ]
+    lines += [
         f"- measurements folded in: {report['n_images']} (logged {report['n_logged']}, "
         f"skipped {len(report['skipped'])})",
         f"- predicted flange position sigma over the window: RMS {accuracy['rms_m'] * 1e3:#.4g} mm, "

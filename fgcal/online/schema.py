@@ -19,7 +19,8 @@ class Settings(Schema):
     pixel_sigma_px: Number = Field(None, gt=0, description="px (default 0.1)")
     prior_sigma_m: Number = Field(None, gt=0, description="m (default 5e-3)")
     prior_sigma_rad: Number = Field(None, gt=0, description="rad (default 5e-3)")
-    prior_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) (default 1e-6)")
+    prior_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) (default 1e-4 with formulation, "
+                                         "1e-6 for a flange camera's images)")  # fmt: skip
     drift_sigma_m: Number = Field(None, gt=0, description="m per cycle (default 1e-6)")
     drift_sigma_rad: Number = Field(None, gt=0, description="rad per cycle (default 1e-6)")
     drift_sigma_compliance: Number = Field(None, gt=0, description="rad/(N m) per cycle (default 1e-10)")
@@ -31,7 +32,9 @@ class Settings(Schema):
     outlier_gate_px: Number = Field(None, gt=0, description="px (default 3)")
     outlier_gate_sigma: Number = Field(None, gt=0, description="a formulation's measurement whose residual at the "
                                        "current estimate exceeds this many predicted sigmas is not folded in "
-                                       "(default: no gate; 5 on a tracker, docs/online.md)")  # fmt: skip
+                                       "(default 5, docs/online.md)")  # fmt: skip
+    gate_run: int = Field(None, ge=2, description="this many consecutive gated configurations are a change of the "
+                          "robot: a drift alarm, and they are folded in (default 3)")  # fmt: skip
     determined_fraction: Number = Field(None, gt=0, description="with formulation and no released list: "
                                         "a geometric parameter (m, rad) is released when its sigma at the "
                                         "reference data's solution is at most this fraction of its prior sigma "

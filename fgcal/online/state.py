@@ -6,7 +6,8 @@
   measurement is *acknowledged* once its record is written and fsync'ed; only then is its
   inbox file moved aside. Reading the log checks every record: a truncated or corrupted
   last record (a crash during the append) is reported, skipped and cut off, so that later
-  appends start clean; a corrupted earlier record is reported and skipped.
+  appends start clean (the service recovers it from processed/ when its file is there: it
+  was acknowledged); a corrupted earlier record is reported and skipped.
 - ``checkpoint.json``: every few images, written atomically (temporary file, fsync, rename):
   the number of records and the estimate at that point. A restart replays the log (the
   estimate is a deterministic function of it) and checks that the replay reproduces the
@@ -38,6 +39,9 @@ class LogContents:
     problems: list[str] = field(default_factory=list)
     # Complete records that failed their check: (valid records before it, the raw line).
     damaged: list[tuple[int, bytes]] = field(default_factory=list)
+    # A truncated last record's bytes (a crash while writing it, or damage on disk): recovered
+    # from its measurement file in processed/ when the measurement was acknowledged; None: none.
+    truncated: bytes | None = None
 
 
 def encode_record(record: dict) -> bytes:
@@ -195,6 +199,7 @@ class StateDir:
                 contents.problems.append(
                     f"{path}: record {number} is truncated ({size} bytes, a crash while writing): skipped"
                 )
+                contents.truncated = data[position:]
                 break
             record = decode_line(data[position:newline])
             if record is None:
