@@ -309,7 +309,7 @@ FED_TABLE = {"self_contact": "contacts", "planes": "plane_contacts", "tip_gauge"
 # One scalar per contact or reading, about 50 released parameters of the two arms: 30 leave every
 # sigma above 0.2 of its prior (self_contact, DH), 60 bring some below 0.002.
 # A ballbar's start needs a reading per unknown (24 parameters and 12 coordinates): 40.
-SMOKE_N = {"self_contact": 60, "planes": 60, "tip_gauge": 60, "distances": 40}
+SMOKE_N = {"self_contact": 60, "planes": 100, "tip_gauge": 60, "distances": 40}
 # The bundled cell with fewer contacts, readings and views, and no compliance, distortion or
 # mass error (tests/test_selfcontained.py's cut): 2 s to simulate.
 SELF_CONTAINED = {
