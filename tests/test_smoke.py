@@ -93,6 +93,8 @@ RUNS = {
         ["online", "--state", "{ws}/state", "--inbox", "{ws}/inbox", "--setup", "{ws}/setup.yaml", "--once",
          "--poll", "0.1"],
         ["schema", "online"],
+        # One table of a cell with several (the seed cell's tracker beside its camera).
+        ["online-feed", "{ws}/seed", "--inbox", "{ws}/inbox_tracker", "--n", "5", "--table", "tracker_points"],
     ],
     "demo": [
         ["demo", "--out", "{ws}/demo", "--seed", "2", "--n", "60"],
@@ -246,7 +248,7 @@ def test_use_the_result_as_documented(ws, capsys):
 def test_online_as_documented(ws, capsys):
     (ws / "setup.yaml").write_text(f"dataset: {ws / 'seed'}\nsettings: {{window_images: 10}}\n")
     printed = [_run(argv, ws, capsys) for argv in RUNS["online"]]
-    assert "wrote 20 measurement files" in printed[0]
+    assert "wrote 20 measurement files" in printed[0] and "wrote 5 measurement files" in printed[3]
     assert json.loads((ws / "state" / "report.json").read_text())["n_images"] == 20
 
 
