@@ -1,18 +1,23 @@
-"""What the contact formulations share (self_contact, planes): the contact elements (balls on
-tips of a tree, dataset.yaml contact), their unknowns (centres on their tips and radii, with the
-drawing's priors), the tips the kinematics give, and the score against a simulation's truth
-(the balls' centres, carried to W, the rigid motion removed)."""
+"""What the contact formulations share (self_contact, planes, tip_gauge): the contact elements
+(balls on tips of a tree, dataset.yaml contact), their unknowns (centres on their tips and radii,
+with the drawing's priors), the tips the kinematics give, the score against a simulation's truth
+(the balls' centres, carried to W, the rigid motion removed), and, for a reading between two
+elements (a contact, a gauge reading), its rows and their online and held-out observations."""
 
 from __future__ import annotations
 
+from abc import abstractmethod
+from collections import Counter
 from collections.abc import Iterable
+from pathlib import Path
 
 import numpy as np
 
 from ...core.errors import InputError
 from ...data.dataset import ContactSetup, Dataset
 from ...data.truth import FILE, Truth
-from ..problem import Problem, Scored
+from ..problem import Formulation, Observations, Problem, Rejection, Scored, measured_table, refuse_unstarted
+from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
 
 CENTRES = "contact_centres"
@@ -77,3 +82,86 @@ def scored_elements(problem: Problem, state: State, tips: tuple[str, ...]) -> Sc
     frames = problem.frame
     on = np.array([frames.index(t) for t in tips], dtype=int)
     return Scored(state.value(CENTRES), points_from=CENTRES, tips=on)
+
+
+def refuse_rare(path: Path, column: str, labels: np.ndarray, names: tuple[str, ...], least: int, message: str) -> None:
+    """Each of ``names`` (indexed by ``labels``) measured at least ``least`` times in the fitting
+    set, else an error whose ``message`` formats ``name`` and its count ``n``."""
+    counts = Counter(labels.tolist())
+    for k, name in enumerate(names):
+        if counts[k] < least:
+            raise InputError(path, column, message.format(name=name, n=counts[k]))
+
+
+def element_pairs(
+    dataset: Dataset, table: str, subset: np.ndarray, names: tuple[str, ...] | None
+) -> tuple[np.ndarray, tuple[str, ...], dict[str, np.ndarray], np.ndarray]:
+    """The rows of ``table`` (columns element_a, element_b) at configurations ``subset`` between
+    the elements ``names`` (None: every element they name, sorted; others left out): the subset's
+    configurations that have rows (the kinematics are evaluated at each), the names, per row its
+    configuration (index into them) and elements (``configs``, ``elements_a``, ``elements_b``),
+    and the rows' indices in the table."""
+    rows_of = dataset.tables[table]
+    index_of = dataset.config_index(rows_of.ids["config"])
+    subset = np.asarray(subset, dtype=int)[np.isin(subset, index_of)]
+    position = {int(c): i for i, c in enumerate(subset)}
+    rows = [(k, position[int(c)], a, b) for k, (c, a, b) in enumerate(zip(
+        index_of, rows_of.ids["element_a"], rows_of.ids["element_b"], strict=True)) if int(c) in position]  # fmt: skip
+    if names is None:
+        names = tuple(sorted({e for _, _, a, b in rows for e in (a, b)}))
+    index = {name: i for i, name in enumerate(names)}
+    rows = [r for r in rows if r[2] in index and r[3] in index]
+    columns = {
+        "configs": np.array([r[1] for r in rows], dtype=int),
+        "elements_a": np.array([index[r[2]] for r in rows], dtype=int),
+        "elements_b": np.array([index[r[3]] for r in rows], dtype=int),
+    }
+    return subset, names, columns, np.array([r[0] for r in rows], dtype=int)
+
+
+class OnTips(Formulation):
+    """A formulation of contact elements on a tree's tips: its kinematics are the tips that carry
+    its elements, no instrument fixes W (the score against the truth removes a rigid motion), and
+    that score is of the elements' centres."""
+
+    frame = "flange"
+    score_width = 1
+    score_vectors = False
+
+    def gauge(self, settings: MeasurementSettings) -> str:
+        return "rigid"
+
+    def frames(self, problem: Problem) -> str | tuple[str, ...]:
+        return tips_of(problem, problem.observations.tips)
+
+    def scored(self, problem: Problem, state: State) -> Scored:
+        return scored_elements(problem, state, problem.observations.tips)
+
+
+class BetweenElements(OnTips):
+    """A reading between two elements at a configuration (its table's columns element_a and
+    element_b, the table named as ``kind``): self-contacts and gauge readings."""
+
+    @abstractmethod
+    def observations_of(self, dataset: Dataset, subset: np.ndarray, names: tuple[str, ...] | None) -> Observations:
+        """The readings at configurations ``subset`` between the elements ``names`` (None: every
+        element they name)."""
+
+    def online_observations(
+        self, dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, like: Observations
+    ) -> Observations:
+        """A configuration's readings between the elements the run started with (their centres
+        are its unknowns)."""
+        table = measured_table(dataset, self.kind, self.name)
+        mine = np.isin(dataset.config_index(table.ids["config"]), subset)
+        seen = [*table.ids["element_a"][mine], *table.ids["element_b"][mine]]
+        refuse_unstarted(seen, like.names, dataset.path / f"{self.kind}.csv", "element_a", "element",
+                         "its centre is not estimated")  # fmt: skip
+        return self.observations_of(dataset, subset, like.names)
+
+    def test_observations(self, problem: Problem, state: State) -> tuple[Observations | None, list[Rejection]]:
+        observations = self.observations_of(problem.dataset, problem.test, problem.observations.names)
+        return (observations if len(observations.configs) else None), []
+
+    def unit_tips(self, problem: Problem, observations: Observations) -> np.ndarray | None:
+        return np.array(observations.tips, dtype=object)[observations.elements_a]

@@ -9,7 +9,6 @@ model puts them."""
 
 from __future__ import annotations
 
-from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,29 +20,18 @@ from ...factors import MeasurementSet, PlaneContacts, RobustLoss
 from ...factors.contact import complement_basis
 from ...model.robot import Robot
 from ..batch import BatchKinematics
-from ..problem import (
-    Formulation,
-    Keys,
-    Observations,
-    Problem,
-    Rejection,
-    Scored,
-    measured_table,
-    refuse_unstarted,
-    subset_of,
-    take,
-)
+from ..problem import Keys, Observations, Problem, Rejection, measured_table, refuse_unstarted, subset_of, take
 from ..settings import MeasurementSettings
 from ..state import Auxiliary, State
 from .contact import (
     CENTRES,
     RADII,
+    OnTips,
     contact_setup,
     element_state,
     element_tips,
     frame_rows,
-    scored_elements,
-    tips_of,
+    refuse_rare,
 )
 from .contact import true_elements as true_contact_elements
 
@@ -74,14 +62,11 @@ class PlaneObservations(Observations):
         )  # fmt: skip
 
 
-class Planes(Formulation):
+class Planes(OnTips):
     name = "planes"
-    frame = "flange"
     kind = "plane_contacts"
     settings_read = ("noise.contact_sigma",)
     score = "contact"
-    score_width = 1
-    score_vectors = False
     likely_causes = (
         "contacts that do not belong to their configurations (rows shifted), planes or elements swapped, a plane's "
         "nominal normal pointing away from the side the robot touches, joint angles in other units than units: declares"
@@ -90,12 +75,6 @@ class Planes(Formulation):
 
     def sigma(self, settings: MeasurementSettings) -> float:
         return settings.noise.contact_m
-
-    def gauge(self, settings: MeasurementSettings) -> str:
-        return "rigid"
-
-    def frames(self, problem: Problem) -> str | tuple[str, ...]:
-        return tips_of(problem, problem.observations.tips)
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
         measured_table(dataset, "plane_contacts", self.name)
@@ -106,13 +85,8 @@ class Planes(Formulation):
             raise InputError(path, None, "no plane contact in the fitting set")
         for column, labels, names in (("plane", observations.planes, observations.plane_names),
                                       ("element", observations.elements, observations.names)):  # fmt: skip
-            counts = Counter(labels.tolist())
-            for k, name in enumerate(names):
-                if counts[k] < 4:
-                    raise InputError(
-                        path, column, f"{column} {name!r} has {counts[k]} contacts in the fitting set: each needs "
-                        "many, in clearly different configurations",
-                    )  # fmt: skip
+            refuse_rare(path, column, labels, names, 4, f"{column} {{name!r}} has {{n}} contacts in the fitting set: "
+                        "each needs many, in clearly different configurations")  # fmt: skip
         return observations
 
     def online_observations(
@@ -182,9 +156,6 @@ class Planes(Formulation):
                 robust=robust,
             )
         ]  # fmt: skip
-
-    def scored(self, problem: Problem, state: State) -> Scored:
-        return scored_elements(problem, state, problem.observations.tips)
 
     def unit_tips(self, problem: Problem, observations: Observations) -> np.ndarray | None:
         return np.array(observations.tips, dtype=object)[observations.elements]
