@@ -499,10 +499,7 @@ def load_dataset(path: str | Path) -> Dataset:
             _check_in_image(table, np.ones(len(table), dtype=bool), dataset.camera, _inside(root, files, "pixels"),
                             "dataset.yaml camera")  # fmt: skip
     if doc.has("tip"):
-        tip = doc.string("tip")
-        if dataset.robot.tip_error(tip):
-            raise doc.error("tip", dataset.robot.tip_error(tip))
-        dataset.tip = dataset.robot.flange_name if tip == "flange" else tip
+        dataset.tip = robot_tip(doc, "tip", dataset.robot)
     if doc.has("payload"):
         payload = doc.sub("payload")
         dataset.robot = dataset.robot.with_tool(
@@ -546,11 +543,17 @@ def target_tips(tips: Fields, declared: set[str], robot: Robot) -> dict[str, str
     for target in tips.data:
         if str(target) not in declared:
             raise tips.error(str(target), f"not one of the tracker's targets ({', '.join(sorted(declared))})")
-        tip = tips.string(target)
-        if robot.tip_error(tip):
-            raise tips.error(str(target), robot.tip_error(tip))
-        out[str(target)] = robot.flange_name if tip == "flange" else tip
+        out[str(target)] = robot_tip(tips, str(target), robot)
     return out
+
+
+def robot_tip(fields: Fields, key: str, robot: Robot, default: str | None = None) -> str:
+    """The tip of ``robot`` that ``fields[key]`` names ("flange": the robot's flange, by its name),
+    or an error naming the field."""
+    tip = fields.string(key) if default is None else fields.string(key, default)
+    if robot.tip_error(tip):
+        raise fields.error(key, robot.tip_error(tip))
+    return robot.flange_name if tip == "flange" else tip
 
 
 def _contact(section: Fields, units: Units, robot: Robot) -> ContactSetup:
@@ -559,11 +562,8 @@ def _contact(section: Fields, units: Units, robot: Robot) -> ContactSetup:
     listed = section.sub("elements")
     for name in listed.data:
         element = listed.sub(str(name))
-        tip = element.string("tip")
-        if robot.tip_error(tip):
-            raise element.error("tip", robot.tip_error(tip))
         elements[str(name)] = ContactElement(
-            robot.flange_name if tip == "flange" else tip,
+            robot_tip(element, "tip", robot),
             element.vector("xyz", 3, scale=units.to_m),
             element.number("radius", scale=units.to_m, positive=True),
         )
@@ -634,16 +634,14 @@ def _self_observation(dataset: Dataset, section: Fields, units: Units) -> None:
     boards = section.sub("boards")
     for name in boards.data:
         board = boards.sub(str(name))
-        tip = board.string("tip")
-        if robot.tip_error(tip):
-            raise board.error("tip", robot.tip_error(tip))
+        tip = robot_tip(board, "tip", robot)
         corners = board.vector("corners", 2)
         if np.any(corners < 2) or np.any(corners != np.round(corners)):
             raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
         points, names = board_corners(int(corners[0]), int(corners[1]),
                                       board.number("square", scale=units.to_m, positive=True))  # fmt: skip
         pose = _pose(board.sub("pose"), units)
-        dataset.tip_boards[str(name)] = TipBoard(robot.flange_name if tip == "flange" else tip, pose, points, names)
+        dataset.tip_boards[str(name)] = TipBoard(tip, pose, points, names)
     if not dataset.tip_boards:
         raise section.error("boards", "no board")
     dataset.robot = replace(robot, tips=tuple(tips))

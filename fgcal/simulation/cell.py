@@ -14,7 +14,7 @@ from ..core.fields import Fields, read_yaml, to_float
 from ..core.schema import validate
 from ..core.se3 import pose_from_xyz_rpy, transform_points
 from ..core.units import parse_units
-from ..data.dataset import plane_normal
+from ..data.dataset import plane_normal, robot_tip
 from ..model.camera import Camera, parse_camera
 from ..model.motion import MotionHistory
 from ..model.parameters import default_compliant_joints
@@ -464,11 +464,9 @@ def _ballbar(bar: Fields, to_m: float, to_rad: float) -> BallbarSetup:
 def _contact(section: Fields, robot: Robot, to_m: float, to_rad: float) -> ContactCellSetup:
     names, tips, centres, radii = [], [], [], []
     for ball in section.sub_list("elements"):
-        tip = ball.string("tip")
-        if robot.tip_error(tip):
-            raise ball.error("tip", robot.tip_error(tip))
+        tip = robot_tip(ball, "tip", robot)
         names.append(ball.string("name"))
-        tips.append(robot.flange_name if tip == "flange" else tip)
+        tips.append(tip)
         centres.append(ball.vector("xyz", 3, scale=to_m))
         radii.append(ball.number("radius", scale=to_m, positive=True))
     plane_names, normals, offsets = [], [], []
@@ -523,10 +521,7 @@ def _self_observation(section: Fields, robot: Robot, to_m: float, to_rad: float)
             raise camera.error("joint", f"{robot.name} has joints 1 to {robot.n_links} (0: the base)")
     tips = []
     for board in boards:
-        tip = board.string("tip")
-        if robot.tip_error(tip):
-            raise board.error("tip", robot.tip_error(tip))
-        tips.append(robot.flange_name if tip == "flange" else tip)
+        tips.append(robot_tip(board, "tip", robot))
         corners = board.vector("corners", 2)
         if np.any(corners < 2) or np.any(corners != np.round(corners)):
             raise board.error("corners", f"expected two integers >= 2 (columns, rows), got {corners.tolist()}")
@@ -615,10 +610,7 @@ def load_cell(path: str | Path) -> Cell:
     )
     if doc.has("base"):
         robot = replace(robot, base_pose=_pose(doc, "base", to_m, to_rad))
-    tip = doc.string("tip", robot.flange_name)
-    if robot.tip_error(tip):
-        raise doc.error("tip", robot.tip_error(tip))
-    tip = robot.flange_name if tip == "flange" else tip
+    tip = robot_tip(doc, "tip", robot, default=robot.flange_name)
     if tip != robot.flange_name and camera_fields is not None:
         raise doc.error("tip", "a flange camera is the flange's tool: a tree's other tips carry targets, not cameras")
 
