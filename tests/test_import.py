@@ -158,6 +158,7 @@ BAD_MAPPINGS = [
     (("tracker_points", "colour", "red"), r"tracker_points\.colour", "unknown field"),
     (("tracker_points", "target_name", "t1"), r"tracker_points\.target", "either target"),
     (("tracker_points", "file", "missing.csv"), r"tracker_points\.file", "file not found"),
+    (("tracker_points", "file", "points\x00.csv"), r"tracker_points\.file", "a file name with a NUL character"),
     (("tracker_points", "units", {"length": "furlong"}), r"tracker_points\.units\.length", "unknown length unit"),
 ]
 

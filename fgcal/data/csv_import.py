@@ -122,7 +122,10 @@ def _delimiter(fields: Fields, first_line: str, decimal: str) -> str | None:
 
 def read_source(fields: Fields, base: Path) -> SourceTable:
     """Read the file a table mapping names (relative to the mapping's directory)."""
-    path = (base / fields.string("file")).resolve()
+    name = fields.string("file")
+    if "\x00" in name:  # no file has it in its name, and pathlib refuses it with a ValueError (as dataset._inside)
+        raise fields.error("file", f"a file name with a NUL character: {name!r}")
+    path = (base / name).resolve()
     encoding = fields.string("encoding", "utf-8-sig")
     try:
         lines = read_file_text(path, encoding).splitlines()
