@@ -199,6 +199,27 @@ def values_of(state: State, keys: Keys, released_values: np.ndarray | None = Non
     return values
 
 
+def key_columns(state: State, keys: Keys, n_released: int) -> tuple[dict[int, tuple[int, int]], int]:
+    """Per key, its columns (start, width) in a dense Jacobian on [P, the auxiliary unknowns in
+    the state's order], and the Jacobian's width."""
+    columns, width = {}, 0
+    if keys.params is not None:
+        columns[keys.params], width = (0, n_released), n_released
+    for name, aux in state.aux.items():
+        columns[keys[name]] = (width, aux.dim)
+        width += aux.dim
+    return columns, width
+
+
+def dense_jacobian(measurements: MeasurementSet, blocks: Sequence[np.ndarray], columns: dict, width: int) -> np.ndarray:
+    """A measurement set's Jacobian blocks (one per variable) laid on ``columns`` (key_columns)."""
+    J = np.zeros((measurements.n_rows, width))
+    for (key, _, _), block in zip(measurements.variables, blocks, strict=True):
+        a, d = columns[key]
+        J[:, a : a + d] = block
+    return J
+
+
 def read_state(state: State, keys: Keys, values: gtsam.Values, kinematics: BatchKinematics) -> State:
     """The state whose released parameters and auxiliary unknowns are those of ``values``."""
     params = kinematics.full(values.atVector(keys.params)) if keys.params is not None else state.params.copy()

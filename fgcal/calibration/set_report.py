@@ -16,7 +16,7 @@ import numpy as np
 from ..model.parameters import is_mass
 from .chains import parameter_sigmas
 from .formulations.sets import Combined
-from .problem import Part, keys_of, values_of
+from .problem import Part, dense_jacobian, key_columns, keys_of, values_of
 from .results import CalibrationResult
 
 
@@ -33,12 +33,7 @@ def set_summary(result: CalibrationResult) -> dict | None:
     keys = keys_of(state, bool(released))
     values = values_of(state, keys, kinematics.base[kinematics.index])
     measurements = formulation.measurement_sets(problem, problem.observations, kinematics, keys, state, None)
-    columns, width = {}, 0
-    if keys.params is not None:
-        columns[keys.params], width = (0, len(released)), len(released)
-    for name, aux in state.aux.items():
-        columns[keys[name]] = (width, aux.dim)
-        width += aux.dim
+    columns, width = key_columns(state, keys, len(released))
     covariance = result.covariance_declared
     sets, jacobians = [], {}
     for part in parts:
@@ -118,11 +113,7 @@ def _rows(part: Part, measurements, values, columns: dict, width: int) -> tuple[
     blocks, chi2, sums = [], 0.0, {}
     for s in part.sets_of(measurements):
         evaluation = s.whitened(s.read(values), True, robust=False)
-        J = np.zeros((s.n_rows, width))
-        for (key, _, _), block in zip(s.variables, evaluation.blocks, strict=True):
-            a, d = columns[key]
-            J[:, a : a + d] = block
-        blocks.append(J)
+        blocks.append(dense_jacobian(s, evaluation.blocks, columns, width))
         chi2 += float(np.sum(evaluation.residual**2))
         raw = evaluation.residual * s.sigma
         for unit, rows in s.row_units().items():

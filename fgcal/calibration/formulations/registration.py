@@ -27,6 +27,8 @@ from ..problem import (
     Observations,
     Prediction,
     Problem,
+    dense_jacobian,
+    key_columns,
     keys_of,
     prediction,
     values_of,
@@ -62,21 +64,12 @@ def _columns(problem: Problem, observations: Observations, state: State, release
     sets: list[MeasurementSet] = problem.formulation.measurement_sets(
         problem, observations, kinematics, keys, state, None
     )
-    offsets, column = {}, 0
-    if keys.params is not None:
-        offsets[keys.params], column = (0, len(released)), len(released)
-    for name, aux in state.aux.items():
-        offsets[keys[name]] = (column, aux.dim)
-        column += aux.dim
+    columns, width = key_columns(state, keys, len(released))
     blocks, sigmas = [], []
     for s in sets if whiten else sets[:1]:
         inputs = s.read(values)
         evaluation = s.whitened(inputs, True, robust=False) if whiten else s.compute(inputs, True)
-        J = np.zeros((s.n_rows, column))
-        for (key, _, _), block in zip(s.variables, evaluation.blocks, strict=True):
-            a, d = offsets[key]
-            J[:, a : a + d] = block
-        blocks.append(J)
+        blocks.append(dense_jacobian(s, evaluation.blocks, columns, width))
         sigmas.append(s.sigma)
     return np.vstack(blocks), np.concatenate(sigmas), sets[0], sets[0].read(values)
 
