@@ -56,6 +56,21 @@ FAST = {
 }  # fmt: skip
 
 
+# The fixed parameters a formulation's truth score may see and its data cannot
+# (Prediction.assumes): contacts and planes have no length but a ball's radius, so the analysis
+# fixes the arms' lengths that carry the scale; each torso camera sees only the board on its
+# own arm, so where each arm hangs from the torso (its first row) is taken by that camera's
+# mounting, while the truth score of both hands in W sees it. Where one of them is off in the
+# simulated truth, the prediction does not cover the truth score and says so (self_observation:
+# 2.1x on seed 2 of this cell, 26x on seed 3, before the prediction named them).
+ARM_LENGTHS = {f"{kind}{joint}" for kind in ("d", "a") for joint in range(5, 19)}
+BLIND_SPOTS = {
+    "self_contact": ARM_LENGTHS,
+    "planes": ARM_LENGTHS,
+    "self_observation": {f"{kind}{joint}" for kind in ("theta", "d", "a", "alpha") for joint in (5, 12)},
+}
+
+
 def _merge(base: dict, edits: dict) -> dict:
     out = dict(base)
     for key, value in edits.items():
@@ -106,7 +121,13 @@ def test_each_formulation_through_the_whole_pipeline(fast_cells, name, tmp_path)
     assert scored.truth is not None and scored.measured is measured.validation
     truth_before, truth_after = (scored.validation[k]["tool_point"].rms for k in ("before", "after"))
     assert truth_after < truth_before / 10
-    assert 0.5 <= truth_after / scored.prediction.rms <= 2.0, (truth_after, scored.prediction)
+    blind = {spot.name for spot in scored.prediction.assumes}
+    assert blind <= BLIND_SPOTS.get(name, set()), blind
+    names = scored.problem.robot.parameter_names
+    true_params = scored.problem.formulation.true_state(scored.problem, scored.truth)[1].params
+    off = [n for n in blind if abs(true_params[names.index(n)] - scored.state.params[names.index(n)]) > 1e-12]
+    if not off:  # else the prediction says it does not cover what the truth score sees
+        assert 0.5 <= truth_after / scored.prediction.rms <= 2.0, (truth_after, scored.prediction)
 
     doc = write_report(scored, tmp_path)
     back = load_estimates(tmp_path / "estimates.yaml")

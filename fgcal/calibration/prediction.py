@@ -16,6 +16,7 @@ import numpy as np
 from ..factors import TrackerPoints
 from ..model.robot import Robot
 from .batch import BatchKinematics
+from .blind_spots import BlindSpot, blind_spots
 from .gauge import without_gauge
 from .problem import JointCovariance, Prediction, Problem, Scored
 from .state import State
@@ -108,7 +109,26 @@ def predicted_against_truth(
         return None
     _, covariances = scored_covariances(problem, state, covariance, q, motion)
     variance = float(np.mean(np.trace(covariances, axis1=1, axis2=2)))
-    return Prediction(float(np.sqrt(variance)), float(np.sqrt(variance)), 0.0, factor)
+    assumes = truth_blind_spots(problem, state, covariance.released, q, motion)
+    return Prediction(float(np.sqrt(variance)), float(np.sqrt(variance)), 0.0, factor, assumes)
+
+
+def truth_blind_spots(
+    problem: Problem, state: State, released: Sequence[str], q: np.ndarray, motion: np.ndarray | None
+) -> tuple[BlindSpot, ...]:
+    """The candidates the calibration fixed that move the scored points at q where nothing
+    released (nor the score's gauge) takes their effect (fgcal.calibration.blind_spots)."""
+    fixed = [name for name in problem.candidates if name not in set(released)]
+    if not fixed:
+        return ()
+    scored = problem.formulation.scored(problem, state)
+    positions = scored_positions(problem.robot, problem.frame, state.params, q, motion, scored)
+    gauge = problem.formulation.gauge(problem.settings)
+    J_u, _ = scored_jacobian(problem, state, scored, released, q, motion)
+    J_f, _ = scored_jacobian(problem, state, scored, fixed, q, motion)
+    J_u = without_gauge(J_u.reshape(-1, J_u.shape[2]), positions, gauge)
+    J_f = without_gauge(J_f.reshape(-1, J_f.shape[2])[:, : len(fixed)], positions, gauge)
+    return blind_spots(J_u, J_f, fixed)
 
 
 def workspace_map(

@@ -254,6 +254,9 @@ class Prediction:
     parameters_rms: float
     noise_rms: float
     variance_factor: float
+    # Fixed parameters the score depends on beyond what the released unknowns take
+    # (fgcal.calibration.blind_spots.BlindSpot): the prediction assumes them at their values.
+    assumes: tuple = ()
 
     def as_dict(self) -> dict:
         return {
@@ -261,6 +264,7 @@ class Prediction:
             "parameters_rms": self.parameters_rms,
             "noise_rms": self.noise_rms,
             "variance_factor": self.variance_factor,
+            "assumes_at_their_values": [spot.as_dict() for spot in self.assumes],
         }
 
 

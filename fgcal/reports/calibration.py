@@ -688,6 +688,10 @@ def _markdown(doc: dict, plots: dict[str, str]) -> str:
             ]
             if "warning" in p:  # (the headline's warnings say it first)
                 lines += ["", "Measured above the prediction: see the warnings at the top."]
+            if p.get("assumes_at_their_values"):
+                names = ", ".join(spot["name"] for spot in p["assumes_at_their_values"])
+                lines += ["", f"The prediction holds only with {names} at their values: the fitting data cannot "
+                          "determine them and the held-out score depends on them (see the warnings at the top)."]
         if val.get("by_tip"):
             lines += ["", "Held out per tip (each chain on its own; RMS, mm):", "",
                       "| tip | errors | before | after | predicted |", "|---|---|---|---|---|"]  # fmt: skip

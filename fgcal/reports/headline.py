@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration.blind_spots import describe
 from ..calibration.identifiability import EVIDENCE_SIGMAS
 from ..calibration.results import SCORES, CalibrationResult, ErrorStats, primary_score
 from ..calibration.set_report import noise_ratios
@@ -126,6 +127,8 @@ def warnings(result: CalibrationResult) -> list[str]:
     predicted = predicted_sigma(result)
     if predicted is not None and "warning" in predicted:  # an accuracy not to sign as predicted
         out.append(predicted["warning"])
+    if predicted is not None and "assumption" in predicted:
+        out.append(predicted["assumption"])
     formulation = problem.formulation
     unread = sorted(config.stated_options - set(formulation.settings_read) - {f"robust.{formulation.kind}"})
     if unread:
@@ -283,6 +286,14 @@ def predicted_sigma(result: CalibrationResult) -> dict | None:
     if result.prediction is None:
         return None
     predicted = result.prediction.as_dict()
+    spots = result.prediction.assumes
+    if spots:
+        counted = f"{len(spots)} parameter{'s' if len(spots) > 1 else ''}"
+        predicted["assumption"] = (
+            f"the predicted held-out error assumes {counted} the fitting data "
+            "cannot determine at their values, and the held-out score depends on them: their errors are not in the "
+            f"prediction. What a small deviation of each moves the score by (RMS, at least): {describe(spots)}"
+        )
     scored = primary_score(result.validation, "after")
     after = scored[1] if scored is not None else None
     if after is not None:

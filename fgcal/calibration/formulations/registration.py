@@ -18,10 +18,13 @@ held-out ones.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ...core.errors import InputError
 from ...factors import MeasurementSet
+from ..blind_spots import blind_spots
 from ..problem import (
     JointCovariance,
     Observations,
@@ -91,24 +94,29 @@ def registered_prediction(
     if not m or not len(getattr(observations, "configs", [1])):
         return None
     formulation = problem.formulation
-    J_r, _, _, _ = _columns(problem, problem.observations, state, released, True)
-    J_t, sigma_t, main, inputs = _columns(problem, observations, state, released, False)
+    # The calibration's fixed candidates too: the validation set may see what the fit could not.
+    fixed = [name for name in problem.candidates if name not in set(released)]
+    columns = released + fixed
+    J_r, _, _, _ = _columns(problem, problem.observations, state, columns, True)
+    J_t, sigma_t, main, inputs = _columns(problem, observations, state, columns, False)
     C = covariance.block(["P"])
-    J_rP, J_ra = J_r[:, :m], J_r[:, m:]
-    J_tP, J_ta = J_t[:, :m], J_t[:, m:]
+    n_p = len(columns)
+    J_rP, J_ra = J_r[:, :n_p], J_r[:, n_p:]
+    J_tP, J_ta = J_t[:, :n_p], J_t[:, n_p:]
     A_inv = np.linalg.pinv(J_ra.T @ J_ra)
     if same:
         M = np.eye(len(J_t)) - J_ta @ A_inv @ (J_ta / sigma_t[:, None] ** 2).T
-        parameters_rows = np.einsum("ij,jk,ik->i", M @ J_tP, C, M @ J_tP)
+        J_eff = M @ J_tP
         noise_rows = np.einsum("ij,j,ij->i", M, sigma_t**2, M)
     else:
         J_eff = J_tP - J_ta @ A_inv @ (J_ra.T @ J_rP)
-        parameters_rows = np.einsum("ij,jk,ik->i", J_eff, C, J_eff)
         noise_rows = np.einsum("ij,jk,ik->i", J_ta, A_inv, J_ta) + sigma_t**2
+    parameters_rows = np.einsum("ij,jk,ik->i", J_eff[:, :m], C, J_eff[:, :m])
     scale = formulation.metric_scale(problem, main, inputs, state)
 
     def per_score(rows: np.ndarray) -> np.ndarray:
         return rows.reshape(-1, formulation.score_width)[:, formulation.score_rows].sum(axis=1) * scale**2
 
     predicted = prediction(per_score(parameters_rows), per_score(noise_rows), factor)
-    return predicted
+    spots = blind_spots(J_eff[:, :m], J_eff[:, m:], fixed, per_score)
+    return replace(predicted, assumes=spots) if predicted is not None else None
