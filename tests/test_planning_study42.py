@@ -18,6 +18,18 @@ def seed_cell_study(tmp_path_factory):
 
     rows = design_study(SEED_CELL, tmp_path_factory.mktemp("study42"), seeds=(1, 2, 3), planned_sizes=(36,),
                         space_filling_sizes=())["seeds"]  # fmt: skip
+    for row in rows:  # the planned design with the plan's groups, and what the groups alone do (docs/planning.md)
+        planned, seed, grouped = row["planned"][36], row["seed_design_m"], row["seed_design_groups"]
+        random = planned["random_groups_rms_m"]
+        print(
+            f"seed {row['seed']}: planned 36 with the plan's groups {planned['rms_m']:.3e} m (predicted "
+            f"{planned['predicted_m']:.3e}), {planned['rms_m'] / seed:.2f}x the seed design ({seed:.3e}); with the "
+            f"calibration's random groups {random:.3e} ({random / seed:.2f}x, "
+            f"expected {planned['random_groups_predicted_m']:.3e}); the seed design with groups chosen the same way "
+            f"{grouped['rms_m']:.3e} ({grouped['rms_m'] / seed:.2f}x; predicted {grouped['predicted_m']:.3e}, with its "
+            f"random groups {grouped['random_groups_predicted_m']:.3e}); planned / seed design with chosen groups "
+            f"{planned['rms_m'] / grouped['rms_m']:.2f}x"
+        )
     return np.array([row["planned"][36]["rms_m"] / row["seed_design_m"] for row in rows])
 
 
