@@ -666,7 +666,8 @@ def _markdown(result: PlanResult, plot: bool) -> str:
     lines += [
         "",
         f"CPU time: candidates {t.get('candidates', 0):.1f} s, information {t.get('information', 0):.1f} s, "
-        f"selection {t.get('selection', 0):.1f} s, curves {t.get('curves', 0):.1f} s.",
+        f"selection {t.get('selection', 0):.1f} s, curves {t.get('curves', 0):.1f} s"
+        + (f", pair groups {t['pair_groups']:.1f} s." if "pair_groups" in t else "."),
         "",
     ]
     return "\n".join(lines)
