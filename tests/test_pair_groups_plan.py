@@ -76,6 +76,7 @@ def test_swaps_never_make_the_grouping_worse(small_plan):
         assert sorted(map(len, improved)) == sorted(map(len, start))
         before = variance(info, group_information(info, chosen, start))
         assert variance(info, group_information(info, chosen, improved)) <= before
+    assert improve_groups(info, chosen[:3], [[0, 1, 2]]) == [[0, 1, 2]]  # one group: nothing to swap
     best = plan_groups(info, chosen, 1)
     assert result.pair_groups is not None
     planned = group_information(info, chosen, result.pair_groups)

@@ -81,6 +81,8 @@ def improve_groups(info: Information, chosen: list[int] | np.ndarray, groups: li
     for _ in range(MAX_SWAPS):
         apart = owner[every_i] != owner[every_k]  # the swaps: two images of different groups
         i, k = every_i[apart], every_k[apart]
+        if not len(i):  # one group: nothing to swap
+            break
         U = np.stack([u[g].sum(axis=0) for g in groups])  # (G, 3, p)
         loss = np.einsum("gxp,gxq,g->pq", U, U, weight)
         current = float(np.trace(W @ np.linalg.inv(base - loss)))
