@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.fields import read_yaml, to_float
+from ..core.fields import first_repeat, read_yaml, to_float
 from ..core.noise import stated_noise
 from ..core.schema import validate
 from ..core.units import Units, parse_units
-from ..data.dataset import MEASUREMENTS
+from ..data.dataset import MEASUREMENTS, read_csv
 from ..model.parameters import MASS_KIND
 from .formulations import NAMES, REGISTRY, from_measured
 from .priors import Priors, parse_priors
@@ -175,29 +175,65 @@ def _robust(robust: Robust, source: Path, prefix: str = "") -> dict[str, tuple[s
     return out
 
 
-def _measurement(section, units: Units, source: Path, prefix: str = "", tool_points=None) -> tuple:
+def _measurement(
+    section, units: Units, source: Path, prefix: str = "", tool_points=None, base: Path = Path(".")
+) -> tuple:
     """What a config (or one of its sets, ``prefix`` ``sets[i].``) says about its measurements:
-    the MeasurementSettings and the formulation-specific options it states (dotted)."""
+    the MeasurementSettings and the formulation-specific options it states (dotted); ``base``:
+    the folder its paths are relative to."""
     noise = stated_noise(section.noise.model_dump(exclude_unset=True) if section.noise else None, units, source,
                          f"{prefix}noise")  # fmt: skip
     pairs = section.pairs or Pairs()
+    groups_file, groups = _pair_groups(pairs.groups, base, source, f"{prefix}pairs.groups")
     measurement = MeasurementSettings(
         source=source,
         noise=Noise.stated(noise),
         noise_stated=noise,
         robust=_robust(section.robust or Robust(), source, prefix),
         fixture_orientation=section.fixture_orientation,
-        pairs=PairSettings(pairs.partner, pairs.seed, pairs.group_images, pairs.points_from),
+        pairs=PairSettings(pairs.partner, pairs.seed, pairs.group_images, pairs.points_from, groups_file, groups),
         intrinsics_prior_sigmas=_intrinsics(section.intrinsics),
         validation_tool_points=tool_points or {},
     )
     given = {key for key in ("pairs", "fixture_orientation", "intrinsics") if key in section.model_fields_set}
+    given |= {"pairs.groups"} if pairs.groups is not None else set()
     given |= {f"noise.{key}" for key in (section.noise.model_fields_set if section.noise else ())}
     given |= {f"robust.{key}" for key in (section.robust.model_fields_set if section.robust else ())}
     return measurement, frozenset(given)
 
 
-def _sets(config: ConfigSchema, units: Units, source: Path, dataset: dict, tool_points) -> tuple[SetConfig, ...]:
+def _pair_groups(
+    name: str | None, base: Path, source: Path, field: str
+) -> tuple[Path | None, tuple[tuple[str, str], ...] | None]:
+    """``pairs.groups``: the CSV (``config,group``, relative to the config) naming each
+    configuration's pair group, and its rows in the file's order; (None, None) without one.
+    Which of its configurations the dataset has is checked where the dataset is read
+    (formulations.pairs.pair_observations)."""
+    if name is None:
+        return None, None
+    if "\x00" in name:  # pathlib refuses it with a ValueError
+        raise InputError(source, field, f"a file name with a NUL character: {name!r}")
+    path = base / name
+    if not path.is_file():
+        raise InputError(source, field, f"{path}: file not found (a CSV with columns config,group)")
+    header, body = read_csv(path, ["config", "group"])
+    if not body:
+        raise InputError(path, None, f"no configurations: give each one's group (config,group; {field})")
+    config, group = header.index("config"), header.index("group")
+    rows = [(row[config].strip(), row[group].strip()) for row in body]
+    for line, (cid, label) in enumerate(rows, start=2):
+        if not cid or not label:
+            raise InputError(path, f"line {line}, column {'group' if cid else 'config'}", "empty")
+    repeat = first_repeat((line, cid) for line, (cid, _) in enumerate(rows, start=2))
+    if repeat is not None:
+        first, line, cid = repeat
+        raise InputError(path, f"lines {first} and {line}, column config", f"{cid!r} given twice: one group each")
+    return path, tuple(rows)
+
+
+def _sets(
+    config: ConfigSchema, units: Units, source: Path, dataset: dict, tool_points, base: Path = Path(".")
+) -> tuple[SetConfig, ...]:
     """The config's measurement sets (sets:), checked: names unique, at least one fitting set,
     each one's table among the dataset's measured ones, its options ones its formulation reads."""
     if config.sets is None:
@@ -220,7 +256,7 @@ def _sets(config: ConfigSchema, units: Units, source: Path, dataset: dict, tool_
         if measured is not None and entry.pixels_from == "table" and formulation.kind not in measured:
             raise InputError(source, f"{where}.formulation", f"{entry.formulation} reads {formulation.kind}, and the "
                              f"dataset measured {', '.join(map(str, measured)) or 'nothing'}")  # fmt: skip
-        measurement, given = _measurement(entry, units, source, f"{where}.", tool_points)
+        measurement, given = _measurement(entry, units, source, f"{where}.", tool_points, base)
         unread = sorted(given - set(formulation.settings_read) - {f"robust.{formulation.kind}"})
         if entry.pixels_from == "images" and "pixels_from" not in formulation.settings_read:
             unread.insert(0, "pixels_from")
@@ -279,8 +315,8 @@ def parse_config(raw: object, source: Path, base_dir: Path | None = None) -> Cal
     holdout = validation.holdout if validation.holdout is not None else (
         0.0 if validation_datasets or validation.folds else 0.25
     )  # fmt: skip
-    measurement, given = _measurement(config, units, source, "", validation_tool_points)
-    sets = _sets(config, units, source, dataset_doc, validation_tool_points)
+    measurement, given = _measurement(config, units, source, "", validation_tool_points, base)
+    sets = _sets(config, units, source, dataset_doc, validation_tool_points, base)
     if sets:
         formulation, formulation_source = "sets", "the config's sets"
         measurement = sets[[s.use for s in sets].index("fit")].measurement

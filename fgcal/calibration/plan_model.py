@@ -78,6 +78,30 @@ class PlanRows:
     # Whitened rows every design has, on the auxiliary unknowns alone (a drawing's known
     # distances between touched points); None: none.
     fixed: np.ndarray | None = None
+    # Pairs: what the exact pair groups need (fgcal.planning.groups); None: no groups.
+    grouping: PairRows | None = None
+
+
+# Where a plan writes the groups it chose, and the calibration config's setting that reads them.
+PAIR_GROUPS_FILE = "pair_groups.csv"
+
+
+def pair_groups_setting(path: str) -> dict:
+    """The calibration config's fields naming a pair groups file (pairs.groups)."""
+    return {"pairs": {"groups": path}}
+
+
+@dataclass(frozen=True)
+class PairRows:
+    """A pair formulation's rows before its groups: a group of images loses the common
+    translation, in W, of all its points (formulations.pairs: the contrasts cancel it), so its
+    information is ``sum_j J_j^T J_j - U^T U / n`` with ``U = sum_j R_W_C,j sum_points J_j,point``
+    (the camera-frame rows turned into W; n the group's points)."""
+
+    params: np.ndarray  # (M, r, m) whitened, ungrouped, on the parameters
+    aux: np.ndarray  # (M, r, a) on the auxiliary unknowns
+    turn: np.ndarray  # (M, 3, 3) R_W_C: the camera frame of each candidate's rows into W
+    size: int  # images per group (pairs.group_images)
 
 
 class Planning(ABC):
@@ -115,9 +139,12 @@ class FlangeCamera(Planning):
         self, robot: Robot, data: kinematics.KinematicsData, cell: Cell, cand: Candidates, names: list[str]
     ) -> PlanRows:
         J_p, J_aux, p_C = _camera_rows(robot, data, cell, cand, names, self.rotation)
-        if self.group_images is not None:
-            J_p, J_aux = _grouped(J_p, J_aux, p_C, self.group_images)
         sigma = cell.camera_point_sigma_m
+        grouping = None
+        if self.group_images is not None:
+            turn = kinematics.frame_pose(robot, data, "tool")[:, :3, :3]
+            grouping = PairRows(J_p / sigma, J_aux / sigma, turn, self.group_images)
+            J_p, J_aux = _grouped(J_p, J_aux, p_C, self.group_images)
         labels = (["fixture.rx", "fixture.ry", "fixture.rz"] if self.rotation else []) + [
             "fixture.tx",
             "fixture.ty",
@@ -133,6 +160,7 @@ class FlangeCamera(Planning):
             frame="tool",
             point=p_C.reshape(-1, 3).mean(axis=0),
             gauge="rigid" if self.rotation else "translation",
+            grouping=grouping,
         )
 
 

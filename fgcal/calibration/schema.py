@@ -66,6 +66,12 @@ class Pairs(Schema):
     seed: int = Field(0, ge=0, le=2**32 - 1)
     group_images: int = Field(4, ge=1)
     points_from: Literal["camera_points", "pixels"] = "camera_points"
+    groups: str = Field(
+        None,
+        min_length=1,
+        description="a CSV (config,group), relative to the config: the group of each configuration's image, as "
+        "fgcal plan writes it (pair_groups.csv); images it does not name are grouped at random",
+    )
 
 
 class PriorSigma(Schema):

@@ -63,6 +63,10 @@ class PairSettings:
     seed: int = 0
     group_images: int = 4
     points_from: str = "camera_points"  # or "pixels" (PnP per image)
+    # pairs.groups: the file (resolved against the config) and its (config id, group label) rows in
+    # the file's order; None: every image grouped at random.
+    groups_file: Path | None = None
+    groups: tuple[tuple[str, str], ...] | None = None
 
 
 @dataclass(frozen=True)

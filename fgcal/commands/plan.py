@@ -46,6 +46,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         f"condition number {result.indices['condition_number']:.3g}"
     )
     say(f"  {real}")
+    if (groups := result.pair_groups_line()) is not None:
+        say(f"  {groups}")
     t = result.timing_s
     say(f"  CPU time: candidates {t['candidates']:.1f} s, selection {t['selection']:.1f} s")
     if result.lost_motion is not None:
@@ -107,8 +109,10 @@ def _program(kind: str, result, args: argparse.Namespace) -> list[Path]:
 def _approach_words(result) -> str:
     offset = f"{np.degrees(result.approach_offset_rad):g} deg"
     if result.approach == "varied":
-        return (f"each configuration from its own approach point, up to {offset} above or below on each joint, "
-                "visited just before it (a_ / XA_ points): the lost motion the plan's model fits depends on it")
+        return (
+            f"each configuration from its own approach point, up to {offset} above or below on each joint, "
+            "visited just before it (a_ / XA_ points): the lost motion the plan's model fits depends on it"
+        )
     return f"each configuration from its approach point {offset} below on every joint, visited just before it " + (
         "(a_ / XA_ points)"
     )

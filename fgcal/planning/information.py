@@ -18,13 +18,22 @@ import numpy as np
 from ..calibration.config import CalibrationConfig
 from ..calibration.gauge import without_gauge
 from ..calibration.identifiability import parameter_scale, select
-from ..calibration.plan_model import Candidates, Planning
+from ..calibration.plan_model import Candidates, PairRows, Planning
 from ..calibration.problem import candidate_parameters
 from ..core.se3 import transform_points
 from ..model import kinematics
 from ..model.motion import MotionHistory, features
 from ..model.robot import Robot
 from ..simulation.cell import Cell
+
+
+@dataclass(frozen=True)
+class GroupRows:
+    """The rows of the pairs' exact groups (plan_model.PairRows) on the plan's columns."""
+
+    rows: np.ndarray  # (M, r, p) whitened, ungrouped
+    turn: np.ndarray  # (M, 3, 3) R_W_C
+    size: int
 
 
 @dataclass
@@ -40,6 +49,9 @@ class Information:
     gauge: str
     unit: str = "m"  # of the measurement sigma: m or px
     fixed: np.ndarray | None = None  # (p, p) information every design has (known distances), or None
+    # Pairs: each candidate's rows before the pair groups (M, r, p) as ``rows``, their turn into
+    # W (M, 3, 3) and the group size; None: no groups (fgcal.planning.groups).
+    grouping: GroupRows | None = None
 
     @property
     def prior_matrix(self) -> np.ndarray:
@@ -118,7 +130,15 @@ def build_information(
         gauge=gauge,
         unit=measured.unit,
         fixed=None if measured.fixed is None else _fixed(measured.fixed, len(kept)),
+        grouping=group_rows(measured.grouping, keep),
     )
+
+
+def group_rows(grouping: PairRows | None, keep: list[int]) -> GroupRows | None:
+    if grouping is None:
+        return None
+    rows = np.concatenate([grouping.params[:, :, keep], grouping.aux], axis=2)
+    return GroupRows(rows, grouping.turn, grouping.size)
 
 
 def _motion(q: np.ndarray, before: np.ndarray | None) -> np.ndarray | None:

@@ -20,7 +20,7 @@ import numpy as np
 from ..calibration.config import CalibrationConfig
 from ..calibration.formulations import REGISTRY
 from ..calibration.formulations import formulation as registered
-from ..calibration.plan_model import Candidates, Planning
+from ..calibration.plan_model import PAIR_GROUPS_FILE, Candidates, Planning, pair_groups_setting
 from ..calibration.settings import MeasurementSettings
 from ..core import strict_json
 from ..core.errors import InputError
@@ -33,6 +33,8 @@ from ..simulation.cell import Cell, load_cell
 from ..simulation.design import max_min_selection
 from . import MAX_CANDIDATES
 from .exchange import CRITERIA, criterion_value, information_of, plan_design, predicted_sigma, with_repeats
+from .groups import RANDOM_DRAWS as GROUP_DRAWS
+from .groups import group_information, plan_groups, random_groups_sigma
 from .indices import observability
 from .information import Information, build_information
 
@@ -76,6 +78,11 @@ class PlanResult:
     model_error_m: float | None = None
     model_error_source: str | None = None
     approach_before: np.ndarray | None = None  # (M, n) each candidate's approach point, or None
+    # Pairs: the groups the calibration is to fit the images in (positions in ``chosen``), which
+    # the prediction assumes (pair_groups.csv, ``pairs: {groups: pair_groups.csv}``), and the
+    # prediction with random groups instead (m, RMS over groups.RANDOM_DRAWS partitions); None: no groups.
+    pair_groups: list[list[int]] | None = None
+    random_groups_sigma_m: float | None = None
 
     @property
     def expected_m(self) -> float | None:
@@ -184,7 +191,35 @@ class PlanResult:
             "approach": self.approach,
             "approach_offset_rad": self.approach_offset_rad if self.approach != "previous" else None,
             "lost_motion": self.lost_motion,
+            "pair_groups": self.pair_groups_json(),
         }
+
+    def config_id(self, k: int) -> str:
+        """The id configurations.csv gives the plan's k-th configuration."""
+        return f"p{k:04d}"
+
+    def pair_groups_json(self) -> dict | None:
+        if self.pair_groups is None:
+            return None
+        return {
+            "file": PAIR_GROUPS_FILE,
+            "config": pair_groups_setting(PAIR_GROUPS_FILE),
+            "groups": [[self.config_id(k) for k in group] for group in self.pair_groups],
+            "prediction_holds_for": "these groups (the calibration config's pairs.groups naming the file)",
+            "random_groups_predicted_position_sigma_rms_m": self.random_groups_sigma_m,
+            "random_groups_draws": GROUP_DRAWS,
+        }
+
+    def pair_groups_line(self) -> str | None:
+        """What the plan's pair groups are and how to calibrate with them, in words."""
+        if self.pair_groups is None:
+            return None
+        return (
+            f"the prediction holds for the pair groups of {PAIR_GROUPS_FILE} ({len(self.pair_groups)} groups, "
+            f"chosen for the least predicted error): calibrate with `pairs: {{groups: {PAIR_GROUPS_FILE}}}` in the "
+            f"calibration config (the path relative to the config); with random groups of {self.info.grouping.size} "
+            f"instead (the calibration's default), {_mm(self.random_groups_sigma_m)} mm RMS (over {GROUP_DRAWS} draws)"
+        )
 
 
 def _curve_sizes(n: int, n_candidates: int, n_unknowns: int) -> list[int]:
@@ -451,6 +486,13 @@ def plan(
     curves = _curves(planner, greedy, sizes)
     timing["curves"] = time.process_time() - started
     M = information_of(info, chosen)
+    random_groups_sigma_m, groups = None, None
+    if info.grouping is not None:  # pairs: the groups the calibration is to fit, chosen for the least error
+        started = time.process_time()
+        random_groups_sigma_m = random_groups_sigma(info, chosen, planner.seed)
+        groups = plan_groups(info, chosen, planner.seed)
+        M = group_information(info, chosen, groups)
+        timing["pair_groups"] = time.process_time() - started
     n_rows = info.rows.shape[1]
     return PlanResult(
         cell=planner.cell.name,
@@ -474,6 +516,8 @@ def plan(
         model_error_m=None if model_error_m is None else float(model_error_m),
         model_error_source=model_error_source or ("--model-error" if model_error_m is not None else None),
         approach_before=planner.approach_before,
+        pair_groups=groups,
+        random_groups_sigma_m=random_groups_sigma_m,
     )
 
 
@@ -538,7 +582,7 @@ def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> li
     cand, chosen = result.candidates, result.chosen
     n_joints = cand.q.shape[1]
     header = ["config", *[f"q{i}" for i in range(1, n_joints + 1)]]
-    rows = [[f"p{k:04d}", *cand.q[c]] for k, c in enumerate(chosen)]
+    rows = [[result.config_id(k), *cand.q[c]] for k, c in enumerate(chosen)]
     if cand.blocks is not None:
         header.append(cand.label_column)
         rows = [[*row, cand.blocks[c]] for row, c in zip(rows, chosen, strict=True)]
@@ -550,10 +594,21 @@ def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> li
     write_text(out / "plan.json", strict_json.dumps(result.to_json(), indent=2) + "\n")
     write_text(out / "plan.md", _markdown(result, plot))
     written = ["configurations.csv", "plan.json", "plan.md"]
+    if result.pair_groups is not None:
+        write_pair_groups(result, out / PAIR_GROUPS_FILE)
+        written.append(PAIR_GROUPS_FILE)
     if plot:
         _plot(result, out / "predicted_accuracy.png")
         written.append("predicted_accuracy.png")
     return written
+
+
+def write_pair_groups(result: PlanResult, path: Path) -> None:
+    """``config,group``: the group of each planned configuration, as the calibration's
+    ``pairs.groups`` reads it."""
+    rows = [[result.config_id(k), f"g{g + 1:02d}"] for g, group in enumerate(result.pair_groups) for k in group]
+    comments = [f"# The pair groups fgcal plan chose (calibration config: pairs: {{groups: {PAIR_GROUPS_FILE}}})"]
+    write_csv(path, ["config", "group"], rows, comments)
 
 
 def _mm(value: float | None) -> str:
@@ -579,6 +634,7 @@ def _markdown(result: PlanResult, plot: bool) -> str:
         f"measurement sigma {_sigma(info)}); a "
         f"space-filling design of the same size: {_mm(result.space_filling_sigma_m)} mm.",
         f"- {result.prediction_lines()[1][0].upper()}{result.prediction_lines()[1][1:]}.",
+        *([f"- {groups[0].upper()}{groups[1:]}."] if (groups := result.pair_groups_line()) else []),
         f"- {info.n_params} identifiable parameters: {', '.join(info.names)}.",
         f"- Auxiliary unknowns: {', '.join(info.aux_labels)}.",
         f"- Not identifiable from a design of this size: {', '.join(info.unidentifiable) or 'none'}.",
@@ -610,7 +666,8 @@ def _markdown(result: PlanResult, plot: bool) -> str:
     lines += [
         "",
         f"CPU time: candidates {t.get('candidates', 0):.1f} s, information {t.get('information', 0):.1f} s, "
-        f"selection {t.get('selection', 0):.1f} s, curves {t.get('curves', 0):.1f} s.",
+        f"selection {t.get('selection', 0):.1f} s, curves {t.get('curves', 0):.1f} s"
+        + (f", pair groups {t['pair_groups']:.1f} s." if "pair_groups" in t else "."),
         "",
     ]
     return "\n".join(lines)

@@ -93,7 +93,7 @@ class Pairs(Formulation):
     name = "pairs"
     frame = "tool"
     kind = "camera_points"
-    settings_read = ("pairs", "fixture_orientation", "noise.camera_point_sigma", "pixels_from")
+    settings_read = ("pairs", "pairs.groups", "fixture_orientation", "noise.camera_point_sigma", "pixels_from")
     score = "point_pair"
     score_vectors = False
     likely_causes = (
@@ -387,6 +387,28 @@ def _grouped(order: list[int], labels: list[tuple[str, str]], settings: Measurem
     return groups
 
 
+def _prescribed(dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, images: dict) -> list[list[int]]:
+    """The groups ``pairs.groups`` prescribes among the ``images`` (positions in ``subset``):
+    each group its file's images of the subset, in the file's order, the groups in the order of
+    their first line; none without the setting. A configuration the dataset does not have is an
+    error (a plan's file for another dataset)."""
+    rows = settings.pairs.groups
+    if rows is None:
+        return []
+    known = {str(c) for c in dataset.configs}
+    for line, (cid, _) in enumerate(rows, start=2):
+        if cid not in known:
+            raise InputError(settings.pairs.groups_file, f"line {line}, column config",
+                             f"{cid!r} is not a configuration of the dataset {dataset.path}")  # fmt: skip
+    position = {str(dataset.configs[c]): j for j, c in enumerate(subset)}
+    groups: dict[str, list[int]] = {}
+    for cid, label in rows:
+        j = position.get(cid)
+        if j is not None and j in images:
+            groups.setdefault(label, []).append(j)
+    return list(groups.values())
+
+
 def pair_observations(
     dataset: Dataset, settings: MeasurementSettings, subset: np.ndarray, exclude: set[tuple[str, str]] = frozenset()
 ) -> PairObservations:
@@ -406,9 +428,11 @@ def pair_observations(
         first = images[j][0][0]
         return str(points.ids["object"][first]), str(points.ids["side"][first])
 
+    prescribed = _prescribed(dataset, settings, subset, images)
+    named = {j for group in prescribed for j in group}
     rng = np.random.default_rng(settings.pairs.seed)
-    order = [int(j) for j in rng.permutation(sorted(images))]
-    for group in _grouped(order, [label(j) for j in order], settings, rng):
+    order = [int(j) for j in rng.permutation(sorted(set(images) - named))]
+    for group in prescribed + _grouped(order, [label(j) for j in order], settings, rng):
         observations = [(i, point, xyz) for i, j in enumerate(group) for point, xyz in images[j]]
         if len(observations) < 2:
             continue
