@@ -131,9 +131,9 @@ def dataset_groups(planner: Planner, dataset: Path, seed: int) -> dict:
 
 def planned_groups(plan_dir: Path, dataset: Path) -> Path:
     """A plan's pair_groups.csv for the dataset simulated from it, written in the dataset: fgcal
-    simulate numbers its configurations afresh (c0000, ...) and leaves out those whose block the
-    simulated camera does not see, so each dataset configuration takes the group of the planned
-    one with its joint values (the same floats: the plan's file is read back exactly)."""
+    simulate leaves out the configurations whose block the simulated camera does not see, so the
+    file names only the dataset's, each taking the group of the planned one with its joint values
+    (the same floats: the plan's file is read back exactly)."""
     header, body = read_csv(Path(plan_dir) / "configurations.csv", ["config"])
     joints = [i for i, name in enumerate(header) if name.startswith("q") and name[1:].isdigit()]
     planned = {tuple(float(row[i]) for i in joints): row[header.index("config")] for row in body}

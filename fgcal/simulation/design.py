@@ -39,6 +39,7 @@ class View:
     side: Side | None  # None, and no block, in a tracker cell
     block: tuple[GridPoint, ...]
     before: np.ndarray | None = None  # the joints it is approached from, when a file says (else the previous)
+    config: str | None = None  # its id, when a file names it (a plan's: its pair_groups.csv names them)
 
 
 def look_at(camera_position: np.ndarray, target: np.ndarray, roll_rad: np.ndarray | float) -> np.ndarray:
@@ -337,14 +338,14 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
         config = row[header.index("config")].strip()
         approach = before[i] if np.all(np.isfinite(before[i])) else None
         if cell.camera is None:  # a tracker cell: nothing to see
-            views.append(View(q[i], None, (), approach))
+            views.append(View(q[i], None, (), approach, config))
             continue
         label = row[header.index("block")].strip()
         if label not in blocks:
             raise InputError(path, f"line {i + 2}, column block", f"no block {label!r} in {cell.name}")
         side, block = blocks[label]
         if sees_block(cell, T_W_C[i], block):
-            views.append(View(q[i], side, tuple(block), approach))
+            views.append(View(q[i], side, tuple(block), approach, config))
         else:
             unseen.append(config)
     if not views:

@@ -4,6 +4,7 @@ written as a dataset; the ground truth goes to ``truth/``, which no estimation c
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -210,6 +211,12 @@ def simulate(
             f"{len(views) - 1})",
         )  # fmt: skip
     config_ids = [f"c{i:04d}" for i in range(len(views))]
+    named = [v.config for v in views]
+    if configurations is not None and all(named):  # a plan's ids stay: its pair_groups.csv names them
+        repeated = sorted(c for c, k in Counter(named).items() if k > 1)
+        if repeated:
+            raise InputError(configurations, "config", f"{repeated[0]!r} names more than one configuration")
+        config_ids = [str(c) for c in named]
     say(f"  {len(views)} configurations; measuring")
     # The configurations are measured in the design's order: that order is their motion history,
     # unless the design names a configuration's approach point.

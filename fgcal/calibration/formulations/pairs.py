@@ -399,7 +399,8 @@ def _prescribed(dataset: Dataset, settings: MeasurementSettings, subset: np.ndar
     for line, (cid, _) in enumerate(rows, start=2):
         if cid not in known:
             raise InputError(settings.pairs.groups_file, f"line {line}, column config",
-                             f"{cid!r} is not a configuration of the dataset {dataset.path}")  # fmt: skip
+                             f"{cid!r} is not a configuration of the dataset {dataset.path} (a plan's configuration "
+                             "not measured: remove its line; the other images of its group stay grouped)")  # fmt: skip
     position = {str(dataset.configs[c]): j for j, c in enumerate(subset)}
     groups: dict[str, list[int]] = {}
     for cid, label in rows:
