@@ -324,7 +324,14 @@ def test_every_bundled_cell_calibrates_with_the_config_simulate_writes(cell, bun
     validation = report["validation"]
     assert validation["reference"] == "ground truth"
     before, after = (validation[k]["position_error_m"]["rms"] for k in ("before", "after"))
-    assert after <= 1.5 * validation["predicted_position_sigma_m"]["rms"], validation["predicted_position_sigma_m"]
+    # What the prediction says it assumes (fixed parameters the score sees), carried by its stated
+    # effect (a lower bound) at their true deviations: dual_arm_selfcontained's base tilt (sy1 0.51
+    # mrad off, 0.19 um per 0.1 mrad) takes it from 1.50x to 1.43x; 1.20x without the tilt.
+    predicted, parameters = validation["predicted_position_sigma_m"], report["parameters"]
+    deviation = {name: entry.get("truth", entry["estimate"]) - entry["estimate"] for name, entry in parameters.items()}
+    spots = predicted["assumes_at_their_values"]
+    assumed = sum((spot["effect_rms_m"] * deviation[spot["name"]] / spot["step"]) ** 2 for spot in spots)
+    assert after <= 1.5 * np.sqrt(predicted["rms"] ** 2 + assumed), predicted
     assert after * least <= before, (before, after)
 
 
