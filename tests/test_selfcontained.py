@@ -114,3 +114,41 @@ def test_a_gross_pixel_and_a_gross_gauge_reading_are_rejected_and_named(tmp_path
         scoring.score_with_truth(r).validation["after"]["tool_point"].rms for r in (clean, result)
     )
     assert truth_damaged <= 1.3 * truth_clean, (truth_clean, truth_damaged)
+
+
+def test_a_split_that_leaves_a_set_or_a_camera_no_fitting_image_is_refused(small, tmp_path):
+    """Issue 39 trial: the simulated views come last, so an ordered split held every view out and
+    the factor raised a ValueError (exit 1); a split leaving one camera no fitting image (while
+    one image was refused) fitted without it and scored its never-fitted mounting."""
+    from fgcal.calibration.formulations.self_observation import SelfObservation
+    from fgcal.core.errors import InputError
+
+    (tmp_path / "data").symlink_to(small / "data")
+    sets = [{"name": kind, "formulation": kind} for kind in ("planes", "self_observation")]
+    config = tmp_path / "calibration.yaml"
+    doc = {"dataset": "data", "model": "DH", "sets": sets, "validation": {"split": "ordered"}}
+    config.write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match="none of its 60 configurations is in the fitting split"):
+        calibrate(load_config(config))
+    dataset = load_dataset(small / "data")
+    table = dataset.tables["observed_pixels"]
+    right = {c for c, camera in zip(table.ids["config"], table.ids["camera"], strict=True) if camera == "right_eye"}
+    fit = np.array([i for i, c in enumerate(dataset.configs) if str(c) not in right])
+    settings = load_config(config).measurement
+    with pytest.raises(InputError, match="camera 'right_eye' is in 0 images of the fitting set"):
+        SelfObservation().fit_observations(dataset, settings, fit)
+
+
+def test_a_validation_set_noise_stated_far_too_large_is_said(small, tmp_path):
+    """Issue 39 trial: a tracker validating with its noise typed in mm in a config in m (0.015:
+    15 mm) headlined 'after 0.0303 mm (predicted 26.01 mm)' without a word (its residuals are
+    never fitted, so never checked against its noise)."""
+    (tmp_path / "data").symlink_to(small / "data")
+    sets = [{"name": kind, "formulation": kind} for kind in ("planes", "tip_gauge")]
+    for sigma, warned in ((0.015, True), (1.5e-5, False)):
+        tracker = {"name": "tracker", "formulation": "tracker", "use": "validation", "noise": {"tracker_sigma": sigma}}
+        config = tmp_path / "calibration.yaml"
+        config.write_text(yaml.safe_dump({"dataset": "data", "model": "DH", "sets": [*sets, tracker]}))
+        doc = write_report(calibrate(load_config(config)), tmp_path / f"r{sigma}", plots=False)
+        said = [w for w in doc["warnings"] if "times smaller than the measurement noise its prediction declares" in w]
+        assert bool(said) == warned, doc["warnings"]

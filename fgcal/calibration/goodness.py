@@ -60,7 +60,7 @@ class Fit:
             )
         side = "larger" if self.chi2_per_dof > 1 else "smaller"
         return (
-            f"The residuals are {ratio:.3g} times {side} than the declared noise explains (chi2/dof "
+            f"The residuals are {max(ratio, 1 / ratio):.3g} times {side} than the declared noise explains (chi2/dof "
             f"{self.chi2_per_dof:.3g} over {self.dof} degrees of freedom, p = {self.p_value:.3g}): the noise "
             "was misdeclared or the model does not fit the data. In every covariance and predicted accuracy "
             f"below the measurements' noise is scaled by chi2/dof = {self.chi2_per_dof:.3g} (a stated prior keeps "

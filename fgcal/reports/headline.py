@@ -129,6 +129,8 @@ def warnings(result: CalibrationResult) -> list[str]:
         out.append(predicted["warning"])
     if predicted is not None and "assumption" in predicted:
         out.append(predicted["assumption"])
+    if predicted is not None and "noise_warning" in predicted:
+        out.append(predicted["noise_warning"])
     formulation = problem.formulation
     unread = sorted(config.stated_options - set(formulation.settings_read) - {f"robust.{formulation.kind}"})
     if unread:
@@ -304,6 +306,18 @@ def predicted_sigma(result: CalibrationResult) -> dict | None:
                 f"({predicted['rms'] * 1e3:.4g} mm) by {after.rms / predicted['rms']:.2g}x: the model or the noise "
                 "model does not describe the held-out data"
             )
+    # Against the measurements (also where the headline scores the truth): a held-out error far
+    # below the noise the prediction declares for it is a noise stated too large (a validation set's
+    # is not fitted, so its residuals are not checked against it otherwise).
+    measured_prediction = result.measured_prediction or result.prediction
+    scored = primary_score(result.measured or result.validation, "after")
+    if scored is not None and measured_prediction.noise_rms > NOISE_MISMATCH * scored[1].rms:
+        predicted["noise_warning"] = (
+            f"the measured held-out error ({scored[1].rms * 1e3:.4g} mm RMS, {scored[0]}) is "
+            f"{measured_prediction.noise_rms / scored[1].rms:.3g} times smaller than the measurement noise its "
+            f"prediction declares ({measured_prediction.noise_rms * 1e3:.4g} mm): check that set's noise: and the "
+            "config's units"
+        )
     return predicted
 
 

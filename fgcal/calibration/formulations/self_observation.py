@@ -90,10 +90,18 @@ class SelfObservation(Formulation):
         return tuple(t for t in problem.robot.tip_names if t in used)
 
     def fit_observations(self, dataset: Dataset, settings: MeasurementSettings, fit: np.ndarray) -> Observations:
-        measured_table(dataset, "observed_pixels", self.name)
-        observations = _observations(dataset, fit, None, None)
-        for column, labels, names in (("camera", observations.cameras, observations.camera_names),
-                                      ("board", observations.boards, observations.board_names)):  # fmt: skip
+        table = measured_table(dataset, "observed_pixels", self.name)
+        # Every camera and board of the table, not only those the fitting split kept: one the split
+        # left with no image would be scored on a mounting never fitted.
+        cameras, boards = (tuple(sorted(set(table.ids[column]))) for column in ("camera", "board"))
+        observations = _observations(dataset, fit, cameras, boards)
+        if not len(observations.configs):
+            raise InputError(
+                dataset.path / "observed_pixels.csv", "config", f"none of its {len(set(table.ids['config']))} "
+                "configurations is in the fitting split (validation: split: ordered holds out the last ones)",
+            )  # fmt: skip
+        for column, labels, names in (("camera", observations.cameras, cameras),
+                                      ("board", observations.boards, boards)):  # fmt: skip
             for k, name in enumerate(names):
                 seen = len(np.unique(observations.configs[labels == k]))
                 if seen < 3:
