@@ -59,3 +59,41 @@ def test_a_rapid_or_krl_program_is_for_six_axes(tmp_path):
     (path,) = write_joint_program("csv-deg", tmp_path, ["p0"], np.full((1, 7), 0.1), None, words, np.zeros(7, bool))
     _, rows = read_csv(path, [])
     assert np.allclose([float(v) for v in rows[0][1:]], np.degrees(0.1))
+
+
+QUICK = ["irb120_tracker_lost_motion", "--n", "8", "--candidates", "200", "--no-plots"]
+
+
+def test_a_plan_into_a_dataset_folder_is_refused(tmp_path, capsys):
+    """Found by a user trial: fgcal plan --out a dataset's folder replaced its configurations.csv,
+    and the dataset no longer calibrated. Refused before planning, naming the dataset."""
+    (tmp_path / "dataset.yaml").write_text("format: 1\n")
+    (tmp_path / "configurations.csv").write_text("config,q1\nc1,0\n")
+    assert main(["plan", *QUICK, "--out", str(tmp_path)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "dataset.yaml" in error and "--out" in error and "\n" not in error and "Traceback" not in error, error
+    assert (tmp_path / "configurations.csv").read_text() == "config,q1\nc1,0\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["configurations.csv", "dataset.yaml"]
+
+
+def test_a_new_plan_removes_the_earlier_plans_files_it_does_not_write(tmp_path, capsys):
+    """Found by a user trial: re-planning into a plan's folder left the old plan's controller
+    programs beside the new configurations.csv. fgcal plan's own files of the earlier plan that the
+    new one does not write are removed, and the console says so; other files stay."""
+    argv = ["plan", *QUICK, "--out", str(tmp_path)]
+    assert main([*argv, "--approach", "unidirectional", "--program", "rapid", "krl", "csv-deg"]) == 0
+    assert {"cal_plan.mod", "cal_plan.src", "cal_plan.dat", "configurations_deg.csv"} <= {
+        p.name for p in tmp_path.iterdir()
+    }
+    (tmp_path / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main([*argv, "--approach", "unidirectional", "--seed", "2"]) == 0
+    out = capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["configurations.csv", "notes.txt", "plan.json", "plan.md"]
+    assert "removed the earlier plan's cal_plan.mod, cal_plan.src, cal_plan.dat, configurations_deg.csv" in out, out
+    # A folder without a plan.json is not a plan's: nothing of it is removed.
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "cal_plan.mod").write_text("MODULE X\nENDMODULE\n")
+    assert main(["plan", *QUICK, "--out", str(other), "--approach", "unidirectional"]) == 0
+    assert (other / "cal_plan.mod").read_text() == "MODULE X\nENDMODULE\n"

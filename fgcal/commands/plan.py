@@ -13,8 +13,16 @@ from .options import JSON_HELP, SEED, bundled_cell, emit, integer, real
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from ..planning.plan import model_error_from_report, plan, write_plan
+    from ..planning.plan import check_out, model_error_from_report, plan, remove_earlier_plan, write_plan
+    from ..simulation.cell import load_cell
 
+    cell_path = bundled_cell(args.cell)
+    cell = load_cell(cell_path)
+    reference = cell.robot_reference
+    robot_file = reference.get("file") if isinstance(reference, dict) else reference
+    check_out(args.out, {"CELL": cell_path, "--model-error-from": args.model_error_from,
+                         "the cell's robot file": robot_file if Path(robot_file).suffix else None})  # fmt: skip
+    had_plan = (Path(args.out) / "plan.json").is_file()
     model_error_m, source = None, None
     if args.model_error is not None:
         model_error_m, source = args.model_error * 1e-3, "--model-error"
@@ -22,7 +30,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         model_error_m = model_error_from_report(args.model_error_from)
         source = f"held out beyond its prediction in {args.model_error_from}"
     result = plan(
-        bundled_cell(args.cell),
+        cell_path,
         args.n,
         criterion=args.criterion,
         n_candidates=args.candidates,
@@ -38,6 +46,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     written = write_plan(result, args.out, plot=not args.no_plots)
     for kind in args.program or []:
         written += [path.name for path in _program(kind, result, args)]
+    if removed := remove_earlier_plan(args.out, written, had_plan):
+        say(f"  removed the earlier plan's {', '.join(removed)} from {args.out} (this plan does not write them)")
     for line in result.discarded_lines():
         say(f"  {line}")
     floor, real = result.prediction_lines()
