@@ -27,7 +27,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.model_error is not None:
         model_error_m, source = args.model_error * 1e-3, "--model-error"
     elif args.model_error_from is not None:
-        model_error_m = model_error_from_report(args.model_error_from)
+        model_error_m = model_error_from_report(args.model_error_from, cell.robot.name, args.model)
         source = f"held out beyond its prediction in {args.model_error_from}"
     result = plan(
         cell_path,

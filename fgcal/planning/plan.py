@@ -528,11 +528,12 @@ def plan(
     )
 
 
-def model_error_from_report(path: str | Path) -> float:
+def model_error_from_report(path: str | Path, robot: str | None = None, model: str | None = None) -> float:
     """What a model left unexplained on a robot, from an earlier calibration's report.json
     (m RMS): the held-out position error after calibration beyond what that calibration
     predicted of it (its noise and parameter uncertainty), ``sqrt(max(held_out^2 -
-    predicted^2, 0))``."""
+    predicted^2, 0))``. With ``robot`` and ``model`` (the plan's): the report must be of that
+    robot and model (docs/planning.md: another's residual level says nothing of this one)."""
     import json
 
     path = Path(path)
@@ -540,6 +541,16 @@ def model_error_from_report(path: str | Path) -> float:
         doc = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise InputError(path, None, f"not a readable report.json: {exc}") from None
+    for key, wanted, what in (("robot", robot, "the cell's robot"), ("model", model, "the plan's --model")):
+        if wanted is None:
+            continue
+        given = doc.get(key) if isinstance(doc, dict) else None
+        if given != wanted:
+            found = f"is of {key} {given!r}" if given is not None else f"names no {key}"
+            raise InputError(
+                path, key, f"{found}, not {wanted!r} ({what}): the model error comes from an earlier calibration "
+                "of the same robot and model (or give --model-error MM)",
+            )  # fmt: skip
     validation = doc.get("validation") if isinstance(doc, dict) else None
     try:
         held_out = float(validation["after"]["position_error_m"]["rms"])
