@@ -97,3 +97,14 @@ def test_a_new_plan_removes_the_earlier_plans_files_it_does_not_write(tmp_path, 
     (other / "cal_plan.mod").write_text("MODULE X\nENDMODULE\n")
     assert main(["plan", *QUICK, "--out", str(other), "--approach", "unidirectional"]) == 0
     assert (other / "cal_plan.mod").read_text() == "MODULE X\nENDMODULE\n"
+
+
+@pytest.mark.parametrize("approach", [[], ["--approach", "previous"]])
+def test_an_approach_offset_without_approach_points_is_refused(tmp_path, capsys, approach):
+    """Found by a user trial: --approach-offset 5 without --approach unidirectional was ignored
+    (the plan reaches each configuration from the one before). Refused before planning."""
+    argv = ["plan", *QUICK, "--out", str(tmp_path / "p"), "--approach-offset", "5", *approach]
+    assert main(argv) == 2
+    error = capsys.readouterr().err.strip()
+    assert "--approach-offset" in error and "\n" not in error and "Traceback" not in error, error
+    assert not (tmp_path / "p").exists()

@@ -13,9 +13,25 @@ from .options import JSON_HELP, SEED, bundled_cell, emit, integer, real
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from ..planning.plan import check_out, model_error_from_report, plan, remove_earlier_plan, write_plan
+    from ..core.errors import InputError
+    from ..planning.plan import (
+        APPROACH_OFFSET_RAD,
+        check_out,
+        default_approach,
+        model_error_from_report,
+        plan,
+        remove_earlier_plan,
+        write_plan,
+    )
     from ..simulation.cell import load_cell
 
+    approach = args.approach or default_approach(args.model)
+    if args.approach_offset is not None and approach == "previous":  # read and ignored: refused
+        raise InputError(
+            None, "--approach-offset", "sets the approach points of --approach unidirectional or varied; this plan "
+            "reaches each configuration from the one before (previous): give --approach unidirectional, or drop it",
+        )  # fmt: skip
+    offset_rad = APPROACH_OFFSET_RAD if args.approach_offset is None else float(np.radians(args.approach_offset))
     cell_path = bundled_cell(args.cell)
     cell = load_cell(cell_path)
     reference = cell.robot_reference
@@ -39,7 +55,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=Reporter(),
         approach=args.approach,
-        approach_offset_rad=float(np.radians(args.approach_offset)),
+        approach_offset_rad=offset_rad,
         model_error_m=model_error_m,
         model_error_source=source,
     )
@@ -167,7 +183,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the lost motion and speed terms become identifiable)",
     )  # fmt: skip
     p.add_argument(
-        "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=2.0,
+        "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=None,
         help="how far from each configuration its approach point is, deg (default 2; varied: 0.25 to 1 times it)",
     )  # fmt: skip
     p.add_argument(
