@@ -108,3 +108,15 @@ def test_an_approach_offset_without_approach_points_is_refused(tmp_path, capsys,
     error = capsys.readouterr().err.strip()
     assert "--approach-offset" in error and "\n" not in error and "Traceback" not in error, error
     assert not (tmp_path / "p").exists()
+
+
+def test_an_invalid_program_is_refused_before_planning(tmp_path, capsys):
+    """Found by a user trial: --program rapid on a 7-axis cell planned, wrote configurations.csv,
+    plan.json, plan.md and the figure, and only then exited 2. Refused before the work: nothing
+    is written."""
+    argv = ["plan", "seven_axis_touch", "--n", "30", "--out", str(tmp_path / "p"), "--program", "csv-deg", "rapid"]
+    assert main(argv) == 2
+    error = capsys.readouterr().err.strip()
+    assert "--program" in error and "7 joints" in error and "csv-deg" in error, error
+    assert "\n" not in error and "Traceback" not in error, error
+    assert not (tmp_path / "p").exists()

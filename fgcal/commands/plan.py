@@ -14,6 +14,7 @@ from .options import JSON_HELP, SEED, bundled_cell, emit, integer, real
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from ..core.errors import InputError
+    from ..data.joint_programs import check_program
     from ..planning.plan import (
         APPROACH_OFFSET_RAD,
         check_out,
@@ -34,6 +35,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     offset_rad = APPROACH_OFFSET_RAD if args.approach_offset is None else float(np.radians(args.approach_offset))
     cell_path = bundled_cell(args.cell)
     cell = load_cell(cell_path)
+    for kind in args.program or []:  # before the work: a refused program would come after the plan's files
+        check_program(kind, cell.robot.n_joints)
     reference = cell.robot_reference
     robot_file = reference.get("file") if isinstance(reference, dict) else reference
     check_out(args.out, {"CELL": cell_path, "--model-error-from": args.model_error_from,

@@ -26,6 +26,16 @@ RAPID_SPEED, KRL_PTP_PERCENT = "v100", 20
 NAME = "cal_plan"  # the program's name (KRL: the DEF's and the files')
 
 
+def check_program(kind: str, n_joints: int) -> None:
+    """Refuse a program of ``kind`` for a robot of ``n_joints``: an unknown kind, or RAPID or KRL
+    (6 robot axes) for another robot. fgcal plan asks before planning, not after."""
+    if kind not in PROGRAM_KINDS:
+        raise InputError(None, "--program", f"unknown program kind {kind!r} (one of {', '.join(PROGRAM_KINDS)})")
+    if kind != "csv-deg" and n_joints != 6:
+        raise InputError(None, "--program", f"a RAPID or KRL program drives 6 robot axes; this robot has {n_joints} "
+                         "joints: use --program csv-deg")  # fmt: skip
+
+
 def write_joint_program(
     kind: str,
     folder: str | Path,
@@ -38,16 +48,12 @@ def write_joint_program(
     """The program of ``kind`` (PROGRAM_KINDS) in ``folder`` for joint positions ``q`` (N, n; rad,
     m for a prismatic joint) named ``names``, each reached from ``approach`` (N, n) when given.
     Returns the files written."""
-    if kind not in PROGRAM_KINDS:
-        raise InputError(None, "--program", f"unknown program kind {kind!r} (one of {', '.join(PROGRAM_KINDS)})")
+    check_program(kind, q.shape[1])
     values = np.where(prismatic, q * 1e3, np.degrees(q))
     before = None if approach is None else np.where(prismatic, approach * 1e3, np.degrees(approach))
     folder = Path(folder)
     if kind == "csv-deg":
         return [_csv(folder, names, values, before, assumptions, prismatic)]
-    if q.shape[1] != 6:
-        raise InputError(None, "--program", f"a RAPID or KRL program drives 6 robot axes; this robot has {q.shape[1]} "
-                         "joints: use --program csv-deg")  # fmt: skip
     return _rapid(folder, names, values, before, assumptions) if kind == "rapid" else _krl(
         folder, names, values, before, assumptions
     )
