@@ -120,3 +120,27 @@ def test_an_invalid_program_is_refused_before_planning(tmp_path, capsys):
     assert "--program" in error and "7 joints" in error and "csv-deg" in error, error
     assert "\n" not in error and "Traceback" not in error, error
     assert not (tmp_path / "p").exists()
+
+
+def test_the_programs_name_what_each_configuration_measures(tmp_path):
+    """Each target's line says its pivot (block, point) as configurations.csv does (RAPID
+    `! pivot p3`, KRL `; pivot p3`, a column of configurations_deg.csv), and fgcal's program
+    reader still reads the same joints (to 1e-6 deg)."""
+    argv = ["plan", "irb120_ballbar", "--n", "40", "--candidates", "200", "--no-plots", "--out", str(tmp_path),
+            "--program", "rapid", "krl", "csv-deg"]  # fmt: skip
+    assert main(argv) == 0
+    header, rows = read_csv(tmp_path / "configurations.csv", ["config", "pivot"])
+    pivots = {row[0]: row[header.index("pivot")] for row in rows}
+    q = np.degrees(np.array([[float(v) for v in row[1:7]] for row in rows]))
+    assert len(set(pivots.values())) > 1
+    for program, mark, target in (("cal_plan.mod", "!", "CONST jointtarget {} "), ("cal_plan.dat", ";",
+                                                                                    "DECL E6AXIS X{}=")):  # fmt: skip
+        lines = (tmp_path / program).read_text().splitlines()
+        for name, pivot in pivots.items():
+            (line,) = [ln for ln in lines if target.format(name.upper() if mark == ";" else name) in ln]
+            assert line.rstrip().endswith(f"{mark} pivot {pivot}"), line
+        read = joint_path(read_program(tmp_path / program))
+        assert np.abs(np.array([t.joints_deg for t in read]) - q).max() < 1e-6
+    columns, deg = read_csv(tmp_path / "configurations_deg.csv", ["config", "pivot"])
+    assert [row[columns.index("pivot")] for row in deg] == list(pivots.values())
+    assert np.abs(np.array([[float(v) for v in row[1:7]] for row in deg]) - q).max() < 1e-6

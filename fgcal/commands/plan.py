@@ -130,7 +130,10 @@ def _program(kind: str, result, args: argparse.Namespace) -> list[Path]:
         else "each configuration from the one before, in this order (the plan's)",
     )  # fmt: skip
     names = [f"p{k:04d}" for k in range(len(q))]  # as configurations.csv names them
-    paths = write_joint_program(kind, args.out, names, q, approach, assumptions, np.asarray(robot.prismatic, bool))
+    cand = result.candidates
+    labels = None if cand.blocks is None else (cand.label_column, [str(cand.blocks[c]) for c in result.chosen])
+    prismatic = np.asarray(robot.prismatic, bool)
+    paths = write_joint_program(kind, args.out, names, q, approach, assumptions, prismatic, labels)
     say(f"  {kind} program of the plan: {', '.join(p.name for p in paths)} ({NAME})")
     return paths
 
