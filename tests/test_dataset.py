@@ -127,3 +127,21 @@ def test_faro_converter_errors(tmp_path):
     np.savetxt(tmp_path / "src" / "measured_SMR_1.txt", np.ones((3, 3)))
     with pytest.raises(fgcal.InputError, match=r"column 6 does not exist in .*measured_joints\.txt \(5 columns\)"):
         convert_faro(tmp_path / "src", tmp_path / "out")
+
+
+def test_csv_errors_name_the_files_own_lines(tmp_path):
+    """read_csv's rows carry their lines in the file: leading # comments, blank lines and a quoted
+    field across two lines counted, so an error names the line an editor shows (a user trial was
+    told "line 3" for line 4 of a file that starts with a comment)."""
+    from fgcal.core.errors import InputError
+    from fgcal.data.dataset import line_numbers, parse_numbers, read_csv
+
+    path = tmp_path / "t.csv"
+    path.write_text('# a comment\n# another\nname,x\na,1\n\n"b\nb",2\nc,oops\n')
+    header, body = read_csv(path, ["name", "x"])
+    assert line_numbers(body) == (4, 6, 8)
+    with pytest.raises(InputError, match="line 8, column x"):
+        parse_numbers(path, header, body, ["x"], "length", 1.0)
+    path.write_text("# a comment\nname,x\na,1\nb,2,3\n")
+    with pytest.raises(InputError, match="line 4"):
+        read_csv(path, ["name", "x"])

@@ -130,6 +130,13 @@ GROUPS_CASES = [
     ("empty_label", "config,group\nc0000,\n", ["groups.csv", "line 2, column group"]),
     ("duplicate", "config,group\nc0000,a\nc0001,a\nc0000,b\n", ["groups.csv", "lines 2 and 4, column config"]),
     ("unknown_config", "config,group\nc0000,a\nnot_a_config,a\n", ["groups.csv", "line 3, column config"]),
+    # The file's own line numbers: fgcal plan's pair_groups.csv starts with a comment (a user trial
+    # was told "line 3" for line 4); blank lines count too.
+    ("unknown_config_after_a_comment", "# fgcal plan's groups\nconfig,group\nc0000,a\nnot_a_config,a\n",
+     ["groups.csv", "line 4, column config"]),
+    ("duplicate_after_comments_and_a_blank", "# one\n# two\nconfig,group\nc0000,a\n\nc0000,b\n",
+     ["groups.csv", "lines 4 and 6, column config"]),
+    ("empty_label_after_a_comment", "# one\nconfig,group\nc0000,\n", ["groups.csv", "line 3, column group"]),
 ]
 
 

@@ -67,3 +67,25 @@ def test_the_expected_error_is_what_an_unmodelled_robot_shows(tmp_path):
     held_out = result.validation["after"]["tool_point"].rms
     assert 0.5 < held_out / prediction["expected_rms_m"] < 2.0, (held_out, prediction)
     assert held_out > 100 * prediction["floor_m"], (held_out, prediction)
+
+
+@pytest.mark.parametrize(("robot", "model", "named"), [("KR 125/2", "DH,s,e", "robot"), ("IRB 120", "DH", "model"),
+                                                       (None, "DH,s,e", "robot")])  # fmt: skip
+def test_a_report_of_another_robot_or_model_is_refused(tmp_path, capsys, robot, model, named):
+    """Found by a user trial: --model-error-from a KR 125 report for an IRB 120 cell used its
+    residual level silently. The report must be of the cell's robot and the plan's model."""
+    from fgcal.commands.options import bundled_cell
+    from fgcal.simulation.cell import load_cell
+
+    name = load_cell(bundled_cell("irb120_tracker")).robot.name
+    doc = json.loads(_report(tmp_path / "r.json", 0.4e-3, 0.3e-3).read_text())
+    doc |= {"model": model, **({"robot": robot.replace("IRB 120", name)} if robot else {})}
+    (tmp_path / "r.json").write_text(json.dumps(doc))
+    argv = ["plan", "irb120_tracker", "--n", "20", "--candidates", "300", "--no-plots", "--out", str(tmp_path / "p")]
+    assert main([*argv, "--model-error-from", str(tmp_path / "r.json")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "r.json" in error and named in error and "\n" not in error and "Traceback" not in error, error
+    assert not (tmp_path / "p").exists()  # refused before planning
+    doc |= {"robot": name, "model": "DH,s,e"}  # the same robot and model: taken
+    (tmp_path / "r.json").write_text(json.dumps(doc))
+    assert model_error_from_report(tmp_path / "r.json", name, "DH,s,e") == pytest.approx(np.sqrt(0.07) * 1e-3)

@@ -124,3 +124,37 @@ def test_calibrate_writes_no_report_over_what_it_reads(tmp_path, capsys, link):
     error = capsys.readouterr().err
     assert "calibrated_robot.yaml" in error and "--out" in error and "\n" not in error[:-1], error
     assert (data / "calibrated_robot.yaml").read_bytes() == before
+
+
+@pytest.mark.parametrize("link", ["path", "symlink", "hardlink"])
+@pytest.mark.parametrize(("what", "name"), [("configurations", "configurations.csv"), ("cell", "calibration.yaml"),
+                                            ("robot", "dataset.yaml")])  # fmt: skip
+def test_simulate_writes_over_none_of_its_inputs(tmp_path, capsys, link, what, name):
+    """Found by a user trial: `fgcal simulate CELL --configurations plan/configurations.csv --out plan`
+    replaced the plan's configurations.csv (its block column lost). The --configurations file, the
+    cell and its robot file are refused as outputs, named as such or through a link, before anything
+    is written."""
+    plan, elsewhere = tmp_path / "plan", tmp_path / "inputs"
+    plan.mkdir()
+    elsewhere.mkdir()
+    shutil.copy(ROBOTS / "kuka_kr125_2.yaml", elsewhere / "robot.yaml")
+    cell_text = (REPO / "datasets" / "cells" / "kr125_seed.yaml").read_text()
+    (elsewhere / "cell.yaml").write_text(cell_text.replace("robot: kuka_kr125_2", "robot: robot.yaml"))
+    (elsewhere / "configurations.csv").write_text("config,q1,q2,q3,q4,q5,q6,block\np0000,0,-1.5,1.5,0,0.5,0,b1\n")
+    source = {"configurations": "configurations.csv", "cell": "cell.yaml", "robot": "robot.yaml"}[what]
+    if link == "path":
+        shutil.move(elsewhere / source, plan / name)
+        (elsewhere / source).symlink_to(plan / name)  # the input named through the output folder's file
+    elif link == "symlink":
+        (plan / name).symlink_to(elsewhere / source)
+    else:
+        os.link(elsewhere / source, plan / name)
+    before = {p: p.read_bytes() for p in [*plan.iterdir(), *elsewhere.iterdir()]}
+    argv = ["simulate", str(elsewhere / "cell.yaml"), "--configurations", str(elsewhere / "configurations.csv")]
+    status = main([*argv, "--out", str(plan)])
+    error = capsys.readouterr().err.strip()
+    assert status == 2, error
+    assert error.startswith("fgcal: error: ") and "\n" not in error and "Traceback" not in error, error
+    assert name in error and "--out" in error and "same file" in error, error
+    assert {p: p.read_bytes() for p in [*plan.iterdir(), *elsewhere.iterdir()]} == before
+    assert sorted(p.name for p in plan.iterdir()) == [name]  # nothing written

@@ -13,7 +13,7 @@ from ..core.fields import first_repeat, read_yaml, to_float
 from ..core.noise import stated_noise
 from ..core.schema import validate
 from ..core.units import Units, parse_units
-from ..data.dataset import MEASUREMENTS, read_csv
+from ..data.dataset import MEASUREMENTS, line_numbers, read_csv
 from ..model.parameters import MASS_KIND
 from .formulations import NAMES, REGISTRY, from_measured
 from .priors import Priors, parse_priors
@@ -184,14 +184,16 @@ def _measurement(
     noise = stated_noise(section.noise.model_dump(exclude_unset=True) if section.noise else None, units, source,
                          f"{prefix}noise")  # fmt: skip
     pairs = section.pairs or Pairs()
-    groups_file, groups = _pair_groups(pairs.groups, base, source, f"{prefix}pairs.groups")
+    groups_file, groups, groups_lines = _pair_groups(pairs.groups, base, source, f"{prefix}pairs.groups")
     measurement = MeasurementSettings(
         source=source,
         noise=Noise.stated(noise),
         noise_stated=noise,
         robust=_robust(section.robust or Robust(), source, prefix),
         fixture_orientation=section.fixture_orientation,
-        pairs=PairSettings(pairs.partner, pairs.seed, pairs.group_images, pairs.points_from, groups_file, groups),
+        pairs=PairSettings(
+            pairs.partner, pairs.seed, pairs.group_images, pairs.points_from, groups_file, groups, groups_lines
+        ),
         intrinsics_prior_sigmas=_intrinsics(section.intrinsics),
         validation_tool_points=tool_points or {},
     )
@@ -204,13 +206,14 @@ def _measurement(
 
 def _pair_groups(
     name: str | None, base: Path, source: Path, field: str
-) -> tuple[Path | None, tuple[tuple[str, str], ...] | None]:
+) -> tuple[Path | None, tuple[tuple[str, str], ...] | None, tuple[int, ...] | None]:
     """``pairs.groups``: the CSV (``config,group``, relative to the config) naming each
-    configuration's pair group, and its rows in the file's order; (None, None) without one.
+    configuration's pair group, its rows in the file's order and each one's line in the file;
+    (None, None, None) without one.
     Which of its configurations the dataset has is checked where the dataset is read
     (formulations.pairs.pair_observations)."""
     if name is None:
-        return None, None
+        return None, None, None
     if "\x00" in name:  # pathlib refuses it with a ValueError
         raise InputError(source, field, f"a file name with a NUL character: {name!r}")
     path = base / name
@@ -221,14 +224,15 @@ def _pair_groups(
         raise InputError(path, None, f"no configurations: give each one's group (config,group; {field})")
     config, group = header.index("config"), header.index("group")
     rows = [(row[config].strip(), row[group].strip()) for row in body]
-    for line, (cid, label) in enumerate(rows, start=2):
+    lines = line_numbers(body)  # the file's own lines: fgcal plan's file starts with a comment
+    for line, (cid, label) in zip(lines, rows, strict=True):
         if not cid or not label:
             raise InputError(path, f"line {line}, column {'group' if cid else 'config'}", "empty")
-    repeat = first_repeat((line, cid) for line, (cid, _) in enumerate(rows, start=2))
+    repeat = first_repeat((line, cid) for line, (cid, _) in zip(lines, rows, strict=True))
     if repeat is not None:
         first, line, cid = repeat
         raise InputError(path, f"lines {first} and {line}, column config", f"{cid!r} given twice: one group each")
-    return path, tuple(rows)
+    return path, tuple(rows), lines
 
 
 def _sets(

@@ -67,6 +67,7 @@ class PairSettings:
     # the file's order; None: every image grouped at random.
     groups_file: Path | None = None
     groups: tuple[tuple[str, str], ...] | None = None
+    groups_lines: tuple[int, ...] | None = None  # each row's line in the file (its comments counted)
 
 
 @dataclass(frozen=True)

@@ -13,16 +13,43 @@ from .options import JSON_HELP, SEED, bundled_cell, emit, integer, real
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from ..planning.plan import model_error_from_report, plan, write_plan
+    from ..core.errors import InputError
+    from ..data.joint_programs import check_program
+    from ..planning.plan import (
+        APPROACH_OFFSET_RAD,
+        check_out,
+        default_approach,
+        model_error_from_report,
+        plan,
+        remove_earlier_plan,
+        write_plan,
+    )
+    from ..simulation.cell import load_cell
 
+    approach = args.approach or default_approach(args.model)
+    if args.approach_offset is not None and approach == "previous":  # read and ignored: refused
+        raise InputError(
+            None, "--approach-offset", "sets the approach points of --approach unidirectional or varied; this plan "
+            "reaches each configuration from the one before (previous): give --approach unidirectional, or drop it",
+        )  # fmt: skip
+    offset_rad = APPROACH_OFFSET_RAD if args.approach_offset is None else float(np.radians(args.approach_offset))
+    cell_path = bundled_cell(args.cell)
+    cell = load_cell(cell_path)
+    for kind in args.program or []:  # before the work: a refused program would come after the plan's files
+        check_program(kind, cell.robot.n_joints)
+    reference = cell.robot_reference
+    robot_file = reference.get("file") if isinstance(reference, dict) else reference
+    check_out(args.out, {"CELL": cell_path, "--model-error-from": args.model_error_from,
+                         "the cell's robot file": robot_file if Path(robot_file).suffix else None})  # fmt: skip
+    had_plan = (Path(args.out) / "plan.json").is_file()
     model_error_m, source = None, None
     if args.model_error is not None:
         model_error_m, source = args.model_error * 1e-3, "--model-error"
     elif args.model_error_from is not None:
-        model_error_m = model_error_from_report(args.model_error_from)
+        model_error_m = model_error_from_report(args.model_error_from, cell.robot.name, args.model)
         source = f"held out beyond its prediction in {args.model_error_from}"
     result = plan(
-        bundled_cell(args.cell),
+        cell_path,
         args.n,
         criterion=args.criterion,
         n_candidates=args.candidates,
@@ -31,13 +58,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=Reporter(),
         approach=args.approach,
-        approach_offset_rad=float(np.radians(args.approach_offset)),
+        approach_offset_rad=offset_rad,
         model_error_m=model_error_m,
         model_error_source=source,
     )
     written = write_plan(result, args.out, plot=not args.no_plots)
     for kind in args.program or []:
         written += [path.name for path in _program(kind, result, args)]
+    if removed := remove_earlier_plan(args.out, written, had_plan):
+        say(f"  removed the earlier plan's {', '.join(removed)} from {args.out} (this plan does not write them)")
     for line in result.discarded_lines():
         say(f"  {line}")
     floor, real = result.prediction_lines()
@@ -101,7 +130,10 @@ def _program(kind: str, result, args: argparse.Namespace) -> list[Path]:
         else "each configuration from the one before, in this order (the plan's)",
     )  # fmt: skip
     names = [f"p{k:04d}" for k in range(len(q))]  # as configurations.csv names them
-    paths = write_joint_program(kind, args.out, names, q, approach, assumptions, np.asarray(robot.prismatic, bool))
+    cand = result.candidates
+    labels = None if cand.blocks is None else (cand.label_column, [str(cand.blocks[c]) for c in result.chosen])
+    prismatic = np.asarray(robot.prismatic, bool)
+    paths = write_joint_program(kind, args.out, names, q, approach, assumptions, prismatic, labels)
     say(f"  {kind} program of the plan: {', '.join(p.name for p in paths)} ({NAME})")
     return paths
 
@@ -157,7 +189,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the lost motion and speed terms become identifiable)",
     )  # fmt: skip
     p.add_argument(
-        "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=2.0,
+        "--approach-offset", type=real(0.0, 30.0, "deg", above_low=True), default=None,
         help="how far from each configuration its approach point is, deg (default 2; varied: 0.25 to 1 times it)",
     )  # fmt: skip
     p.add_argument(

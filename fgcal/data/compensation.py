@@ -43,7 +43,16 @@ from ..model.ik import TOL_M, TOL_RAD
 from ..model.motion import MotionHistory, features
 from ..model.robot import SAME_ROBOT_M, Robot
 from ..model.robot_io import bundled_robots, load_robot
-from .dataset import QUATERNION_TOLERANCE, approach_columns, parse_numbers, read_csv, speed_column, write_csv
+from .dataset import (
+    QUATERNION_TOLERANCE,
+    approach_columns,
+    line_numbers,
+    numbered,
+    parse_numbers,
+    read_csv,
+    speed_column,
+    write_csv,
+)
 
 ORIENTATIONS = {
     "rotvec": ("rx", "ry", "rz"),
@@ -158,7 +167,8 @@ def read_targets(
                 norms = np.linalg.norm(values, axis=1)
                 bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
                 if len(bad):
-                    raise InputError(path, f"line {bad[0] + 2}", f"a quaternion of norm {norms[bad[0]]:.6g}, not 1")
+                    line = line_numbers(body)[bad[0]]
+                    raise InputError(path, f"line {line}", f"a quaternion of norm {norms[bad[0]]:.6g}, not 1")
             rotations = units.rotations(values)
     joint_columns = [c for c in header if c.startswith("q") and c[1:].isdigit()]
     hints = None
@@ -177,12 +187,12 @@ def read_targets(
         )
     names = [
         check_name(row[header.index("target")].strip(), path, f"line {line}, column target")
-        for line, row in enumerate(body, start=2)
+        for line, row in numbered(body)
     ]
-    empty = next((line for line, name in enumerate(names, start=2) if not name), None)
+    empty = next((line for line, name in zip(line_numbers(body), names, strict=True) if not name), None)
     if empty is not None:
         raise InputError(path, f"line {empty}, column target", "an empty target name")
-    repeat = first_repeat(enumerate(names, start=2))
+    repeat = first_repeat(zip(line_numbers(body), names, strict=True))
     if repeat is not None:
         raise InputError(path, f"lines {repeat[0]} and {repeat[1]}", f"target {repeat[2]!r} given twice")
     approach = approach_columns(path, header, body, n_joints, units.to_rad, prismatic, units.to_m)

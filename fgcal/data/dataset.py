@@ -94,10 +94,12 @@ QUATERNION_TOLERANCE = 1e-3
 
 @dataclass
 class Table:
-    """Rows of one CSV table: id columns as string arrays, values (M, k) in SI."""
+    """Rows of one CSV table: id columns as string arrays, values (M, k) in SI; ``lines``: each
+    row's line in its file (read_csv's), None where the table was not read from one."""
 
     ids: dict[str, np.ndarray]
     values: np.ndarray
+    lines: tuple[int, ...] | None = None
 
     def __len__(self) -> int:
         return len(self.values)
@@ -220,30 +222,74 @@ def write_csv(
     write_text(path, buffer.getvalue())
 
 
-def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+class Rows(list):
+    """A CSV file's rows after its header, with each row's line in the file (``lines``): its
+    leading ``#`` comments and blank lines counted, so that an error names the line an editor
+    shows."""
+
+    def __init__(self, rows, lines) -> None:
+        super().__init__(rows)
+        self.lines = tuple(lines)
+
+
+def line_numbers(rows) -> tuple[int, ...]:
+    """The file's line of each of ``rows`` (read_csv's body, or rows made from it one for one);
+    rows not read by read_csv are counted from line 2, after a header."""
+    lines = getattr(rows, "lines", None)
+    if lines is not None and len(lines) == len(rows):
+        return tuple(lines)
+    return tuple(range(2, len(rows) + 2))
+
+
+def table_lines(table: Table) -> tuple[int, ...]:
+    """The file's line of each of a table's rows (from line 2 where it was not read from a file)."""
+    if table.lines is not None and len(table.lines) == len(table):
+        return tuple(table.lines)
+    return tuple(range(2, len(table) + 2))
+
+
+def numbered(rows):
+    """(line in the file, row) for each of ``rows`` (line_numbers)."""
+    return zip(line_numbers(rows), rows, strict=True)
+
+
+def read_csv(path: Path, required: Sequence[str]) -> tuple[list[str], Rows]:
+    """The header and the rows (a Rows: each one's line in the file) of a CSV file; ``#``
+    comment lines before the header and blank rows are skipped."""
     if not Path(path).exists():
         raise InputError(path, None, "file not found (listed in dataset.yaml files)")
     # utf-8-sig: a byte-order mark, as spreadsheet programs write, is not part of the header.
     text = read_file_text(path, "utf-8-sig")
     # Lines starting with # before the header are comments (fgcal states its outputs' assumptions there).
+    skipped = 0
     while text.startswith("#"):
         text = text.partition("\n")[2]
+        skipped += 1
     reader = csv.reader(io.StringIO(text, newline=""))
+    rows, starts = [], []
     try:
-        rows = list(reader)
+        for row in reader:
+            starts.append(skipped + (reader.line_num - row_lines(row)) + 1)
+            rows.append(row)
     except csv.Error as exc:
-        raise InputError(path, f"line {reader.line_num}", f"not CSV: {exc}") from None
+        raise InputError(path, f"line {skipped + reader.line_num}", f"not CSV: {exc}") from None
     if not rows:
         raise InputError(path, None, "empty file: a header row is required")
     header = [h.strip() for h in rows[0]]
     missing = [c for c in required if c not in header]
     if missing:
         raise InputError(path, missing[0], f"missing column (header is {', '.join(header)})")
-    body = [r for r in rows[1:] if any(cell.strip() for cell in r)]
-    for line, row in enumerate(body, start=2):
+    kept = [k for k in range(1, len(rows)) if any(cell.strip() for cell in rows[k])]
+    body = Rows([rows[k] for k in kept], [starts[k] for k in kept])
+    for line, row in numbered(body):
         if len(row) != len(header):
             raise InputError(path, f"line {line}", f"expected {len(header)} columns, got {len(row)}")
     return header, body
+
+
+def row_lines(row: list[str]) -> int:
+    """How many lines of the file a parsed CSV row spans (a quoted field may hold line breaks)."""
+    return 1 + sum(cell.count("\n") for cell in row)
 
 
 def parse_numbers(
@@ -252,6 +298,7 @@ def parse_numbers(
     """The columns as floats in SI: plain decimal numbers only (``float`` would also take
     ``1_000``, full-width digits and ``nan``), finite and within LIMITS[kind]."""
     out = np.empty((len(body), len(columns)))
+    lines = line_numbers(body)
     for j, col in enumerate(columns):
         c = header.index(col)
         for i, row in enumerate(body):
@@ -260,11 +307,11 @@ def parse_numbers(
                 problem = (
                     "must be finite" if text.lower().lstrip("+-") in ("nan", "inf", "infinity") else "not a number"
                 )
-                raise InputError(path, f"line {i + 2}, column {col}", f"{problem}: {row[c]!r}")
+                raise InputError(path, f"line {lines[i]}, column {col}", f"{problem}: {row[c]!r}")
             value = float(text) * to_si
             if not abs(value) <= LIMITS[kind]:
                 raise InputError(
-                    path, f"line {i + 2}, column {col}", f"implausible value {row[c]!r} (beyond {LIMITS[kind]:g} SI)"
+                    path, f"line {lines[i]}, column {col}", f"implausible value {row[c]!r} (beyond {LIMITS[kind]:g} SI)"
                 )
             out[i, j] = value
     return out
@@ -293,14 +340,14 @@ def approach_columns(
     given = np.array([[row[header.index(c)].strip() != "" for c in before_cols] for row in body])
     partial = np.flatnonzero(given.any(axis=1) & ~given.all(axis=1))
     if len(partial):
-        where = f"line {partial[0] + 2}"
+        where = f"line {line_numbers(body)[partial[0]]}"
         raise InputError(path, where, f"give all of before_q1..before_q{n} or none (the previous row)")
     rows = given.all(axis=1)
     if rows.any():
         # Rows without an approach parse as zeros, so that errors name the file's own lines.
         columns = [header.index(c) for c in before_cols]
-        filled = [row if full else [("0" if c in columns else v) for c, v in enumerate(row)]
-                  for row, full in zip(body, rows, strict=True)]  # fmt: skip
+        filled = Rows([row if full else [("0" if c in columns else v) for c, v in enumerate(row)]
+                       for row, full in zip(body, rows, strict=True)], line_numbers(body))  # fmt: skip
         linear = np.zeros(n, bool) if prismatic is None else np.asarray(prismatic, bool)
         for j, column in enumerate(before_cols):
             kind, scale = ("length", to_m) if linear[j] else ("angle", to_si)
@@ -317,12 +364,15 @@ def speed_column(path: Path, header: list[str], body: list[list[str]]) -> np.nda
         raise InputError(path, "header", f"one column 'speed' (lower case) holds the speed factors, got {named}")
     if "speed" in header:
         column = header.index("speed")
-        filled = [row if row[column].strip() else [*row[:column], "1", *row[column + 1 :]] for row in body]
+        filled = Rows(
+            [row if row[column].strip() else [*row[:column], "1", *row[column + 1 :]] for row in body],
+            line_numbers(body),
+        )
         speed = parse_numbers(path, header, filled, ["speed"], "unitless", 1.0)[:, 0]
         bad = np.flatnonzero(~((speed > 0) & (speed <= MAX_SPEED_FACTOR)))
         if len(bad):
             raise InputError(
-                path, f"line {bad[0] + 2}, column speed",
+                path, f"line {line_numbers(body)[bad[0]]}, column speed",
                 f"a speed factor is in (0, {MAX_SPEED_FACTOR:g}] (1: the program's speed), got {speed[bad[0]]:g}",
             )  # fmt: skip
     return speed
@@ -352,13 +402,13 @@ def _table(path: Path, name: str, units: Units) -> Table:
     ids = {
         c: np.array(
             [check_name(row[header.index(c)].strip(), path, f"line {line}, column {c}")
-             for line, row in enumerate(body, start=2)],
+             for line, row in numbered(body)],
             dtype=object,
         )
         for c in id_cols
     }  # fmt: skip
-    _refuse_duplicates(path, name, ids)
-    return Table(ids, values)
+    _refuse_duplicates(path, name, ids, line_numbers(body))
+    return Table(ids, values, line_numbers(body))
 
 
 # The id columns that name one measurement (a point of the drawing is named by its point alone);
@@ -367,12 +417,12 @@ KEY_COLUMNS = {"points": ("point",)}
 UNORDERED = ("point_distances", "tool_distances", "contacts", "tip_distances")
 
 
-def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray]) -> None:
+def _refuse_duplicates(path: Path, name: str, ids: dict[str, np.ndarray], lines: tuple[int, ...]) -> None:
     """A measurement given twice would count twice: refused, naming both lines."""
     columns = KEY_COLUMNS.get(name, tuple(ids))
     keys = zip(*(ids[c] for c in columns), strict=True)
     repeat = first_repeat(
-        (line, tuple(sorted(key)) if name in UNORDERED else key) for line, key in enumerate(keys, start=2)
+        (line, tuple(sorted(key)) if name in UNORDERED else key) for line, key in zip(lines, keys, strict=True)
     )
     if repeat is not None:
         first, line, key = repeat
@@ -458,14 +508,16 @@ def load_dataset(path: str | Path) -> Dataset:
             bad = np.flatnonzero(~(dataset.tables[name].values[:, 0] > 0))
             if len(bad):
                 raise InputError(
-                    _inside(root, files, name), f"line {bad[0] + 2}, column distance", "a distance must be > 0"
+                    _inside(root, files, name), f"line {table_lines(dataset.tables[name])[bad[0]]}, column distance",
+                    "a distance must be > 0",
                 )
     if "tool_distances" in dataset.tables:
         table = dataset.tables["tool_distances"]
         same = np.flatnonzero(table.ids["config_a"] == table.ids["config_b"])
         if len(same):
             raise InputError(
-                _inside(root, files, "tool_distances"), f"line {same[0] + 2}", "config_a and config_b are the same"
+                _inside(root, files, "tool_distances"), f"line {table_lines(table)[same[0]]}",
+                "config_a and config_b are the same",
             )
     if doc.has("tracker") and "tracker_points" in dataset.tables:
         tracker = doc.sub("tracker")
@@ -523,8 +575,8 @@ def _check_distances(dataset: Dataset, path: Path) -> None:
         raise InputError(path, None, "distances between touch points need the touch_points table")
     touched = set(dataset.tables["touch_points"].ids["point"])
     table = dataset.tables["point_distances"]
-    for line, (a, b, d) in enumerate(
-        zip(table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True), start=2
+    for line, a, b, d in zip(
+        table_lines(table), table.ids["point_a"], table.ids["point_b"], table.values[:, 0], strict=True
     ):
         for column, name in (("point_a", a), ("point_b", b)):
             if name not in touched:
@@ -597,17 +649,17 @@ def _check_contacts(dataset: Dataset, name: str, path: Path, doc: Fields) -> Non
     table = dataset.tables[name]
     columns = ("element",) if name == "plane_contacts" else ("element_a", "element_b")
     for column in columns:
-        for line, element in enumerate(table.ids[column], start=2):
+        for line, element in zip(table_lines(table), table.ids[column], strict=True):
             if element not in dataset.contact.elements:
                 known = ", ".join(sorted(dataset.contact.elements))
                 raise InputError(path, f"line {line}, column {column}", f"element {element!r} is not in "
                                  f"dataset.yaml contact.elements ({known})")  # fmt: skip
     if name != "plane_contacts":
-        for line, (a, b) in enumerate(zip(table.ids["element_a"], table.ids["element_b"], strict=True), start=2):
+        for line, a, b in zip(table_lines(table), table.ids["element_a"], table.ids["element_b"], strict=True):
             if a == b:
                 raise InputError(path, f"line {line}", f"joins two different elements, got {a!r} twice")
     else:
-        for line, plane in enumerate(table.ids["plane"], start=2):
+        for line, plane in zip(table_lines(table), table.ids["plane"], strict=True):
             if plane not in dataset.contact.planes:
                 known = ", ".join(sorted(dataset.contact.planes)) or "none"
                 raise InputError(path, f"line {line}, column plane", f"plane {plane!r} is not in "
@@ -652,8 +704,8 @@ def _check_observed(dataset: Dataset, path: Path, doc: Fields) -> None:
     if not dataset.link_cameras:
         raise doc.error("self_observation", "the observed_pixels table needs the self_observation section")
     table = dataset.tables["observed_pixels"]
-    for line, (camera, board, point) in enumerate(
-        zip(table.ids["camera"], table.ids["board"], table.ids["point"], strict=True), start=2
+    for line, camera, board, point in zip(
+        table_lines(table), table.ids["camera"], table.ids["board"], table.ids["point"], strict=True
     ):
         if camera not in dataset.link_cameras:
             raise InputError(path, f"line {line}, column camera", f"camera {camera!r} is not in dataset.yaml "
@@ -675,7 +727,8 @@ def _check_in_image(table: Table, rows: np.ndarray, camera: Camera, path: Path, 
         values = table.values[:, j]
         bad = np.flatnonzero(rows & ((values < -0.5) | (values > size - 0.5)))
         if len(bad):
-            raise InputError(path, f"line {bad[0] + 2}, column {column}", f"{column} = {values[bad[0]]:g} px is "
+            line = table_lines(table)[bad[0]]
+            raise InputError(path, f"line {line}, column {column}", f"{column} = {values[bad[0]]:g} px is "
                              f"outside the image of {whose} ({camera.width} x {camera.height} px: -0.5 to "
                              f"{size - 0.5:g})")  # fmt: skip
 
@@ -707,7 +760,10 @@ def _check_poses(dataset: Dataset, path: Path) -> None:
     norms = np.linalg.norm(table.values[:, 3:], axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
     if len(bad):
-        raise InputError(path, f"line {bad[0] + 2}, columns qw-qz", f"not a unit quaternion (norm {norms[bad[0]]:.6g})")
+        raise InputError(
+            path, f"line {table_lines(table)[bad[0]]}, columns qw-qz",
+            f"not a unit quaternion (norm {norms[bad[0]]:.6g})",
+        )
     table.values[:, 3:] /= norms[:, None]  # one pose per configuration: _refuse_duplicates
 
 

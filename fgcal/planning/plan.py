@@ -45,6 +45,13 @@ APPROACHES = ("previous", "unidirectional", "varied")
 # speed term (its share of the largest move) and the lost motion (saturating past 1 deg) part.
 VARIED_LEAST = 0.25
 APPROACH_OFFSET_RAD = float(np.radians(2.0))
+# Every file fgcal plan writes in its --out folder (plan.json marks a plan's folder): of an
+# earlier plan there, those the new plan does not write are removed (a controller program of the
+# old plan must not sit beside the new configurations).
+PLAN_FILES = (
+    "configurations.csv", "plan.json", "plan.md", PAIR_GROUPS_FILE, "predicted_accuracy.png",
+    "cal_plan.mod", "cal_plan.src", "cal_plan.dat", "configurations_deg.csv",
+)  # fmt: skip
 # The scored point of a camera cell: on the optical axis at the middle of the designs' standoff (m).
 SCORED_POINT_C = np.array([0.0, 0.0, 0.4])
 
@@ -521,11 +528,12 @@ def plan(
     )
 
 
-def model_error_from_report(path: str | Path) -> float:
+def model_error_from_report(path: str | Path, robot: str | None = None, model: str | None = None) -> float:
     """What a model left unexplained on a robot, from an earlier calibration's report.json
     (m RMS): the held-out position error after calibration beyond what that calibration
     predicted of it (its noise and parameter uncertainty), ``sqrt(max(held_out^2 -
-    predicted^2, 0))``."""
+    predicted^2, 0))``. With ``robot`` and ``model`` (the plan's): the report must be of that
+    robot and model (docs/planning.md: another's residual level says nothing of this one)."""
     import json
 
     path = Path(path)
@@ -533,6 +541,16 @@ def model_error_from_report(path: str | Path) -> float:
         doc = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise InputError(path, None, f"not a readable report.json: {exc}") from None
+    for key, wanted, what in (("robot", robot, "the cell's robot"), ("model", model, "the plan's --model")):
+        if wanted is None:
+            continue
+        given = doc.get(key) if isinstance(doc, dict) else None
+        if given != wanted:
+            found = f"is of {key} {given!r}" if given is not None else f"names no {key}"
+            raise InputError(
+                path, key, f"{found}, not {wanted!r} ({what}): the model error comes from an earlier calibration "
+                "of the same robot and model (or give --model-error MM)",
+            )  # fmt: skip
     validation = doc.get("validation") if isinstance(doc, dict) else None
     try:
         held_out = float(validation["after"]["position_error_m"]["rms"])
@@ -575,6 +593,37 @@ def lost_motion_left(cell: Cell, q: np.ndarray, offset_rad: float) -> dict | Non
         rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
         out[label] = rms if rms > 1e-12 else 0.0  # rounding: the offsets are constant
     return out
+
+
+def check_out(out_dir: str | Path, inputs: dict[str, str | Path | None]) -> None:
+    """Refuse an --out folder before planning: a dataset's folder (its configurations.csv would
+    be replaced, and the dataset no longer calibrates), or one where a file the plan writes is
+    one of its ``inputs`` (the cell, the report, through links too)."""
+    from ..core.outputs import distinct
+
+    out = Path(out_dir)
+    if (out / "dataset.yaml").exists():
+        raise InputError(
+            out, "--out", "holds a dataset (dataset.yaml): the plan would replace its configurations.csv; "
+            "name another folder for the plan",
+        )  # fmt: skip
+    given = {role: path for role, path in inputs.items() if path is not None and Path(path).is_file()}
+    distinct({f"--out ({name})": out / name for name in PLAN_FILES}, given)
+
+
+def remove_earlier_plan(out_dir: str | Path, written: list[str], had_plan: bool) -> list[str]:
+    """The files of an earlier plan in ``out_dir`` (it held a plan.json before this one was
+    written) that this plan did not write: removed (fgcal plan's own output names only, never a
+    folder), their names returned."""
+    if not had_plan:
+        return []
+    removed = []
+    for name in PLAN_FILES:
+        path = Path(out_dir) / name
+        if name not in written and (path.is_symlink() or path.is_file()):
+            path.unlink()  # a link itself, never what it points at
+            removed.append(name)
+    return removed
 
 
 def write_plan(result: PlanResult, out_dir: str | Path, plot: bool = True) -> list[str]:

@@ -314,7 +314,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     label of the block the camera looks at, as fgcal plan writes it; no ``block`` in a
     tracker cell; ``before_q1..before_qn``: each one's approach point). Configurations whose
     block the simulated true camera does not see are left out; their ids are returned."""
-    from ..data.dataset import approach_columns, parse_numbers, read_csv
+    from ..data.dataset import approach_columns, line_numbers, parse_numbers, read_csv
 
     robot = cell.robot
     joints = [f"q{i}" for i in range(1, robot.n_joints + 1)]
@@ -330,7 +330,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
     before = approach_columns(path, header, body, robot.n_joints, 1.0)
     outside = np.flatnonzero(np.any((q < robot.limits[:, 0] - 1e-9) | (q > robot.limits[:, 1] + 1e-9), axis=1))
     if outside.size:
-        raise InputError(path, f"line {outside[0] + 2}", f"joint values outside {robot.name}'s limits")
+        raise InputError(path, f"line {line_numbers(body)[outside[0]]}", f"joint values outside {robot.name}'s limits")
     blocks = blocks_by_label(cell)
     T_W_C = true_camera(q) if cell.camera is not None else None
     views, unseen = [], []
@@ -342,7 +342,7 @@ def file_design(cell: Cell, path: Path, true_camera: Callable) -> tuple[list[Vie
             continue
         label = row[header.index("block")].strip()
         if label not in blocks:
-            raise InputError(path, f"line {i + 2}, column block", f"no block {label!r} in {cell.name}")
+            raise InputError(path, f"line {line_numbers(body)[i]}, column block", f"no block {label!r} in {cell.name}")
         side, block = blocks[label]
         if sees_block(cell, T_W_C[i], block):
             views.append(View(q[i], side, tuple(block), approach, config))
@@ -357,7 +357,7 @@ def labelled_file(path: Path, cell: Cell, column: str, known: Sequence[str]) -> 
     """A plan's CSV of labelled configurations (``config, q1..qn, COLUMN``, as fgcal plan writes a
     touch or ballbar plan): the joints (N, n), each row's label (one of ``known``, the cell's) and
     each row's configuration id."""
-    from ..data.dataset import parse_numbers, read_csv
+    from ..data.dataset import line_numbers, parse_numbers, read_csv
 
     joints = [f"q{i}" for i in range(1, cell.robot.n_joints + 1)]
     header, body = read_csv(path, ["config", *joints, column])
@@ -365,7 +365,7 @@ def labelled_file(path: Path, cell: Cell, column: str, known: Sequence[str]) -> 
         raise InputError(path, None, "no configurations")
     q = parse_numbers(path, header, body, joints, "angle", 1.0)
     labels = [row[header.index(column)].strip() for row in body]
-    for i, label in enumerate(labels):
+    for line, label in zip(line_numbers(body), labels, strict=True):
         if label not in known:
-            raise InputError(path, f"line {i + 2}, column {column}", f"no {column} {label!r} in {cell.name}")
+            raise InputError(path, f"line {line}, column {column}", f"no {column} {label!r} in {cell.name}")
     return q, labels, [row[header.index("config")].strip() for row in body]

@@ -14,7 +14,7 @@ import numpy as np
 from ..core.console import step
 from ..core.errors import InputError
 from ..core.noise import noise_document
-from ..core.outputs import output_dir, subfolder, write_bytes
+from ..core.outputs import distinct, output_dir, subfolder, write_bytes
 from ..core.se3 import inverse, pose, rotation_quaternion, rpy_from_rotation, so3_exp, transform_points
 from ..data.dataset import FORMAT, write_csv, write_header
 from ..data.truth import Truth
@@ -28,6 +28,39 @@ from .self_observation import observation_design, observation_header, observatio
 from .static_camera import board_in_camera, board_seen, static_camera_design, write_static_camera_tables
 from .touch import touch_design, touch_file_design, write_touch_tables
 from .truth import perturb_parameters
+
+# Every file fgcal simulate may write in its --out folder (fgcal simulate's calibration.yaml, the
+# suggested config, too), and the rendered images/CONFIG.png: none may be one of its inputs.
+WRITES = (
+    "dataset.yaml", "calibration.yaml", "configurations.csv", "points.csv", "camera_points.csv", "pixels.csv",
+    "tracker_points.csv", "tracker_poses.csv", "touch_points.csv", "distances.csv", "point_distances.csv",
+    "tool_distances.csv", "tip_distances.csv", "observed_pixels.csv", "contacts.csv", "plane_contacts.csv",
+    "truth/ground_truth.yaml", "truth/camera_points_noise.csv", "truth/pixels_noise.csv",
+    "truth/tracker_points_noise.csv", "truth/tracker_poses_noise.csv", "truth/touch_points_noise.csv",
+    "truth/distances_noise.csv", "truth/point_distances_noise.csv", "truth/tool_distances_noise.csv",
+    "truth/tip_distances_noise.csv", "truth/observed_pixels_noise.csv", "truth/contacts_gap.csv",
+    "truth/plane_contacts_gap.csv",
+)  # fmt: skip
+
+
+def check_inputs_kept(cell: Cell, out_dir: str | Path, configurations: str | Path | None) -> None:
+    """Refuse an --out folder where the simulation would write over one of its inputs (the
+    --configurations file, the cell, its robot file or the URDF that records): the same file,
+    through symbolic and hard links too (fgcal.core.outputs.distinct), before anything is written."""
+    out = Path(out_dir)
+    reference = cell.robot_reference
+    robot_file = reference.get("file") if isinstance(reference, dict) else reference
+    inputs = {
+        "--configurations": configurations,
+        "CELL": cell.source,
+        f"the robot file of {cell.source}": robot_file if robot_file and Path(robot_file).suffix else None,
+        "the robot's URDF": None if cell.robot.urdf is None else cell.robot.urdf[0],
+    }
+    inputs = {role: path for role, path in inputs.items() if path is not None and Path(path).is_file()}
+    images = sorted((out / "images").glob("*.png")) if (out / "images").is_dir() else []
+    outputs = {f"--out ({name})": out / name for name in WRITES}
+    outputs |= {f"--out (images/{path.name})": path for path in images}
+    distinct(outputs, inputs)
 
 
 @dataclass(frozen=True)
@@ -95,6 +128,7 @@ def simulate(
     started = time.perf_counter()
     say = progress or (lambda _msg: None)
     cell = load_cell(cell_path)
+    check_inputs_kept(cell, out_dir, configurations)  # before the work, and before anything is written
     if design is not None or n_configurations is not None:
         cell = replace(
             cell,

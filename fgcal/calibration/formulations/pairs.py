@@ -396,7 +396,8 @@ def _prescribed(dataset: Dataset, settings: MeasurementSettings, subset: np.ndar
     if rows is None:
         return []
     known = {str(c) for c in dataset.configs}
-    for line, (cid, _) in enumerate(rows, start=2):
+    lines = settings.pairs.groups_lines or tuple(range(2, len(rows) + 2))
+    for line, (cid, _) in zip(lines, rows, strict=True):
         if cid not in known:
             raise InputError(settings.pairs.groups_file, f"line {line}, column config",
                              f"{cid!r} is not a configuration of the dataset {dataset.path} (a plan's configuration "
