@@ -123,12 +123,11 @@ def truth_blind_spots(
         return ()
     scored = problem.formulation.scored(problem, state)
     positions = scored_positions(problem.robot, problem.frame, state.params, q, motion, scored)
-    gauge = problem.formulation.gauge(problem.settings)
-    J_u, _ = scored_jacobian(problem, state, scored, released, q, motion)
-    J_f, _ = scored_jacobian(problem, state, scored, fixed, q, motion)
-    J_u = without_gauge(J_u.reshape(-1, J_u.shape[2]), positions, gauge)
-    J_f = without_gauge(J_f.reshape(-1, J_f.shape[2])[:, : len(fixed)], positions, gauge)
-    return blind_spots(J_u, J_f, fixed)
+    # One Jacobian on [P released, P fixed, the score's unknowns], its gauge removed once.
+    J, _ = scored_jacobian(problem, state, scored, [*released, *fixed], q, motion)
+    J = without_gauge(J.reshape(-1, J.shape[2]), positions, problem.formulation.gauge(problem.settings))
+    m, f = len(released), len(fixed)
+    return blind_spots(np.hstack([J[:, :m], J[:, m + f :]]), J[:, m : m + f], fixed)
 
 
 def workspace_map(
